@@ -1,0 +1,22 @@
+"""Exception hierarchy. Every error names the offending value and where it came from."""
+from __future__ import annotations
+
+
+class CellError(Exception):
+    """Base of every error the cell controller raises on purpose."""
+
+
+class KinematicsError(CellError, ValueError):
+    """A pose or joint value the robot cannot take (unreachable, singular, out of limits, not finite)."""
+
+
+class TrajectoryError(CellError, ValueError):
+    """A trajectory that cannot be planned as asked (bad timing, too few way-points, ...)."""
+
+
+class ConfigError(CellError, ValueError):
+    """A configuration or recipe value that failed validation; the message names file and field."""
+
+
+class MeasurementError(CellError):
+    """A measurement could not be taken or is not trustworthy (no target, saturated image, ...)."""

@@ -1,0 +1,1 @@
+"""Adapters to the outside world (PLC, joint stations, camera), each with a simulated twin."""
