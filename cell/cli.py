@@ -1,0 +1,47 @@
+"""``cellctl``: the command line of the cell controller.
+
+Each sub-command lives in its own module under ``cell.commands`` and exposes
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules are
+imported only when listed here, so a command's heavy imports (OpenCV, pymodbus, ...) cost
+nothing to the others.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from cell import __version__, log
+from cell.errors import CellError
+
+COMMAND_MODULES = (
+    "cell.commands.compensate",
+    "cell.commands.plan",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cellctl", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"cellctl {__version__}")
+    parser.add_argument("--log-format", choices=("console", "json"), default="console",
+                        help="structlog output on stderr (default console)")
+    parser.add_argument("--log-level", default="WARNING", help="logging level (default WARNING)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    log.configure(args.log_format, args.log_level)
+    try:
+        return int(args.func(args) or 0)
+    except CellError as exc:
+        print(f"cellctl {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

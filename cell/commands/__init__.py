@@ -1,0 +1,17 @@
+"""One module per ``cellctl`` sub-command; see :mod:`cell.cli`."""
+from __future__ import annotations
+
+import argparse
+
+
+def float_list(n: int | None = None):
+    """argparse type: comma-separated floats (``"60,30"``), optionally exactly ``n`` of them."""
+    def parse(text: str) -> list[float]:
+        try:
+            values = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
+        if n is not None and len(values) != n:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {n} comma-separated numbers, got {len(values)}")
+        return values
+    return parse

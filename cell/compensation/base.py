@@ -1,0 +1,117 @@
+"""What every compensation method shares: the robot-and-measurer it drives, and the trace it returns.
+
+A compensation method never talks to hardware directly. It drives an :class:`Arm`: move to
+a joint command (θ1, θ2 in whole command units) and return the measured tool centre
+(x_mm, y_mm). The cell passes an arm made of the CAN stations plus the camera; tests and
+benchmarks pass :class:`~cell.compensation.arms.NominalArm` or a perturbed simulated arm.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+
+class Arm(Protocol):
+    """A robot plus a measurer of its tool centre in the robot base frame."""
+
+    def move_and_measure(self, command_units: np.ndarray) -> np.ndarray:
+        """Move θ1, θ2 to ``command_units`` (ints, one command unit each) and return the
+        measured (x_mm, y_mm). Raises :class:`~cell.errors.MeasurementError` if no
+        measurement could be taken, :class:`~cell.errors.KinematicsError` if the
+        command is outside the joint limits."""
+        ...
+
+
+@dataclass(frozen=True)
+class Step:
+    """One decision of a compensation run: the command it chose and what was measured there.
+
+    ``moved`` is False when the method chose to stay where it was (the measured point is
+    then the previous one and no motion happened). ``spacing_units`` is the grid spacing k
+    the decision was made with (0 for the first arrival and for methods without a grid).
+    """
+
+    command_units: tuple[int, int]
+    joints_deg: tuple[float, float]
+    point_mm: tuple[float, float]
+    error_mm: float
+    moved: bool
+    spacing_units: int = 0
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        return {"joints_deg": list(self.joints_deg), "point_mm": list(self.point_mm),
+                "error_mm": self.error_mm, "moved": self.moved,
+                "spacing_units": self.spacing_units, "note": self.note}
+
+
+@dataclass
+class CompensationResult:
+    """Full trace of one compensation run.
+
+    ``moves`` counts physical moves including the first arrival; ``final_error_mm`` is the
+    measured distance between the last point and the target (what the camera saw, which on
+    a real cell includes measurement noise).
+    """
+
+    method: str
+    target_mm: tuple[float, float]
+    steps: list[Step] = field(default_factory=list)
+
+    @property
+    def moves(self) -> int:
+        return sum(1 for s in self.steps if s.moved)
+
+    @property
+    def final(self) -> Step:
+        return self.steps[-1]
+
+    @property
+    def final_error_mm(self) -> float:
+        return self.steps[-1].error_mm
+
+    @property
+    def initial_error_mm(self) -> float:
+        return self.steps[0].error_mm
+
+    def as_dict(self) -> dict:
+        """The JSON form printed by ``cellctl compensate --json``."""
+        return {"method": self.method, "target_mm": list(self.target_mm),
+                "steps": [s.as_dict() for s in self.steps],
+                "final_error_mm": self.final_error_mm, "moves": self.moves}
+
+
+class Recorder:
+    """Builds a :class:`CompensationResult` while a method drives the arm (shared bookkeeping)."""
+
+    def __init__(self, method: str, arm: Arm, target: np.ndarray, unit_deg: np.ndarray):
+        self.arm = arm
+        self.target = np.asarray(target, dtype=float)
+        self.unit_deg = np.asarray(unit_deg, dtype=float)
+        self.result = CompensationResult(method, (float(target[0]), float(target[1])))
+        self.command: np.ndarray | None = None
+        self.point: np.ndarray | None = None
+
+    def move(self, command_units, spacing: int = 0, note: str = "") -> np.ndarray:
+        """Move to ``command_units``, measure, record the step; return the measured point."""
+        cmd = np.asarray(command_units, dtype=np.int64)
+        self.point = np.asarray(self.arm.move_and_measure(cmd), dtype=float)
+        self.command = cmd
+        self._record(True, spacing, note)
+        return self.point
+
+    def stay(self, spacing: int = 0, note: str = "") -> None:
+        """Record a decision to stay at the current command (no motion)."""
+        self._record(False, spacing, note)
+
+    def _record(self, moved: bool, spacing: int, note: str) -> None:
+        assert self.command is not None and self.point is not None
+        joints = self.command * self.unit_deg
+        self.result.steps.append(Step(
+            command_units=(int(self.command[0]), int(self.command[1])),
+            joints_deg=(float(joints[0]), float(joints[1])),
+            point_mm=(float(self.point[0]), float(self.point[1])),
+            error_mm=float(np.hypot(*(self.point - self.target))),
+            moved=moved, spacing_units=spacing, note=note))

@@ -1,0 +1,207 @@
+"""4-axis SCARA kinematics (θ1, θ2, z, θ4) with the planar part of seed 000 and the
+z/wrist chain of seed 002. Pure numerics, no I/O.
+
+Conventions (all documented units, angles in degrees at the interface):
+
+* joints ``q = (θ1_deg, θ2_deg, d3_mm, θ4_deg)``; θ2 is measured from link 1.
+* pose ``(x_mm, y_mm, z_mm, phi_deg)`` of the tool centre in the robot base frame::
+
+      x = l1·cos θ1 + l2·cos(θ1+θ2)          (seed 000 eq. 4)
+      y = l1·sin θ1 + l2·sin(θ1+θ2)
+      z = base_z + d3 + tool_z               (seed 002: tool offset (0, 0, −50))
+      phi = θ1 + θ2 + θ4
+
+* elbow ``"right"`` means θ2 > 0 (the seed 000 start pose (60°, 30°) is right-handed),
+  ``"left"`` means θ2 < 0. θ2 = 0 or ±180° is a singularity.
+* Joints are commanded in whole *command units* (seed 000 eq. 1: θ = m·Δ);
+  :meth:`Scara.to_units` / :meth:`Scara.from_units` convert.
+
+Every bad input raises :class:`~cell.errors.KinematicsError` naming the value.
+"""
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from cell.errors import KinematicsError
+
+Elbow = Literal["right", "left"]
+JOINT_NAMES = ("j1", "j2", "j3", "j4")
+
+
+class Geometry(BaseModel):
+    """A SCARA's geometry and joint set-up as data (robot models are data: STYLE habit 7).
+
+    ``unit`` holds one command unit per joint (deg, deg, mm, deg); ``limits`` one
+    ``[low, high]`` per joint in the same units.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = "custom"
+    source: str = ""
+    l1_mm: float = Field(gt=0, le=5000)
+    l2_mm: float = Field(gt=0, le=5000)
+    base_z_mm: float = 0.0
+    tool_z_mm: float = 0.0
+    unit: tuple[float, float, float, float] = (0.01, 0.01, 0.01, 0.01)
+    limits: tuple[tuple[float, float], ...] = ((-170, 170), (-150, 150), (-200, 0), (-360, 360))
+    singular_margin_deg: float = Field(default=0.5, ge=0, le=10)
+
+    @model_validator(mode="after")
+    def _check(self) -> "Geometry":
+        if len(self.limits) != 4:
+            raise ValueError(f"limits must hold 4 [low, high] pairs, got {len(self.limits)}")
+        for name, (lo, hi) in zip(JOINT_NAMES, self.limits):
+            if not lo < hi:
+                raise ValueError(f"limits for {name}: low {lo} must be below high {hi}")
+        for name, u in zip(JOINT_NAMES, self.unit):
+            if not (u > 0 and math.isfinite(u)):
+                raise ValueError(f"command unit for {name} must be > 0, got {u}")
+        return self
+
+
+PRESETS: dict[str, Geometry] = {
+    "seed000": Geometry(
+        name="seed000",
+        source="seed 000 (grid-model paper): l1 = l2 = 500 mm, command unit 0.01° (Δ = π/1800)",
+        l1_mm=500.0, l2_mm=500.0, unit=(0.01, 0.01, 0.01, 0.01),
+        limits=((-170, 170), (-150, 150), (-200, 0), (-360, 360)),
+    ),
+    "seed002": Geometry(
+        name="seed002",
+        source="seed 002 (CAN-station SCARA): l1 = l2 = 200 mm, tool offset (0, 0, −50) mm",
+        l1_mm=200.0, l2_mm=200.0, tool_z_mm=-50.0, unit=(0.01, 0.01, 0.01, 0.01),
+        limits=((-170, 170), (-150, 150), (0, 100), (-360, 360)),
+    ),
+}
+
+
+def _finite(name: str, value: float) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise KinematicsError(f"{name} = {value!r} is not a finite number")
+    return v
+
+
+class Scara:
+    """Forward/inverse kinematics, Jacobian, limits and command units for one geometry."""
+
+    def __init__(self, geometry: Geometry):
+        self.g = geometry
+        self._unit = np.array(geometry.unit, dtype=float)
+
+    @classmethod
+    def preset(cls, name: str) -> "Scara":
+        """A robot from :data:`PRESETS`; unknown names raise ``KeyError`` listing the known ones."""
+        try:
+            return cls(PRESETS[name])
+        except KeyError:
+            raise KeyError(f"unknown robot preset {name!r}; known: {sorted(PRESETS)}") from None
+
+    # ---------------------------------------------------------------- planar part
+    def fk_planar(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        """Tool centre (x_mm, y_mm) for joint angles θ1, θ2 in degrees (seed 000 eq. 4)."""
+        a = math.radians(_finite("theta1_deg", t1_deg))
+        b = math.radians(_finite("theta2_deg", t2_deg))
+        l1, l2 = self.g.l1_mm, self.g.l2_mm
+        return np.array([l1 * math.cos(a) + l2 * math.cos(a + b),
+                         l1 * math.sin(a) + l2 * math.sin(a + b)])
+
+    def jacobian(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        """∂(x, y)/∂(θ1, θ2) in **mm per degree** (seed 000 eq. 5, scaled by π/180)."""
+        a = math.radians(_finite("theta1_deg", t1_deg))
+        b = math.radians(_finite("theta2_deg", t2_deg))
+        l1, l2 = self.g.l1_mm, self.g.l2_mm
+        s1, c1, s12, c12 = math.sin(a), math.cos(a), math.sin(a + b), math.cos(a + b)
+        return np.array([[-l1 * s1 - l2 * s12, -l2 * s12],
+                         [l1 * c1 + l2 * c12, l2 * c12]]) * (math.pi / 180.0)
+
+    def ik_planar(self, x_mm: float, y_mm: float, elbow: Elbow = "right",
+                  check_limits: bool = True) -> np.ndarray:
+        """Joint angles (θ1_deg, θ2_deg) that put the tool centre at (x, y).
+
+        Raises KinematicsError when the point is out of reach, at (or within
+        ``singular_margin_deg`` of) the stretched/folded singularity, or when the
+        solution breaks a joint limit.
+        """
+        x, y = _finite("x_mm", x_mm), _finite("y_mm", y_mm)
+        if elbow not in ("right", "left"):
+            raise KinematicsError(f"elbow = {elbow!r}; choose 'right' or 'left'")
+        l1, l2 = self.g.l1_mm, self.g.l2_mm
+        r = math.hypot(x, y)
+        rmin, rmax = abs(l1 - l2), l1 + l2
+        if r > rmax or r < rmin:
+            raise KinematicsError(
+                f"target ({x:.4f}, {y:.4f}) mm is out of reach: radius {r:.4f} mm outside "
+                f"[{rmin:.4f}, {rmax:.4f}] mm")
+        c2 = (r * r - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+        t2 = math.acos(max(-1.0, min(1.0, c2)))
+        margin = math.radians(self.g.singular_margin_deg)
+        if t2 < margin or math.pi - t2 < margin:
+            raise KinematicsError(
+                f"target ({x:.4f}, {y:.4f}) mm lies at a singularity: θ2 = ±{math.degrees(t2):.4f}° "
+                f"is within {self.g.singular_margin_deg}° of the stretched or folded arm")
+        if elbow == "left":
+            t2 = -t2
+        t1 = math.atan2(y, x) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
+        q = np.array([math.degrees(t1), math.degrees(t2)])
+        q[0] = (q[0] + 180.0) % 360.0 - 180.0
+        if check_limits:
+            self.check_limits(q, joints=(0, 1))
+        return q
+
+    # ---------------------------------------------------------------- full 4-axis
+    def fk(self, q) -> np.ndarray:
+        """Pose (x_mm, y_mm, z_mm, phi_deg) for joints (θ1_deg, θ2_deg, d3_mm, θ4_deg)."""
+        q = self._as_joints(q)
+        x, y = self.fk_planar(q[0], q[1])
+        z = self.g.base_z_mm + q[2] + self.g.tool_z_mm
+        return np.array([x, y, z, q[0] + q[1] + q[3]])
+
+    def ik(self, pose, elbow: Elbow = "right") -> np.ndarray:
+        """Joints for pose (x_mm, y_mm, z_mm, phi_deg); limits are checked on every joint."""
+        p = np.asarray(pose, dtype=float)
+        if p.shape != (4,):
+            raise KinematicsError(f"pose must be (x_mm, y_mm, z_mm, phi_deg), got shape {p.shape}")
+        for name, v in zip(("x_mm", "y_mm", "z_mm", "phi_deg"), p):
+            _finite(name, v)
+        t1, t2 = self.ik_planar(p[0], p[1], elbow=elbow, check_limits=False)
+        d3 = p[2] - self.g.base_z_mm - self.g.tool_z_mm
+        t4 = (p[3] - t1 - t2 + 180.0) % 360.0 - 180.0
+        q = np.array([t1, t2, d3, t4])
+        self.check_limits(q)
+        return q
+
+    def check_limits(self, q, joints=(0, 1, 2, 3)) -> None:
+        """Raise KinematicsError naming the first joint of ``joints`` outside its limits."""
+        for i in joints:
+            v = _finite(f"{JOINT_NAMES[i]}", q[i])
+            lo, hi = self.g.limits[i]
+            if not lo <= v <= hi:
+                raise KinematicsError(
+                    f"{JOINT_NAMES[i]} = {v:.4f} is outside its limits [{lo}, {hi}]")
+
+    # ---------------------------------------------------------------- command units
+    def to_units(self, q_deg, joints=(0, 1)) -> np.ndarray:
+        """Quantise joint values to whole command units (round half away from zero)."""
+        q = np.asarray(q_deg, dtype=float)
+        for i, v in zip(joints, q):
+            _finite(JOINT_NAMES[i], v)
+        u = self._unit[list(joints)]
+        return (np.sign(q) * np.floor(np.abs(q) / u + 0.5)).astype(np.int64)
+
+    def from_units(self, units, joints=(0, 1)) -> np.ndarray:
+        """Joint values (deg or mm) for whole command units."""
+        return np.asarray(units, dtype=float) * self._unit[list(joints)]
+
+    def _as_joints(self, q) -> np.ndarray:
+        a = np.asarray(q, dtype=float)
+        if a.shape != (4,):
+            raise KinematicsError(f"joints must be (θ1_deg, θ2_deg, d3_mm, θ4_deg), got shape {a.shape}")
+        for name, v in zip(JOINT_NAMES, a):
+            _finite(name, v)
+        return a
