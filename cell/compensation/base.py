@@ -111,7 +111,7 @@ class Recorder:
         joints = self.command * self.unit_deg
         self.result.steps.append(Step(
             command_units=(int(self.command[0]), int(self.command[1])),
-            joints_deg=(float(joints[0]), float(joints[1])),
+            joints_deg=(round(float(joints[0]), 9), round(float(joints[1]), 9)),
             point_mm=(float(self.point[0]), float(self.point[1])),
             error_mm=float(np.hypot(*(self.point - self.target))),
             moved=moved, spacing_units=spacing, note=note))

@@ -55,7 +55,17 @@ def nearest_lattice(robot: Scara, q_units: np.ndarray, point: np.ndarray,
     fk = np.stack([l1 * np.cos(t[:, 0]) + l2 * np.cos(t[:, 0] + t[:, 1]),
                    l1 * np.sin(t[:, 0]) + l2 * np.sin(t[:, 0] + t[:, 1])], axis=1)
     dist = np.hypot(*(point + fk - base - target).T)
+    # never cross the stretched/folded singularity or leave the joint limits on the way
+    deg = cands * unit
+    (lo1, hi1), (lo2, hi2) = robot.g.limits[0], robot.g.limits[1]
+    margin = robot.g.singular_margin_deg
+    same_elbow = np.sign(deg[:, 1]) == np.sign(q_deg[1])
+    clear = (np.abs(deg[:, 1]) >= margin) & (np.abs(deg[:, 1]) <= 180.0 - margin)
+    inside = (deg[:, 0] >= lo1) & (deg[:, 0] <= hi1) & (deg[:, 1] >= lo2) & (deg[:, 1] <= hi2)
+    dist = np.where(same_elbow & clear & inside, dist, np.inf)
     i = int(np.argmin(dist))
+    if not np.isfinite(dist[i]):
+        return q_units, float(np.hypot(*(point - target)))
     return cands[i], float(dist[i])
 
 
@@ -81,7 +91,6 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
         gain = np.hypot(*(point - target)) - predicted
         if tuple(best) in visited or gain < min_gain_mm:
             break
-        robot.check_limits(robot.from_units(best), joints=(0, 1))
         point = rec.move(best, note=f"predicted {predicted:.4f} mm")
         visited.add(tuple(best))
     return rec.result

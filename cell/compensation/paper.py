@@ -13,10 +13,13 @@ Reading of the paper this implementation takes (each choice reproduces Table 1):
 * Step (1) scores each grain point with ε_i = d(P0, P_i) + repeatability radius (eq. 9);
   the radius is the same for all four, so it changes the score, not the choice.
 * Step (2) moves to the best grain point along the grid edge, or stays if P1 is best.
-* Step (3) halves k (k → k // 2). Special case "P0 at the parallelogram's centre" (all four
-  scores equal within ``tie_mm``): stay and take k → 3k // 4 instead.
-* Special case "P0 at a circumcentre" (three scores equal): of the tied grain points the one
-  with the shortest travel from the current point is chosen.
+* Step (3) halves k (k → k // 2). Special case "P0 at the parallelogram's centre" (within
+  ``tie_mm`` of the point where the predicted grid's diagonals cross): stay and take
+  k → 3k // 4 instead.
+* Special case "P0 at a circumcentre" (scores of three grain points equal within ``tie_mm``),
+  applied to any tie of two or more: the tied grain point with the shortest travel from
+  the current point wins. (On the skewed grids of the paper's own set-up every such
+  circumcentre lies outside the grid; a two-way tie is what happens in practice.)
 * Step (4): with k = 16 the grids are k = 16, 8, 4, 2, then step (1) "once more" at k = 1
   and the robot moves there; that is the last step.
 * Step (5): :func:`learn_offset` repeats the run for one target and averages the accumulated
@@ -67,9 +70,10 @@ def run_paper(robot: Scara, arm: Arm, target_mm, *, k: int = 16, start_units=Non
         predicted = point + offsets @ Ju.T
         score = np.hypot(*(predicted - target).T) + repeatability_mm   # eq. 9
         tied = np.flatnonzero(score <= score.min() + tie_mm)
-        centre = len(tied) == 4
+        # special case 2: P0 at the parallelogram's centre (where its diagonals cross)
+        centre = bool(np.hypot(*((predicted[0] + predicted[3]) / 2 - target)) <= tie_mm)
         if centre:
-            best = 0                                          # stay; spacing 3/4 (special case 2)
+            best = 0                                          # stay; spacing 3/4
         else:                                                 # shortest travel among ties
             travel = np.hypot(*(offsets[tied] @ Ju.T).T)
             best = int(tied[np.argmin(travel)])

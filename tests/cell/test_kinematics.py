@@ -1,0 +1,99 @@
+"""Kinematics: FK/IK round trips over the workspace, Jacobian, units, and every bad input."""
+import math
+
+import numpy as np
+import pytest
+
+from cell.errors import KinematicsError
+from cell.kinematics import PRESETS, Geometry, Scara
+
+
+@pytest.fixture(params=sorted(PRESETS))
+def robot(request):
+    return Scara.preset(request.param)
+
+
+def test_seed000_start_pose_matches_paper():
+    # seed 000 Table 1, group c: the start pose (π/3, π/6) is the point (250.0000, 933.0127)
+    x, y = Scara.preset("seed000").fk_planar(60, 30)
+    assert (round(x, 4), round(y, 4)) == (250.0, 933.0127)
+
+
+def test_seed002_home_pose():
+    # seed 002: all joints zero -> tool at (400, 0, -50) with phi 0
+    np.testing.assert_allclose(Scara.preset("seed002").fk([0, 0, 0, 0]), [400, 0, -50, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("elbow", ["right", "left"])
+def test_ik_fk_round_trip_over_workspace(robot, elbow):
+    rng = np.random.default_rng(7)
+    lo2, hi2 = (5, 145) if elbow == "right" else (-145, -5)
+    for _ in range(400):
+        q = np.array([rng.uniform(-160, 160), rng.uniform(lo2, hi2),
+                      rng.uniform(*robot.g.limits[2]), rng.uniform(-170, 170)])
+        pose = robot.fk(q)
+        back = robot.ik(pose, elbow=elbow)
+        np.testing.assert_allclose(back, q, atol=1e-8)
+        np.testing.assert_allclose(robot.fk(back), pose, atol=1e-8)
+
+
+def test_both_elbows_reach_the_same_point():
+    r = Scara.preset("seed000")
+    right, left = r.ik_planar(300, 700, "right"), r.ik_planar(300, 700, "left")
+    assert right[1] > 0 > left[1]
+    np.testing.assert_allclose(r.fk_planar(*right), r.fk_planar(*left), atol=1e-9)
+
+
+def test_jacobian_matches_finite_differences(robot):
+    q, h = np.array([35.0, 70.0]), 1e-6
+    numeric = np.column_stack([(robot.fk_planar(*(q + dq)) - robot.fk_planar(*(q - dq))) / (2 * h)
+                               for dq in (np.array([h, 0]), np.array([0, h]))])
+    np.testing.assert_allclose(robot.jacobian(*q), numeric, rtol=1e-6, atol=1e-8)
+
+
+def test_command_units_round_trip():
+    r = Scara.preset("seed000")
+    assert list(r.to_units([60.0, 30.0])) == [6000, 3000]
+    assert list(r.to_units([-0.015, 0.004])) == [-2, 0]
+    np.testing.assert_allclose(r.from_units([6016, 3000]), [60.16, 30.0])
+
+
+@pytest.mark.parametrize("x, y, words", [
+    (2000.0, 0.0, "out of reach"),
+    (0.0, 0.0, "singularity"),             # l1 = l2: the origin is the folded singularity
+    (999.99999, 0.0, "singularity"),
+    (float("nan"), 1.0, "x_mm"),
+    (1.0, float("inf"), "y_mm"),
+])
+def test_bad_targets_are_named(x, y, words):
+    with pytest.raises(KinematicsError, match=words):
+        Scara.preset("seed000").ik_planar(x, y)
+
+
+def test_limits_violated_names_joint_and_value():
+    r = Scara(Geometry(l1_mm=500, l2_mm=500, limits=((-10, 10), (-150, 150), (-200, 0), (-360, 360))))
+    with pytest.raises(KinematicsError, match=r"j1 = .* outside its limits \[-10.0, 10.0\]"):
+        r.ik_planar(0, 900)
+    with pytest.raises(KinematicsError, match="j3"):
+        r.check_limits([0, 30, 50, 0])
+
+
+def test_bad_shapes_and_elbow():
+    r = Scara.preset("seed002")
+    with pytest.raises(KinematicsError, match="shape"):
+        r.fk([1, 2, 3])
+    with pytest.raises(KinematicsError, match="elbow"):
+        r.ik_planar(300, 0, elbow="up")
+    with pytest.raises(KinematicsError, match="j2"):
+        r.to_units([1.0, math.nan])
+
+
+def test_geometry_is_validated():
+    with pytest.raises(ValueError, match="l1_mm"):
+        Geometry(l1_mm=-1, l2_mm=500)
+    with pytest.raises(ValueError, match="extra"):
+        Geometry(l1_mm=1, l2_mm=1, l3_mm=2)
+    with pytest.raises(ValueError, match="low"):
+        Geometry(l1_mm=1, l2_mm=1, limits=((10, -10), (0, 1), (0, 1), (0, 1)))
+    with pytest.raises(KeyError, match="known"):
+        Scara.preset("puma")
