@@ -1,0 +1,249 @@
+"""Measurement exchange format v1 (``../shared/spec/measurements.md``): read and write campaigns.
+
+A campaign directory holds ``model.yaml`` (required), ``points.csv`` and/or ``paths.csv``.
+:func:`read_campaign` validates everything before returning: any bad input raises
+:class:`CampaignFormatError` naming the file, the line (1-based, the header is line 1) and
+the column, and nothing is returned half-read. :func:`write_campaign` writes the same layout
+atomically (a temporary directory renamed into place), so a reader never sees a half-written
+campaign. Export then import round-trips exactly (floats are written with ``repr``).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from cell.errors import CellError
+
+FORMAT = "cell-measurements/1"
+
+POINT_COLUMNS = {  # name: (kind, required)
+    "sample": ("int", True), "time_s": ("float", True),
+    "j1_deg": ("float", True), "j2_deg": ("float", True),
+    "x_mm": ("float", True), "y_mm": ("float", True),
+    "j1_dir": ("dir", False), "j2_dir": ("dir", False),
+    "temp_c": ("float", False), "payload_kg": ("float", False),
+    "split": ("split", False),
+}
+PATH_COLUMNS = {
+    "move": ("int", True), "time_s": ("float", True),
+    "j1_cmd_deg": ("float", True), "j2_cmd_deg": ("float", True),
+    "x_mm": ("float", True), "y_mm": ("float", True),
+    "split": ("split", False),
+}
+
+
+class CampaignFormatError(CellError, ValueError):
+    """Bad campaign input; ``file``, ``line`` and ``column`` locate it (line/column may be None)."""
+
+    def __init__(self, file: Path | str, message: str, line: int | None = None,
+                 column: str | None = None):
+        self.file, self.line, self.column = str(file), line, column
+        where = self.file + (f", line {line}" if line else "") + (f", column {column!r}" if column else "")
+        super().__init__(f"{where}: {message}")
+
+
+class CameraSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    center_mm: tuple[float, float]
+
+
+class ModelSpec(BaseModel):
+    """``model.yaml``: the nominal model the simulation uses."""
+
+    model_config = ConfigDict(extra="forbid")
+    format: str
+    kinematics: str = "scara"
+    l1_mm: float = Field(gt=0)
+    l2_mm: float = Field(gt=0)
+    command_unit_deg: float | None = Field(default=None, gt=0)
+    joint_limits_deg: list[tuple[float, float]] | None = None
+    camera: CameraSpec | None = None
+    stations: list[str] | None = None
+
+
+@dataclass
+class Campaign:
+    """A validated campaign. ``points`` / ``paths`` map column name -> numpy array (``split``
+    is an array of "fit"/"holdout" strings); a table absent from the campaign is None."""
+
+    model: ModelSpec
+    points: dict[str, np.ndarray] | None = None
+    paths: dict[str, np.ndarray] | None = None
+    source: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def station_order(self) -> list[str]:
+        return self.model.stations or ["j1", "j2"]
+
+
+def _parse_cell(kind: str, text: str, path: Path, line: int, column: str) -> object:
+    def bad(msg: str) -> CampaignFormatError:
+        return CampaignFormatError(path, msg, line=line, column=column)
+    t = text.strip()
+    if kind == "split":
+        if t not in ("fit", "holdout"):
+            raise bad(f"split must be 'fit' or 'holdout', got {text!r}")
+        return t
+    try:
+        v = float(t)
+    except ValueError:
+        raise bad(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise bad(f"not a finite number: {text!r}")
+    if kind == "int":
+        if v != int(v):
+            raise bad(f"not a whole number: {text!r}")
+        return int(v)
+    if kind == "dir" and v not in (-1.0, 1.0):
+        raise bad(f"direction must be +1 or -1, got {text!r}")
+    return v
+
+
+def _read_table(path: Path, columns: dict[str, tuple[str, bool]]) -> tuple[dict[str, np.ndarray], list[int]]:
+    """Parse one CSV table; returns the columns and the 1-based file line of every row."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CampaignFormatError(path, f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    rows = list(csv.reader(text.splitlines()))
+    if not rows or not any(c.strip() for c in rows[0]):
+        raise CampaignFormatError(path, "empty file: expected a header line", line=1)
+    header = [h.strip() for h in rows[0]]
+    dupes = {h for h in header if header.count(h) > 1}
+    if dupes:
+        raise CampaignFormatError(path, f"duplicate column(s) {sorted(dupes)}", line=1)
+    for name, (_, required) in columns.items():
+        if required and name not in header:
+            raise CampaignFormatError(path, "missing required column", line=1, column=name)
+    used = [(i, name, columns[name][0]) for i, name in enumerate(header) if name in columns]
+    data: dict[str, list] = {name: [] for _, name, _ in used}
+    lines: list[int] = []
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or not any(c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise CampaignFormatError(path, f"{len(row)} fields, header has {len(header)}", line=lineno)
+        for i, name, kind in used:
+            data[name].append(_parse_cell(kind, row[i], path, lineno, name))
+        lines.append(lineno)
+    if not lines:
+        raise CampaignFormatError(path, "no data rows after the header", line=2)
+    out = {}
+    for _, name, kind in used:
+        out[name] = (np.array(data[name], dtype=object if kind == "split" else
+                              (np.int64 if kind == "int" else float)))
+    return out, lines
+
+
+def _load_model(path: Path) -> ModelSpec:
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise CampaignFormatError(path, f"not valid YAML: {getattr(exc, 'problem', exc)}",
+                                  line=mark.line + 1 if mark else None) from None
+    if not isinstance(raw, dict):
+        raise CampaignFormatError(path, "expected a mapping of keys to values")
+    if raw.get("format") != FORMAT:
+        raise CampaignFormatError(path, f"unknown format {raw.get('format')!r}; expected {FORMAT!r}",
+                                  column="format")
+    try:
+        model = ModelSpec.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        raise CampaignFormatError(path, f"{err['msg']}", line=_yaml_line(path, err["loc"]),
+                                  column=loc) from None
+    if model.kinematics != "scara":
+        raise CampaignFormatError(path, f"unsupported kinematics {model.kinematics!r}", column="kinematics")
+    return model
+
+
+def _yaml_line(path: Path, loc) -> int | None:
+    """1-based line of the key at ``loc`` (first element) in a YAML mapping, if found."""
+    try:
+        node = yaml.compose(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError:
+        return None
+    if not isinstance(node, yaml.MappingNode) or not loc:
+        return None
+    for key, value in node.value:
+        if key.value == str(loc[0]):
+            return key.start_mark.line + 1
+    return None
+
+
+def read_campaign(directory: Path | str) -> Campaign:
+    """Read and validate a campaign directory; raises CampaignFormatError on any bad input."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise CampaignFormatError(d, "not a campaign directory")
+    model_path = d / "model.yaml"
+    if not model_path.is_file():
+        raise CampaignFormatError(model_path, "missing: every campaign needs model.yaml")
+    model = _load_model(model_path)
+    points = paths = None
+    if (d / "points.csv").is_file():
+        points, lines = _read_table(d / "points.csv", POINT_COLUMNS)
+        seen: set[int] = set()
+        for sample, line in zip(points["sample"].tolist(), lines):
+            if sample in seen:
+                raise CampaignFormatError(d / "points.csv", f"sample id {sample} is not unique",
+                                          line=line, column="sample")
+            seen.add(sample)
+    if (d / "paths.csv").is_file():
+        paths, _ = _read_table(d / "paths.csv", PATH_COLUMNS)
+    if points is None and paths is None:
+        raise CampaignFormatError(d, "neither points.csv nor paths.csv is present")
+    return Campaign(model=model, points=points, paths=paths, source=str(d))
+
+
+def _write_table(path: Path, table: dict[str, np.ndarray], columns: dict) -> None:
+    names = [c for c in columns if c in table]
+    n = len(table[names[0]])
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(names)
+        for i in range(n):
+            row = []
+            for c in names:
+                v = table[c][i]
+                kind = columns[c][0]
+                row.append(v if kind == "split" else (str(int(v)) if kind in ("int", "dir") else repr(float(v))))
+            w.writerow(row)
+
+
+def write_campaign(campaign: Campaign, directory: Path | str) -> Path:
+    """Write ``campaign`` to ``directory`` atomically (replacing an existing campaign there)."""
+    d = Path(directory)
+    d.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
+    try:
+        model = campaign.model.model_dump(exclude_none=True, mode="json")
+        (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
+        if campaign.points is not None:
+            _write_table(tmp / "points.csv", campaign.points, POINT_COLUMNS)
+        if campaign.paths is not None:
+            _write_table(tmp / "paths.csv", campaign.paths, PATH_COLUMNS)
+        if d.exists():
+            old = d.with_name(f".{d.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.rename(d, old)
+            os.rename(tmp, d)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(tmp, d)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return d
