@@ -1,0 +1,193 @@
+"""Recipes: one YAML file per part type in ``recipes/``, edited by maintenance.
+
+A recipe is validated by :class:`Recipe` (units in names, ranges, unknown keys rejected).
+:class:`RecipeStore` keeps the *active* set as one immutable mapping that is replaced in a
+single assignment, so a reader always sees wholly the old or wholly the new set. An edited
+file is validated when :meth:`RecipeStore.refresh` runs (the controller calls it only
+between cycles); an invalid edit is rejected with a message naming file, line and field, the
+last good version stays active, and every change — accepted or rejected — goes to the audit
+sink with who/when/hash/result.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import pwd
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Callable, Literal, Mapping
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from cell.errors import ConfigError
+from cell.log import get_logger
+from cell.yamlio import parse_model
+
+log = get_logger("recipes")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PartSpec(_Strict):
+    """Where parts of this type arrive and what their fiducial looks like."""
+    nominal_xy_mm: tuple[float, float] = Field(description="nominal part position, robot base frame")
+    fiducial_radius_mm: float = Field(gt=0.2, le=20)
+    search_radius_mm: float = Field(default=5.0, gt=0, le=50,
+                                    description="how far from nominal a part may lie")
+
+
+class ApproachSpec(_Strict):
+    offset_mm: tuple[float, float] = Field(default=(0.0, -20.0),
+                                           description="approach point relative to the nominal part position")
+    z_mm: float = Field(default=0.0, ge=-500, le=500)
+    joint_speed_deg_s: float = Field(default=60.0, gt=0, le=720)
+
+
+class CompensationSpec(_Strict):
+    method: Literal["lattice", "paper"] = "lattice"
+    max_moves: int = Field(default=4, ge=1, le=20, description="lattice: move budget incl. first arrival")
+    min_gain_mm: float = Field(default=0.002, ge=0, le=1)
+    k: int = Field(default=16, ge=1, le=256, description="paper: first grid spacing, command units")
+    repeatability_mm: float = Field(default=0.02, ge=0, le=1)
+
+
+class VerifySpec(_Strict):
+    tolerance_mm: float = Field(default=0.08, gt=0, le=5,
+                                description="the cycle faults if the verified error exceeds this")
+
+
+class Recipe(_Strict):
+    """One part type's recipe (``recipes/<name>.yaml``)."""
+    name: str = Field(pattern=r"^[a-z0-9][a-z0-9_-]{0,39}$")
+    number: int = Field(ge=1, le=999, description="what the PLC writes to recipe_select")
+    description: str = ""
+    part: PartSpec
+    approach: ApproachSpec = ApproachSpec()
+    compensation: CompensationSpec = CompensationSpec()
+    verify: VerifySpec = VerifySpec()
+
+    @model_validator(mode="after")
+    def _check(self) -> "Recipe":
+        if self.verify.tolerance_mm < self.compensation.min_gain_mm:
+            raise ValueError("verify.tolerance_mm must not be below compensation.min_gain_mm")
+        return self
+
+
+def content_hash(text: str) -> str:
+    """SHA-256 of a recipe file's bytes (hex); what every cycle record carries."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def recipe_schema() -> dict:
+    """JSON schema of a recipe file, for editors (exported to recipes/recipe.schema.json)."""
+    return Recipe.model_json_schema()
+
+
+@dataclass(frozen=True)
+class ActiveRecipe:
+    recipe: Recipe
+    hash: str
+    text: str
+    path: str
+
+
+@dataclass(frozen=True)
+class AuditEntry:
+    who: str
+    action: str          # "activate", "reject", "remove"
+    target: str          # file path
+    hash: str
+    result: str          # "ok" or the error message
+    recipe: str = ""
+
+
+def parse_recipe(text: str, source: str) -> Recipe:
+    """Validate recipe text; raise ConfigError naming source, line and field."""
+    recipe = parse_model(text, Recipe, source)
+    stem = Path(source).stem
+    if stem != recipe.name and not source.startswith("<"):
+        raise ConfigError(f"{source}, field name: recipe name {recipe.name!r} must match the file name {stem!r}")
+    return recipe
+
+
+def _owner(path: Path) -> str:
+    try:
+        return pwd.getpwuid(path.stat().st_uid).pw_name
+    except (KeyError, OSError):
+        return "unknown"
+
+
+class RecipeStore:
+    """The active recipes of one directory; see the module doc for the update rules."""
+
+    def __init__(self, directory: Path | str, audit: Callable[[AuditEntry], None] | None = None):
+        self.directory = Path(directory)
+        self._audit = audit or (lambda entry: None)
+        self._active: Mapping[str, ActiveRecipe] = MappingProxyType({})
+        self._seen: dict[str, str] = {}        # path -> hash of the last content looked at
+        self.last_rejection: str | None = None
+
+    @property
+    def active(self) -> Mapping[str, ActiveRecipe]:
+        """Read-only name -> ActiveRecipe mapping; replaced whole on every change."""
+        return self._active
+
+    def by_number(self, number: int) -> ActiveRecipe | None:
+        for a in self._active.values():
+            if a.recipe.number == number:
+                return a
+        return None
+
+    def refresh(self) -> list[AuditEntry]:
+        """Re-read the directory; activate valid changes, reject invalid ones. Returns the
+        audit entries written. Call only between cycles."""
+        if not self.directory.is_dir():
+            raise ConfigError(f"{self.directory}: recipe directory not found")
+        new = dict(self._active)
+        entries: list[AuditEntry] = []
+        present = set()
+        for path in sorted(self.directory.glob("*.yaml")):
+            present.add(str(path))
+            try:
+                text = path.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                text, err = "", f"{path}: cannot read: {exc}"
+            else:
+                err = None
+            h = content_hash(text)
+            if self._seen.get(str(path)) == h:
+                continue
+            self._seen[str(path)] = h
+            try:
+                if err:
+                    raise ConfigError(err)
+                recipe = parse_recipe(text, str(path))
+                clash = next((a for a in new.values() if a.recipe.number == recipe.number
+                              and a.recipe.name != recipe.name), None)
+                if clash:
+                    raise ConfigError(f"{path}, field number: recipe number {recipe.number} is "
+                                      f"already used by {clash.path}")
+            except ConfigError as exc:
+                self.last_rejection = str(exc)
+                entries.append(AuditEntry(_owner(path), "reject", str(path), h, str(exc)))
+                log.warning("recipe_rejected", file=str(path), error=str(exc))
+                continue
+            new[recipe.name] = ActiveRecipe(recipe, h, text, str(path))
+            entries.append(AuditEntry(_owner(path), "activate", str(path), h, "ok", recipe.name))
+            log.info("recipe_activated", recipe=recipe.name, number=recipe.number, hash=h[:12])
+        for name, a in list(new.items()):
+            if a.path not in present:
+                del new[name]
+                self._seen.pop(a.path, None)
+                entries.append(AuditEntry("unknown", "remove", a.path, a.hash, "ok", name))
+        for e in entries:
+            self._audit(e)
+        self._active = MappingProxyType(new)       # the atomic swap
+        return entries
+
+
+def export_schema(path: Path | str) -> None:
+    Path(path).write_text(json.dumps(recipe_schema(), indent=2) + "\n", encoding="utf-8")

@@ -1,0 +1,64 @@
+"""Cycle log: durable settings, one row per cycle, hash-chained audit, recipe versions."""
+import sqlite3
+
+import pytest
+
+from cell.cyclelog import CycleLog, CycleRecord, utc_now
+
+
+def record(i, **kw):
+    base = dict(part_id=i, recipe="bracket-a", recipe_hash="ab" * 32, started_at=utc_now(),
+                finished_at=utc_now(), status="done", cycle_time_s=1.5,
+                step_times={"approach": 0.5, "verify": 0.1}, method="lattice",
+                target_mm=(250.0, 930.0), initial_error_mm=0.6, final_error_mm=0.03, moves=2,
+                trace=[{"joints_deg": [60, 30], "point_mm": [250, 933], "error_mm": 3.0, "moved": True}])
+    base.update(kw)
+    return CycleRecord(**base)
+
+
+def test_pragmas_and_round_trip(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    assert log._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert log._db.execute("PRAGMA synchronous").fetchone()[0] == 2        # FULL
+    ids = [log.add_cycle(record(i)) for i in range(3)]
+    got = log.cycles()
+    assert [c.id for c in got] == ids and got[1].part_id == 1
+    assert got[0].step_times == {"approach": 0.5, "verify": 0.1}
+    assert got[0].trace[0]["point_mm"] == [250, 933] and got[0].target_mm == (250.0, 930.0)
+    assert log.cycles(limit=1)[0].part_id == 2
+    log.close()
+    again = CycleLog(tmp_path / "cell.sqlite")
+    assert again.count() == 3
+
+
+def test_bad_status_is_refused_and_nothing_written(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    with pytest.raises(sqlite3.IntegrityError):
+        log.add_cycle(record(1, status="half-done"))
+    assert log.count() == 0
+
+
+def test_retention(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    log.add_cycle(record(1, finished_at="2020-01-01T00:00:00+00:00"))
+    log.add_cycle(record(2))
+    assert log.delete_older_than("2021-01-01T00:00:00+00:00") == 1
+    assert [c.part_id for c in log.cycles()] == [2]
+
+
+def test_audit_chain_detects_tampering(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    for i in range(3):
+        log.audit("maint", "activate", f"recipes/r{i}.yaml", "h" * 64, "ok")
+    assert log.verify_audit() is None
+    log._db.execute("UPDATE audit SET result = 'forged' WHERE id = 2")
+    assert log.verify_audit() == 2
+
+
+def test_recipe_versions(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    log.remember_recipe("a", "h1", "v1")
+    log.remember_recipe("a", "h2", "v2")
+    log.remember_recipe("a", "h1", "v1")           # re-activating an old version is not a new row
+    assert log.last_recipe_version("a") == ("h2", "v2")
+    assert log.last_recipe_version("b") is None
