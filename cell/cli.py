@@ -17,6 +17,8 @@ from cell.errors import CellError
 COMMAND_MODULES = (
     "cell.commands.compensate",
     "cell.commands.plan",
+    "cell.commands.recipe",
+    "cell.commands.report",
 )
 
 

@@ -1,0 +1,110 @@
+"""``cellctl recipe list|show|validate|diff|schema``: the maintenance technician's recipe tools.
+
+``validate`` checks files without activating anything (the running controller activates a
+valid edit between cycles by itself). ``diff NAME`` compares the file on disk with the
+version the controller last activated (kept in the cycle log database); ``diff A B``
+compares two files.
+"""
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+from pathlib import Path
+
+from cell.errors import ConfigError
+from cell.recipes import content_hash, parse_recipe, recipe_schema
+
+DEFAULT_DIR = "recipes"
+DEFAULT_DB = "var/cell.sqlite"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("recipe", help="list, show, validate and diff recipes")
+    p.add_argument("--dir", default=DEFAULT_DIR, help=f"recipe directory (default {DEFAULT_DIR})")
+    rs = p.add_subparsers(dest="recipe_cmd", required=True, metavar="ACTION")
+    rs.add_parser("list", help="every recipe file with its number, hash and validity")
+    s = rs.add_parser("show", help="print one recipe with its hash")
+    s.add_argument("name")
+    v = rs.add_parser("validate", help="validate recipe files (exit 2 if any is invalid)")
+    v.add_argument("files", nargs="*", help="files to check (default: every file in --dir)")
+    d = rs.add_parser("diff", help="diff a recipe against its last activated version, or two files")
+    d.add_argument("a", help="recipe name, or a file")
+    d.add_argument("b", nargs="?", help="second file")
+    d.add_argument("--db", default=DEFAULT_DB, help=f"cycle log with activated versions (default {DEFAULT_DB})")
+    sc = rs.add_parser("schema", help="print (or write) the recipe JSON schema for editors")
+    sc.add_argument("--out", help="write to this file instead of printing")
+    p.set_defaults(func=run)
+
+
+def _check(path: Path) -> tuple[str, str | None]:
+    """(hash, error or None) for one recipe file."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        return "", f"{path}: cannot read: {exc}"
+    try:
+        parse_recipe(text, str(path))
+    except ConfigError as exc:
+        return content_hash(text), str(exc)
+    return content_hash(text), None
+
+
+def run(args: argparse.Namespace) -> int:
+    rdir = Path(args.dir)
+    if args.recipe_cmd == "schema":
+        text = json.dumps(recipe_schema(), indent=2) + "\n"
+        if args.out:
+            Path(args.out).write_text(text, encoding="utf-8")
+        else:
+            print(text, end="")
+        return 0
+    if args.recipe_cmd in ("list", "validate"):
+        files = ([Path(f) for f in args.files] if args.recipe_cmd == "validate" and args.files
+                 else sorted(rdir.glob("*.yaml")))
+        if not files:
+            raise ConfigError(f"{rdir}: no recipe files (*.yaml)")
+        bad = 0
+        for f in files:
+            h, err = _check(f)
+            bad += err is not None
+            if args.recipe_cmd == "list":
+                rec = None if err else parse_recipe(f.read_text(encoding="utf-8"), str(f))
+                print(f"{f.stem:<20} {rec.number if rec else '-':>4}  {h[:12]:<12}  "
+                      f"{'ok' if rec else 'INVALID'}  {rec.description if rec else err}")
+            else:
+                print(f"{f}: ok ({h[:12]})" if err is None else err)
+        return 2 if (bad and args.recipe_cmd == "validate") else 0
+    if args.recipe_cmd == "show":
+        path = rdir / f"{args.name}.yaml"
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such recipe")
+        h, err = _check(path)
+        print(f"# {path}  sha256 {h}  {'valid' if err is None else 'INVALID: ' + err}")
+        print(path.read_text(encoding="utf-8"), end="")
+        return 0
+    # diff
+    if args.b:
+        a_path, b_path = Path(args.a), Path(args.b)
+        a_text, b_text = _read(a_path), _read(b_path)
+        a_name, b_name = str(a_path), str(b_path)
+    else:
+        from cell.cyclelog import CycleLog
+        path = rdir / f"{args.a}.yaml"
+        b_text, b_name = _read(path), str(path)
+        if not Path(args.db).is_file():
+            raise ConfigError(f"{args.db}: no cycle log, so no activated version of {args.a!r} to compare")
+        last = CycleLog(args.db).last_recipe_version(args.a)
+        if last is None:
+            raise ConfigError(f"{args.db}: recipe {args.a!r} was never activated")
+        a_text, a_name = last[1], f"{args.a} (active, {last[0][:12]})"
+    diff = list(difflib.unified_diff(a_text.splitlines(True), b_text.splitlines(True), a_name, b_name))
+    print("".join(diff) if diff else "no differences", end="" if diff else "\n")
+    return 1 if diff else 0
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read: {exc}") from None

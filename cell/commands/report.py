@@ -1,0 +1,105 @@
+"""``cellctl report``: the process engineer's accuracy trend, and ``cellctl export``.
+
+``report`` prints, per block of consecutive cycles, the initial and final error (mean, p95,
+max), moves and faults, and writes a PNG plot of every cycle's errors over time.
+``export`` writes the logged cycles as a measurement campaign for ``cellctl diagnose``.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from cell.errors import ConfigError
+
+DEFAULT_DB = "var/cell.sqlite"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="accuracy trend of the logged cycles (table + PNG plot)")
+    p.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    p.add_argument("--block", type=int, default=10, help="cycles per table row (default 10)")
+    p.add_argument("--recipe", help="only this recipe")
+    p.add_argument("--png", default="var/accuracy.png", help="plot file (default var/accuracy.png; '' for none)")
+    p.set_defaults(func=run_report)
+    e = sub.add_parser("export", help="export logged cycles to the measurement exchange format")
+    e.add_argument("out", help="campaign directory to write")
+    e.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    e.add_argument("--robot", default="seed000", help="robot preset of the nominal model (default seed000)")
+    e.set_defaults(func=run_export)
+
+
+def _open(db: str):
+    from cell.cyclelog import CycleLog
+    if not Path(db).is_file():
+        raise ConfigError(f"{db}: no cycle log here (run the cell first, or pass --db)")
+    return CycleLog(db)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    if args.block < 1:
+        raise ConfigError(f"--block {args.block} must be ≥ 1")
+    cycles = [c for c in _open(args.db).cycles() if not args.recipe or c.recipe == args.recipe]
+    if not cycles:
+        print("no cycles logged" + (f" for recipe {args.recipe}" if args.recipe else ""))
+        return 0
+    print(f"{len(cycles)} cycles in {args.db}" + (f", recipe {args.recipe}" if args.recipe else ""))
+    print("| cycles | first part | initial mean mm | final mean mm | final p95 mm | final max mm "
+          "| mean moves | faults |")
+    print("|---|---|---|---|---|---|---|---|")
+    for i in range(0, len(cycles), args.block):
+        blk = cycles[i:i + args.block]
+        done = [c for c in blk if c.status == "done" and c.final_error_mm is not None]
+        faults = sum(c.status != "done" for c in blk)
+        if done:
+            ini = np.array([c.initial_error_mm for c in done])
+            fin = np.array([c.final_error_mm for c in done])
+            mv = np.mean([c.moves for c in done])
+            stats = (f"{ini.mean():.4f} | {fin.mean():.4f} | {np.percentile(fin, 95):.4f} | "
+                     f"{fin.max():.4f} | {mv:.2f}")
+        else:
+            stats = "– | – | – | – | –"
+        print(f"| {blk[0].id}–{blk[-1].id} | {blk[0].part_id} | {stats} | {faults} |")
+    if args.png:
+        _plot(cycles, Path(args.png))
+        print(f"plot written to {args.png}")
+    return 0
+
+
+def _plot(cycles, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    done = [c for c in cycles if c.status == "done" and c.final_error_mm is not None]
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=100)
+    ids = [c.id for c in done]
+    ax.semilogy(ids, [c.initial_error_mm for c in done], ".", color="0.6", label="initial error (first arrival)")
+    ax.semilogy(ids, [c.final_error_mm for c in done], "o", ms=3, label="final error (verified)")
+    bad = [c for c in cycles if c.status != "done"]
+    for c in bad:
+        ax.axvline(c.id, color="tab:red", lw=0.8, alpha=0.6)
+    ax.set_xlabel("cycle id")
+    ax.set_ylabel("error, mm (log scale)")
+    ax.set_title(f"Accuracy trend, {len(done)} completed cycles, {len(bad)} faulted/aborted (red)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper right")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from cell.export import cycles_to_campaign
+    from cell.kinematics import Scara
+    from cell.measurements import write_campaign
+    robot = Scara.preset(args.robot)
+    try:
+        campaign = cycles_to_campaign(_open(args.db).cycles(status="done"), robot.g.l1_mm, robot.g.l2_mm,
+                                      command_unit_deg=robot.g.unit[0])
+    except ValueError as exc:
+        raise ConfigError(f"{args.db}: {exc}") from None
+    write_campaign(campaign, args.out)
+    print(f"{len(campaign.points['sample'])} measured moves written to {args.out}")
+    return 0

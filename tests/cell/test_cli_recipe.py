@@ -1,0 +1,57 @@
+"""``cellctl recipe``: list, show, validate, diff and schema; bad files give exit 2 and a located message."""
+import shutil
+from pathlib import Path
+
+import pytest
+
+from cell.cli import main
+from cell.cyclelog import CycleLog
+
+REPO_RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+
+
+@pytest.fixture
+def rdir(tmp_path):
+    d = tmp_path / "recipes"
+    shutil.copytree(REPO_RECIPES, d)
+    return d
+
+
+def test_list_and_show(rdir, capsys):
+    assert main(["recipe", "--dir", str(rdir), "list"]) == 0
+    out = capsys.readouterr().out
+    assert "bracket-a" in out and "pin-b" in out and "INVALID" not in out
+    assert main(["recipe", "--dir", str(rdir), "show", "pin-b"]) == 0
+    assert "sha256" in capsys.readouterr().out
+    assert main(["recipe", "--dir", str(rdir), "show", "nope"]) == 2
+
+
+def test_validate_names_file_line_field(rdir, capsys):
+    bad = rdir / "bracket-a.yaml"
+    bad.write_text(bad.read_text().replace("number: 1", "number: 1000"))
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
+    out = capsys.readouterr().out
+    assert f"{bad}, line 4, field number" in out and "pin-b.yaml: ok" in out
+    assert main(["recipe", "--dir", str(rdir), "list"]) == 0
+    assert "INVALID" in capsys.readouterr().out
+
+
+def test_diff_against_last_activated_version(rdir, tmp_path, capsys):
+    db = tmp_path / "cell.sqlite"
+    log = CycleLog(db)
+    text = (rdir / "pin-b.yaml").read_text()
+    log.remember_recipe("pin-b", "h", text)
+    assert main(["recipe", "--dir", str(rdir), "diff", "pin-b", "--db", str(db)]) == 0
+    assert "no differences" in capsys.readouterr().out
+    (rdir / "pin-b.yaml").write_text(text.replace("k: 16", "k: 8"))
+    assert main(["recipe", "--dir", str(rdir), "diff", "pin-b", "--db", str(db)]) == 1
+    out = capsys.readouterr().out
+    assert "-  k: 16" in out and "+  k: 8" in out
+    assert main(["recipe", "--dir", str(rdir), "diff", "bracket-a", "--db", str(db)]) == 2
+    assert "never activated" in capsys.readouterr().err
+
+
+def test_schema(tmp_path, capsys):
+    out = tmp_path / "s.json"
+    assert main(["recipe", "schema", "--out", str(out)]) == 0
+    assert out.read_text() == (REPO_RECIPES / "recipe.schema.json").read_text()

@@ -1,0 +1,61 @@
+"""Export of logged cycles to the measurement format (round trip) and the report command."""
+import numpy as np
+import pytest
+
+from cell.cli import main
+from cell.cyclelog import CycleLog, CycleRecord
+from cell.export import cycles_to_campaign
+from cell.measurements import read_campaign, write_campaign
+
+
+def trace(q0):
+    return [{"joints_deg": list(q0), "point_mm": [250.0, 933.0], "error_mm": 0.5, "moved": True},
+            {"joints_deg": [q0[0] + 0.1, q0[1] - 0.02], "point_mm": [249.9, 933.1], "error_mm": 0.03, "moved": True},
+            {"joints_deg": [q0[0] + 0.1, q0[1] - 0.02], "point_mm": [249.9, 933.1], "error_mm": 0.03, "moved": False},
+            {"joints_deg": [q0[0] + 0.1, q0[1] - 0.01], "point_mm": [249.91, 933.1], "error_mm": 0.02, "moved": True}]
+
+
+@pytest.fixture
+def db(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    for i in range(12):
+        log.add_cycle(CycleRecord(
+            part_id=100 + i, recipe="bracket-a", recipe_hash="h", status="done" if i != 5 else "fault",
+            started_at=f"2026-11-23T10:00:{i:02d}+00:00", finished_at=f"2026-11-23T10:00:{i:02d}+00:00",
+            cycle_time_s=1.0, method="lattice", initial_error_mm=0.5, final_error_mm=0.02 + 0.001 * i,
+            moves=3, temp_c=21.0 + i, trace=trace((60.0, 30.0))))
+    return log
+
+
+def test_export_round_trips_through_the_exchange_format(db, tmp_path):
+    campaign = cycles_to_campaign(db.cycles(status="done"), 500, 500, command_unit_deg=0.01)
+    back = read_campaign(write_campaign(campaign, tmp_path / "camp"))
+    assert len(back.points["sample"]) == 11 * 3                     # moved steps only
+    for k, v in campaign.points.items():
+        np.testing.assert_array_equal(back.points[k], v)
+    # directions: j1 moved up (+1), j2 moved down (-1) then up (+1)
+    assert back.points["j1_dir"][:3].tolist() == [1, 1, 1]
+    assert back.points["j2_dir"][:3].tolist() == [1, -1, 1]
+    assert back.points["time_s"][3] == 1.0 and back.points["temp_c"][0] == 21.0
+
+
+def test_export_refuses_empty(tmp_path):
+    with pytest.raises(ValueError, match="no logged cycle"):
+        cycles_to_campaign([], 500, 500)
+
+
+def test_report_prints_blocks_and_writes_png(db, tmp_path, capsys):
+    png = tmp_path / "trend.png"
+    assert main(["report", "--db", str(db.path), "--block", "5", "--png", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "12 cycles" in out and out.count("\n| ") == 3 + 1
+    assert "| 1–5 | 100 |" in out and png.stat().st_size > 1000
+
+
+def test_report_and_export_bad_input(tmp_path, capsys):
+    assert main(["report", "--db", str(tmp_path / "none.sqlite")]) == 2
+    assert "no cycle log" in capsys.readouterr().err
+    CycleLog(tmp_path / "empty.sqlite")
+    assert main(["export", str(tmp_path / "c"), "--db", str(tmp_path / "empty.sqlite")]) == 2
+    assert "no logged cycle" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
