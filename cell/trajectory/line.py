@@ -329,10 +329,14 @@ def joint_positions_at(plan: LinePlan, actual_delays_s, times_s) -> np.ndarray:
 
     ``actual_delays_s`` (4,) per joint, seconds: when each station really starts a
     segment after its nominal start (may differ from ``plan.delays_s``).
-    :raises TrajectoryError: non-finite or negative delays or times.
+    ``times_s`` is a scalar or 1-D array in seconds from the first segment's start;
+    before 0 the joints are at the start way-point.
+    :raises TrajectoryError: negative or non-finite delays, non-finite or non-1-D times.
     """
     lam = _check_actual(actual_delays_s)
     t = np.atleast_1d(_finite_array("times_s", times_s))
+    if t.ndim != 1:
+        raise TrajectoryError(f"times_s must be a scalar or 1-D array, got shape {t.shape}")
     out = np.empty((t.size, 4))
     for j in range(4):
         bt, bp = _joint_breakpoints(plan, j, float(lam[j]))

@@ -1,0 +1,191 @@
+"""``cellctl plan``: straight-line moves with CAN delay correction (seed 002) and time laws
+through joint way-points (seed 003).
+
+    cellctl plan line --robot seed002 --from 400,0,-50,0 --to 300,0,-20,45 \\
+        --points 20 --segment-ms 10 --sigma-ms 1 [--stations j1,j2,j3,j4] [--json]
+    cellctl plan timelaw --waypoints "0,0;10,5;30,20;45,40" --duration-s 4 \\
+        [--law quintic-poly|quintic-bspline|septic-bspline|all] [--timing uniform|chord]
+        [--json] [--plot out.png]
+
+Bad input (malformed way-points, T ≤ λ, unreachable poses) raises a
+:class:`~cell.errors.CellError`; :mod:`cell.cli` prints it and exits with code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from cell.commands import float_list
+from cell.errors import CellError, TrajectoryError
+from cell.kinematics import JOINT_NAMES, PRESETS, Scara
+from cell.trajectory.line import (joint_delays, max_line_deviation, plan_line, simulate_line)
+from cell.trajectory.timelaw import LAWS, TIMINGS, plan_timelaw
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plan", help="plan straight lines (seed 002) or time laws (seed 003)",
+                       description="Plan straight-line moves with CAN delay correction (seed 002) "
+                                   "or time laws through joint way-points (seed 003).")
+    psub = p.add_subparsers(dest="plan_command", required=True, metavar="KIND")
+
+    ln = psub.add_parser("line", help="straight line with per-segment joint targets and velocities",
+                         description="Split a straight move into equal steps, print each segment's "
+                                     "joint targets and velocities (uncorrected Δθ/T and corrected "
+                                     "Δθ/(T−λ)), and the simulated deviation from the line.")
+    ln.add_argument("--robot", choices=sorted(PRESETS), default="seed002", help="robot preset (default seed002)")
+    ln.add_argument("--from", dest="start", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
+                    help="start pose: mm, mm, mm, deg")
+    ln.add_argument("--to", dest="end", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
+                    help="target pose: mm, mm, mm, deg")
+    ln.add_argument("--points", type=int, default=20, help="number of interpolation segments n (default 20)")
+    ln.add_argument("--segment-ms", type=float, default=10.0, help="segment time T, ms (default 10)")
+    ln.add_argument("--sigma-ms", type=float, default=1.0, help="per-frame bus delay σ, ms (default 1)")
+    ln.add_argument("--stations", default=",".join(JOINT_NAMES), metavar="J,J,J,J",
+                    help="bus order of the joint stations (default j1,j2,j3,j4)")
+    ln.add_argument("--elbow", choices=("right", "left"), default="right", help="elbow (default right)")
+    ln.add_argument("--json", action="store_true", help="print the plan as JSON")
+    ln.set_defaults(func=run_line)
+
+    tl = psub.add_parser("timelaw", help="quintic polynomial / quintic / septic B-spline through way-points",
+                         description="Fit time laws through joint way-points and print their peak "
+                                     "velocity, acceleration and jerk.")
+    tl.add_argument("--waypoints", required=True, metavar="Q;Q;...",
+                    help="way-points, rows separated by ';', joints by ',' (deg or mm)")
+    tl.add_argument("--duration-s", type=float, required=True, help="total duration, s")
+    tl.add_argument("--law", choices=(*LAWS, "all"), default="all", help="law (default all)")
+    tl.add_argument("--timing", choices=TIMINGS, default="uniform",
+                    help="knot times: uniform or chord-length (default uniform)")
+    tl.add_argument("--samples", type=int, default=200, help="samples per knot interval for peaks (default 200)")
+    tl.add_argument("--json", action="store_true", help="print the results as JSON")
+    tl.add_argument("--plot", default=None, metavar="PNG", help="write position/velocity/acceleration plots")
+    tl.set_defaults(func=run_timelaw)
+
+
+# --------------------------------------------------------------------------- line
+def _station_order(text: str) -> tuple[str, ...]:
+    order = tuple(s.strip() for s in text.split(",") if s.strip())
+    if sorted(order) != sorted(JOINT_NAMES):
+        raise TrajectoryError(f"--stations {text!r} must name each of {', '.join(JOINT_NAMES)} exactly once")
+    return order
+
+
+def run_line(args: argparse.Namespace) -> int:
+    robot = Scara.preset(args.robot)
+    order = _station_order(args.stations)
+    T = args.segment_ms / 1e3
+    lam = joint_delays(args.sigma_ms / 1e3, order)
+    plain = plan_line(robot, args.start, args.end, args.points, T, None, args.elbow, station_order=order)
+    corr = plan_line(robot, args.start, args.end, args.points, T, lam, args.elbow, station_order=order)
+    a, b = plain.poses[0, :3], plain.poses[-1, :3]
+    dev = {}
+    for name, plan in (("uncorrected", plain), ("corrected", corr)):
+        sim = simulate_line(robot, plan, lam)
+        dev[name] = {"max_mm": max_line_deviation(sim.xyz_mm, a, b),
+                     "at_points_mm": max_line_deviation(sim.xyz_mm[sim.point_index], a, b),
+                     "end_s": float(sim.times_s[-1])}
+    if args.json:
+        print(json.dumps({
+            "robot": args.robot, "from": args.start, "to": args.end, "points": args.points,
+            "segment_ms": args.segment_ms, "sigma_ms": args.sigma_ms, "stations": list(order),
+            "delays_ms": (lam * 1e3).tolist(),
+            "segments": [{"index": s.index, "start_ms": s.start_s * 1e3, "target": s.target_deg.tolist(),
+                          "velocity_uncorrected": s.velocity_deg_s.tolist(),
+                          "velocity_corrected": c.velocity_deg_s.tolist()}
+                         for s, c in zip(plain.segments, corr.segments)],
+            "deviation": dev}, indent=2))
+        return 0
+    print(f"line {args.robot}: {tuple(args.start)} -> {tuple(args.end)}, n = {args.points}, "
+          f"T = {args.segment_ms:g} ms, σ = {args.sigma_ms:g} ms, stations {','.join(order)} "
+          f"(delays j1..j4 = {', '.join(f'{v:g}' for v in lam * 1e3)} ms)")
+    print("θ* = segment target (deg, j3 mm); ω = Δθ/T uncorrected; ωc = Δθ/(T−λ) corrected "
+          "(deg/s, j3 mm/s)")
+    head = " | ".join(" ".join(f"{p + n:>9}" for n in JOINT_NAMES) for p in ("θ*", "ω ", "ωc "))
+    print(f"{'k':>3} {'t ms':>7} | {head}")
+    for s, c in zip(plain.segments, corr.segments):
+        cols = " | ".join(" ".join(f"{v:>9.3f}" for v in arr)
+                          for arr in (s.target_deg, s.velocity_deg_s, c.velocity_deg_s))
+        print(f"{s.index:>3} {s.start_s * 1e3:>7.2f} | {cols}")
+    for name in ("uncorrected", "corrected"):
+        d = dev[name]
+        print(f"max deviation from the line, {name:<11}: {d['max_mm']:.4f} mm over the path, "
+              f"{d['at_points_mm']:.4f} mm at the interpolation instants (simulated, delays as above)")
+    return 0
+
+
+# --------------------------------------------------------------------------- time laws
+def parse_waypoints(text: str) -> np.ndarray:
+    """``"0,0;10,5;30,20"`` → array (m, J). Raises TrajectoryError naming the bad row."""
+    rows = [r.strip() for r in text.strip().strip(";").split(";")]
+    out: list[list[float]] = []
+    for i, row in enumerate(rows):
+        if not row:
+            raise TrajectoryError(f"--waypoints: way-point {i} is empty in {text!r}")
+        try:
+            vals = [float(v) for v in row.split(",")]
+        except ValueError:
+            raise TrajectoryError(f"--waypoints: way-point {i} {row!r} is not a comma-separated "
+                                  "list of numbers") from None
+        if out and len(vals) != len(out[0]):
+            raise TrajectoryError(f"--waypoints: way-point {i} {row!r} has {len(vals)} joints, "
+                                  f"way-point 0 has {len(out[0])}")
+        out.append(vals)
+    return np.array(out, dtype=float)
+
+
+def _plot(path: str, trajs, samples: int) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # Agg only; no pyplot state
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 9), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True)
+    styles = ("-", "--", ":")
+    for tr, style in zip(trajs, styles):
+        t = tr.sample_times(samples)
+        for nu, ax in enumerate(axes):
+            y = tr(t, nu)
+            for j in range(y.shape[1]):
+                ax.plot(t, y[:, j], style, color=f"C{j}", label=f"{tr.law} q{j + 1}" if nu == 0 else None)
+    axes[0].plot(trajs[0].knots_s, trajs[0].waypoints, "ko", ms=3)
+    for ax, lab in zip(axes, ("position", "velocity /s", "acceleration /s²")):
+        ax.set_ylabel(lab)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time, s")
+    axes[0].legend(fontsize=7, ncol=3)
+    try:
+        fig.savefig(path, dpi=100)
+    except OSError as exc:
+        raise CellError(f"--plot {path}: cannot write the plot: {exc}") from None
+
+
+def run_timelaw(args: argparse.Namespace) -> int:
+    q = parse_waypoints(args.waypoints)
+    if args.samples < 2:
+        raise TrajectoryError(f"--samples {args.samples} must be at least 2")
+    laws = LAWS if args.law == "all" else (args.law,)
+    trajs = [plan_timelaw(q, args.duration_s, law, args.timing) for law in laws]
+    peaks = [tr.peaks(args.samples) for tr in trajs]
+    if args.plot:
+        _plot(args.plot, trajs, args.samples)
+    if args.json:
+        print(json.dumps({
+            "waypoints": q.tolist(), "duration_s": args.duration_s, "timing": args.timing,
+            "knots_s": trajs[0].knots_s.tolist(),
+            "laws": {tr.law: {"peak_velocity": pk.velocity.tolist(), "peak_acceleration": pk.acceleration.tolist(),
+                              "peak_jerk": pk.jerk.tolist(), "overall": pk.overall}
+                     for tr, pk in zip(trajs, peaks)}}, indent=2))
+        return 0
+    print(f"{q.shape[0]} way-points × {q.shape[1]} joints over {args.duration_s:g} s, {args.timing} knot times; "
+          f"units per second of the way-point units")
+    print(f"{'law':<16} {'joint':>5} {'peak |v|':>12} {'peak |a|':>12} {'peak |jerk|':>12}")
+    for tr, pk in zip(trajs, peaks):
+        for j in range(q.shape[1]):
+            print(f"{tr.law:<16} {'q' + str(j + 1):>5} {pk.velocity[j]:>12.4f} "
+                  f"{pk.acceleration[j]:>12.4f} {pk.jerk[j]:>12.4f}")
+        o = pk.overall
+        print(f"{tr.law:<16} {'all':>5} {o['velocity']:>12.4f} {o['acceleration']:>12.4f} {o['jerk']:>12.4f}")
+    if args.plot:
+        print(f"plot written to {args.plot}")
+    return 0
