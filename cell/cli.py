@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "cell.commands.plan",
     "cell.commands.recipe",
     "cell.commands.report",
+    "cell.commands.registers",
 )
 
 

@@ -37,7 +37,10 @@ def configure(fmt: Literal["json", "console"] = "console", level: str = "INFO") 
 
 
 def get_logger(name: str) -> structlog.typing.FilteringBoundLogger:
-    """Return a logger bound to ``component=name``; configures console output on first use."""
+    """Return a logger bound to ``component=name``; configures console output on first use.
+
+    The logger is a lazy proxy: it binds on first use, so a module-level logger obeys a
+    later :func:`configure` (e.g. ``cellctl --log-level``)."""
     if not _configured:
         configure()
-    return structlog.get_logger().bind(component=name)
+    return structlog.get_logger(component=name)

@@ -1,0 +1,323 @@
+"""Spec-conformant request framing and validation in front of pymodbus 3.16.1.
+
+Measured on loopback against a bare ``pymodbus.server.ModbusTcpServer`` (raw MBAP frames;
+reproduced in ``tests/drivers/test_plc_conformance.py``), pymodbus deviates from the
+MODBUS Application Protocol Specification V1.1b3 in ways a PLC notices:
+
+=====================================  =====================  ==========================
+request                                pymodbus 3.16.1        spec (and this module)
+=====================================  =====================  ==========================
+unsupported function code, e.g. 0x41   ``80 01``              ``C1 01`` (FC | 0x80, 01)
+FC3 quantity 0 or 126                  ``80 01``              ``83 03``
+FC5 value 0x1234                       accepted as ON         ``85 03``, coil unchanged
+two requests in one TCP segment        only the first answer  both answered, in order
+=====================================  =====================  ==========================
+
+Causes: the decoder raises on any decode problem and the handler answers with function
+code 0 (``requesthandler.py``); ``WriteSingleCoilRequest`` maps every non-zero value to ON;
+``handleFrame`` returns after the first frame and ``ModbusProtocol.send`` clears the receive
+buffer, dropping frames that arrived together.
+
+Fix (no monkeypatching): :class:`ConformantTcpServer` is a documented subclass of
+``ModbusTcpServer`` whose per-connection handler (:class:`ConformantRequestHandler`, a
+``ServerRequestHandler`` subclass) runs a thin pre-decoder: :class:`MbapStream` cuts the byte
+stream into MBAP frames, :func:`check_request` applies the spec's per-function checks
+(function supported -> 01; quantity, byte count and PDU length -> 03; FC5 value -> 03)
+and only well-formed requests reach pymodbus's own decoder and ``handle_request``. Every
+frame of a segment is answered, in arrival order, by one worker task per connection.
+A broken MBAP header (protocol id not 0, length < 2 or > 254) cannot be resynchronised in a
+TCP stream: the connection is closed; the server keeps serving other clients.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import struct
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
+
+from cell.errors import CellError
+from cell.log import get_logger
+
+
+def _log():
+    # looked up per use: a logger bound at import would keep the set-up of import time
+    return get_logger("plc.conformance")
+
+
+MBAP_LEN = 7            # tid(2) pid(2) length(2) unit(1)
+MAX_PDU = 253           # spec: ADU <= 260 bytes on TCP
+MAX_PENDING = 1024      # requests queued on one connection before it is closed
+ILLEGAL_FUNCTION, ILLEGAL_DATA_ADDRESS, ILLEGAL_DATA_VALUE, SERVER_DEVICE_FAILURE = 1, 2, 3, 4
+
+
+class ServerStartError(CellError):
+    """A Modbus server could not start listening."""
+
+
+class FramingError(CellError):
+    """An MBAP header that cannot be valid; the TCP stream is out of step (close it)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    tid: int
+    unit: int
+    pdu: bytes   # function code + data
+
+
+class MbapStream:
+    """Incremental MBAP framer for one TCP connection: ``feed(bytes) -> [Frame, ...]``.
+
+    Keeps an incomplete tail for the next call. A protocol id other than 0 or a length
+    field outside 2..254 breaks the stream (it cannot be resynchronised): ``feed`` returns
+    the complete frames before the bad header and sets ``broken`` to a :class:`FramingError`;
+    feeding a broken stream raises that error.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.broken: FramingError | None = None
+
+    def feed(self, data: bytes) -> list[Frame]:
+        if self.broken is not None:
+            raise self.broken
+        self._buf += data
+        frames: list[Frame] = []
+        while len(self._buf) >= MBAP_LEN:
+            tid, pid, length, unit = struct.unpack_from(">HHHB", self._buf)
+            if pid != 0:
+                self.broken = FramingError(f"MBAP protocol id {pid} (tid {tid}), expected 0")
+            elif not 2 <= length <= MAX_PDU + 1:
+                self.broken = FramingError(f"MBAP length {length} (tid {tid}) outside 2..{MAX_PDU + 1}")
+            if self.broken is not None:
+                self._buf.clear()
+                break
+            if len(self._buf) < 6 + length:
+                break  # wait for the rest of this frame
+            frames.append(Frame(tid, unit, bytes(self._buf[MBAP_LEN:6 + length])))
+            del self._buf[:6 + length]
+        return frames
+
+    @property
+    def pending(self) -> int:
+        """Bytes held for an incomplete frame."""
+        return len(self._buf)
+
+
+def _fixed(n: int) -> Callable[[bytes], bool]:
+    return lambda pdu: len(pdu) == n
+
+
+def _read_qty(limit: int) -> Callable[[bytes], bool]:
+    def ok(pdu: bytes) -> bool:
+        return len(pdu) == 5 and 1 <= struct.unpack_from(">H", pdu, 3)[0] <= limit
+    return ok
+
+
+def _write_coil(pdu: bytes) -> bool:
+    return len(pdu) == 5 and struct.unpack_from(">H", pdu, 3)[0] in (0x0000, 0xFF00)
+
+
+def _write_multi(limit: int, bytes_for: Callable[[int], int]) -> Callable[[bytes], bool]:
+    def ok(pdu: bytes) -> bool:
+        if len(pdu) < 6:
+            return False
+        qty, nbytes = struct.unpack_from(">HB", pdu, 3)
+        return 1 <= qty <= limit and nbytes == bytes_for(qty) and len(pdu) == 6 + nbytes
+    return ok
+
+
+def _read_write_multi(pdu: bytes) -> bool:
+    if len(pdu) < 10:
+        return False
+    _, rq, _, wq, nbytes = struct.unpack_from(">HHHHB", pdu, 1)
+    return 1 <= rq <= 125 and 1 <= wq <= 121 and nbytes == 2 * wq and len(pdu) == 10 + nbytes
+
+
+#: Function codes this server supports -> structural check (False -> exception 03).
+#: Quantity limits are the spec's: 2000 bits / 125 registers read, 1968 bits / 123 registers
+#: written, FC23 125 read + 121 written.
+SUPPORTED: dict[int, Callable[[bytes], bool]] = {
+    0x01: _read_qty(2000),                                   # read coils
+    0x02: _read_qty(2000),                                   # read discrete inputs
+    0x03: _read_qty(125),                                    # read holding registers
+    0x05: _write_coil,                                       # write single coil
+    0x06: _fixed(5),                                         # write single register
+    0x0F: _write_multi(1968, lambda q: (q + 7) // 8),        # write multiple coils
+    0x10: _write_multi(123, lambda q: 2 * q),                # write multiple registers
+    0x17: _read_write_multi,                                 # read/write multiple registers
+}
+
+
+def check_request(pdu: bytes, supported: dict[int, Callable[[bytes], bool]] = SUPPORTED) -> int | None:
+    """Spec checks a server makes before touching data: exception code to answer, or None.
+
+    01 if the function code is not supported (including 0x80..0xFF); 03 if quantity, byte
+    count, total length or (FC5) output value is invalid. Address (02) and value-in-range
+    (03) checks are the datastore's, after this.
+    """
+    check = supported.get(pdu[0])
+    if check is None:
+        return ILLEGAL_FUNCTION
+    return None if check(pdu) else ILLEGAL_DATA_VALUE
+
+
+def exception_adu(frame: Frame, code: int) -> bytes:
+    """MBAP + exception PDU (function code | 0x80, ``code``) answering ``frame``."""
+    return struct.pack(">HHHBBB", frame.tid, 0, 3, frame.unit, (frame.pdu[0] | 0x80) & 0xFF, code)
+
+
+class ConformantRequestHandler(ServerRequestHandler):
+    """pymodbus connection handler with the spec pre-decoder in front (see module doc).
+
+    Frames are queued and answered strictly in arrival order by one worker task; valid
+    requests are decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so
+    the datastore and its action see exactly what a bare pymodbus server would.
+    """
+
+    def __init__(self, owner, trace_packet, trace_pdu, trace_connect):
+        super().__init__(owner, trace_packet, trace_pdu, trace_connect)
+        # We consume every byte ourselves; lift pymodbus's 264-byte receive cap, which
+        # would silently drop a segment carrying several pipelined requests.
+        self.max_buffer_size = 1 << 16
+        self._stream = MbapStream()
+        self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
+        self._worker: asyncio.Task | None = None
+
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        if self._stream.broken is not None:
+            return len(data)   # closing: ignore whatever still arrives
+        for frame in self._stream.feed(data):
+            self._queue.put_nowait(frame)
+        if self._queue.qsize() > MAX_PENDING and self._stream.broken is None:
+            # a client that sends without reading answers: the guide's NumberMaxOfServerTransaction
+            self._stream.broken = FramingError(f"more than {MAX_PENDING} requests pending")
+        if self._stream.broken is not None:
+            _log().warning("modbus_framing_error", error=str(self._stream.broken))
+            self._queue.put_nowait(None)   # answer the frames before it, then close
+        if self._worker is None:
+            self._worker = asyncio.get_running_loop().create_task(self._serve())
+        return len(data)
+
+    def callback_disconnected(self, exc: Exception | None) -> None:
+        if self._worker is not None:
+            self._worker.cancel()
+            self._worker = None
+        super().callback_disconnected(exc)
+
+    async def _serve(self) -> None:
+        while True:
+            frame = await self._queue.get()
+            if frame is None:
+                self.close()
+                return
+            try:
+                await self._answer(frame)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # one bad request must never kill the connection's worker
+                _log().error("modbus_request_failed", error=repr(exc), tid=frame.tid)
+                self._send_raw(exception_adu(frame, SERVER_DEVICE_FAILURE))
+
+    async def _answer(self, frame: Frame) -> None:
+        code = check_request(frame.pdu)
+        if code is not None:
+            self._send_raw(exception_adu(frame, code))
+            return
+        pdu = self.framer.decoder.decode(frame.pdu)
+        if pdu is None:  # passed our checks yet pymodbus cannot decode it
+            self._send_raw(exception_adu(frame, SERVER_DEVICE_FAILURE))
+            return
+        pdu.dev_id, pdu.transaction_id = frame.unit, frame.tid
+        self.last_pdu, self.last_addr = pdu, None
+        await self.handle_request()   # pymodbus: datastore_update + send, exceptions -> 04
+
+    def _send_raw(self, adu: bytes) -> None:
+        if self.transport is not None:
+            self.send(adu)
+
+
+class ConformantTcpServer(ModbusTcpServer):
+    """``ModbusTcpServer`` whose connections use :class:`ConformantRequestHandler`.
+
+    Same constructor as ``ModbusTcpServer``; start with ``await serve_forever(background=True)``.
+    """
+
+    def callback_new_connection(self):
+        return ConformantRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
+class ServerThread:
+    """Run one pymodbus TCP server on its own event loop in a named daemon thread.
+
+    ``factory(address)`` builds the server (``ConformantTcpServer`` or, for comparisons,
+    a bare ``ModbusTcpServer``) inside the loop, as pymodbus requires a running loop.
+    """
+
+    def __init__(self, factory: Callable[[tuple[str, int]], ModbusTcpServer], name: str):
+        self._factory = factory
+        self._name = name
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self.port: int | None = None
+
+    def start(self, host: str = "127.0.0.1", port: int = 0, timeout_s: float = 10.0) -> int:
+        """Listen on ``host:port`` (0 = any free port), return the port. Raises
+        :class:`ServerStartError` if the server cannot listen or is already running."""
+        if self._thread is not None:
+            raise ServerStartError(f"{self._name}: already running on port {self.port}")
+        ready: concurrent.futures.Future[int] = concurrent.futures.Future()
+        thread = threading.Thread(target=self._run, args=(host, port, ready), name=self._name,
+                                  daemon=True)
+        thread.start()
+        try:
+            self.port = ready.result(timeout=timeout_s)
+        except Exception as exc:
+            thread.join(timeout=timeout_s)
+            raise ServerStartError(f"{self._name}: cannot listen on {host}:{port}: {exc}") from exc
+        self._thread = thread
+        return self.port
+
+    def stop(self) -> None:
+        """Close the listener and every connection, join the thread. Idempotent."""
+        if self._thread is None:
+            return
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout=10)
+        self._thread = self._loop = self._stop = None
+        self.port = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    def _run(self, host: str, port: int, ready: concurrent.futures.Future) -> None:
+        loop = asyncio.new_event_loop()
+        try:
+            loop.run_until_complete(self._serve(host, port, ready))
+        finally:
+            loop.close()
+
+    async def _serve(self, host: str, port: int, ready: concurrent.futures.Future) -> None:
+        try:
+            server = self._factory((host, port))
+            await server.serve_forever(background=True)
+        except Exception as exc:
+            ready.set_exception(exc)
+            return
+        self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
+        ready.set_result(server.transport.sockets[0].getsockname()[1])  # type: ignore[union-attr]
+        await self._stop.wait()
+        await server.shutdown()
+        await asyncio.sleep(0)  # let transports run their close callbacks
+        tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)

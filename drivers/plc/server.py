@@ -1,0 +1,281 @@
+"""PlcLink: the controller's side of the PLC link, a Modbus TCP server over one register map.
+
+The controller never touches pymodbus: it calls :class:`PlcLink` (``read``/``write``/
+``snapshot``/``next_write``...) from its own thread. Inside, a spec-conformant pymodbus
+server (:class:`drivers.plc.conformance.ConformantTcpServer`) runs on its own event loop in
+the thread ``plc-modbus-server``.
+
+Data path. The register image (``map.size`` words) lives here, guarded by one lock. The
+pymodbus datastore is generated from the map (a ``SimDevice``: one ``SimData`` per
+register and per reserved gap) and its documented ``action`` hook
+is the bridge: on every PLC request it copies the image into pymodbus's registers (so a
+read sees a consistent image, 32-bit pairs never torn) and, for a write, validates the whole
+request against the map *before* anything changes, then applies it to the image and
+queues one :class:`PlcWrite` event per named register. A refused write answers exception
+02/03 and changes nothing.
+
+Threads: controller thread(s) <-> ``self._lock`` <-> event-loop thread. Events cross in a
+bounded deque (oldest dropped, counted in ``dropped_writes``).
+"""
+from __future__ import annotations
+
+import collections
+import threading
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from pymodbus.constants import ExcCodes
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from cell.clock import Clock, MonotonicClock
+from cell.errors import CellError
+from cell.log import get_logger
+from drivers.plc.conformance import ConformantTcpServer, ServerStartError, ServerThread
+from drivers.plc.register_map import PLC_MAP, PlcWriteRejected, RegisterMap, RegType
+
+
+def _log():
+    # looked up per use: a logger bound at import would keep the set-up of import time
+    return get_logger("plc.server")
+
+
+_BIT_FCS = (1, 2, 5, 15)
+
+
+class PlcLinkError(CellError):
+    """The link cannot do what was asked (cannot listen, started twice, ...)."""
+
+
+@dataclass(frozen=True)
+class PlcWrite:
+    """One register the PLC wrote: clock time ``t`` (s), register name, new and previous value."""
+
+    t: float
+    name: str
+    value: int
+    previous: int
+
+
+def build_datastore(register_map: RegisterMap, action) -> SimDevice:
+    """pymodbus datastore generated from ``register_map``: one holding-register block 0..size-1.
+
+    u16 and bit fields are ``REGISTERS``, u32 ``UINT32`` (high word first), reserved gaps
+    ``REGISTERS`` reading 0; addresses >= size are outside the block (pymodbus answers 02).
+    Access (RO, reserved, u32 halves) and ranges are enforced in ``action`` against the map,
+    not with pymodbus's ``readonly`` flag, so that every refusal is decided in one place,
+    logged and counted. ``action`` is the ``SimDevice`` action coroutine.
+    """
+    simdata = []
+    for addr in range(register_map.size):
+        hit = register_map.at(addr)
+        if hit is None:
+            simdata.append(SimData(addr, datatype=DataType.REGISTERS))
+        elif hit[1] == 0:
+            dtype = DataType.UINT32 if hit[0].type is RegType.U32 else DataType.REGISTERS
+            simdata.append(SimData(addr, datatype=dtype))
+    # id 0: answer every unit id (a Modbus TCP server is addressed by IP, not unit id)
+    return SimDevice(id=0, simdata=simdata, use_bit_addressing=True, action=action)
+
+
+class PlcLink:
+    """Modbus TCP server for the PLC, with thread-safe accessors for the controller.
+
+    ``register_map``: the table served (default :data:`PLC_MAP`); ``clock``: time source for
+    event stamps and heartbeat watchdog (default monotonic); ``quiet``: registers whose PLC
+    writes update the image (and the heartbeat time) but are not queued as events
+    (default: ``plc_heartbeat``, written every PLC scan); ``max_events``: event queue bound.
+
+    The controller side may write any named register (RO ones are its outputs); the PLC
+    may write only RW registers, in range, 32-bit registers whole.
+    """
+
+    def __init__(self, register_map: RegisterMap = PLC_MAP, clock: Clock | None = None,
+                 quiet: Iterable[str] | None = None, max_events: int = 1024):
+        self.map = register_map
+        self._clock = clock or MonotonicClock()
+        if quiet is None:
+            quiet = [n for n in ("plc_heartbeat",) if n in register_map]
+        self._quiet = frozenset(quiet)
+        for name in self._quiet:
+            self.map[name]  # raises PlcMapError for an unknown name
+        self._lock = threading.Lock()
+        self._image = [0] * register_map.size
+        if "map_version" in register_map:
+            self._put("map_version", register_map.version)
+        self._events: collections.deque[PlcWrite] = collections.deque(maxlen=max_events)
+        self._events_cv = threading.Condition()
+        self._dropped = 0
+        self._rejected = 0
+        self._hb_change: float | None = None
+        self._server = ServerThread(
+            lambda address: ConformantTcpServer(build_datastore(self.map, self._action), address=address),
+            name="plc-modbus-server")
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Listen on ``host:port`` (0 = any free port); return the actual port.
+
+        Raises :class:`PlcLinkError` if already running or the address cannot be bound.
+        """
+        if self._server.running:
+            raise PlcLinkError(f"PLC link already running on port {self._server.port}")
+        try:
+            port = self._server.start(host, port)
+        except ServerStartError as exc:
+            raise PlcLinkError(f"PLC link cannot listen on {host}:{port}: {exc.__cause__}") from exc
+        _log().info("plc_link_listening", host=host, port=port)
+        return port
+
+    def stop(self) -> None:
+        """Close all PLC connections and the listener; join the server thread. Idempotent."""
+        if self._server.running:
+            port = self._server.port
+            self._server.stop()
+            _log().info("plc_link_stopped", port=port)
+
+    @property
+    def port(self) -> int | None:
+        """Port listened on while running, else None."""
+        return self._server.port
+
+    def __enter__(self) -> PlcLink:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ controller side
+    def read(self, name: str) -> int:
+        """Current value of register ``name``. Raises PlcMapError for an unknown name."""
+        self.map[name]
+        with self._lock:
+            return self._read_unlocked(name)
+
+    def read_bits(self, name: str) -> dict[str, bool]:
+        """Named bits of bit-field register ``name``."""
+        return self.map.bits(name, self.read(name))
+
+    def write(self, name: str, value: int) -> None:
+        """Set register ``name`` (any access: RO registers are the controller's outputs).
+
+        Raises PlcMapError (unknown name, not an int, out of range); nothing changes then.
+        """
+        self.write_many({name: value})
+
+    def write_many(self, values: Mapping[str, int]) -> None:
+        """Set several registers atomically: a PLC read sees all of them or none.
+
+        All values are validated first; on PlcMapError nothing changes.
+        """
+        words = {name: self.map.to_words(name, value) for name, value in values.items()}
+        with self._lock:
+            for name, w in words.items():
+                a = self.map[name].address
+                self._image[a:a + len(w)] = w
+
+    def set_bits(self, name: str, **flags: bool) -> int:
+        """Set/clear named bits of bit-field register ``name`` atomically; return the new value.
+
+        e.g. ``link.set_bits("status_word", busy=False, done=True)``. Raises PlcMapError for
+        an unknown register or bit name (nothing changes).
+        """
+        reg = self.map[name]
+        with self._lock:
+            value = self.map.with_bits(name, self._image[reg.address], flags)
+            self._image[reg.address] = self.map.check(name, value)
+        return value
+
+    def snapshot(self) -> dict[str, int]:
+        """All named registers, read under one lock (a consistent image)."""
+        with self._lock:
+            image = list(self._image)
+        return self.map.decode_image(image)
+
+    def next_write(self, timeout: float | None = 0.0) -> PlcWrite | None:
+        """Oldest PLC write event not yet taken, waiting up to ``timeout`` s (None = forever).
+
+        Returns None on timeout. Events come in the order the PLC's requests were served.
+        """
+        with self._events_cv:
+            if not self._events and timeout != 0.0:
+                self._events_cv.wait_for(lambda: bool(self._events), timeout)
+            return self._events.popleft() if self._events else None
+
+    def drain_writes(self) -> list[PlcWrite]:
+        """All queued PLC write events, oldest first (empties the queue)."""
+        with self._events_cv:
+            out = list(self._events)
+            self._events.clear()
+        return out
+
+    @property
+    def last_heartbeat_change(self) -> float | None:
+        """Clock time (s) the PLC last wrote a *different* ``plc_heartbeat``; None if never."""
+        with self._lock:
+            return self._hb_change
+
+    @property
+    def rejected_writes(self) -> int:
+        """PLC write requests refused with an exception since start."""
+        with self._lock:
+            return self._rejected
+
+    @property
+    def dropped_writes(self) -> int:
+        """Events dropped because the queue was full (the controller did not drain it)."""
+        with self._events_cv:
+            return self._dropped
+
+    # ------------------------------------------------------------------ PLC side (loop thread)
+    def _put(self, name: str, value: int) -> None:
+        a = self.map[name].address
+        w = self.map.to_words(name, value)
+        self._image[a:a + len(w)] = w
+
+    async def _action(self, func_code: int, start: int, address: int, count: int,
+                      registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+        """pymodbus ``SimDevice`` action: runs for every request pymodbus accepted so far."""
+        events: list[PlcWrite] = []
+        rejected: PlcWriteRejected | None = None
+        with self._lock:
+            if values is not None:
+                try:
+                    if func_code in _BIT_FCS:
+                        current = {r.name: self._image[r.address] for r in self.map
+                                   if r.type is RegType.BITFIELD}
+                        new = self.map.decode_plc_bit_write(address, list(values), current)
+                    else:
+                        new = self.map.decode_plc_write(address, [int(v) for v in values])
+                except PlcWriteRejected as exc:
+                    self._rejected += 1
+                    rejected = exc
+                else:
+                    self._apply_plc_write(new, events)
+            # pymodbus answers from ``registers``: give it the whole current image
+            registers[:len(self._image)] = self._image
+        if rejected is not None:
+            _log().warning("plc_write_rejected", fc=func_code, address=address,
+                           code=rejected.modbus_code, reason=str(rejected))
+            return ExcCodes(rejected.modbus_code)
+        if events:
+            with self._events_cv:
+                room = self._events.maxlen - len(self._events)  # type: ignore[operator]
+                self._dropped += max(0, len(events) - room)
+                self._events.extend(events)
+                self._events_cv.notify_all()
+        return None
+
+    def _apply_plc_write(self, new: dict[str, int], events: list[PlcWrite]) -> None:
+        """Apply map-validated PLC values to the image (lock held); collect their events."""
+        now = self._clock.now()
+        for name, value in new.items():
+            previous = self._read_unlocked(name)
+            self._put(name, value)
+            if name == "plc_heartbeat" and value != previous:
+                self._hb_change = now
+            if name not in self._quiet:
+                events.append(PlcWrite(now, name, value, previous))
+
+    def _read_unlocked(self, name: str) -> int:
+        reg = self.map[name]
+        return self.map.from_words(name, self._image[reg.address:reg.address + reg.words])

@@ -1,0 +1,319 @@
+"""SimPlc: the simulated PLC, a real Modbus TCP client running a PLC-style scan loop.
+
+It is the twin of the real cell PLC (STYLE habit 2): it speaks Modbus TCP to the
+controller's :class:`~drivers.plc.server.PlcLink` over loopback and knows the controller only
+through the register map (names -> addresses), never through the server's internals.
+
+Scan (thread ``sim-plc-scan``, every ``scan_s`` of the injected clock, default 10 ms):
+
+1. read the whole map with one FC3 (``map.size`` registers) -> input image;
+2. write the outputs that changed since the last scan, data before commands so a rising
+   edge of ``execute`` always finds recipe and part id already written:
+   ``recipe_select`` (FC6), ``part_id`` (FC16, both words), ``command_word`` (FC6);
+3. write ``plc_heartbeat`` + 1 (FC6) unless paused.
+
+API calls (``select_recipe``, ``set_part_id``, ``set_command``) only change the output image;
+the next scan writes it, as a PLC program sets outputs that the I/O scan transfers.
+Writes the controller refuses (Modbus exception) are kept in ``write_errors``.
+"""
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from cell.clock import Clock, MonotonicClock
+from cell.errors import CellError
+from cell.log import get_logger
+from drivers.plc.register_map import PLC_MAP, RegisterMap
+
+
+def _log():
+    # looked up per use: a logger bound at import would keep the set-up of import time
+    return get_logger("plc.sim")
+
+
+#: Output registers in the order a scan writes them (data before commands).
+OUTPUTS = ("recipe_select", "part_id", "command_word")
+RESULTS = ("initial_error_um", "final_error_um", "moves", "cycle_time_ms", "cycle_count",
+           "part_id_echo", "fault_code", "recipe_ack", "recipe_status")
+
+
+class SimPlcError(CellError):
+    """The simulated PLC could not do what was asked (no connection, timeout, refused write)."""
+
+
+class SimPlc:
+    """Simulated PLC connected to ``host:port``.
+
+    ``scan_s``: scan period in seconds of ``clock`` (default 0.010); ``unit``: Modbus unit id;
+    ``timeout_s``: per-request response timeout. Raises :class:`SimPlcError` from
+    :meth:`start` if the server cannot be reached or its ``map_version`` differs from the map.
+    """
+
+    def __init__(self, host: str, port: int, register_map: RegisterMap = PLC_MAP,
+                 scan_s: float = 0.010, clock: Clock | None = None, unit: int = 1,
+                 timeout_s: float = 1.0):
+        if not scan_s > 0:
+            raise SimPlcError(f"SimPlc: scan_s = {scan_s} must be > 0")
+        self.map = register_map
+        self.scan_s = scan_s
+        self._clock = clock or MonotonicClock()
+        self._unit = unit
+        self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+        self._cv = threading.Condition()
+        self._inputs: dict[str, int] = {}
+        self._outputs = {n: 0 for n in OUTPUTS}    # wanted values (replaced at start)
+        self._written = dict(self._outputs)        # values last sent (or refused)
+        self._heartbeat = 0
+        self._hb_paused = False
+        self._scans = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.write_errors: list[tuple[str, int, int]] = []   # (name, value, exception code)
+        self.link_errors = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Connect, check ``map_version``, start the scan thread."""
+        if self._thread is not None:
+            raise SimPlcError("SimPlc already started")
+        if not self._client.connect():
+            raise SimPlcError(f"SimPlc: cannot connect to {self._client.comm_params.host}:"
+                              f"{self._client.comm_params.port}")
+        image = self._read_image()
+        if image is None or image["map_version"] != self.map.version:
+            self._client.close()
+            raise SimPlcError(f"SimPlc: server map_version "
+                              f"{None if image is None else image['map_version']}, "
+                              f"PLC program expects {self.map.version}")
+        with self._cv:
+            self._inputs = image
+            self._heartbeat = image["plc_heartbeat"]
+            # take over what the server holds, so start-up writes nothing but the heartbeat
+            self._outputs = {n: image[n] for n in OUTPUTS}
+            self._written = dict(self._outputs)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sim-plc-scan", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop scanning and close the connection. Idempotent."""
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join(timeout=10)
+            self._thread = None
+        self._client.close()
+
+    def __enter__(self) -> SimPlc:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ outputs
+    def select_recipe(self, recipe: int) -> None:
+        """Ask for recipe ``recipe`` (written by the next scan; not range-checked here)."""
+        self._set_output("recipe_select", recipe)
+
+    def set_part_id(self, part_id: int) -> None:
+        """Announce the next part's id (u32, written whole by the next scan)."""
+        self._set_output("part_id", part_id)
+
+    def set_command(self, **bits: bool) -> None:
+        """Set/clear named bits of ``command_word``, e.g. ``set_command(execute=True)``."""
+        with self._cv:
+            self._outputs["command_word"] = self.map.with_bits(
+                "command_word", self._outputs["command_word"], bits)
+
+    def pause_heartbeat(self) -> None:
+        """Stop incrementing ``plc_heartbeat`` (simulates a PLC in STOP / a dead link)."""
+        with self._cv:
+            self._hb_paused = True
+
+    def resume_heartbeat(self) -> None:
+        with self._cv:
+            self._hb_paused = False
+
+    def _set_output(self, name: str, value: int) -> None:
+        self.map[name]
+        with self._cv:
+            self._outputs[name] = int(value)
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def scans(self) -> int:
+        """Scans completed (input image refreshed) since start."""
+        with self._cv:
+            return self._scans
+
+    def inputs(self) -> dict[str, int]:
+        """Input image of the last scan: every named register."""
+        with self._cv:
+            return dict(self._inputs)
+
+    def status(self) -> dict[str, bool]:
+        """Named bits of ``status_word`` from the last scan."""
+        return self.map.bits("status_word", self.inputs()["status_word"])
+
+    def wait_scans(self, n: int = 1, timeout_s: float = 5.0) -> None:
+        """Block until ``n`` more scans completed; SimPlcError on timeout (real seconds)."""
+        with self._cv:
+            target = self._scans + n
+            if not self._cv.wait_for(lambda: self._scans >= target, timeout_s):
+                raise SimPlcError(f"SimPlc: {n} scans did not complete within {timeout_s} s")
+
+    def wait_until(self, predicate: Callable[[dict[str, int]], bool], timeout_s: float,
+                   what: str = "condition") -> dict[str, int]:
+        """Block until ``predicate(inputs)`` holds after a scan; return that input image.
+
+        Raises SimPlcError naming ``what`` and the last status on timeout (real seconds).
+        """
+        with self._cv:
+            if self._cv.wait_for(lambda: predicate(self._inputs), timeout_s):
+                return dict(self._inputs)
+            status = self.map.bits("status_word", self._inputs["status_word"])
+        raise SimPlcError(f"SimPlc: timed out after {timeout_s} s waiting for {what}; "
+                          f"status {[k for k, v in status.items() if v]}")
+
+    # ------------------------------------------------------------------ the handshake
+    def run_cycle(self, recipe: int, part_id: int, timeout_s: float = 5.0) -> dict[str, int]:
+        """One full cycle by the handshake in the register map's ``HANDSHAKE``.
+
+        Selects ``recipe`` (waits for recipe_ack), writes ``part_id``, clears stale
+        done/error/aborted with acknowledge, raises execute, waits for done/error/aborted,
+        reads the results from that same scan, drops execute and acknowledges. Returns the
+        results (``RESULTS`` names) plus ``done``/``error``/``aborted`` (0/1). Raises
+        SimPlcError if a write is refused, recipe_status is not 0, or a step times out
+        (execute is dropped first). ``timeout_s`` applies to each step.
+        """
+        errors_before = len(self.write_errors)
+        bits = lambda img: self.map.bits("status_word", img["status_word"])  # noqa: E731
+        finished = lambda img: any(bits(img)[k] for k in ("done", "error", "aborted"))  # noqa: E731
+
+        status_before = self.inputs()["recipe_status"]
+
+        def recipe_settled(i: dict[str, int]) -> bool:
+            if self._refused_since(errors_before):
+                return True
+            if i["recipe_select"] != recipe or i["part_id"] != part_id:
+                return False   # our writes are not read back yet
+            if i["recipe_status"] == 0:
+                return i["recipe_ack"] == recipe
+            # a refusal is fresh only if it differs from before; a repeat of the same
+            # code cannot be told from a stale one and ends in the timeout below
+            return status_before == 0 or i["recipe_status"] != status_before
+
+        self.select_recipe(recipe)
+        self.set_part_id(part_id)
+        try:
+            img = self.wait_until(recipe_settled, timeout_s, "recipe_ack and part_id read-back")
+        except SimPlcError as exc:
+            raise SimPlcError(f"{exc}; recipe_status {self.inputs()['recipe_status']}") from None
+        self._raise_refused(errors_before)
+        if img["recipe_status"] != 0:
+            raise SimPlcError(f"SimPlc: recipe {recipe} not active: recipe_status "
+                              f"{img['recipe_status']}")
+        if finished(img):
+            self._pulse_acknowledge(timeout_s)
+        self.set_command(execute=True)
+        try:
+            img = self.wait_until(finished, timeout_s, "done, error or aborted")
+        finally:
+            self.set_command(execute=False)
+        result = {name: img[name] for name in RESULTS}
+        result.update({k: int(bits(img)[k]) for k in ("done", "error", "aborted")})
+        self._pulse_acknowledge(timeout_s)
+        self._raise_refused(errors_before)
+        return result
+
+    def _pulse_acknowledge(self, timeout_s: float) -> None:
+        self.set_command(acknowledge=True)
+        try:
+            self.wait_until(lambda i: not any(self.map.bits("status_word", i["status_word"])[k]
+                                              for k in ("done", "error", "aborted")),
+                            timeout_s, "done/error/aborted cleared by acknowledge")
+        finally:
+            self.set_command(acknowledge=False)
+
+    def _refused_since(self, n: int) -> bool:
+        return len(self.write_errors) > n
+
+    def _raise_refused(self, n: int) -> None:
+        with self._cv:
+            refused = self.write_errors[n:]
+        if refused:
+            name, value, code = refused[0]
+            raise SimPlcError(f"SimPlc: controller refused {name} = {value} (Modbus exception "
+                              f"{code:02d})")
+
+    # ------------------------------------------------------------------ scan loop
+    def _run(self) -> None:
+        next_t = self._clock.now()
+        while not self._stop.is_set():
+            self._scan()
+            next_t += self.scan_s
+            delay = next_t - self._clock.now()
+            if delay < -self.scan_s:  # overran by more than one scan: do not try to catch up
+                next_t = self._clock.now()
+            self._clock.sleep(delay)
+
+    def _scan(self) -> None:
+        image = self._read_image()
+        with self._cv:
+            if image is not None:
+                self._inputs = image
+            todo = [(n, self._outputs[n]) for n in OUTPUTS if self._outputs[n] != self._written[n]]
+            hb = None if self._hb_paused else (self._heartbeat + 1) & 0xFFFF
+        for name, value in todo:
+            code = self._write(name, value)
+            if code < 0:
+                continue  # link down: try again next scan
+            with self._cv:
+                self._written[name] = value   # refused values are not retried
+                if code:
+                    self.write_errors.append((name, value, code))
+        if hb is not None and self._write("plc_heartbeat", hb) == 0:
+            with self._cv:
+                self._heartbeat = hb
+        with self._cv:
+            if image is not None:
+                self._scans += 1
+            self._cv.notify_all()
+
+    def _read_image(self) -> dict[str, int] | None:
+        try:
+            rr = self._client.read_holding_registers(0, count=self.map.size, device_id=self._unit)
+        except ModbusException as exc:
+            self._link_error("read", exc)
+            return None
+        if rr.isError():
+            self._link_error("read", rr)
+            return None
+        return self.map.decode_image(rr.registers)
+
+    def _write(self, name: str, value: int) -> int:
+        """Write one register; 0 if accepted, the Modbus exception code if refused, -1 on I/O error."""
+        reg = self.map[name]
+        words = [(value >> 16) & 0xFFFF, value & 0xFFFF] if reg.words == 2 else [value & 0xFFFF]
+        if value < 0 or value >> (16 * reg.words):
+            words = [0xFFFF] * reg.words   # what a PLC's saturating conversion would send
+        try:
+            if reg.words == 1:
+                rr = self._client.write_register(reg.address, words[0], device_id=self._unit)
+            else:
+                rr = self._client.write_registers(reg.address, words, device_id=self._unit)
+        except ModbusException as exc:
+            self._link_error(f"write {name}", exc)
+            return -1
+        if rr.isError():
+            _log().info("sim_plc_write_refused", name=name, value=value, code=rr.exception_code)
+            return int(rr.exception_code)
+        return 0
+
+    def _link_error(self, what: str, exc: object) -> None:
+        self.link_errors += 1
+        _log().warning("sim_plc_link_error", op=what, error=str(exc))
