@@ -15,6 +15,19 @@ import structlog
 _configured = False
 
 
+class _StderrLogger:
+    """Writes each rendered event to the *current* ``sys.stderr`` (which test runners and
+    daemons may swap), and never raises if that stream is already closed."""
+
+    def msg(self, message: str) -> None:
+        try:
+            print(message, file=sys.stderr, flush=True)
+        except (ValueError, OSError):
+            pass
+
+    log = debug = info = warning = warn = error = critical = exception = fatal = msg
+
+
 def configure(fmt: Literal["json", "console"] = "console", level: str = "INFO") -> None:
     """Configure structlog for the whole process. ``level`` is a logging level name."""
     global _configured
@@ -30,7 +43,7 @@ def configure(fmt: Literal["json", "console"] = "console", level: str = "INFO") 
             renderer,
         ],
         wrapper_class=structlog.make_filtering_bound_logger(logging.getLevelName(level.upper())),
-        logger_factory=structlog.PrintLoggerFactory(file=sys.stderr),
+        logger_factory=lambda *args: _StderrLogger(),
         cache_logger_on_first_use=False,
     )
     _configured = True
