@@ -1,0 +1,149 @@
+"""The simulated camera renders the truth faithfully: positions, areas, boards, optics, noise."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cell.clock import ManualClock
+from cell.errors import ConfigError
+from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
+from drivers.camera import CameraError
+from drivers.camera.sim import Fiducial, Optics, SimCamera, render, render_float, render_radiance
+
+NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
+TILTED = CameraModel(Intrinsics(900.0, 900.0, 66.0, 61.0, 128, 128),
+                     Pose(900.0, (0.0, 0.0), yaw_deg=20.0, tilt_x_deg=3.0),
+                     Distortion(-0.1, 0.0, 0.001, 0.0))
+
+
+def _image_outline_centroid_and_area(model, x, y, r):
+    """Area centroid and area of the disc's image, from its projected outline (shoelace)."""
+    t = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
+    q = model.project(np.column_stack([x + r * np.cos(t), y + r * np.sin(t)]))
+    a, b = q, np.roll(q, -1, axis=0)
+    cross = a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]
+    area = cross.sum() / 2
+    return (a + b).T @ cross / (6 * area), abs(area)
+
+
+@pytest.mark.parametrize("model", [NADIR, TILTED], ids=["nadir", "tilted"])
+def test_disc_is_rendered_where_it_is_with_its_area(model):
+    rng = np.random.default_rng(0)
+    optics = Optics(noise_sigma=0.0, blur_sigma_px=0.0, background=0.0, contrast=100.0)
+    vv, uu = np.mgrid[0:128, 0:128]
+    for _ in range(8):
+        x, y = rng.uniform(-5, 5, 2)
+        img = render_float(model, [Fiducial(x, y, 8.0)], optics) / 100.0
+        centre = np.array([(img * uu).sum(), (img * vv).sum()]) / img.sum()
+        truth, area = _image_outline_centroid_and_area(model, x, y, 8.0)
+        assert np.allclose(centre, truth, atol=0.002)
+        assert img.sum() == pytest.approx(area, rel=1e-3)
+    if model is NADIR:                     # straight down: the image centroid is the centre
+        assert np.allclose(truth, model.project([(x, y)])[0], atol=1e-9)
+
+
+def test_blur_keeps_the_mean_and_softens_the_edge():
+    sharp = render_radiance(NADIR, [Fiducial(0.2, 0.1, 10.0)], Optics(blur_sigma_px=0.0))
+    soft = render_radiance(NADIR, [Fiducial(0.2, 0.1, 10.0)], Optics(blur_sigma_px=2.0))
+    assert soft.sum() == pytest.approx(sharp.sum(), rel=1e-6)
+    assert np.abs(np.diff(soft, axis=1)).max() < 0.5 * np.abs(np.diff(sharp, axis=1)).max()
+
+
+def test_lighting_and_noise():
+    flat = Optics(noise_sigma=0.0, gain=1.5, offset=10.0, gradient=(0.2, 0.0))
+    img = render_float(NADIR, [], flat)
+    assert img[64, 0] == pytest.approx(1.5 * 0.8 * 50.0 + 10.0)
+    assert img[64, 127] == pytest.approx(1.5 * 1.2 * 50.0 + 10.0)
+    noisy = render(NADIR, [], Optics(noise_sigma=5.0), np.random.default_rng(1))
+    assert noisy.dtype == np.uint8 and noisy.std() == pytest.approx(5.0, rel=0.05)
+    bright = render(NADIR, [Fiducial(0.0, 0.0, 10.0)], Optics(contrast=400.0, noise_sigma=0.0))
+    assert bright.max() == 255                                 # over-exposure clips
+
+
+def test_boards_are_rendered_on_the_plane():
+    chess = ChessBoard(5, 4, origin_mm=(-20.0, -15.0), square_mm=10.0)
+    img = render(NADIR, [chess], Optics(noise_sigma=0.0, blur_sigma_px=0.0))
+    u, v = NADIR.project([(-25.0, -20.0)])[0]                 # inside the black corner square
+    assert img[int(round(v)), int(round(u))] == 30
+    u, v = NADIR.project([(-15.0, -20.0)])[0]                 # its white neighbour
+    assert img[int(round(v)), int(round(u))] == 220
+    grid = CircleGridBoard(4, 3, origin_mm=(-15.0, -10.0), pitch_mm=10.0, radius_mm=3.0)
+    img = render(NADIR, [grid], Optics(noise_sigma=0.0, blur_sigma_px=0.0))
+    for x, y in grid.points_mm():
+        u, v = NADIR.project([(x, y)])[0]
+        assert img[int(round(v)), int(round(u))] == 30
+
+
+def test_camera_frames_carry_the_truth_and_are_repeatable():
+    scene = [Fiducial(3.0, -2.0, 6.0, "tool"), Fiducial(-20.0, 15.0, 5.0, "part")]
+    cams = [SimCamera(NADIR, lambda: scene, seed=5, clock=ManualClock()) for _ in range(2)]
+    frames = []
+    for cam in cams:
+        with cam:
+            frames.append([cam.grab() for _ in range(2)])
+    assert np.array_equal(frames[0][1].image, frames[1][1].image)       # same seed, same noise
+    assert not np.array_equal(frames[0][0].image, frames[0][1].image)   # fresh noise per frame
+    meta = frames[0][0].metadata
+    assert [f["kind"] for f in meta["fiducials"]] == ["tool", "part"]
+    assert np.allclose(meta["fiducials_px"], NADIR.project([(3.0, -2.0), (-20.0, 15.0)]))
+
+
+def test_scene_is_read_at_every_grab():
+    where = {"x": 0.0}
+    cam = SimCamera(NADIR, lambda: [(where["x"], 0.0, 5.0, "tool")], clock=ManualClock())
+    with cam:
+        first = cam.grab().metadata["fiducials_px"][0]
+        where["x"] = 10.0
+        second = cam.grab().metadata["fiducials_px"][0]
+    assert second[0] - first[0] == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("item, match", [
+    ((1.0, 2.0), "scene item 0"),
+    ((1.0, 2.0, -3.0, "tool"), r"scene item 0 .* radius > 0"),
+    ((float("nan"), 2.0, 3.0, "tool"), "finite"),
+    ("fiducial", "scene item 0"),
+])
+def test_bad_scene_items_are_named_and_change_nothing(item, match):
+    _check_grab_fails_cleanly(lambda: [item], match)
+
+
+def test_scene_that_is_not_a_list():
+    _check_grab_fails_cleanly(lambda: 42, "scene must be a list")
+
+
+def _check_grab_fails_cleanly(scene, match):
+    cam = SimCamera(NADIR, scene, clock=ManualClock())
+    with cam:
+        with pytest.raises(CameraError, match=match):
+            cam.grab()
+        cam.scene = lambda: []
+        assert cam.grab().index == 0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(optics={"noise": 1.0}), "unknown keys"),
+    (dict(optics={"supersample": 0}), "supersample"),
+    (dict(optics={"gradient": (2.0, 0.0)}), "gradient"),
+    (dict(optics={"blur_sigma_px": -1.0}), "blur_sigma_px"),
+    (dict(model={"pose": {"height_mm": 1.0}}), "intrinsics"),
+    (dict(scene=[Fiducial(0, 0, 1)]), "callable"),
+])
+def test_bad_construction(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        SimCamera(**kwargs)
+
+
+def test_default_frame_is_1_3_megapixels():
+    with SimCamera(clock=ManualClock()) as cam:
+        assert cam.grab().image.shape == (1024, 1280)
+
+
+def test_blurring_only_the_rendered_regions_equals_blurring_the_frame():
+    import cv2
+    scene = [Fiducial(0.0, 0.0, 6.0), Fiducial(9.0, 4.0, 5.0),            # overlapping boxes
+             Fiducial(-61.0, 30.0, 8.0),                                  # cut by the edge
+             CircleGridBoard(3, 3, origin_mm=(20.0, -50.0), pitch_mm=8.0, radius_mm=2.0)]
+    sharp = render_radiance(NADIR, scene, Optics(blur_sigma_px=0.0))
+    full = cv2.GaussianBlur(sharp, (0, 0), 1.3, borderType=cv2.BORDER_REPLICATE)
+    assert np.allclose(render_radiance(NADIR, scene, Optics(blur_sigma_px=1.3)), full, atol=1e-6)
