@@ -29,7 +29,18 @@ from cell.errors import ConfigError, MeasurementError
 
 
 class VisionError(MeasurementError):
-    """An image could not be measured or mapped; the message names what and where (pixels)."""
+    """An image could not be measured or mapped; the message names what and where (pixels).
+
+    ``kind`` classifies the failure for callers that must react differently (the cell maps
+    it to a PLC fault code): "no_target", "multiple", "cut", "saturated", "low_contrast",
+    "bad_image" or "other".
+    """
+
+    KINDS = ("no_target", "multiple", "cut", "saturated", "low_contrast", "bad_image", "other")
+
+    def __init__(self, message: str, kind: str = "other"):
+        super().__init__(message)
+        self.kind = kind if kind in self.KINDS else "other"
 
 
 def _finite(name: str, value: float, lo: float = -math.inf, hi: float = math.inf,

@@ -84,13 +84,13 @@ def _where(region) -> str:
 def check_image(image, what: str = "image") -> np.ndarray:
     """Return ``image`` if it is a non-empty 2-D uint8 array, else raise :class:`VisionError`."""
     if not isinstance(image, np.ndarray):
-        raise VisionError(f"{what} must be a numpy array, got {type(image).__name__}")
+        raise VisionError(f"{what} must be a numpy array, got {type(image).__name__}", "bad_image")
     if image.dtype != np.uint8:
-        raise VisionError(f"{what} must be 8-bit grey (uint8), got dtype {image.dtype}")
+        raise VisionError(f"{what} must be 8-bit grey (uint8), got dtype {image.dtype}", "bad_image")
     if image.ndim != 2:
-        raise VisionError(f"{what} must be 2-D (grey), got shape {image.shape}")
+        raise VisionError(f"{what} must be 2-D (grey), got shape {image.shape}", "bad_image")
     if image.shape[0] < 8 or image.shape[1] < 8:
-        raise VisionError(f"{what} is empty or too small: shape {image.shape} (need >= 8x8)")
+        raise VisionError(f"{what} is empty or too small: shape {image.shape} (need >= 8x8)", "bad_image")
     return image
 
 
@@ -181,7 +181,7 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
     region = (ui - half, vi - half, ui + half, vi + half)
     if region[0] < 0 or region[1] < 0 or region[2] > w - 1 or region[3] > h - 1:
         raise VisionError(f"target at {_where(region)} is cut by or too close to the image edge "
-                          f"(image {w}x{h}, needs {margin} px of margin around the disc)")
+                          f"(image {w}x{h}, needs {margin} px of margin around the disc)", "cut")
     raw = image[region[1]:region[3] + 1, region[0]:region[2] + 1]
     sat_level = 255 if polarity == "bright" else 0
     saturated = int(np.count_nonzero(raw == sat_level))
@@ -189,7 +189,7 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
     if saturated > max(2.0, max_saturated_fraction * disc_area):
         raise VisionError(f"target at {_where(region)} is saturated: {saturated} pixels at "
                           f"{sat_level} (> {max_saturated_fraction:.0%} of the disc area "
-                          f"{disc_area:.0f} px); lower exposure or gain")
+                          f"{disc_area:.0f} px); lower exposure or gain", "saturated")
     work = raw.astype(np.float64)
     sign = 1.0 if polarity == "bright" else -1.0
     vv, uu = np.mgrid[region[1]:region[3] + 1, region[0]:region[2] + 1].astype(np.float64)
@@ -205,7 +205,7 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
     contrast0 = float(np.median(signal[inner])) if np.any(inner) else float(signal.max())
     if not contrast0 >= min_contrast:
         raise VisionError(f"target at {_where(region)} has too low contrast: {contrast0:.1f} "
-                          f"grey levels < min_contrast {min_contrast:g}")
+                          f"grey levels < min_contrast {min_contrast:g}", "low_contrast")
 
     # Grey-level centroid over the disc plus its blurred edge.
     win = rho0 <= radius_px + 3.0
@@ -300,6 +300,7 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
     a_min, a_max = 0.5 * math.pi * min_radius_px ** 2, math.pi * (max_radius_px + 2.0) ** 2
     hh, ww = image.shape
     found, problems, ignored = [], [], []
+    kinds: list[str] = []
     for i in range(1, n):
         x, y, bw, bh, area = (int(t) for t in stats[i])
         region = (x + off_u, y + off_v, x + bw - 1 + off_u, y + bh - 1 + off_v)
@@ -311,6 +312,7 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
         if x == 0 or y == 0 or x + bw == ww or y + bh == hh:
             edge = "image" if roi is None else "roi"
             problems.append(f"target at {_where(region)} is cut by the {edge} edge")
+            kinds.append("cut")
             continue
         blob = (labels[y:y + bh, x:x + bw] == i).astype(np.uint8)
         holes = _hole_area(blob)
@@ -335,20 +337,21 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
                                   max_saturated_fraction=max_saturated_fraction, circularity=circ)
         except VisionError as exc:
             problems.append(str(exc))
+            kinds.append(exc.kind)
             continue
         found.append(fix)
     if problems:
-        raise VisionError("; ".join(problems))
+        raise VisionError("; ".join(problems), kinds[0])
     if not found:
         extra = f" ({'; '.join(ignored[:3])})" if ignored else ""
         full = (off_u, off_v, off_u + ww - 1, off_v + hh - 1)
         raise VisionError(f"no target found in {_where(full)}: nothing of radius "
                           f"{min_radius_px:g}..{max_radius_px:g} px standing out by > {thr:.0f} "
-                          f"grey levels{extra}")
+                          f"grey levels{extra}", "no_target")
     found.sort(key=lambda f: (f.v_px, f.u_px))
     if expected is not None and len(found) != expected:
         where = ", ".join(f"({f.u_px:.1f}, {f.v_px:.1f}) in {_where(f.region)}" for f in found)
-        raise VisionError(f"expected {expected} target(s), found {len(found)}: {where}")
+        raise VisionError(f"expected {expected} target(s), found {len(found)}: {where}", "multiple")
     return found
 
 

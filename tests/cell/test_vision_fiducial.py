@@ -101,26 +101,29 @@ def test_vision_error_is_a_measurement_error():
     ([[1, 2], [3, 4]], "numpy array"),
 ])
 def test_bad_images(bad, match):
-    with pytest.raises(VisionError, match=match):
+    with pytest.raises(VisionError, match=match) as exc:
         find_fiducial(bad)
+    assert exc.value.kind == "bad_image"
 
 
 def test_no_target():
-    with pytest.raises(VisionError, match=r"no target found in pixel region u 0\.\.127, v 0\.\.127"):
+    with pytest.raises(VisionError, match=r"no target found in pixel region u 0\.\.127, v 0\.\.127") as exc:
         find_fiducial(_shot([]))
+    assert exc.value.kind == "no_target"
 
 
 def test_two_targets_when_one_expected():
     img = _shot([Fiducial(-30.0, 20.0, 6.0), Fiducial(25.0, -30.0, 8.0)])
-    with pytest.raises(VisionError, match=r"expected 1 target\(s\), found 2: .*pixel region.*pixel region"):
+    with pytest.raises(VisionError, match=r"expected 1 target\(s\), found 2: .*pixel region.*pixel region") as exc:
         find_fiducial(img)
+    assert exc.value.kind == "multiple"
 
 
 def test_target_cut_by_image_edge():
     img = _shot([Fiducial(-60.0, 0.0, 10.0)])                # centre 3.5 px from the left edge
     with pytest.raises(VisionError, match=r"cut by the image edge") as exc:
         find_fiducial(img)
-    assert "pixel region u 0.." in str(exc.value)
+    assert "pixel region u 0.." in str(exc.value) and exc.value.kind == "cut"
 
 
 def test_target_cut_by_roi_edge():
@@ -131,20 +134,23 @@ def test_target_cut_by_roi_edge():
 
 def test_target_too_close_to_edge_for_refinement():
     img = _shot([Fiducial(-48.5, 0.0, 10.0)])                # whole disc in view, no margin
-    with pytest.raises(VisionError, match="too close to the image edge"):
+    with pytest.raises(VisionError, match="too close to the image edge") as exc:
         find_fiducial(img)
+    assert exc.value.kind == "cut"
 
 
 def test_saturated_target():
     img = _shot([Fiducial(0.0, 0.0, 10.0)], Optics(contrast=230.0))   # 280 grey: clipped
-    with pytest.raises(VisionError, match=r"pixel region u \d+\.\.\d+, v \d+\.\.\d+ is saturated: \d+ pixels at 255"):
+    with pytest.raises(VisionError, match=r"pixel region u \d+\.\.\d+, v \d+\.\.\d+ is saturated: \d+ pixels at 255") as exc:
         find_fiducial(img)
+    assert exc.value.kind == "saturated"
 
 
 def test_low_contrast_target():
     img = _shot([Fiducial(0.0, 0.0, 10.0)], Optics(contrast=20.0, noise_sigma=1.0))
-    with pytest.raises(VisionError, match=r"too low contrast: 2\d\.\d grey levels < min_contrast 30"):
+    with pytest.raises(VisionError, match=r"too low contrast: 2\d\.\d grey levels < min_contrast 30") as exc:
         find_fiducial(img)
+    assert exc.value.kind == "low_contrast"
     assert find_fiducial(img, min_contrast=10.0).contrast == pytest.approx(20.0, abs=2.0)
 
 
