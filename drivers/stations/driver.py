@@ -1,0 +1,510 @@
+"""Controller side of the joint stations: one :class:`JointStations` for all four CANopen
+drives (canopen ``RemoteNode`` on a python-can bus from the config; STYLE habits 2, 3, 9).
+
+Wire layout (per station with node id ``n``; set up by :meth:`JointStations.start`):
+
+=========  ===========  =====================================================  ==========
+COB-ID     direction    content                                                applied
+=========  ===========  =====================================================  ==========
+0x200+n    RPDO1 →      target 0x607A (i32, inc) + profile velocity 0x6081      on receipt
+0x300+n    RPDO2 →      controlword 0x6040                                     on receipt
+0x400+n    RPDO3 →      target + profile velocity                              on SYNC
+0x180+n    ← TPDO1      position actual value 0x6064 + statusword 0x6041       event timer
+0x700+n    ← heartbeat  NMT state every ``heartbeat_ms``                        watched
+0x080+n    ← EMCY       fault codes                                            latched
+0x700+c    heartbeat →  the controller (node ``controller_node_id``)           consumed
+=========  ===========  =====================================================  ==========
+
+Threads (STYLE habit 9): canopen's notifier thread runs the TPDO/EMCY callbacks and our
+:class:`~drivers.stations.faults.BusMonitor`; the watchdog thread checks heartbeats;
+python-can's cyclic task sends the controller heartbeat; :meth:`stream` runs in the
+caller's thread and timestamps each set-point burst. A latched fault quick-stops all
+stations from whichever thread found it, under the command lock, so no set-point can
+follow the quick stop.
+
+Safety: after any fault every command but :meth:`reset` / :meth:`shutdown` raises
+:class:`~drivers.stations.faults.StationFaultError` naming the latched fault.
+"""
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+from fractions import Fraction
+from typing import Sequence
+
+import can
+import canopen
+import numpy as np
+
+from cell.clock import Clock, MonotonicClock
+from cell.errors import CellError
+from cell.kinematics import JOINT_NAMES
+from cell.log import get_logger
+from drivers.stations import cia402
+from drivers.stations.bus import open_bus
+from drivers.stations.cia402 import Command, State
+from drivers.stations.config import StationConfig, StationsConfig
+from drivers.stations.faults import (EMCY_TO_FAULT, BusMonitor, Expected, FaultCode, FaultLatch,
+                                     FaultRecord, HeartbeatWatchdog, StationFaultError)
+from drivers.stations.sim_station import EDS_PATH
+from drivers.stations.streaming import StationCommandError, StreamingMixin, StreamReport  # noqa: F401
+
+log = get_logger("stations.driver")
+_SETPOINT = struct.Struct("<iI")
+_CONTROLWORD = struct.Struct("<H")
+_I32 = 2 ** 31 - 1
+
+
+class StationStartupError(CellError, RuntimeError):
+    """Start-up or re-enable failed (no boot-up, SDO refused, drive would not enable)."""
+
+
+class _Station:
+    """Controller-side record of one station: config, RemoteNode, latest TPDO."""
+
+    def __init__(self, cfg: StationConfig, node: canopen.RemoteNode):
+        self.cfg, self.node = cfg, node
+        self.cpu = cfg.counts_per_unit
+        self.pos_inc: int | None = None
+        self.statusword = 0
+        self.t_tpdo = 0.0
+        self.tpdo_count = 0
+        self.fault_tpdos = 0
+        self.target: float | None = None
+
+    @property
+    def joint(self) -> str:
+        return self.cfg.joint
+
+
+class JointStations(StreamingMixin):
+    """All joint stations of one cell behind one object.
+
+    Lifecycle: :meth:`from_config` → :meth:`start` (Operation enabled) → commands
+    (:meth:`move_to`, :meth:`stream`) → :meth:`shutdown`. A fault latches (see
+    :attr:`fault`); :meth:`reset` clears it once its cause is gone and re-enables.
+    Arrays are always per joint j1..j4 in joint units (deg; mm for j3).
+    """
+
+    def __init__(self, cfg: StationsConfig, clock: Clock | None = None):
+        self.cfg = cfg
+        self.clock = clock or MonotonicClock()
+        self.latch = FaultLatch()
+        self.latch.on_latch(self._react)
+        self._cmd_lock = threading.RLock()
+        self._stations: list[_Station] = []
+        self._by_node: dict[int, _Station] = {}
+        self.network: canopen.Network | None = None
+        self.monitor: BusMonitor | None = None
+        self.watchdog: HeartbeatWatchdog | None = None
+        self._hb_task = None
+        self._started = False
+        self._expect_operational = False
+        self._recording: list[tuple[float, int, float]] | None = None
+        self._heard: dict[int, int | None] = {}  # node id → NMT state of its last heartbeat
+        self._delays = np.zeros(4)
+        if cfg.delays_s != "measure":
+            for s, d in zip(cfg.stations, cfg.delays_s):
+                self._delays[s.joint_index] = d
+
+    @classmethod
+    def from_config(cls, data, clock: Clock | None = None) -> "JointStations":
+        """Build from the ``stations`` config section (mapping or :class:`StationsConfig`).
+
+        :raises ConfigError: naming each bad field. Opens nothing (see :meth:`start`).
+        """
+        return cls(StationsConfig.load(data), clock)
+
+    # ================================================================== start-up
+    def start(self) -> None:
+        """Open the bus, wait for every station's heartbeat, configure them by SDO (heartbeats,
+        gear, limits, PDO mapping), NMT start, controller heartbeat on, CiA 402 enable
+        sequence to *Operation enabled*, watchdog armed; measures delays if configured.
+
+        :raises StationStartupError: a station did not boot or refused its configuration
+            (everything opened so far is closed again).
+        :raises can.CanError: the interface could not be opened.
+        """
+        if self._started:
+            return
+        c = self.cfg
+        bus = open_bus(c.interface, c.channel, c.bitrate, rate_limited=c.rate_limited)
+        net = canopen.Network(bus)
+        net.NOTIFIER_CYCLE = 0.05
+        od_path = str(EDS_PATH)
+        for sc in c.stations:
+            node = canopen.RemoteNode(sc.node_id, canopen.import_od(od_path, sc.node_id))
+            node.sdo.RESPONSE_TIMEOUT = c.sdo_timeout_s
+            net.add_node(node)
+            st = _Station(sc, node)
+            self._stations.append(st)
+            self._by_node[sc.node_id] = st
+            node.tpdo.read(from_od=True)
+            node.tpdo[1].add_callback(self._tpdo_callback(st))
+            node.emcy.add_callback(self._emcy_callback(st))
+        self.watchdog = HeartbeatWatchdog(
+            self.latch, {s.cfg.node_id: s.joint for s in self._stations},
+            timeout_s=c.heartbeat_tolerance * c.heartbeat_ms / 1000.0,
+            period_s=min(0.02, c.heartbeat_ms / 4000.0), bus=bus)
+        self.monitor = BusMonitor(self.latch, self._expected(), c.unknown_frames, self._on_heartbeat)
+        net.listeners.append(self.monitor)
+        self.network = net
+        net.connect()
+        try:
+            self._wait_boot()
+            self._configure_all()
+            self._hb_task = net.send_periodic(0x700 + c.controller_node_id, [0x05],
+                                              c.controller_heartbeat_ms / 1000.0)
+            self._enable_all()
+        except BaseException:
+            self._close()
+            raise
+        self._expect_operational = True
+        self._started = True
+        self.watchdog.arm()
+        if c.delays_s == "measure":
+            self.measure_delays()
+        log.info("stations_started", joints=[s.joint for s in self._stations], channel=c.channel)
+
+    def _expected(self) -> dict[int, Expected]:
+        exp = {}
+        for s in self._stations:
+            n, j = s.cfg.node_id, s.joint
+            exp[0x700 + n] = Expected("heartbeat", j, n, frozenset({1}))
+            exp[0x080 + n] = Expected("emcy", j, n, frozenset({8}))
+            exp[0x580 + n] = Expected("sdo", j, n, frozenset({8}))
+            exp[0x180 + n] = Expected("tpdo", j, n, frozenset({6}))
+        return exp
+
+    def _wait_boot(self) -> None:
+        deadline = time.monotonic() + self.cfg.boot_timeout_s
+        while True:
+            missing = [s for s in self._stations if self._heard.get(s.cfg.node_id) is None]
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                raise StationStartupError(
+                    "no heartbeat within %.1f s from %s" % (self.cfg.boot_timeout_s, ", ".join(
+                        f"{s.joint} (node {s.cfg.node_id})" for s in missing)))
+            time.sleep(0.005)
+
+    def _on_heartbeat(self, node_id: int, state: int) -> None:
+        self._heard[node_id] = state
+        if self.watchdog is not None:
+            self.watchdog.beat(node_id, state)
+        if self._expect_operational and state != 0x05:
+            st = self._by_node[node_id]
+            what = "rebooted (boot-up)" if state == 0 else f"left NMT Operational (state {state})"
+            self.latch.latch(FaultRecord(FaultCode.STATION_RESET, what, st.joint, node_id))
+
+    def _configure_all(self) -> None:
+        c = self.cfg
+        self._expect_operational = False
+        for s in self._stations:
+            node, sc = s.node, s.cfg
+            try:
+                node.nmt.state = "PRE-OPERATIONAL"
+                sdo = node.sdo
+                sdo[0x1017].raw = c.heartbeat_ms
+                sdo[0x1016][1].raw = (c.controller_node_id << 16) | c.consumer_timeout_ms
+                gear = Fraction(sc.gear_ratio).limit_denominator(1000)
+                sdo[0x608F][1].raw, sdo[0x608F][2].raw = sc.encoder_increments, 1
+                sdo[0x6091][1].raw, sdo[0x6091][2].raw = gear.numerator, gear.denominator
+                lo, hi = sc.joint_limits
+                sdo[0x607D][1].raw = math.ceil(lo * s.cpu)
+                sdo[0x607D][2].raw = math.floor(hi * s.cpu)
+                sdo[0x607F].raw = min(round(sc.max_velocity * s.cpu), 2 ** 32 - 1)
+                sdo[0x6085].raw = min(round(sc.quick_stop_decel * s.cpu), 2 ** 32 - 1)
+                sdo[0x605A].raw = 6   # quick stop: ramp, then hold in Quick stop active
+                sdo[0x6060].raw = 1   # profile position (set-point streaming)
+                self._map_pdos(s)
+                node.nmt.state = "OPERATIONAL"
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+                raise StationStartupError(f"configuring {s.joint} (node {sc.node_id}) by SDO failed: {exc}") from exc
+        # Operational only counts once each station's heartbeat says so (frames in flight
+        # may still carry the old state).
+        for s in self._stations:
+            self._heard[s.cfg.node_id] = None
+        deadline = time.monotonic() + 3 * c.heartbeat_ms / 1000.0 + 0.1
+        while any(self._heard.get(s.cfg.node_id) != 0x05 for s in self._stations):
+            if time.monotonic() > deadline:
+                bad = [f"{s.joint} (NMT state {self._heard.get(s.cfg.node_id)})" for s in self._stations
+                       if self._heard.get(s.cfg.node_id) != 0x05]
+                raise StationStartupError(f"stations not NMT Operational after start: {', '.join(bad)}")
+            time.sleep(0.002)
+
+    def _map_pdos(self, s: _Station) -> None:
+        n = s.cfg.node_id
+        node = s.node
+        node.rpdo.read(from_od=True)
+        layout = {1: ((0x607A, 0x6081), 255), 2: ((0x6040,), 255), 3: ((0x607A, 0x6081), 1)}
+        for k, (objs, trans) in layout.items():
+            m = node.rpdo[k]
+            m.clear()
+            for index in objs:
+                m.add_variable(index)
+            m.cob_id, m.trans_type, m.enabled = 0x100 + 0x100 * k + n, trans, True
+        node.rpdo.save()
+        t = node.tpdo[1]
+        t.clear()
+        t.add_variable(0x6064)
+        t.add_variable(0x6041)
+        t.cob_id, t.trans_type, t.event_timer, t.enabled = 0x180 + n, 255, self.cfg.tpdo_event_ms, True
+        t.inhibit_time, t.sync_start_value = 0, 0
+        t.save()
+
+    def _read_state(self, s: _Station) -> State:
+        return cia402.decode_statusword(int(s.node.sdo[0x6041].raw))
+
+    def _enable_all(self) -> None:
+        for s in self._stations:
+            try:
+                state = self._read_state(s)
+                deadline = time.monotonic() + 1.0
+                while state is State.FAULT_REACTION_ACTIVE and time.monotonic() < deadline:
+                    time.sleep(0.005)   # the reaction ends by itself (axis stopping)
+                    state = self._read_state(s)
+                for cmd in cia402.path_to(state, State.OPERATION_ENABLED):
+                    s.node.sdo[0x6040].raw = cmd.word
+                    state = self._read_state(s)
+                if state is not State.OPERATION_ENABLED:
+                    raise StationStartupError(f"{s.joint} (node {s.cfg.node_id}) stayed in "
+                                              f"{state.label!r} after the enable sequence")
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError, cia402.IllegalTransition) as exc:
+                raise StationStartupError(f"enabling {s.joint} (node {s.cfg.node_id}) failed: {exc}") from exc
+            s.target = None
+        # return only once the TPDOs say so too, so drive_states()/actual_positions() are fresh
+        deadline = time.monotonic() + 3 * self.cfg.tpdo_event_ms / 1000.0 + 0.2
+        while any(s.statusword & 0x6F != 0x27 for s in self._stations):
+            if time.monotonic() > deadline:
+                raise StationStartupError("no TPDO reporting Operation enabled from " + ", ".join(
+                    s.joint for s in self._stations if s.statusword & 0x6F != 0x27))
+            time.sleep(0.001)
+
+    # ================================================================== callbacks (notifier thread)
+    def _tpdo_callback(self, s: _Station):
+        def on_tpdo(pdo_map) -> None:
+            if len(pdo_map.data) != 6:
+                return  # the bus monitor latches GARBAGE_FRAME for it
+            pos, sw = struct.unpack_from("<iH", pdo_map.data)
+            s.pos_inc, s.statusword, s.t_tpdo = pos, sw, pdo_map.timestamp
+            s.tpdo_count += 1
+            rec = self._recording
+            if rec is not None:
+                rec.append((pdo_map.timestamp, s.cfg.joint_index, pos / s.cpu))
+            try:
+                state = cia402.decode_statusword(sw)
+            except cia402.IllegalTransition:
+                return
+            # A drive in Fault normally announced it by EMCY first; the statusword alone
+            # latches DRIVE_FAULT only when a second TPDO still shows it and nothing else did.
+            s.fault_tpdos = s.fault_tpdos + 1 if state in (State.FAULT, State.FAULT_REACTION_ACTIVE) else 0
+            if s.fault_tpdos >= 2 and self._expect_operational and self.latch.record is None:
+                self.latch.latch(FaultRecord(FaultCode.DRIVE_FAULT, f"statusword 0x{sw:04X} reports {state.label}",
+                                             s.joint, s.cfg.node_id))
+        return on_tpdo
+
+    def _emcy_callback(self, s: _Station):
+        def on_emcy(err) -> None:
+            if err.code & 0xFF00 == 0:
+                return  # error reset
+            code = EMCY_TO_FAULT.get(err.code, FaultCode.EMCY_OTHER)
+            self.latch.latch(FaultRecord(code, f"EMCY {err}", s.joint, s.cfg.node_id, err.code))
+        return on_emcy
+
+    def _react(self, record: FaultRecord) -> None:
+        """First fault: quick-stop every station (category 2), whatever thread we are in."""
+        with self._cmd_lock:
+            self._send_controlword_all(Command.QUICK_STOP)
+
+    def _send_controlword_all(self, cmd: Command) -> None:
+        if self.network is None or self.network.bus is None:
+            return
+        for s in self._stations:
+            try:
+                self.network.send_message(0x300 + s.cfg.node_id, _CONTROLWORD.pack(cmd.word))
+            except Exception as exc:  # keep stopping the others
+                log.error("controlword_send_failed", joint=s.joint, error=repr(exc))
+
+    # ================================================================== commands
+    def _ready(self, action: str) -> None:
+        if not self._started:
+            raise StationStartupError(f"{action} refused: the stations are not started (call start())")
+        self.latch.check(action)
+
+    def _check_targets(self, targets, what: str) -> np.ndarray:
+        try:
+            a = np.asarray(targets, dtype=float) if not isinstance(targets, str) else np.array([])
+        except (TypeError, ValueError):
+            raise StationCommandError(f"{what}: {targets!r} is not a list of 4 numbers") from None
+        if a.shape != (4,):
+            raise StationCommandError(f"{what}: need 4 joint values (j1..j4), got shape {a.shape}")
+        for s in self._stations:
+            v = a[s.cfg.joint_index]
+            lo, hi = s.cfg.joint_limits
+            if not math.isfinite(v):
+                raise StationCommandError(f"{what}: {s.joint} = {float(v)!r} is not a finite number")
+            if not lo <= v <= hi:
+                raise StationCommandError(f"{what}: {s.joint} = {v:.4f} is outside its limits [{lo}, {hi}]")
+        return a
+
+    def _setpoint_frame(self, s: _Station, target: float, vel: float) -> bytes:
+        vel_inc = min(int(round(abs(vel) * s.cpu)), 2 ** 32 - 1)
+        return _SETPOINT.pack(int(round(target * s.cpu)), vel_inc)
+
+    def _send(self, cob_id: int, data: bytes, action: str) -> float:
+        """Send one frame under the command lock; returns its bus timestamp."""
+        try:
+            self.network.send_message(cob_id, data)
+        except (can.CanError, RuntimeError) as exc:
+            self.latch.latch(FaultRecord(FaultCode.SEND_FAILED, f"{action}: frame 0x{cob_id:03X} not sent: {exc}"))
+            raise StationFaultError(self.latch.record, action) from exc
+        return getattr(self.network.bus, "last_tx_timestamp", None) or time.time()
+
+    def _burst(self, targets: np.ndarray, vels: np.ndarray, base: int, action: str) -> float:
+        """Send one set-point per station in bus order; returns the first frame's timestamp."""
+        with self._cmd_lock:
+            self.latch.check(action)
+            t_first = None
+            for s in self._stations:
+                j = s.cfg.joint_index
+                t = self._send(base + s.cfg.node_id, self._setpoint_frame(s, targets[j], vels[j]), action)
+                t_first = t if t_first is None else t_first
+                s.target = float(targets[j])
+            return t_first
+
+    def move_to(self, targets_deg: Sequence[float], speed: float) -> float:
+        """Point-to-point move: all joints start together and arrive together.
+
+        :param targets_deg: (4,) joint targets j1..j4 (deg; mm for j3), within limits.
+        :param speed: the fastest joint's speed, joint units/s (> 0); every joint is also
+            held to its ``max_velocity``.
+        :returns: the planned duration in seconds (from the actual positions now).
+        :raises StationCommandError: bad shape/values/limits or speed (nothing sent).
+        :raises StationFaultError: a fault is latched (nothing sent).
+        """
+        self._ready("move_to")
+        q = self._check_targets(targets_deg, "move_to")
+        if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not (math.isfinite(speed) and speed > 0):
+            raise StationCommandError(f"move_to: speed = {speed!r} must be a finite number > 0")
+        delta = np.abs(q - self.actual_positions())
+        vmax = np.array([min(speed, self.cfg.station(j).max_velocity) for j in JOINT_NAMES])
+        duration = float(np.max(delta / vmax))
+        vel = delta / duration if duration > 0 else np.zeros(4)
+        self._burst(q, vel, 0x200, "move_to")
+        return duration
+
+    def actual_positions(self) -> np.ndarray:
+        """Latest reported positions (4,), joint units, from the stations' TPDOs.
+
+        :raises StationStartupError: when a station has not reported yet.
+        """
+        out = np.zeros(4)
+        for s in self._stations:
+            if s.pos_inc is None:
+                raise StationStartupError(f"{s.joint} (node {s.cfg.node_id}) has not reported a position yet")
+            out[s.cfg.joint_index] = s.pos_inc / s.cpu
+        return out
+
+    def drive_states(self) -> dict[str, State]:
+        """CiA 402 state per joint from the latest statusword."""
+        return {s.joint: cia402.decode_statusword(s.statusword) if s.tpdo_count else State.NOT_READY_TO_SWITCH_ON
+                for s in self._stations}
+
+    @property
+    def fault(self) -> FaultRecord | None:
+        """The latched fault, or ``None``."""
+        return self.latch.record
+
+    @property
+    def fault_code(self) -> FaultCode:
+        """Latched fault code for the PLC (:attr:`FaultCode.NONE` when healthy)."""
+        rec = self.latch.record
+        return rec.code if rec else FaultCode.NONE
+
+    @property
+    def delays_s(self) -> np.ndarray:
+        """Per-joint command delays (4,), seconds: configured, or measured by :meth:`measure_delays`."""
+        return self._delays.copy()
+
+    def quick_stop_all(self, reason: str = "requested") -> None:
+        """CiA 402 quick stop of every station (category 2: ramp down, hold powered) and
+        latch :attr:`FaultCode.QUICK_STOP`; nothing moves again until :meth:`reset`."""
+        if not self.latch.latch(FaultRecord(FaultCode.QUICK_STOP, f"quick stop {reason}")):
+            self._react(self.latch.record)  # already latched: stop again anyway
+
+    def stop_heartbeat(self) -> None:
+        """Stop sending the controller heartbeat (as a hung controller would): the stations'
+        consumers then fault them after ``consumer_timeout_ms``. Used by :meth:`shutdown`."""
+        if self._hb_task is not None:
+            self._hb_task.stop()
+            self._hb_task = None
+
+    def reset(self) -> None:
+        """Clear the latched fault and bring every station back to *Operation enabled*
+        (full re-configuration, so a power-cycled station works again).
+
+        :raises StationFaultError: the cause persists (a station still silent, bus-off);
+            nothing changed.
+        :raises StationStartupError: re-configuration failed (a STARTUP_FAILED fault is latched).
+        """
+        if not self._started:
+            raise StationStartupError("reset refused: the stations are not started (call start())")
+        silent = self.watchdog.silent()
+        rec = self.latch.record
+        if silent and rec is not None:
+            names = ", ".join(f"{self._by_node[n].joint} (node {n})" for n in silent)
+            raise StationFaultError(rec, f"reset (still silent: {names})")
+        if getattr(self.network.bus, "state", None) is can.BusState.ERROR and rec is not None:
+            raise StationFaultError(rec, "reset (bus still in ERROR state)")
+        # Not under the command lock: SDO answers come through the notifier thread, which
+        # must stay free to run a fault reaction. Callers do not command during reset().
+        self._expect_operational = False
+        self.latch.clear()
+        try:
+            if self._hb_task is None:
+                self._hb_task = self.network.send_periodic(
+                    0x700 + self.cfg.controller_node_id, [0x05], self.cfg.controller_heartbeat_ms / 1000.0)
+            self._configure_all()
+            self._enable_all()
+        except (StationStartupError, can.CanError) as exc:
+            self.latch.latch(FaultRecord(FaultCode.STARTUP_FAILED, str(exc)))
+            raise
+        self._expect_operational = True
+        for s in self._stations:
+            s.node.emcy.reset()
+        self.watchdog.arm()
+        log.info("stations_reset")
+
+    def start_recording(self) -> None:
+        """Start keeping every TPDO position as (bus timestamp s, joint index, joint value)."""
+        self._recording = []
+
+    def stop_recording(self) -> list[tuple[float, int, float]]:
+        rec, self._recording = self._recording or [], None
+        return rec
+
+    def shutdown(self) -> None:
+        """Disable the drives (Disable voltage → Switch on disabled), stop heartbeat and watchdog,
+        close the bus. Idempotent; never raises for bus errors."""
+        if self.watchdog is not None:
+            self.watchdog.stop()
+        if self._started:
+            with self._cmd_lock:
+                self._expect_operational = False
+                self._send_controlword_all(Command.DISABLE_VOLTAGE)
+        self._started = False
+        self._close()
+
+    def _close(self) -> None:
+        self.stop_heartbeat()
+        if self.watchdog is not None:
+            self.watchdog.stop()
+        if self.network is not None:
+            net, self.network = self.network, None
+            try:
+                net.disconnect()
+            except Exception as exc:
+                log.error("bus_close_failed", error=repr(exc))

@@ -1,0 +1,500 @@
+"""Simulated joint station: a CANopen device (canopen ``LocalNode`` with the shipped EDS)
+on the CAN bus, with a CiA 402 drive and an axis that follows set-points (STYLE habit 2).
+
+What the twin does on the wire, like a real integrated drive of seed 002:
+
+* NMT: boots (boot-up frame), pre-operational, heartbeat producer (0x1017); PDOs only
+  in Operational. SDO server for every object of ``scara_axis.eds``.
+* CiA 402 state machine (:mod:`.cia402`) stepped by the controlword (SDO or RPDO).
+  Quick stop option code 6: a quick stop ramps down at 0x6085 and holds, powered, in
+  *Quick stop active* (category 2 stop).
+* RPDOs with transmission type 254/255 are applied on reception, those with type 0..240
+  on the next SYNC (set-points written ahead, applied together). A set-point is
+  (target position 0x607A, profile velocity 0x6081), in motor increments.
+* Heartbeat consumer (0x1016): once the controller's first heartbeat arrived, silence
+  longer than the consumer time → EMCY 0x8130, fault reaction (quick-stop ramp), Fault.
+* EMCY: 0x8612 set-point beyond the software limits 0x607D (refused, fault);
+  0x8611 following error (:meth:`SimStation.inject_following_error`); 0x8210 RPDO too
+  short (ignored, no fault); 0x0000 on fault reset.
+* TPDO1 (position actual value + statusword): every event-timer period (0x1800:5) and
+  at once on any state change or applied set-point (statusword bit 12 toggles per
+  applied set-point: the streaming variant of profile position mode).
+
+Reception delay (seed 002's λ = σ·i): a set-point received by RPDO takes effect
+``reception_delay_s`` after it arrived; SYNC-applied set-points take effect at the
+SYNC (one frame reaches all stations at once), so the delay only has to be shorter
+than the time they were written ahead.
+
+Time: the axis integrates with the injected clock (``clock.now()``); the CAN side is
+real time. The honest combination, used everywhere here, is a clock running at real
+speed (:class:`cell.clock.MonotonicClock`, or ``SimClock(time_scale=1)``): stations run in
+real time on the bus. Motion is integrated exactly between events (set-point, SYNC,
+quick stop), so the ``tick_s`` period only sets how often positions are published.
+
+Gear and units: the axis lives in motor increments. Joint value (deg; mm for j3) =
+increments / (encoder increments per motor rev 0x608F × gear ratio 0x6091 / 360), i.e.
+the configured gear ratio is *motor degrees per joint unit*. ``on_position(joint_index,
+drive_deg, t_s)`` reports that nominal joint value; the plant applies the true
+transmission errors, not the station.
+"""
+from __future__ import annotations
+
+import threading
+from collections import deque
+from pathlib import Path
+from typing import Callable
+
+import canopen
+from pydantic import BaseModel, ConfigDict, Field
+
+from cell.clock import Clock, MonotonicClock
+from cell.kinematics import JOINT_NAMES
+from cell.log import get_logger
+from drivers.stations import cia402
+from drivers.stations.bus import open_bus
+from drivers.stations.cia402 import Command, DriveStateMachine, Internal, State
+
+EDS_PATH = Path(__file__).with_name("scara_axis.eds")
+EMCY_LIMIT, EMCY_FOLLOWING, EMCY_HEARTBEAT, EMCY_PDO_LENGTH = 0x8612, 0x8611, 0x8130, 0x8210
+
+PositionHook = Callable[[int, float, float], None]
+
+
+class SimStationConfig(BaseModel):
+    """The twin's own properties (not part of the controller's config)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    joint: str = Field(pattern=r"^j[1-4]$")
+    node_id: int = Field(ge=1, le=127)
+    reception_delay_s: float = Field(default=0.0, ge=0.0, le=0.5)
+    initial_position: float = 0.0  #: joint units (deg; mm for j3) at power-up
+    #: the twin's mechanics (encoder increments × gear / 360), used only to place the axis
+    #: at ``initial_position`` at first power-up; afterwards the encoder count is the truth
+    counts_per_unit: float = Field(default=10_000 / 360, gt=0)
+    tick_s: float = Field(default=0.002, gt=0.0, le=0.05)
+
+
+class SimStation:
+    """One simulated station. :meth:`start` plugs it into the bus; :meth:`stop` unplugs it.
+
+    :param cfg: node id, joint, reception delay, initial position.
+    :param interface, channel, bitrate: the bus to join (normally the controller's).
+    :param clock: injected clock (real-time speed, see module doc).
+    :param on_position: optional hook ``(joint_index, drive_deg, t_s)``, called from the
+        station's axis thread whenever the position changed (``Plant.update_drive``).
+    """
+
+    def __init__(self, cfg: SimStationConfig, *, interface: str = "virtual", channel: str = "cell0",
+                 bitrate: int = 1_000_000, clock: Clock | None = None,
+                 on_position: PositionHook | None = None):
+        self.cfg = cfg
+        self.joint_index = JOINT_NAMES.index(cfg.joint)
+        self._bus_args = (interface, channel, bitrate)
+        self.clock = clock or MonotonicClock()
+        self.on_position = on_position
+        self.log = get_logger("stations.sim").bind(joint=cfg.joint, node_id=cfg.node_id)
+        self._lock = threading.RLock()
+        self._pos = 0.0            # motor increments (float)
+        self._pos_set = False
+        self._stop_evt = threading.Event()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.network: canopen.Network | None = None
+        self.node: canopen.LocalNode | None = None
+        self.applied: list[tuple[float, int, int]] = []  #: (t, target_inc, vel_inc_s) as applied
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Power up and join the bus: boot-up frame, pre-operational, heartbeat on."""
+        if self._thread is not None:
+            return
+        self.node = canopen.LocalNode(self.cfg.node_id, canopen.import_od(str(EDS_PATH), self.cfg.node_id))
+        self._values: dict[tuple[int, int], int] = {}
+        self.machine = DriveStateMachine()
+        self._target = self._pos
+        self._speed = 0.0
+        self._ramp_v: float | None = None   # signed velocity while ramping down, inc/s
+        self._setpoints: deque = deque()     # (apply_t, target, vel) for reception-applied
+        self._staged: list[tuple[float, int, int]] = []  # (ready_t, target, vel) waiting for SYNC
+        self._ack = False
+        self._fault_code = 0
+        self._cw_prev = 0
+        self._hb_node = None
+        self._hb_time_s = 0.0
+        self._hb_last: float | None = None
+        self._hb_timed_out = False
+        self._dirty_tpdo = True
+        self._last_tpdo = -1e9
+        self._last_pub: float | None = None
+        self._t = self.clock.now()
+        if not self._pos_set:
+            self._pos = self.cfg.initial_position * self.cfg.counts_per_unit
+            self._target = self._pos
+            self._pos_set = True
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        for n in (1, 2, 3):
+            self.node.rpdo[n].add_callback(self._on_rpdo)
+        net = canopen.Network(open_bus(*self._bus_args))
+        net.NOTIFIER_CYCLE = 0.05  # quick shutdown
+        net.add_node(self.node)
+        net.connect()
+        net.subscribe(0, self._on_nmt)
+        net.subscribe(0x80, self._on_sync)
+        self.network = net
+        self.machine.apply(Internal.SELF_TEST_DONE)
+        self.node.nmt.send_command(0x81)   # reset node → INITIALISING, boot-up frame
+        self.node.nmt.send_command(0x80)   # → PRE-OPERATIONAL, heartbeat producer starts
+        self._stop_evt.clear()
+        self._thread = threading.Thread(target=self._run, name=f"sim-station-{self.cfg.joint}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Unplug: stop the axis thread and leave the bus (nothing more is sent). Idempotent."""
+        self._stop_evt.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self.network is not None:
+            net, self.network = self.network, None
+            net.disconnect()
+
+    def unplug(self) -> None:
+        """Cut the station off the bus while its drive keeps running (a pulled cable):
+        it falls silent; its own heartbeat consumer will see the controller vanish."""
+        if self.network is not None:
+            net, self.network = self.network, None
+            net.disconnect()
+
+    def power_cycle(self) -> None:
+        """Switch off and on again: fresh object dictionary, position kept (absolute encoder)."""
+        self.stop()
+        self.start()
+
+    # ------------------------------------------------------------------ observation
+    @property
+    def state(self) -> State:
+        with self._lock:
+            return self.machine.state
+
+    @property
+    def position(self) -> float:
+        """Drive-side joint position now (deg; mm for j3)."""
+        with self._lock:
+            self._advance(self.clock.now())
+            return self._pos / self._counts_per_unit()
+
+    @property
+    def nmt_state(self) -> str:
+        return self.node.nmt.state if self.node else "OFF"
+
+    def inject_following_error(self) -> None:
+        """Test/fault-injection hook: the axis lagged beyond its window → EMCY 0x8611, Fault."""
+        with self._lock:
+            self._fault(EMCY_FOLLOWING, "following error injected")
+
+    # ------------------------------------------------------------------ object dictionary
+    def _value(self, index: int, sub: int = 0) -> int:
+        v = self._values.get((index, sub))
+        if v is not None:
+            return v
+        obj = self.node.object_dictionary[index]
+        obj = obj[sub] if not isinstance(obj, canopen.objectdictionary.ODVariable) else obj
+        return obj.default if obj.default is not None else 0
+
+    def _counts_per_unit(self) -> float:
+        if self.node is None:
+            return 1.0
+        enc = self._value(0x608F, 1) / max(self._value(0x608F, 2), 1)
+        gear = self._value(0x6091, 1) / max(self._value(0x6091, 2), 1)
+        return enc * gear / 360.0
+
+    def _statusword(self) -> int:
+        st = self.machine.state
+        bits = cia402.SW_SETPOINT_ACK if self._ack else 0
+        if st is State.OPERATION_ENABLED and self._pos == self._target and self._ramp_v is None:
+            bits |= cia402.SW_TARGET_REACHED
+        if self._fault_code == EMCY_FOLLOWING:
+            bits |= cia402.SW_FOLLOWING_ERROR
+        return cia402.encode_statusword(st, bits)
+
+    def _on_read(self, index, subindex, od):
+        with self._lock:
+            if index == 0x6041:
+                return self._statusword()
+            if index == 0x6064:
+                self._advance(self.clock.now())
+                return int(round(self._pos))
+            if index == 0x606C:
+                return int(round(self._velocity()))
+            if index == 0x603F:
+                return self._fault_code
+            if index == 0x1001:
+                return 1 if self._fault_code else 0
+        return None
+
+    def _on_write(self, index, subindex, od, data):
+        value = od.decode_raw(data)
+        with self._lock:
+            self._values[(index, subindex)] = value
+            if index == 0x6040:
+                self._controlword(value)
+            elif index == 0x1016 and subindex == 1:
+                self._configure_consumer(value)
+
+    # ------------------------------------------------------------------ NMT / heartbeat consumer
+    def _on_nmt(self, can_id, data, timestamp):
+        if len(data) != 2 or data[1] not in (0, self.cfg.node_id):
+            return
+        if data[0] == 0x01:  # start: (re)read the PDO configuration the master wrote
+            self.node.rpdo.read()
+            self.node.tpdo.read()
+            with self._lock:
+                self._dirty_tpdo = True
+
+    def _configure_consumer(self, value: int) -> None:
+        node, time_ms = (value >> 16) & 0x7F, value & 0xFFFF
+        if self._hb_node is not None and self.network is not None:
+            self.network.unsubscribe(0x700 + self._hb_node, self._on_ctrl_heartbeat)
+        self._hb_node = node if time_ms else None
+        self._hb_time_s = time_ms / 1000.0
+        self._hb_last, self._hb_timed_out = None, False
+        if self._hb_node is not None and self.network is not None:
+            self.network.subscribe(0x700 + node, self._on_ctrl_heartbeat)
+
+    def _on_ctrl_heartbeat(self, can_id, data, timestamp):
+        with self._lock:
+            self._hb_last = self.clock.now()
+            self._hb_timed_out = False
+
+    # ------------------------------------------------------------------ PDO / SYNC
+    def _operational(self) -> bool:
+        return self.node is not None and self.node.nmt.state == "OPERATIONAL"
+
+    def _on_rpdo(self, pdo_map) -> None:
+        if not self._operational():
+            return
+        if len(pdo_map.data) * 8 < pdo_map.length:
+            self._emcy(EMCY_PDO_LENGTH, f"{pdo_map.name}: {len(pdo_map.data)} bytes, mapped {pdo_map.length} bits")
+            return
+        vals = {v.index: v.raw for v in pdo_map.map if v.length}
+        now = self.clock.now()
+        with self._lock:
+            if 0x6040 in vals:
+                self._controlword(int(vals[0x6040]))
+            if 0x607A in vals:
+                sp = (int(vals[0x607A]), int(vals.get(0x6081, self._value(0x6081))))
+                if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
+                    self._staged.append((now + self.cfg.reception_delay_s, *sp))
+                else:
+                    self._setpoints.append((now + self.cfg.reception_delay_s, *sp))
+                    self._wake.set()
+
+    def _on_sync(self, can_id, data, timestamp):
+        if not self._operational():
+            return
+        now = self.clock.now()
+        with self._lock:
+            due = [sp for sp in self._staged if sp[0] <= now]
+            self._staged = [sp for sp in self._staged if sp[0] > now]
+            self._advance(now)
+            for _, target, vel in due:
+                self._apply_setpoint(now, target, vel)
+        self._wake.set()  # publish the acknowledgement at once
+
+    # ------------------------------------------------------------------ drive logic (lock held)
+    def _controlword(self, word: int) -> None:
+        prev, self._cw_prev = self._cw_prev, word
+        state = self.machine.state
+        cmd = cia402.decode_controlword(word, state)
+        if cmd is Command.FAULT_RESET and prev & cia402.CW_FAULT_RESET_BIT:
+            return  # bit 7 acts on its rising edge only
+        if cmd is None:
+            return
+        self._advance(self.clock.now())
+        v_before = self._velocity()
+        try:
+            new = self.machine.apply(cmd)
+        except cia402.IllegalTransition as exc:
+            self.log.info("controlword_ignored", controlword=f"0x{word:04X}", reason=str(exc))
+            return
+        if new is State.QUICK_STOP_ACTIVE:
+            self._start_ramp(v_before)
+        elif new is State.OPERATION_ENABLED:
+            self._target, self._speed, self._ramp_v = self._pos, 0.0, None
+            self._setpoints.clear()
+            self._staged.clear()
+        elif cmd is Command.FAULT_RESET:
+            self._fault_code = 0
+            self._emcy(0x0000, "fault reset")
+        if new is not State.QUICK_STOP_ACTIVE and new is not State.OPERATION_ENABLED:
+            self._target, self._speed, self._ramp_v = self._pos, 0.0, None
+        self._dirty_tpdo = True
+
+    def _fault(self, emcy_code: int, why: str) -> None:
+        if self.machine.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            return
+        self._advance(self.clock.now())
+        v_before = self._velocity()
+        self.machine.apply(Internal.FAULT)
+        self._fault_code = emcy_code
+        self._start_ramp(v_before)
+        self._setpoints.clear()
+        self._staged.clear()
+        self._dirty_tpdo = True
+        self._emcy(emcy_code, why)
+
+    def _emcy(self, code: int, why: str) -> None:
+        self.log.warning("emcy", code=f"0x{code:04X}", reason=why)
+        try:
+            if self.network is not None:
+                self.node.emcy.send(code, 1 if code else 0)
+        except Exception as exc:  # unplugged: the frame is lost
+            self.log.info("emcy_not_sent", error=repr(exc))
+
+    def _apply_setpoint(self, t: float, target: int, vel: int) -> None:
+        if self.machine.state is not State.OPERATION_ENABLED:
+            return
+        lo, hi = self._value(0x607D, 1), self._value(0x607D, 2)
+        if not lo <= target <= hi:
+            self._fault(EMCY_LIMIT, f"set-point {target} inc outside software limits [{lo}, {hi}]")
+            return
+        self._target = float(target)
+        self._speed = float(min(abs(vel), self._value(0x607F)))
+        self._ack = not self._ack
+        self._dirty_tpdo = True
+        self.applied.append((t, target, vel))
+
+    def _start_ramp(self, v: float) -> None:
+        self._ramp_v = v
+        self._setpoints.clear()
+        self._staged.clear()
+
+    def _velocity(self) -> float:
+        if self._ramp_v is not None:
+            return self._ramp_v
+        if self._pos == self._target or self.machine.state is not State.OPERATION_ENABLED:
+            return 0.0
+        return self._speed if self._target > self._pos else -self._speed
+
+    def _advance(self, t1: float) -> None:
+        """Integrate the axis exactly from ``self._t`` to ``t1``, applying due set-points."""
+        while self._setpoints and self._setpoints[0][0] <= t1:
+            ta, target, vel = self._setpoints.popleft()
+            self._move(max(ta, self._t))
+            self._apply_setpoint(max(ta, self._t), target, vel)
+        self._move(t1)
+
+    def _move(self, t1: float) -> None:
+        dt = t1 - self._t
+        if dt <= 0:
+            return
+        self._t = t1
+        if self._ramp_v is not None:
+            a = float(max(self._value(0x6085), 1))
+            v = self._ramp_v
+            t_stop = abs(v) / a
+            tau = min(dt, t_stop)
+            sign = 1.0 if v > 0 else -1.0
+            self._pos += v * tau - sign * 0.5 * a * tau * tau
+            self._ramp_v = v - sign * a * tau if tau < t_stop else 0.0
+            if self._ramp_v == 0.0:
+                self._target = self._pos
+            return
+        if self.machine.state is not State.OPERATION_ENABLED or self._speed <= 0:
+            return
+        gap = self._target - self._pos
+        step = self._speed * dt
+        self._pos = self._target if abs(gap) <= step else self._pos + (step if gap > 0 else -step)
+
+    # ------------------------------------------------------------------ axis thread
+    def _run(self) -> None:
+        # Waits in real time until the next tick or the next due set-point (whichever is
+        # first), so an applied set-point is acknowledged by TPDO when it takes effect.
+        while not self._stop_evt.is_set():
+            self._wake.clear()
+            try:
+                self._tick()
+            except Exception as exc:  # keep the twin alive, like drive firmware would
+                self.log.error("sim_station_tick_failed", error=repr(exc))
+            with self._lock:
+                due = self._setpoints[0][0] - self.clock.now() if self._setpoints else self.cfg.tick_s
+            self._wake.wait(max(0.0, min(self.cfg.tick_s, due)))
+
+    def _tick(self) -> None:
+        now = self.clock.now()
+        pub = None
+        with self._lock:
+            self._advance(now)
+            st = self.machine.state
+            if (self._hb_node is not None and self._hb_last is not None and not self._hb_timed_out
+                    and now - self._hb_last > self._hb_time_s):
+                self._hb_timed_out = True
+                if st not in (State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON):
+                    self._fault(EMCY_HEARTBEAT, f"controller heartbeat (node {self._hb_node}) "
+                                f"silent > {self._hb_time_s * 1e3:.0f} ms")
+            if self.machine.state is State.FAULT_REACTION_ACTIVE and self._ramp_v == 0.0:
+                self._ramp_v = None
+                self.machine.apply(Internal.REACTION_DONE)
+                self._dirty_tpdo = True
+            if self._last_pub != self._pos:
+                self._last_pub = self._pos
+                pub = self._pos / self._counts_per_unit()
+            event_s = self._value(0x1800, 5) / 1000.0
+            send = self._dirty_tpdo or (event_s > 0 and now - self._last_tpdo >= event_s)
+            if send and self._operational() and self.network is not None:
+                self._dirty_tpdo, self._last_tpdo = False, now
+                tx = self.node.tpdo[1]
+                if tx.enabled and tx.map:
+                    live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
+                            0x606C: int(round(self._velocity()))}
+                    for var in tx.map:
+                        if var.length:
+                            var.raw = live.get(var.index, 0)
+                    try:
+                        tx.transmit()
+                    except Exception as exc:
+                        self.log.info("tpdo_not_sent", error=repr(exc))
+        if pub is not None and self.on_position is not None:
+            self.on_position(self.joint_index, pub, now)
+
+
+class SimStationSet:
+    """The four twins of one cell, built from the controller's :class:`StationsConfig`
+    (same bus, node ids and order) plus per-station twin properties.
+
+    :param stations_cfg: a ``drivers.stations.driver.StationsConfig``.
+    :param reception_delays_s: per station in *bus order* (seed 002: σ·1, σ·2, ...);
+        default zeros.
+    :param initial_positions: per joint j1..j4 (joint units); default zeros.
+    """
+
+    def __init__(self, stations_cfg, reception_delays_s=None, initial_positions=None, *,
+                 clock: Clock | None = None, on_position: PositionHook | None = None):
+        n = len(stations_cfg.stations)
+        delays = list(reception_delays_s) if reception_delays_s is not None else [0.0] * n
+        init = list(initial_positions) if initial_positions is not None else [0.0] * 4
+        if len(delays) != n or len(init) != 4:
+            raise ValueError(f"reception_delays_s needs {n} values (bus order), initial_positions 4 "
+                             f"(j1..j4); got {len(delays)} and {len(init)}")
+        self.stations = [
+            SimStation(SimStationConfig(joint=s.joint, node_id=s.node_id, reception_delay_s=d,
+                                        initial_position=init[JOINT_NAMES.index(s.joint)],
+                                        counts_per_unit=s.counts_per_unit),
+                       interface=stations_cfg.interface, channel=stations_cfg.channel,
+                       bitrate=stations_cfg.bitrate, clock=clock, on_position=on_position)
+            for s, d in zip(stations_cfg.stations, delays)]
+
+    def by_joint(self, joint: str) -> SimStation:
+        return next(s for s in self.stations if s.cfg.joint == joint)
+
+    def start(self) -> "SimStationSet":
+        for s in self.stations:
+            s.start()
+        return self
+
+    def stop(self) -> None:
+        for s in self.stations:
+            s.stop()
