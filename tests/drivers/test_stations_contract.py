@@ -327,10 +327,12 @@ def test_rate_limit_holds_on_the_virtual_bus(make):
 
 
 def test_delay_measurement_sees_the_configured_delays(make):
-    backend, js = make(delays=(0.002, 0.004, 0.006, 0.008))
-    lam = js.measure_delays(rounds=5)
-    # measured = configured + frame times + thread latency; in order, each within 3 ms
-    assert np.all(np.diff(lam) > 0)
-    assert np.all(lam >= [0.002, 0.004, 0.006, 0.008])
-    assert np.all(lam <= np.array([0.002, 0.004, 0.006, 0.008]) + 0.003)
+    configured = np.array([0.005, 0.015, 0.025, 0.035])
+    backend, js = make(delays=tuple(configured))
+    lam = js.measure_delays(rounds=7)
+    # measured = configured + frame times + thread latency (never less than configured).
+    # Stations 10 ms apart: each estimate must land nearer its own station than the next,
+    # which a loaded 2-core CI machine still allows (median of 7 rounds).
+    assert np.all(lam >= configured - 0.0005)
+    assert np.all(lam < configured + 0.009)
     np.testing.assert_allclose(js.delays_s, lam)
