@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "cell.commands.recipe",
     "cell.commands.report",
     "cell.commands.registers",
+    "cell.commands.run",
 )
 
 

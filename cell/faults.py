@@ -34,6 +34,7 @@ class Fault(enum.IntEnum):
     PART_OUT_OF_WINDOW = 308      #: the part lies outside the recipe's search radius
     UNREACHABLE = 401             #: a target the robot cannot reach (IK, limits, singularity)
     VERIFY_OUT_OF_TOLERANCE = 402 #: the verified error exceeds the recipe's tolerance
+    MOTION_TIMEOUT = 403          #: the joints did not reach their target in time
     INTERNAL = 501                #: an unexpected error in the controller (see the log)
     LOG_WRITE_FAILED = 502        #: the cycle could not be written to the cycle log
 

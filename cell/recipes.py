@@ -40,10 +40,16 @@ class PartSpec(_Strict):
 
 
 class ApproachSpec(_Strict):
-    offset_mm: tuple[float, float] = Field(default=(0.0, -20.0),
-                                           description="approach point relative to the nominal part position")
+    offset_mm: tuple[float, float] = Field(default=(-12.0, 0.0),
+                                           description="approach point relative to the nominal part "
+                                                       "position; keep the tool clear of the part so "
+                                                       "the camera sees both")
     z_mm: float = Field(default=0.0, ge=-500, le=500)
     joint_speed_deg_s: float = Field(default=60.0, gt=0, le=720)
+
+
+class PlaceSpec(_Strict):
+    z_mm: float = Field(default=-50.0, ge=-500, le=500, description="height of the final move")
 
 
 class CompensationSpec(_Strict):
@@ -66,6 +72,7 @@ class Recipe(_Strict):
     description: str = ""
     part: PartSpec
     approach: ApproachSpec = ApproachSpec()
+    place: PlaceSpec = PlaceSpec()
     compensation: CompensationSpec = CompensationSpec()
     verify: VerifySpec = VerifySpec()
 

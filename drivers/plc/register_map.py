@@ -133,14 +133,17 @@ _STATUS_BITS = (
     _b(1, "busy", "Cycle running (PLCopen Busy). Set within one controller scan of the accepted "
                   "execute rising edge; done/error/aborted are cleared at the same time."),
     _b(2, "done", "Cycle finished OK (PLCopen Done). Results and part_id_echo are valid before "
-                  "this bit is set. Held until the next execute rising edge or acknowledge."),
-    _b(3, "error", "Cycle ended in error or a fault is active (PLCopen Error); fault_code says "
-                   "why. Held until reset (fault gone) or acknowledge."),
+                  "this bit is set. Held until acknowledge."),
+    _b(3, "error", "A fault is latched (PLCopen Error); fault_code says why. The joints are "
+                   "stopped; held until a reset edge once the cause is gone."),
     _b(4, "auto", "Controller in automatic mode: PLC commands are obeyed."),
     _b(5, "homed", "All joints referenced."),
     _b(6, "recalibration_due", "Accuracy drift says: recalibrate soon (cycles still run)."),
     _b(7, "aborted", "Last cycle stopped by command abort (PLCopen CommandAborted). Held like done."),
     _b(8, "plc_link_ok", "Controller sees plc_heartbeat changing (its watchdog is satisfied)."),
+    _b(9, "execute_refused", "The last execute rising edge was refused (not ready: busy, done or "
+                             "error not acknowledged, no recipe, or execute not seen low since the "
+                             "link came up). Cleared by the next accepted execute, acknowledge or reset."),
 )
 
 _COMMAND_BITS = (
@@ -148,7 +151,7 @@ _COMMAND_BITS = (
                      "the edge. Keep it high until done, error or aborted is seen, then drop it."),
     _b(1, "reset", "Rising edge clears error and fault_code if the fault is gone."),
     _b(2, "abort", "Rising edge stops the running cycle; busy drops and aborted is set."),
-    _b(3, "acknowledge", "Rising edge clears done/error/aborted after the PLC has read the results."),
+    _b(3, "acknowledge", "Rising edge clears done/aborted after the PLC has read the results."),
 )
 
 _U16, _U32, _BITS = RegType.U16, RegType.U32, RegType.BITFIELD
@@ -169,10 +172,14 @@ REGISTERS: tuple[Register, ...] = (
              bits=_STATUS_BITS),
     Register(11, "command_word", _BITS, _RW, meaning="PLC command bits, acted on at rising edges "
              "(see bit table). Undefined bits must stay 0.", bits=_COMMAND_BITS),
-    Register(12, "state_code", _U16, _RO, meaning="Numeric code of the controller state-machine state "
-             "(0 = starting); the table is in the state-machine documentation."),
+    Register(12, "state_code", _U16, _RO, meaning="Numeric code of the controller state "
+             "(cell/statemachine.py State): 1 starting, 2 idle, 10-16 cycle steps (approach, capture, "
+             "locate, compensate, final move, verify, logging), 20 done, 30 stopping, 31 aborted, "
+             "40 fault, 41 resetting."),
     Register(13, "fault_code", _U16, _RO, meaning="0 = no fault, else the code of the active (or last "
-             "unacknowledged) fault. Valid while status_word.error is set."),
+             "unacknowledged) fault (cell/faults.py: 1xx PLC link, 2xx joint stations = 200 + station "
+             "code, 3xx camera/vision, 4xx motion/accuracy, 5xx internal). Valid while "
+             "status_word.error is set."),
     # -- recipe and part block 20..39
     Register(20, "recipe_select", _U16, _RW, hi=999, meaning="Recipe number the PLC asks for. Applied "
              "when the controller is not busy; answered in recipe_ack and recipe_status."),
@@ -199,12 +206,15 @@ Cycle handshake (PLCopen Execute/Busy/Done/Error, as Epson remote I/O and UR's M
 
 1. PLC writes recipe_select; waits until recipe_ack = recipe_select and recipe_status = 0.
 2. PLC writes part_id (both words, one FC16), then in a later write sets command_word.execute.
-3. Controller latches recipe and part_id at the execute rising edge, sets status_word.busy and
-   clears done/error/aborted (only if ready; otherwise it sets error with a fault_code).
+3. Controller latches recipe and part_id at the execute rising edge and sets status_word.busy
+   (only if ready; otherwise it sets execute_refused and starts nothing).
 4. Controller writes the results and part_id_echo, then sets done (or error + fault_code,
-   or aborted after an abort edge) and clears busy, all in one update.
+   or aborted after an abort edge) and clears busy.
 5. PLC reads the results, drops execute and pulses acknowledge; the controller clears
-   done/error/aborted. The next execute rising edge also clears them.
+   done/aborted. An error is a latched fault: the joints are stopped and nothing moves
+   until the PLC pulses reset and the cause is gone; then error and fault_code clear.
+6. Execute counts only as a rising edge seen while plc_heartbeat is alive, after execute was
+   seen low: an execute held high across a heartbeat gap or a reconnect starts nothing.
 
 Writes the map refuses are answered with Modbus exception 02 (unknown or reserved address,
 read-only register, half of a 32-bit pair) or 03 (value out of range) and change nothing,

@@ -184,8 +184,9 @@ class SimPlc:
         """One full cycle by the handshake in the register map's ``HANDSHAKE``.
 
         Selects ``recipe`` (waits for recipe_ack), writes ``part_id``, clears stale
-        done/error/aborted with acknowledge, raises execute, waits for done/error/aborted,
-        reads the results from that same scan, drops execute and acknowledges. Returns the
+        done/aborted with acknowledge, raises execute, waits for done/error/aborted,
+        reads the results from that same scan, drops execute and acknowledges (an error
+        stays set until :meth:`reset`). Returns the
         results (``RESULTS`` names) plus ``done``/``error``/``aborted`` (0/1). Raises
         SimPlcError if a write is refused, recipe_status is not 0, or a step times out
         (execute is dropped first). ``timeout_s`` applies to each step.
@@ -231,13 +232,24 @@ class SimPlc:
         return result
 
     def _pulse_acknowledge(self, timeout_s: float) -> None:
+        """Acknowledge clears done/aborted; an error (latched fault) needs :meth:`reset`."""
         self.set_command(acknowledge=True)
         try:
             self.wait_until(lambda i: not any(self.map.bits("status_word", i["status_word"])[k]
-                                              for k in ("done", "error", "aborted")),
-                            timeout_s, "done/error/aborted cleared by acknowledge")
+                                              for k in ("done", "aborted")),
+                            timeout_s, "done/aborted cleared by acknowledge")
         finally:
             self.set_command(acknowledge=False)
+
+    def reset(self, timeout_s: float = 5.0) -> None:
+        """Pulse ``reset`` and wait until ``error`` clears (the controller clears it only when
+        the fault's cause is gone). Raises SimPlcError on timeout."""
+        self.set_command(reset=True)
+        try:
+            self.wait_until(lambda i: not self.map.bits("status_word", i["status_word"])["error"],
+                            timeout_s, "error cleared by reset")
+        finally:
+            self.set_command(reset=False)
 
     def _refused_since(self, n: int) -> bool:
         return len(self.write_errors) > n

@@ -32,7 +32,7 @@ def test_committed_schema_is_current():
 
 
 @pytest.mark.parametrize("old, new, words", [
-    ("  fiducial_radius_mm: 2.0", "  fiducial_radius_mm: -2.0", r"line {line}, field part.fiducial_radius_mm: .*greater than 0.2"),
+    ("  fiducial_radius_mm: 1.5", "  fiducial_radius_mm: -1.5", r"line {line}, field part.fiducial_radius_mm: .*greater than 0.2"),
     ("  max_moves: 4", "  max_moves: 4\n  max_movez: 5", r"line {line2}, field compensation.max_movez: Extra inputs"),
     ("  method: lattice ", "  method: magic ", r"line {line}, field compensation.method"),
     ("number: 1", "number: one", r"line {line}, field number"),

@@ -24,7 +24,7 @@ REQUIRED = {
     "cycle_time_ms": ("u32", "RO"), "cycle_count": ("u32", "RO"),
 }
 STATUS_BITS = ["ready", "busy", "done", "error", "auto", "homed", "recalibration_due",
-               "aborted", "plc_link_ok"]
+               "aborted", "plc_link_ok", "execute_refused"]
 COMMAND_BITS = ["execute", "reset", "abort", "acknowledge"]
 
 

@@ -77,8 +77,9 @@ class ControllerStandIn(threading.Thread):
                     self._busy_part = None
                     link.write("status_word", self._status(busy=False, aborted=True, ready=True))
                 if rising["acknowledge"]:
-                    link.write_many({"fault_code": 0, "status_word": self._status(
-                        done=False, error=False, aborted=False)})
+                    link.write("status_word", self._status(done=False, aborted=False))
+                if rising["reset"]:
+                    link.write_many({"fault_code": 0, "status_word": self._status(error=False)})
 
     def _finish(self) -> None:
         self.cycles += 1
@@ -139,6 +140,9 @@ def test_error_cycle_returns_the_fault_code(sim, controller):
     controller.fault_code = 42
     r = sim.run_cycle(recipe=1, part_id=9)
     assert (r["done"], r["error"], r["fault_code"], r["part_id_echo"]) == (0, 1, 42, 9)
+    assert PLC_MAP.bits("status_word", sim.inputs()["status_word"])["error"]   # ack does not clear it
+    sim.reset()
+    assert not PLC_MAP.bits("status_word", sim.inputs()["status_word"])["error"]
 
 
 def test_abort_while_busy_ends_the_cycle_as_aborted(sim, controller):

@@ -1,0 +1,144 @@
+"""The simulated cell: the plant behind simulated CAN stations and a rendering camera.
+
+Only the devices are simulated; the controller talks to them exactly as to real ones:
+
+* joint stations: four CANopen devices (``drivers.stations.SimStationSet``) on a
+  rate-limited python-can ``virtual`` bus, driven by the real ``JointStations`` driver;
+  each axis reports its position to the plant (``Plant.update_drive``);
+* camera: ``drivers.camera.sim.SimCamera`` renders the tool's and the part's fiducials at
+  their TRUE positions (the plant's effects included) into 8-bit images;
+* calibration: at start-up a circle-grid board is rendered through that camera and
+  calibrated with the same code a real cell uses (``cell.vision.calibrate``);
+* parts: :class:`PartFeeder` is the conveyor; the PLC (real or simulated) indexes it.
+
+The stations run at real speed on the bus, so the simulated cell runs in real time.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from cell.clock import SimClock
+from cell.config import CellConfig
+from cell.kinematics import JOINT_NAMES, Scara
+from cell.plant import Plant
+from cell.recipes import Recipe
+from cell.vision.calibration import CircleGridBoard, PlaneCalibration, calibrate
+from cell.vision.camera_model import CameraModel
+from drivers.camera.sim import Fiducial, Optics, SimCamera
+from drivers.stations import JointStations, StationsConfig
+from drivers.stations.sim_station import SimStationSet
+
+_channels = itertools.count()
+CAMERA_PX = (1280, 1024)
+CAMERA_MM_PER_PX = 0.04
+
+
+@dataclass
+class Part:
+    part_id: int
+    xy_mm: np.ndarray
+    radius_mm: float
+
+
+class PartFeeder:
+    """The conveyor of the simulated cell: presents one part at a time, placed at its
+    recipe's nominal position plus a seeded random offset of up to ``jitter_mm``."""
+
+    def __init__(self, jitter_mm: float, seed: int = 0):
+        self.jitter_mm, self.seed = jitter_mm, seed
+        self._part: Part | None = None
+        self._lock = threading.Lock()
+
+    def present(self, part_id: int, recipe: Recipe) -> Part:
+        rng = np.random.default_rng([self.seed, part_id])
+        r = self.jitter_mm * np.sqrt(rng.uniform())
+        a = rng.uniform(0, 2 * np.pi)
+        part = Part(part_id, np.asarray(recipe.part.nominal_xy_mm) + r * np.array([np.cos(a), np.sin(a)]),
+                    recipe.part.fiducial_radius_mm)
+        with self._lock:
+            self._part = part
+        return part
+
+    def remove(self) -> None:
+        with self._lock:
+            self._part = None
+
+    @property
+    def part(self) -> Part | None:
+        with self._lock:
+            return self._part
+
+
+def stations_config(robot: Scara, channel: str) -> StationsConfig:
+    """The four stations on ``channel`` with the robot's joint limits."""
+    from drivers.stations import StationConfig
+    return StationsConfig(interface="virtual", channel=channel, stations=tuple(
+        StationConfig(joint=j, node_id=i + 1, limits=tuple(robot.g.limits[i]))
+        for i, j in enumerate(JOINT_NAMES)))
+
+
+class SimDevices:
+    """Everything below the controller for ``--sim``: plant, stations, camera, calibration."""
+
+    def __init__(self, config: CellConfig, tool_radius_mm: float):
+        sim = config.sim
+        self.clock = SimClock(1.0)
+        self.plant = Plant.from_yaml(sim.plant)
+        self.robot = self.plant.robot
+        self.feeder = PartFeeder(sim.part_jitter_mm, sim.seed)
+        self.tool_radius_mm = tool_radius_mm
+        channel = f"cell-sim-{os.getpid()}-{next(_channels)}"
+        self.stations_cfg = stations_config(self.robot, channel)
+        start = self.plant.drive_positions()
+        delays = [sim.station_sigma_s * (i + 1) for i in range(4)]
+        self.sim_stations = SimStationSet(self.stations_cfg, delays, start, clock=self.clock,
+                                          on_position=self.plant.update_drive)
+        self.motion = JointStations.from_config(self.stations_cfg, clock=self.clock)
+        centre = tuple(self.plant.config.camera_center_mm)
+        self.camera_model = CameraModel.nadir(*CAMERA_PX, CAMERA_MM_PER_PX, centre_mm=centre)
+        self._board: CircleGridBoard | None = None
+        self.camera = SimCamera(self.camera_model, self.scene, optics=Optics(), seed=sim.seed,
+                                clock=self.clock)
+
+    def scene(self) -> list:
+        """What lies on the work plane now: the part (under the tool if it is there) and the tool."""
+        if self._board is not None:
+            return [self._board]
+        tool = self.plant.true_tool_xy(self.clock.now())
+        items = [Fiducial(*tool, self.tool_radius_mm, "tool")]
+        part = self.feeder.part
+        # the tool hides the part below it (the renderer adds overlapping marks, a camera
+        # looking down sees only the top one)
+        if part is not None and np.hypot(*(part.xy_mm - tool)) > part.radius_mm + self.tool_radius_mm:
+            items.insert(0, Fiducial(*part.xy_mm, part.radius_mm, "part"))
+        return items
+
+    def start(self) -> None:
+        self.sim_stations.start()
+        self.motion.start()
+        self.camera.open()
+
+    def calibrate_camera(self) -> PlaneCalibration:
+        """Render a circle-grid board on the work plane and calibrate from it (the same call a
+        real cell makes with a real board)."""
+        cx, cy = self.plant.config.camera_center_mm
+        board = CircleGridBoard(cols=11, rows=7, pitch_mm=4.0, radius_mm=1.0,
+                                origin_mm=(cx - 20.0, cy - 12.0), angle_deg=0.0)
+        self._board = board
+        try:
+            views = [(self.camera.grab().image, board)]
+        finally:
+            self._board = None
+        return calibrate(views, distortion=False, u_axis_deg=0.0)
+
+    def stop(self) -> None:
+        for step in (self.camera.close, self.motion.shutdown, self.sim_stations.stop):
+            try:
+                step()
+            except Exception:                      # noqa: BLE001 -- best effort on the way down
+                pass
