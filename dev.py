@@ -22,7 +22,7 @@ BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
 PY = BIN / "python"
 STAMP = VENV / ".cell-installed"
 
-MAIN_JOB = ["cellctl", "compensate", "--method", "paper", "--target", "247.85,933.42"]
+MAIN_JOB = ["cellctl", "run", "--sim", "--cycles", "10"]
 
 
 def _ensure_venv() -> None:

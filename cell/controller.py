@@ -7,8 +7,9 @@ keeps serving the PLC, the heartbeat watchdog and abort while joints move.
 Handshake (PLCopen Execute/Busy/Done/Error over the register map):
 
 * ``execute`` starts a cycle only on a rising edge seen while the PLC heartbeat is alive
-  and after ``execute`` was seen low with the link alive (an execute held high across a
-  heartbeat gap, a reconnect or a controller restart starts nothing). The edge latches the
+  and after ``execute`` was seen low with the link alive: written low by the PLC, or low in
+  the register image once the link has been alive for ``arm_grace_s`` (an execute held high
+  across a heartbeat gap, a reconnect or a controller restart starts nothing). The edge latches the
   active recipe and ``part_id``. An edge while not ready sets ``execute_refused``.
 * ``done``/``aborted`` are held until ``acknowledge``; ``error`` until ``reset``.
 * PLC heartbeat lost for longer than ``plc_heartbeat_timeout_s`` — also mid-cycle —, a
@@ -44,6 +45,7 @@ class ControllerSettings:
     scan_s: float = 0.01
     plc_heartbeat_timeout_s: float = 1.0
     recipe_refresh_s: float = 1.0
+    arm_grace_s: float = 0.3
 
 
 class CellController:
@@ -66,6 +68,7 @@ class CellController:
         self._pending_select: int | None = None
         self._armed = False
         self._link_ok = False
+        self._link_since = 0.0
         self._heartbeat = 0
         self._worker: threading.Thread | None = None
         self._outcome: CycleOutcome | None = None
@@ -118,6 +121,8 @@ class CellController:
                         f"{self.settings.plc_heartbeat_timeout_s} s")
         if not link_ok:
             self._armed = False
+        elif not self._link_ok:
+            self._link_since = now
         self._link_ok = link_ok
 
         station = getattr(self.motion, "fault", None)
@@ -126,20 +131,23 @@ class CellController:
                 self.sm.state not in (State.FAULT, State.STOPPING, State.RESETTING):
             self._fault(station_fault(station.code), f"joint stations: {station}")
 
-        for w in writes:
+        self._finish_cycle_if_ended()
+        for w in writes:                           # in the order the PLC wrote them
+            if w.name == "recipe_select":
+                self._pending_select = w.value
+            if self._pending_select is not None and not self.sm.state.busy:
+                self._select_recipe(self._pending_select)
+                self._pending_select = None
             if w.name == "command_word" and link_ok:
                 self._on_command(w.value & ~w.previous, w.value)
-            elif w.name == "recipe_select":
-                self._pending_select = w.value
-        if link_ok and not self.plc.read("command_word") & EXECUTE:
-            self._armed = True
-
-        self._finish_cycle_if_ended()
-        if self._pending_select is not None and not self.sm.state.busy:
-            self._select_recipe(self._pending_select)
-            self._pending_select = None
-        elif self._pending_select is not None:
+        if self._pending_select is not None:
             self._recipe_status = RECIPE_BUSY
+        # execute low in the image, with the link alive for a grace time: long enough for a PLC
+        # that rewrites its outputs after a reconnect to have done so (a fresh register image
+        # after a controller restart reads 0 while the PLC may still hold execute high)
+        if link_ok and now - self._link_since >= self.settings.arm_grace_s \
+                and not self.plc.read("command_word") & EXECUTE:
+            self._armed = True
         if not self.sm.state.busy and now >= self._next_refresh:
             self._next_refresh = now + self.settings.recipe_refresh_s
             self._refresh_recipes()
@@ -165,18 +173,17 @@ class CellController:
                 self._start_cycle()
             else:
                 self.execute_refused = True
-                why = "not armed (execute must be seen low while the PLC link is alive)" \
+                why = "not armed (execute must be written low while the PLC link is alive)" \
                     if not self._armed else f"state {self.sm.state.name}"
                 log.warning("execute_refused", reason=why)
-        if not value & EXECUTE:
+        if not value & EXECUTE:                    # the PLC wrote execute low: armed
             self._armed = True
 
     def _start_cycle(self) -> None:
         active: ActiveRecipe | None = self.recipes.by_number(self._recipe_number)
-        if active is None:
-            code = Fault.RECIPE_NONE if self._recipe_number == 0 else Fault.RECIPE_UNKNOWN
+        if active is None:                         # nothing moved: refuse, no fault to reset
             self.execute_refused = True
-            self._fault(code, f"execute with recipe {self._recipe_number}, which is not active")
+            log.warning("execute_refused", reason=f"recipe {self._recipe_number} is not active")
             return
         part_id = self.plc.read("part_id")
         self.plc.write("part_id_echo", part_id)
@@ -322,7 +329,7 @@ class CellController:
         state = self.sm.state
         self._heartbeat = (self._heartbeat + 1) & 0xFFFF
         bits = dict(
-            ready=state is State.IDLE and self._link_ok and self.fault_code == 0,
+            ready=state is State.IDLE and self._link_ok and self._armed and self.fault_code == 0,
             busy=state.busy, done=state is State.DONE,
             error=state in (State.FAULT, State.RESETTING) or self.fault_code != 0,
             auto=True, homed=state is not State.STARTING,

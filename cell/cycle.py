@@ -94,6 +94,7 @@ class CellArm:
                  speed_deg_s: float, cancel: threading.Event, settings: CycleSettings):
         self.robot, self.motion, self.camera = robot, motion, camera
         self.z_mm, self.speed, self.cancel, self.settings = z_mm, speed_deg_s, cancel, settings
+        self.last_joints = np.full(4, np.nan)       #: last commanded joints (for directions)
 
     def joints(self, t1: float, t2: float, z_mm: float) -> np.ndarray:
         g = self.robot.g
@@ -105,6 +106,7 @@ class CellArm:
     def move(self, q: np.ndarray) -> None:
         if self.cancel.is_set():
             raise CycleCancelled()
+        self.last_joints = np.asarray(q, dtype=float)
         self.motion.move_to(q, self.speed)
         try:
             self.motion.wait_reached(self.settings.move_timeout_s, tol=self.settings.reach_tol_deg)
@@ -159,12 +161,7 @@ class CycleRunner:
             rec.trace = [s.as_dict() for s in result.steps]
             last = self.robot.from_units(result.final.command_units)
             self._step(rec, State.FINAL_MOVE, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
-            tool = self._step(rec, State.VERIFY, self.camera.tool)
-            rec.verify_error_mm = float(np.hypot(*(tool - part)))
-            if rec.verify_error_mm > r.verify.tolerance_mm:
-                raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE,
-                                f"verified error {rec.verify_error_mm:.4f} mm > tolerance "
-                                f"{r.verify.tolerance_mm} mm")
+            self._step(rec, State.VERIFY, lambda: self._verify(rec, r, part))
             self.memory.learn(r.name, result)
             outcome = CycleOutcome("done")
         except CycleCancelled:
@@ -184,9 +181,8 @@ class CycleRunner:
                 log.exception("cycle_internal_error", part_id=part_id)
                 outcome = CycleOutcome("aborted", Fault.INTERNAL, repr(exc))
         if self.cancel.is_set() and outcome.status != "done":
-            outcome.fault_code = outcome.fault_code or self.cancel_code
-            outcome.fault_text = outcome.fault_text or self.cancel_text
-            outcome.status = "aborted"
+            # the scan loop's reason is the cause; what the motion raised (a quick stop) follows
+            outcome = CycleOutcome("aborted", self.cancel_code, self.cancel_text)
         rec.status, rec.fault_code, rec.fault_text = outcome.status, outcome.fault_code, outcome.fault_text
         rec.finished_at = utc_now()
         rec.cycle_time_s = time.monotonic() - t_start
@@ -223,6 +219,12 @@ class CycleRunner:
                             f"{off:.3f} mm from nominal > search radius {r.part.search_radius_mm} mm")
         return part
 
+    def _verify(self, rec: CycleRecord, r, part: np.ndarray) -> None:
+        rec.verify_error_mm = float(np.hypot(*(self.camera.tool() - part)))
+        if rec.verify_error_mm > r.verify.tolerance_mm:
+            raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"verified error {rec.verify_error_mm:.4f} mm "
+                            f"> tolerance {r.verify.tolerance_mm} mm")
+
     def _compensate(self, arm: CellArm, r, part: np.ndarray) -> CompensationResult:
         c = r.compensation
         offset = self.memory.offset(r.name)
@@ -230,8 +232,10 @@ class CycleRunner:
             result = run_paper(self.robot, arm, part, k=c.k, start_offset_units=offset,
                                repeatability_mm=c.repeatability_mm)
         else:
-            result = run_lattice(self.robot, arm, part, start_offset_units=offset,
-                                 max_moves=c.max_moves, min_gain_mm=c.min_gain_mm)
+            start = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow)) + offset
+            result = run_lattice(self.robot, arm, part, start_units=start, max_moves=c.max_moves,
+                                 min_gain_mm=c.min_gain_mm, backlash_margin_units=c.backlash_margin_units,
+                                 approach_dirs=np.sign(self.robot.from_units(start) - arm.last_joints[:2]))
         result.start_offset = tuple(int(v) for v in offset)
         return result
 

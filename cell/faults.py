@@ -21,8 +21,6 @@ STATION_BASE = 200
 class Fault(enum.IntEnum):
     NONE = 0
     PLC_HEARTBEAT_LOST = 101      #: plc_heartbeat did not change for plc.heartbeat_timeout_s
-    RECIPE_UNKNOWN = 110          #: execute with a recipe number that is not active
-    RECIPE_NONE = 111             #: execute before any recipe was selected
     STATION = 200                 #: a joint-station fault; fault_code = 200 + station code
     CAMERA_FAILED = 301           #: the camera returned no frame (timeout, device gone)
     NO_TARGET = 302               #: the expected fiducial was not found

@@ -56,6 +56,9 @@ class CompensationSpec(_Strict):
     method: Literal["lattice", "paper"] = "lattice"
     max_moves: int = Field(default=4, ge=1, le=20, description="lattice: move budget incl. first arrival")
     min_gain_mm: float = Field(default=0.002, ge=0, le=1)
+    backlash_margin_units: int = Field(default=5, ge=0, le=1000,
+                                       description="lattice: overshoot before a joint reversal, command "
+                                                   "units (0 = off); keep it above the backlash")
     k: int = Field(default=16, ge=1, le=256, description="paper: first grid spacing, command units")
     repeatability_mm: float = Field(default=0.02, ge=0, le=1)
 

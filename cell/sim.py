@@ -34,8 +34,6 @@ from drivers.stations import JointStations, StationsConfig
 from drivers.stations.sim_station import SimStationSet
 
 _channels = itertools.count()
-CAMERA_PX = (1280, 1024)
-CAMERA_MM_PER_PX = 0.04
 
 
 @dataclass
@@ -75,9 +73,14 @@ class PartFeeder:
 
 
 def stations_config(robot: Scara, channel: str) -> StationsConfig:
-    """The four stations on ``channel`` with the robot's joint limits."""
+    """The four stations on ``channel`` with the robot's joint limits.
+
+    Heartbeat margins are wider than a hardware drive needs (3x the producer time, 500 ms
+    consumer time): the simulated drives are Python threads sharing two cores with the
+    renderer, and a late heartbeat there is scheduling jitter, not a silent station."""
     from drivers.stations import StationConfig
-    return StationsConfig(interface="virtual", channel=channel, stations=tuple(
+    return StationsConfig(interface="virtual", channel=channel, heartbeat_tolerance=3.0,
+                          consumer_timeout_ms=500, stations=tuple(
         StationConfig(joint=j, node_id=i + 1, limits=tuple(robot.g.limits[i]))
         for i, j in enumerate(JOINT_NAMES)))
 
@@ -100,7 +103,7 @@ class SimDevices:
                                           on_position=self.plant.update_drive)
         self.motion = JointStations.from_config(self.stations_cfg, clock=self.clock)
         centre = tuple(self.plant.config.camera_center_mm)
-        self.camera_model = CameraModel.nadir(*CAMERA_PX, CAMERA_MM_PER_PX, centre_mm=centre)
+        self.camera_model = CameraModel.nadir(*sim.camera_px, sim.camera_mm_per_px, centre_mm=centre)
         self._board: CircleGridBoard | None = None
         self.camera = SimCamera(self.camera_model, self.scene, optics=Optics(), seed=sim.seed,
                                 clock=self.clock)

@@ -70,12 +70,21 @@ def nearest_lattice(robot: Scara, q_units: np.ndarray, point: np.ndarray,
 
 
 def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
-                start_offset_units=(0, 0), max_moves: int = 4,
-                min_gain_mm: float = 0.002) -> CompensationResult:
+                start_offset_units=(0, 0), max_moves: int = 4, min_gain_mm: float = 0.002,
+                approach_dirs=None, backlash_margin_units: int = 0) -> CompensationResult:
     """Compensate towards ``target_mm`` = (x, y) by nearest-lattice jumps (see module doc).
 
-    ``max_moves`` bounds the physical moves including the first arrival; ``min_gain_mm``
-    is the least predicted improvement worth a move (keep it near the measurement noise).
+    ``max_moves`` bounds the physical moves including the first arrival (and pre-moves);
+    ``min_gain_mm`` is the least predicted improvement worth a move (keep it near the
+    measurement noise).
+
+    Backlash: with ``approach_dirs`` (the sign each joint moved in to reach the first
+    command) and ``backlash_margin_units`` > 0, every arrival keeps each joint's approach
+    direction. A jump that would reverse a joint first overshoots by the margin (a
+    "pre-move", measured and recorded but not used) and comes back, so the lost motion is
+    the same at every arrival and the measurement absorbs it. Without it, a reversal moves
+    the tool by the backlash and predictions made across it are off by that much.
+
     Raises KinematicsError for an unreachable target or ``max_moves`` < 1.
     """
     if max_moves < 1:
@@ -83,6 +92,9 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
     target = np.asarray(target_mm, dtype=float)
     if start_units is None:
         start_units = robot.to_units(robot.ik_planar(*target)) + np.asarray(start_offset_units)
+    dirs = None
+    if approach_dirs is not None and backlash_margin_units > 0:
+        dirs = np.where(np.asarray(approach_dirs) < 0, -1, 1)
     rec = Recorder("lattice", arm, target, robot.from_units([1, 1]))
     point = rec.move(start_units, note="first arrival")
     visited = {tuple(rec.command)}
@@ -91,6 +103,13 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
         gain = np.hypot(*(point - target)) - predicted
         if tuple(best) in visited or gain < min_gain_mm:
             break
+        if dirs is not None:
+            step = np.sign(best - rec.command)
+            reverse = (step != 0) & (step != dirs)
+            if reverse.any():
+                if rec.result.moves + 2 > max_moves:
+                    break
+                rec.move(best - dirs * backlash_margin_units * reverse, note="backlash pre-move")
         point = rec.move(best, note=f"predicted {predicted:.4f} mm")
         visited.add(tuple(best))
     return rec.result

@@ -129,7 +129,8 @@ def _b(index: int, name: str, meaning: str) -> Bit:
 
 
 _STATUS_BITS = (
-    _b(0, "ready", "Controller accepts execute: auto, homed, no error, not busy."),
+    _b(0, "ready", "Controller accepts execute: auto, homed, no error, not busy, and execute "
+                   "seen low since the link came up. Raise execute only while ready."),
     _b(1, "busy", "Cycle running (PLCopen Busy). Set within one controller scan of the accepted "
                   "execute rising edge; done/error/aborted are cleared at the same time."),
     _b(2, "done", "Cycle finished OK (PLCopen Done). Results and part_id_echo are valid before "

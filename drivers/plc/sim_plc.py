@@ -37,6 +37,9 @@ def _log():
 
 #: Output registers in the order a scan writes them (data before commands).
 OUTPUTS = ("recipe_select", "part_id", "command_word")
+#: recipe_status values with which the selected recipe is active: 0 ok, 2 a recipe edit was
+#: rejected (the last good version stays active: the PLC may log it, the run goes on)
+RUNNABLE_RECIPE_STATUS = (0, 2)
 RESULTS = ("initial_error_um", "final_error_um", "moves", "cycle_time_ms", "cycle_count",
            "part_id_echo", "fault_code", "recipe_ack", "recipe_status")
 
@@ -202,7 +205,7 @@ class SimPlc:
                 return True
             if i["recipe_select"] != recipe or i["part_id"] != part_id:
                 return False   # our writes are not read back yet
-            if i["recipe_status"] == 0:
+            if i["recipe_status"] in RUNNABLE_RECIPE_STATUS:
                 return i["recipe_ack"] == recipe
             # a refusal is fresh only if it differs from before; a repeat of the same
             # code cannot be told from a stale one and ends in the timeout below
@@ -215,11 +218,12 @@ class SimPlc:
         except SimPlcError as exc:
             raise SimPlcError(f"{exc}; recipe_status {self.inputs()['recipe_status']}") from None
         self._raise_refused(errors_before)
-        if img["recipe_status"] != 0:
+        if img["recipe_status"] not in RUNNABLE_RECIPE_STATUS:
             raise SimPlcError(f"SimPlc: recipe {recipe} not active: recipe_status "
                               f"{img['recipe_status']}")
         if finished(img):
             self._pulse_acknowledge(timeout_s)
+        self.wait_until(lambda i: bits(i)["ready"], timeout_s, "ready")   # PLCopen: execute only when ready
         self.set_command(execute=True)
         try:
             img = self.wait_until(finished, timeout_s, "done, error or aborted")
@@ -327,5 +331,9 @@ class SimPlc:
         return 0
 
     def _link_error(self, what: str, exc: object) -> None:
+        """Count and log; after a link error every output is written again once the link is
+        back (the server may have restarted with a fresh register image), as a PLC does."""
         self.link_errors += 1
+        with self._cv:
+            self._written = {n: None for n in self._written}
         _log().warning("sim_plc_link_error", op=what, error=str(exc))

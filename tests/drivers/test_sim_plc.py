@@ -203,9 +203,18 @@ def test_unknown_recipe_is_reported_with_recipe_status_then_a_good_one_works(sim
         sim.run_cycle(recipe=9, part_id=1, timeout_s=0.1)   # same code again: only a timeout tells
 
 
-def test_timeout_without_controller_drops_execute(link):
+def test_not_ready_means_no_execute(link):
     with SimPlc("127.0.0.1", link.port, scan_s=SCAN_S) as sim:
         link.write_many({"recipe_ack": 0, "recipe_status": 0})
+        with pytest.raises(SimPlcError, match="waiting for ready"):
+            sim.run_cycle(recipe=0, part_id=1, timeout_s=0.1)
+        assert link.read("command_word") == 0
+
+
+def test_timeout_without_controller_drops_execute(link):
+    with SimPlc("127.0.0.1", link.port, scan_s=SCAN_S) as sim:
+        link.write_many({"recipe_ack": 0, "recipe_status": 0,
+                         "status_word": PLC_MAP.with_bits("status_word", 0, {"ready": True})})
         with pytest.raises(SimPlcError, match="waiting for done, error or aborted"):
             sim.run_cycle(recipe=0, part_id=1, timeout_s=0.1)
         sim.wait_scans(2)

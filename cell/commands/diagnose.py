@@ -1,0 +1,164 @@
+"""``cellctl diagnose``: where the sim-to-real gap lies, which effect causes it, how far it
+shrinks on withheld rows (issue 5; report format in ``shared/spec/measurements.md``).
+
+    cellctl diagnose CAMPAIGN [--json] [--html DIR]
+    cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]
+    cellctl diagnose validate [--trials 200] [--seed S] [--combos] [--points 300] [--json]
+
+CAMPAIGN is a campaign directory in the exchange format, or the cell's own SQLite cycle
+log (exported on the fly with :func:`cell.export.cycles_to_campaign`; the nominal link
+lengths come from ``--robot``). ``validate`` (a special first positional; write
+``./validate`` for a directory of that name) draws campaigns from the plant with a hidden
+effect and prints the scores as Markdown tables (:mod:`cell.diagnosis.validate`).
+
+Bad input exits with status 2 and a message naming file, line and column
+(:class:`~cell.measurements.CampaignFormatError`, raised before anything is diagnosed).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+from cell.commands import float_list
+from cell.errors import ConfigError
+from cell.measurements import Campaign, CampaignFormatError, read_campaign
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+VALIDATE = "validate"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="sim-to-real gap diagnosis of a campaign or the cycle log",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("campaign", metavar="CAMPAIGN",
+                   help="campaign directory, SQLite cycle log, or 'validate'")
+    p.add_argument("--json", action="store_true", help="print the report as JSON (cell-diagnosis/1)")
+    p.add_argument("--html", metavar="DIR", help="write DIR/index.html with PNG plots")
+    p.add_argument("--noise-mm", type=float, metavar="SIGMA",
+                   help="expected σ per axis of one point measurement incl. repeatability, mm "
+                        "(optional; sharpens the 'unexplained' test)")
+    p.add_argument("--robot", default="seed000",
+                   help="cycle log only: robot preset of the nominal model (default seed000)")
+    p.add_argument("--camera-center", type=float_list(2), metavar="X,Y",
+                   help="cycle log only: camera centre on the work plane, mm")
+    v = p.add_argument_group("validate")
+    v.add_argument("--trials", type=int, help="validate: number of campaigns (default 200)")
+    v.add_argument("--seed", type=int, help="validate: seed of the run (default 0)")
+    v.add_argument("--combos", action="store_true",
+                   help="validate: a main effect plus a smaller second one")
+    v.add_argument("--points", type=int, help="validate: static poses per campaign (default 300)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.campaign == VALIDATE:
+        return run_validate(args)
+    given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
+    given += ["--combos"] if args.combos else []
+    if given:
+        raise ConfigError(f"{', '.join(given)}: only with 'cellctl diagnose validate'")
+    from cell.diagnosis import diagnose, render_text
+    if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
+        raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
+    campaign, lines = load(args.campaign, args.robot, args.camera_center)
+    dg = diagnose(campaign, lines, args.noise_mm)
+    if args.html:
+        from cell.diagnosis.html import write_html
+        try:
+            index = write_html(dg, args.html)
+        except OSError as exc:
+            raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
+        if not args.json:
+            print(f"HTML report written to {index}")
+    if args.json:
+        print(json.dumps(clean(dg.report), indent=2, allow_nan=False))
+    else:
+        print(render_text(dg.report))
+    return 0
+
+
+def clean(obj):
+    """JSON-safe copy: non-finite floats become null, tuples lists."""
+    if isinstance(obj, dict):
+        return {k: clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [clean(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
+        return clean(obj.item())
+    return obj
+
+
+# ------------------------------------------------------------------ input
+def data_lines(path: Path) -> list[int] | None:
+    """1-based file line of every data row of a CSV the campaign reader accepted (the same
+    rule: blank rows skipped, header on line 1). None if the file is absent."""
+    if not path.is_file():
+        return None
+    rows = csv.reader(path.read_text(encoding="utf-8-sig").splitlines())
+    return [i for i, row in enumerate(rows, start=1) if i > 1 and row and any(c.strip() for c in row)]
+
+
+def load(target: str, robot: str = "seed000", camera_center=None) -> tuple[Campaign, dict]:
+    """(campaign, {table: row lines}) from a campaign directory or an SQLite cycle log.
+
+    Raises CampaignFormatError (campaign problems, file/line/column) or ConfigError (a cycle
+    log without measured moves, an unknown robot preset)."""
+    p = Path(target)
+    if p.is_dir():
+        c = read_campaign(p)
+        return c, {"points": data_lines(p / "points.csv"), "paths": data_lines(p / "paths.csv")}
+    if not p.exists():
+        raise CampaignFormatError(p, "not found: give a campaign directory or an SQLite cycle log")
+    with p.open("rb") as f:
+        magic = f.read(len(SQLITE_MAGIC))
+    if magic != SQLITE_MAGIC:
+        raise CampaignFormatError(p, "neither a campaign directory nor an SQLite cycle log")
+    from cell.cyclelog import CycleLog
+    from cell.export import cycles_to_campaign
+    from cell.kinematics import PRESETS
+    if robot not in PRESETS:
+        raise ConfigError(f"--robot {robot!r}: unknown preset; known: {sorted(PRESETS)}")
+    g = PRESETS[robot]
+    log = CycleLog(p)
+    try:
+        c = cycles_to_campaign(log.cycles(status="done"), g.l1_mm, g.l2_mm,
+                               command_unit_deg=g.unit[0],
+                               camera_center_mm=tuple(camera_center) if camera_center else None)
+    except ValueError as exc:
+        raise ConfigError(f"{p}: {exc}") from None
+    finally:
+        log.close()
+    c.source = str(p)
+    return c, {}
+
+
+# ------------------------------------------------------------------ validate
+def run_validate(args: argparse.Namespace) -> int:
+    from cell.diagnosis import validate
+    trials = 200 if args.trials is None else args.trials
+    seed = 0 if args.seed is None else args.seed
+    points = 300 if args.points is None else args.points
+    if trials < 1:
+        raise ConfigError(f"--trials {trials} must be ≥ 1")
+    if points < 20:
+        raise ConfigError(f"--points {points} must be ≥ 20")
+    if seed < 0:
+        raise ConfigError(f"--seed {seed} must be ≥ 0")
+    if args.html:
+        raise ConfigError("--html: not with 'validate' (it prints Markdown tables)")
+    ts = validate.run(trials, seed, args.combos, points)
+    kind = "main effect + smaller second" if args.combos else "single effect"
+    title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
+             f"6 moves each")
+    if args.json:
+        print(json.dumps(clean(validate.summarise(ts)), indent=2, allow_nan=False))
+    else:
+        print(validate.markdown(ts, title))
+    sys.stdout.flush()
+    return 0

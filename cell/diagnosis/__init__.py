@@ -1,0 +1,17 @@
+"""Sim-to-real gap diagnosis (issue 5): where the gap lies, which unmodelled effect of the
+vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld rows.
+
+* :mod:`.replay`     campaign -> arrays, nominal replay, residuals
+* :mod:`.where`      what the gap varies with (effect sizes)
+* :mod:`.candidates` which effects the data can identify at all
+* :mod:`.fit`        one candidate fitted on the fit rows (least_squares, BIC, 95 % CI)
+* :mod:`.rank`       search over singles and pairs, none / pair / unexplained decisions
+* :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
+* :mod:`.report`     :func:`diagnose`, the JSON report and its text
+* :mod:`.synth`      validation campaigns drawn from the plant
+* :mod:`.validate`   validation trials and their scores
+* :mod:`.html`       the HTML page with plots (the one module here that writes files)
+"""
+from cell.diagnosis.report import FORMAT, Diagnosis, diagnose, render_text
+
+__all__ = ["FORMAT", "Diagnosis", "diagnose", "render_text"]

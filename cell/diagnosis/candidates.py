@@ -1,0 +1,91 @@
+"""Which candidates the data can support at all (checked before any fit). Pure numerics.
+
+Every effect of :data:`cell.effects.EFFECTS` is tried, per joint where it acts on joints.
+An effect whose signature needs a variable the campaign does not vary is not identifiable
+and is not fitted (it is listed in the report with the reason):
+
+* thermal_drift: a temp_c column whose spread (standard deviation over the fit rows) is at
+  least :data:`MIN_TEMP_SPREAD_C`; at a constant temperature thermal growth is a fixed
+  link-length error and cannot be told from link_length.
+* backlash on a joint: that joint must have been measured after motions in both
+  directions (points' j*_dir, or moves running both ways).
+* gear_ratio / cyclic_error on a joint: the joint's commanded angle must span at least
+  :data:`MIN_ANGLE_SPAN_DEG` (a scale or periodic error over a tiny span is an offset).
+* camera_scale / camera_rotation: model.yaml must give the camera centre.
+* comm_delay: paths.csv must hold moves in which the commands change.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from cell import effects as fx
+from cell.diagnosis.fit import Candidate
+from cell.diagnosis.replay import DiagData
+
+MIN_TEMP_SPREAD_C = 0.2
+MIN_ANGLE_SPAN_DEG = 20.0
+
+
+def _fit_rows(d: DiagData):
+    p = d.points
+    return None if p is None else p.fit
+
+
+def single_candidates(d: DiagData) -> tuple[list[Candidate], dict[str, str]]:
+    """(candidates to fit, {label: reason} of those the data cannot identify)."""
+    out: list[Candidate] = []
+    skipped: dict[str, str] = {}
+    p = d.points
+    fit = _fit_rows(d)
+    fit_moves = [m for m in d.moves if m.fit]
+    angles = [p.cmd[fit] if p is not None else np.zeros((0, 2))] + [m.cmd for m in fit_moves]
+    angles = np.concatenate(angles)
+    dirs_seen = [set(), set()]
+    if p is not None:
+        for j in range(2):
+            dirs_seen[j] |= set(np.unique(p.dirs[fit, j]).tolist()) - {0.0}
+    for m in fit_moves:
+        for j in range(2):
+            dirs_seen[j] |= set(np.unique(fx.path_directions(m.cmd, m.dirs0)[:, j]).tolist()) - {0.0}
+    for name, eff in fx.EFFECTS.items():
+        for joints in ([(j,) for j in eff.joints] if eff.per_joint else [()]):
+            lab = f"{name}[{','.join(joints)}]" if joints else name
+            why = ""
+            ji = [fx.PLANAR_JOINTS.index(j) for j in joints]
+            if name == "thermal_drift":
+                if p is None or p.temp is None:
+                    why = "no temp_c column"
+                elif float(np.std(p.temp[fit])) < MIN_TEMP_SPREAD_C:
+                    why = (f"temperature spread {float(np.std(p.temp[fit])):.3f} K < "
+                           f"{MIN_TEMP_SPREAD_C} K: thermal growth cannot be told from link_length")
+            elif name == "backlash":
+                if dirs_seen[ji[0]] != {-1.0, 1.0}:
+                    why = f"{joints[0]} was never measured after motions in both directions"
+            elif name in ("gear_ratio", "cyclic_error"):
+                span = float(np.ptp(angles[:, ji[0]])) if len(angles) else 0.0
+                if span < MIN_ANGLE_SPAN_DEG:
+                    why = f"{joints[0]} spans {span:.1f}° < {MIN_ANGLE_SPAN_DEG}°"
+            elif eff.subsystem == "vision":
+                if d.center is None:
+                    why = "model.yaml gives no camera centre"
+            elif name == "comm_delay":
+                if not any(np.ptp(m.cmd, axis=0).max() > 0 for m in fit_moves):
+                    why = "no measured moves (paths.csv) in the fit rows"
+            if why:
+                skipped[lab] = why
+            else:
+                out.append(((name, joints),))
+    return out, skipped
+
+
+def merge(a: Candidate, b: Candidate) -> Candidate | None:
+    """The two-effect candidate a+b (same effect on both joints becomes one component);
+    None if they overlap."""
+    (ea, ja), = a
+    (eb, jb), = b
+    if ea == eb:
+        if not ja or set(ja) & set(jb):
+            return None
+        joints = tuple(j for j in fx.PLANAR_JOINTS if j in ja + jb)
+        return ((ea, joints),)
+    return tuple(sorted((a[0], b[0]), key=lambda c: list(fx.EFFECTS).index(c[0])))

@@ -1,0 +1,95 @@
+"""Per-station communication lag from the measured moves. Pure numerics.
+
+Each joint's lag λ_j (ms) is fitted on its own: the joint is taken to follow its commanded
+trajectory shifted by λ_j (linear interpolation, held at the first command before it,
+exactly as the comm_delay stage does — the vocabulary function is reused with the joint's
+lag in place of σ·k_j), the static part of the diagnosed cause stays in the model (only
+when the cause explains the gap; otherwise the nominal model is used), and
+``least_squares`` fits (λ_1, λ_2) on the fit moves. Intervals come from the Jacobian as in
+:mod:`.fit`.
+
+Seed 002's pattern is λ_j = σ·k_j with k_j the joint's 1-based position in the CAN station
+order (model.yaml ``stations``). The check fits σ through the origin (weighted by the lags'
+standard errors) and calls the lags proportional when the χ² of the misfit (1 degree of
+freedom) has p > 0.001 or the largest deviation is under 5 % of the largest lag (at ms
+sampling the lags are so precise that a purely statistical test would reject tiny model
+differences that do not matter). With no lag detected, ``proportional`` is None.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2
+
+from cell import effects as fx
+from cell.diagnosis.fit import Z95, subset
+from cell.diagnosis.replay import DiagData
+
+LAG_BOUNDS_MS = (-20.0, 200.0)
+
+
+def _sim(d: DiagData, static: Sequence[fx.EffectInstance], lags_ms, path_temp_c) -> np.ndarray:
+    acts, dirs = [], []
+    for m in d.moves:
+        a = fx.comm_delay(np.array([1.0]), np.asarray(lags_ms, float), m.t, m.cmd)
+        acts.append(a)
+        dirs.append(fx.path_directions(a, m.dirs0))
+    thermal = next((e for e in static if e.effect == "thermal_drift"), None)
+    t_ref = thermal.params["thermal_ref_temp_c"] if thermal else 20.0
+    a = np.concatenate(acts)
+    temp = np.full(len(a), t_ref if path_temp_c is None else path_temp_c)
+    return fx.simulate_points(d.geometry, [e for e in static if e.spec.stage != "comms"], a,
+                              np.concatenate(dirs), None, temp,
+                              d.center if d.center is not None else (0.0, 0.0))
+
+
+def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
+                 path_temp_c: float | None = None) -> dict | None:
+    """Per-joint lags and the proportionality check, as a JSON-ready dict::
+
+        {"lags_ms": {"j1": .., "j2": ..}, "ci95_ms": {"j1": [lo, hi], ..},
+         "stations": [...], "station_position": {"j1": k1, "j2": k2},
+         "sigma_ms": σ̂, "detected": bool, "proportional": bool | None,
+         "p_value": .., "max_deviation_ms": .., "moves": n}
+
+    None when the campaign has no moves with motion in the fit rows.
+    """
+    fd = subset(d, "fit")
+    if not fd.moves or not any(np.ptp(m.cmd, axis=0).max() > 0 for m in fd.moves):
+        return None
+    meas = fd.path_cat("xy").ravel()
+
+    def fun(x):
+        return meas - _sim(fd, static, x, path_temp_c).ravel()
+
+    res = least_squares(fun, np.array([0.5, 0.5]), bounds=LAG_BOUNDS_MS, method="trf",
+                        x_scale="jac", max_nfev=200)
+    J = res.jac
+    s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - 2, 1)
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        se = np.sqrt(np.maximum(np.diag(cov), 1e-18))
+    except np.linalg.LinAlgError:
+        se = np.full(2, math.inf)
+    lam = res.x
+    k = d.order
+    detected = bool(np.any((np.abs(lam) > Z95 * 2.5 * se) & (np.abs(lam) > 0.05)))
+    w = 1.0 / se ** 2
+    sigma = float(np.sum(w * k * lam) / np.sum(w * k * k))
+    dev = lam - sigma * k
+    stat = float(np.sum(dev ** 2 * w))
+    p = float(chi2.sf(stat, 1))
+    max_dev = float(np.max(np.abs(dev)))
+    prop = None
+    if detected:
+        prop = bool(p > 1e-3 or max_dev < 0.05 * float(np.max(np.abs(lam))))
+    return {"lags_ms": {"j1": float(lam[0]), "j2": float(lam[1])},
+            "ci95_ms": {j: [float(lam[i] - Z95 * se[i]), float(lam[i] + Z95 * se[i])]
+                        for i, j in enumerate(("j1", "j2"))},
+            "stations": list(d.stations),
+            "station_position": {"j1": int(k[0]), "j2": int(k[1])},
+            "sigma_ms": sigma, "detected": detected, "proportional": prop,
+            "p_value": p, "max_deviation_ms": max_dev, "moves": len(fd.moves)}

@@ -1,0 +1,165 @@
+"""The diagnosis as a page a person would rather look at: ``index.html`` + PNG plots
+(matplotlib, Agg backend) + ``report.json``. The one module of :mod:`cell.diagnosis` that
+writes files.
+
+Plots: ``workspace.png`` residual vectors over the workspace before and after the cause
+(quiver, one arrow scale for both); ``variables.png`` the residual in joint space against
+each variable the gap could depend on (angles, directions, time, temperature, payload) and
+the path residual against tool speed; ``holdout.png`` holdout residuals before and after;
+``paths.png`` (with moves) residual along one holdout move before/after, and the fitted
+per-station lags against σ·k.
+"""
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cell.diagnosis.replay import residuals
+from cell.diagnosis.report import Diagnosis, render_text
+from cell.diagnosis.where import jacobian_cols, static_view
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def write_html(dg: Diagnosis, out_dir) -> Path:
+    """Write index.html, report.json and the PNGs into ``out_dir`` (created); returns the
+    index path. Raises OSError if the directory cannot be written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    plt = _plt()
+    d = dg.data
+    eff = dg.decision.chosen.effects if dg.decision.chosen else []
+    tp = dg.decision.chosen.path_temp_c if dg.decision.chosen else None
+    rp0, rq0 = residuals(d)
+    rp1, rq1 = residuals(d, eff, tp)
+    pngs = []
+    cmd, dirs, xy, t, temp, payload, r0 = static_view(d, rp0, rq0)
+    r1 = rp1 if d.points is not None else rq1
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5), dpi=90, sharex=True, sharey=True)
+    scale = float(np.percentile(np.hypot(*r0.T), 95)) or 1e-3
+    for ax, r, title in ((axes[0], r0, "nominal (before)"), (axes[1], r1, "with the cause (after)")):
+        q = ax.quiver(xy[:, 0], xy[:, 1], r[:, 0], r[:, 1], np.hypot(*r.T), cmap="viridis",
+                      angles="xy", scale_units="inches", scale=scale / 0.4, width=0.003)
+        ax.quiverkey(q, 0.75, -0.12, scale, f"{scale:.3f} mm", labelpos="E")
+        ax.set_title(f"residual {title}, rms {np.sqrt(np.mean(np.sum(r ** 2, 1))):.4f} mm",
+                     loc="left", fontsize=10)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x mm")
+        if d.center is not None:
+            ax.plot(*d.center, "r+", ms=12, label="camera centre")
+            ax.legend(loc="lower left", fontsize=8)
+    axes[0].set_ylabel("y mm")
+    pngs.append(_save(fig, out / "workspace.png", plt))
+
+    j1, j2, _, _ = jacobian_cols(d.geometry.l1_mm, d.geometry.l2_mm, cmd)
+    ok = np.abs(np.sin(np.radians(cmd[:, 1]))) > 0.15
+    dq = np.full_like(r0, np.nan)
+    dq[ok] = np.linalg.solve(np.stack([j1[ok], j2[ok]], 2), r0[ok][:, :, None])[:, :, 0]
+    panels = [("θ1 deg", cmd[:, 0]), ("θ2 deg", cmd[:, 1]), ("j1 direction", dirs[:, 0]),
+              ("j2 direction", dirs[:, 1]), ("time s", t)]
+    if temp is not None:
+        panels.append(("temperature °C", temp))
+    if payload is not None:
+        panels.append(("payload kg", payload))
+    n = len(panels) + bool(d.moves)
+    cols = 4
+    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(14, 3.2 * ((n + cols - 1) // cols)),
+                             dpi=80, squeeze=False)
+    jitter = np.random.default_rng(0).uniform(-0.15, 0.15, len(cmd))
+    for ax, (name, v) in zip(axes.ravel(), panels):
+        vv = v + jitter if "direction" in name else v
+        ax.plot(vv, dq[:, 0], ".", ms=3, label="Δθ1")
+        ax.plot(vv, dq[:, 1], ".", ms=3, label="Δθ2")
+        ax.set_xlabel(name)
+        ax.set_ylabel("joint-space residual deg")
+        ax.grid(alpha=0.3)
+    axes.ravel()[0].legend(fontsize=8)
+    if d.moves:
+        ax = axes.ravel()[len(panels)]
+        xyq = d.path_cat("xy") - rq0
+        sp = np.concatenate([np.hypot(*np.gradient(xyq[k:k + len(m.t)], m.t, axis=0).T)
+                             for k, m in zip(np.cumsum([0] + [len(m.t) for m in d.moves[:-1]]),
+                                             d.moves)])
+        ax.plot(sp, np.hypot(*rq0.T), ".", ms=2)
+        ax.set_xlabel("tool speed mm/s (paths)")
+        ax.set_ylabel("|residual| mm")
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.suptitle("Nominal residual against each variable the gap could depend on", fontsize=11)
+    pngs.append(_save(fig, out / "variables.png", plt))
+
+    s = dg.search
+    hp0, hq0 = residuals(s.hold_d, [], None)
+    hp1, hq1 = residuals(s.hold_d, eff, tp)
+    h0 = np.hypot(*np.vstack([hp0, hq0]).T)
+    h1 = np.hypot(*np.vstack([hp1, hq1]).T)
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=90)
+    lo = max(min(h0.min(), h1.min()), 1e-5)
+    bins = np.logspace(np.log10(lo), np.log10(max(h0.max(), h1.max(), lo * 10)), 40)
+    ax.hist(h0, bins=bins, alpha=0.6, label=f"before: rms {np.sqrt(np.mean(h0 ** 2)):.4f} mm")
+    ax.hist(h1, bins=bins, alpha=0.6, label=f"after: rms {np.sqrt(np.mean(h1 ** 2)):.4f} mm")
+    ax.set_xscale("log")
+    ax.set_xlabel("|residual| on the holdout rows, mm (log)")
+    ax.set_ylabel("rows")
+    ax.set_title(f"Holdout before/after ({dg.report['cause']['effect']}), shrink "
+                 f"{dg.report['holdout']['shrink']:.3f}", loc="left", fontsize=10)
+    ax.legend()
+    pngs.append(_save(fig, out / "holdout.png", plt))
+
+    if d.moves:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4), dpi=90)
+        m = next((mv for mv in d.moves if not mv.fit), d.moves[0])
+        k = sum(len(mm.t) for mm in d.moves[:d.moves.index(m)])
+        sl = slice(k, k + len(m.t))
+        axes[0].plot(m.t * 1e3, np.hypot(*rq0[sl].T), label="before")
+        axes[0].plot(m.t * 1e3, np.hypot(*rq1[sl].T), label="after")
+        axes[0].set_xlabel("time in move ms")
+        axes[0].set_ylabel("|residual| mm")
+        axes[0].set_title(f"move {m.move} ({'fit' if m.fit else 'holdout'})", loc="left", fontsize=10)
+        axes[0].legend()
+        dl = dg.delay
+        if dl:
+            lam = [dl["lags_ms"]["j1"], dl["lags_ms"]["j2"]]
+            ci = np.array([dl["ci95_ms"]["j1"], dl["ci95_ms"]["j2"]])
+            axes[1].bar(["j1", "j2"], lam, yerr=[np.array(lam) - ci[:, 0], ci[:, 1] - np.array(lam)],
+                        capsize=6, alpha=0.7, label="fitted lag (95 %)")
+            kk = [dl["station_position"]["j1"], dl["station_position"]["j2"]]
+            axes[1].plot(["j1", "j2"], [dl["sigma_ms"] * x for x in kk], "ko--", label="σ·k")
+            axes[1].set_ylabel("lag ms")
+            axes[1].legend()
+            axes[1].set_title("per-station lag vs station position", loc="left", fontsize=10)
+        pngs.append(_save(fig, out / "paths.png", plt))
+
+    rep = dg.report
+    (out / "report.json").write_text(json.dumps(rep, indent=2), encoding="utf-8")
+    body = [f"<h1>Sim-to-real diagnosis</h1><p>{html.escape(rep['gap']['where']['summary'])}</p>",
+            f"<p><b>Cause:</b> {html.escape(rep['cause']['effect'])} "
+            f"{html.escape(', '.join(rep['cause']['joints']))} — holdout rms "
+            f"{rep['holdout']['rms_before_mm']:.4f} → {rep['holdout']['rms_after_mm']:.4f} mm "
+            f"(shrink {rep['holdout']['shrink']:.3f}); unexplained: "
+            f"{'<b>yes</b>' if rep['unexplained'] else 'no'}.</p>"]
+    body += [f'<h2>{p.stem}</h2><img src="{p.name}" alt="{p.stem}">' for p in pngs]
+    body.append(f"<h2>Full report</h2><pre>{html.escape(render_text(rep))}</pre>"
+                '<p><a href="report.json">report.json</a></p>')
+    index = out / "index.html"
+    index.write_text("<!doctype html><meta charset='utf-8'><title>cellctl diagnose</title>"
+                     "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}"
+                     "img{max-width:100%}</style>" + "\n".join(body), encoding="utf-8")
+    return index
+
+
+def _save(fig, path: Path, plt) -> Path:
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path

@@ -1,0 +1,240 @@
+"""The diagnosis as one call, its JSON report (spec format ``cell-diagnosis/1``) and its text.
+
+:func:`diagnose` runs the whole chain on a campaign: nominal replay and gap (:mod:`.replay`),
+where it lies (:mod:`.where`), candidate search and decision (:mod:`.rank`), holdout
+before/after, the unexplained test and the per-station lags (:mod:`.delay`). Pure numerics:
+the caller reads the campaign and prints or writes the result.
+
+The JSON keeps every key of the spec (``format``, ``gap`` with ``where`` {subsystem,
+joints, depends_on, summary}, ``ranking`` entries {effect, joints, params, holdout_rms_mm,
+score}, ``cause`` {effect, joints, params, ci95}, ``holdout`` {n, rms_before_mm,
+rms_after_mm, shrink}, ``unexplained``) and adds: ``gap.points`` / ``gap.paths``,
+``gap.where.effect_sizes`` / ``per_joint_rms_deg``, per-entry ``label``, ``components``,
+``identifiable``, ``k``; ``cause.subsystem``, ``cause.components``, ``cause.test``;
+``holdout.points`` / ``holdout.paths`` / max values; ``remainder``; ``not_identifiable``;
+``delay``; ``noise``; ``split``. ``score`` is the BIC on the fit rows (lower is better).
+For a two-effect cause, ``effect`` / ``joints`` name the larger component (by the rms
+displacement it makes), ``params`` / ``ci95`` hold both components' parameters.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from cell.diagnosis import delay as delay_mod
+from cell.diagnosis import rank, where as where_mod
+from cell.diagnosis.fit import FitResult, TableStats, combined, component_sizes
+from cell.diagnosis.replay import DiagData, path_noise_mm, prepare, residuals
+from cell.measurements import Campaign
+
+FORMAT = "cell-diagnosis/1"
+
+
+@dataclass
+class Diagnosis:
+    """Everything one diagnosis computed; ``report`` is the JSON-ready dict."""
+
+    data: DiagData
+    search: rank.Search
+    decision: rank.Decision
+    where: where_mod.Where
+    remainder: rank.Remainder
+    delay: dict | None
+    report: dict
+
+    @property
+    def cause(self) -> str:
+        return self.report["cause"]["effect"]
+
+
+def _r(v: float, nd: int = 6) -> float:
+    return float(round(v, nd)) if math.isfinite(v) else v
+
+
+def _stats(t: TableStats) -> dict:
+    return {"n": t.n, "rms_mm": _r(t.rms), "max_mm": _r(t.max)}
+
+
+def _main_index(r: FitResult, d: DiagData) -> int:
+    if len(r.effects) < 2:
+        return 0
+    sizes = component_sizes(r, d)
+    return max(range(len(sizes)), key=lambda i: sizes[i])
+
+
+def _components(r: FitResult) -> list[dict]:
+    return [{"effect": e.effect, "joints": list(e.joints),
+             "params": {n: _r(r.params[n], 9) for n in e.fit_names}} for e in r.effects]
+
+
+def _entry(r: FitResult, d: DiagData) -> dict:
+    main = r.effects[_main_index(r, d)] if r.effects else None
+    out = {"effect": main.effect if main else "none", "joints": list(main.joints) if main else [],
+           "params": {n: _r(v, 9) for n, v in r.params.items()},
+           "holdout_rms_mm": _r(r.holdout.rms), "score": _r(r.bic, 3), "label": r.label,
+           "components": _components(r), "k": r.k, "identifiable": r.identifiable}
+    if not r.identifiable:
+        out["reason"] = r.reason
+    return out
+
+
+def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = None) -> Diagnosis:
+    """Diagnose campaign ``c`` (see module docstring). ``lines`` maps table -> file line of
+    each row (error messages); ``noise_mm`` the expected σ per axis (mm) of one static point
+    measurement, repeatability included, if known (sharpens the unexplained test).
+    Raises CampaignFormatError for semantic campaign problems."""
+    d = prepare(c, lines)
+    rp, rq = residuals(d)
+    gap_p, gap_q = TableStats.of(rp), TableStats.of(rq)
+    gap = combined(gap_p, gap_q)
+    wh = where_mod.analyse(d, rp, rq)
+    s = rank.search(d)
+    dec = rank.decide(s)
+    before = s.nominal.holdout
+    after = dec.chosen.holdout if dec.chosen else before
+    shrink = 1.0 - after.rms / before.rms if before.rms > 0 else 0.0
+    sigma_q = path_noise_mm(d)
+    rem = rank.unexplained(d, s, dec, shrink, sigma_q, noise_mm)
+    # the lags are fitted with the cause's static part only when the cause explains the gap
+    trusted = dec.chosen is not None and not rem.unexplained
+    static = [e for e in dec.chosen.effects if e.spec.stage != "comms"] if trusted else []
+    dl = delay_mod.station_lags(d, static, dec.chosen.path_temp_c if trusted else None)
+
+    if dec.chosen is not None:
+        main = dec.chosen.effects[_main_index(dec.chosen, s.fit_d)]
+        cause = {"effect": main.effect, "joints": list(main.joints),
+                 "params": {n: _r(v, 9) for n, v in dec.chosen.params.items()},
+                 "ci95": {n: [_r(lo, 9), _r(hi, 9)] for n, (lo, hi) in dec.chosen.ci95.items()},
+                 "subsystem": main.spec.subsystem, "components": _components(dec.chosen)}
+        if "path_temp_c" in dec.chosen.extras:
+            v, (lo, hi) = dec.chosen.extras["path_temp_c"]
+            cause["nuisance"] = {"path_temp_c": _r(v, 4), "path_temp_c_ci95": [_r(lo, 4), _r(hi, 4)]}
+        subsystem, joints = main.spec.subsystem, list(main.joints)
+    else:
+        cause = {"effect": "none", "joints": [], "params": {}, "ci95": {}, "subsystem": "none",
+                 "components": []}
+        subsystem, joints = "none", []
+    cause["test"] = {"p_value": dec.p_value, "delta_bic": _r(dec.delta_bic, 3),
+                     "pair_p_value": dec.pair_p_value, "alpha": rank.ALPHA,
+                     "runner_up": dec.runner_up,
+                     "runner_up_margin_bic": None if dec.margin_bic is None else _r(dec.margin_bic, 3)}
+    where = {"subsystem": subsystem, "joints": joints, "depends_on": wh.depends_on,
+             "summary": _summary(gap, wh, cause, rem),
+             "depends_on_joint": wh.joint,
+             "effect_sizes": {k: {kk: (_r(vv) if isinstance(vv, float) else vv)
+                                  for kk, vv in v.items() if kk != "explained_ms"}
+                              for k, v in wh.effect_sizes.items()},
+             "per_joint_rms_deg": {k: (None if v is None else _r(v, 7))
+                                   for k, v in wh.per_joint_rms_deg.items()}}
+    report = {
+        "format": FORMAT,
+        "source": c.source,
+        "gap": {"rms_mm": _r(gap.rms), "max_mm": _r(gap.max), "n": gap.n, "where": where,
+                "points": _stats(gap_p), "paths": _stats(gap_q)},
+        "ranking": [_entry(r, s.fit_d) for r in s.ranking],
+        "cause": cause,
+        "holdout": {"n": before.n, "rms_before_mm": _r(before.rms), "rms_after_mm": _r(after.rms),
+                    "shrink": _r(shrink, 4), "max_before_mm": _r(before.max),
+                    "max_after_mm": _r(after.max),
+                    "points": {"n": s.nominal.hold_points.n,
+                               "rms_before_mm": _r(s.nominal.hold_points.rms),
+                               "rms_after_mm": _r((dec.chosen or s.nominal).hold_points.rms)},
+                    "paths": {"n": s.nominal.hold_paths.n,
+                              "rms_before_mm": _r(s.nominal.hold_paths.rms),
+                              "rms_after_mm": _r((dec.chosen or s.nominal).hold_paths.rms)}},
+        "unexplained": rem.unexplained,
+        "remainder": {"reasons": rem.reasons, "notes": rem.notes,
+                      "systematic_share": None if rem.systematic_share is None
+                      else _r(rem.systematic_share, 4),
+                      "path_noise_ratio": None if rem.path_noise_ratio is None
+                      else _r(rem.path_noise_ratio, 3),
+                      "depends_on": rem.where.depends_on if rem.where else None,
+                      "joint": rem.where.joint if rem.where else None,
+                      "rms_mm": _r(rem.where.rms_mm) if rem.where else None},
+        "not_identifiable": dict(s.skipped) | {r.label: r.reason for r in s.ranking
+                                               if not r.identifiable},
+        "delay": dl,
+        "noise": {"path_sigma_mm": None if sigma_q is None else _r(sigma_q, 7),
+                  "fit_rms_points_mm": _r((dec.chosen or s.nominal).fit_points.rms),
+                  "fit_rms_paths_mm": _r((dec.chosen or s.nominal).fit_paths.rms)},
+        "split": {"source": d.split_source, "fit_rows": s.fit_d.n_points + s.fit_d.n_path,
+                  "holdout_rows": s.hold_d.n_points + s.hold_d.n_path},
+    }
+    return Diagnosis(d, s, dec, wh, rem, dl, report)
+
+
+_VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angle",
+             "direction": "depends on the approach direction", "time": "drifts with time",
+             "temperature": "follows the temperature", "position": "varies over the workspace",
+             "speed": "follows the joint speeds along the moves"}
+
+
+def _summary(gap: TableStats, wh: where_mod.Where, cause: dict, rem: rank.Remainder) -> str:
+    es = wh.effect_sizes.get(wh.depends_on, {})
+    on = f" of {wh.joint}" if wh.joint else ""
+    s = (f"The gap (rms {gap.rms:.4f} mm over {gap.n} rows) {_VAR_TEXT[wh.depends_on]}{on}: "
+         f"that alone explains {100 * es.get('r2', 0.0):.0f} % of its mean square")
+    if cause["effect"] == "none":
+        s += "; no effect of the vocabulary is supported beyond noise"
+    else:
+        j = f" on {', '.join(cause['joints'])}" if cause["joints"] else ""
+        s += f"; the best-supported cause is {cause['effect']}{j}"
+    if rem.unexplained:
+        s += ", but most of the gap is left unexplained"
+        if rem.where is not None:
+            s += f" (the remainder {_VAR_TEXT[rem.where.depends_on]})"
+    return s + "."
+
+
+def render_text(rep: dict) -> str:
+    """The report as readable lines (what ``cellctl diagnose`` prints without ``--json``)."""
+    g, c, h, w = rep["gap"], rep["cause"], rep["holdout"], rep["gap"]["where"]
+    out = [f"Sim-to-real diagnosis of {rep.get('source', '')}",
+           f"gap: rms {g['rms_mm']:.4f} mm, max {g['max_mm']:.4f} mm over {g['n']} rows "
+           f"(points {g['points']['n']}, path samples {g['paths']['n']})",
+           f"where: {w['summary']}",
+           "effect sizes (share of the gap's mean square each variable explains):"]
+    for k, v in sorted(w["effect_sizes"].items(), key=lambda kv: -kv[1]["r2"]):
+        out.append(f"  {k:<12} {100 * v['r2']:6.1f} %  {v['rms_mm']:.4f} mm"
+                   + (f"  ({v['joint']})" if v.get("joint") else ""))
+    pj = w["per_joint_rms_deg"]
+    if pj.get("j1") is not None:
+        out.append(f"per joint (joint space): j1 {pj['j1']:.5f}°, j2 {pj['j2']:.5f}° rms")
+    out.append("")
+    out.append("| rank | candidate | k | BIC | holdout rms mm | identifiable |")
+    out.append("|---:|---|---:|---:|---:|---|")
+    for i, r in enumerate(rep["ranking"][:12], 1):
+        out.append(f"| {i} | {r['label']} | {r['k']} | {r['score']:.1f} | {r['holdout_rms_mm']:.4f} "
+                   f"| {'yes' if r['identifiable'] else 'no: ' + r.get('reason', '')} |")
+    out.append("")
+    if c["effect"] == "none":
+        out.append(f"cause: none (best candidate not significant: p = {c['test']['p_value']:.3g})")
+    else:
+        j = f" on {', '.join(c['joints'])}" if c["joints"] else ""
+        out.append(f"cause: {c['effect']}{j} ({c['subsystem']}), p = {c['test']['p_value']:.3g}, "
+                   f"ΔBIC vs nominal {c['test']['delta_bic']:.1f}")
+        for n, v in c["params"].items():
+            lo, hi = c["ci95"][n]
+            out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")
+        if c["test"]["runner_up"]:
+            out.append(f"  runner-up: {c['test']['runner_up']} "
+                       f"(BIC {c['test']['runner_up_margin_bic']:+.1f} worse)")
+    out.append(f"holdout ({h['n']} rows): rms {h['rms_before_mm']:.4f} -> {h['rms_after_mm']:.4f} mm, "
+               f"shrink {h['shrink']:.3f}")
+    if rep["unexplained"]:
+        out.append("UNEXPLAINED: " + "; ".join(rep["remainder"]["reasons"]))
+    for note in rep["remainder"].get("notes", []):
+        out.append(f"note: {note}")
+    dl = rep.get("delay")
+    if dl:
+        lag = dl["lags_ms"]
+        out.append(f"comm lags: j1 {lag['j1']:.3f} ms, j2 {lag['j2']:.3f} ms (stations "
+                   f"{', '.join(dl['stations'])}); "
+                   + ("no lag detected" if not dl["detected"] else
+                      f"σ = {dl['sigma_ms']:.3f} ms, proportional to station position: "
+                      f"{'yes' if dl['proportional'] else 'NO'}"))
+    if rep["not_identifiable"]:
+        out.append("not identifiable from this campaign: " + "; ".join(
+            f"{k} ({v})" for k, v in rep["not_identifiable"].items()))
+    return "\n".join(out)
+
