@@ -205,8 +205,10 @@ REGISTERS: tuple[Register, ...] = (
 HANDSHAKE = """\
 Cycle handshake (PLCopen Execute/Busy/Done/Error, as Epson remote I/O and UR's Modbus map):
 
-1. PLC writes recipe_select; waits until recipe_ack = recipe_select and recipe_status = 0.
-2. PLC writes part_id (both words, one FC16), then in a later write sets command_word.execute.
+1. PLC writes recipe_select; waits until recipe_ack = recipe_select and recipe_status is 0
+   (or 2: an edit of some recipe file was rejected, the last good versions still run).
+2. PLC writes part_id (both words, one FC16), waits for status_word.ready, then in a later
+   write sets command_word.execute.
 3. Controller latches recipe and part_id at the execute rising edge and sets status_word.busy
    (only if ready; otherwise it sets execute_refused and starts nothing).
 4. Controller writes the results and part_id_echo, then sets done (or error + fault_code,
