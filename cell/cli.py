@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "cell.commands.report",
     "cell.commands.registers",
     "cell.commands.run",
+    "cell.commands.diagnose",
 )
 
 

@@ -1,0 +1,40 @@
+"""Sim-to-real diagnosis validation (issue 5). Prints Markdown tables.
+
+Runs ``cellctl diagnose validate`` twice: single hidden effects (the vocabulary plus
+``none``, uniform), then a main effect plus a smaller second one (combos). Campaign design:
+:mod:`cell.diagnosis.synth` (seed 000 robot, 300 static poses over an hour of warm-up,
+6 straight moves sampled at 2 ms, 70/30 fit/holdout). Scores: :mod:`cell.diagnosis.validate`.
+Run time per campaign is the diagnosis only (campaign generation excluded), on this machine.
+
+    .venv/bin/python bench/bench_diagnosis.py [--quick] [--trials N] [--seed S]
+"""
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+from cell.diagnosis import validate
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="30 trials each instead of 200")
+    ap.add_argument("--trials", type=int, help="trials per table (default 200, --quick 30)")
+    ap.add_argument("--seed", type=int, default=0, help="validation seed (default 0)")
+    ap.add_argument("--points", type=int, default=300, help="static poses per campaign")
+    args = ap.parse_args()
+    n = args.trials or (30 if args.quick else 200)
+    print(f"Python {platform.python_version()} on {platform.machine()}, one process.\n")
+    for combos, kind in ((False, "single effect"), (True, "main effect + smaller second")):
+        t0 = time.perf_counter()
+        ts = validate.run(n, args.seed, combos, args.points)
+        wall = time.perf_counter() - t0
+        cmd = (f"cellctl diagnose validate --trials {n} --seed {args.seed} --points {args.points}"
+               + (" --combos" if combos else ""))
+        print(validate.markdown(ts, f"{kind}: {n} campaigns (`{cmd}`)"))
+        print(f"\n(wall time incl. campaign generation: {wall:.0f} s)\n")
+
+
+if __name__ == "__main__":
+    main()
