@@ -110,8 +110,11 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def serve(args: argparse.Namespace) -> int:
+    from cell import log
     from cell.app import Cell
     cfg = load_config(args.config, args.sim)
+    if args.config:                            # a service logs as its config says
+        log.configure(cfg.log.format, cfg.log.level)
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
     cell = Cell(cfg, sim=args.sim, plc_port=port)
     stop = threading.Event()
