@@ -230,7 +230,8 @@ class CellController:
             return 0 if v is None else min(int(round(v * 1000)), 0xFFFFFFFF)
         self.plc.write_many({"initial_error_um": um(rec.initial_error_mm), "final_error_um": um(final),
                              "moves": rec.moves or 0,
-                             "cycle_time_ms": min(int(rec.cycle_time_s * 1000), 0xFFFFFFFF)})
+                             "cycle_time_ms": min(int((rec.cycle_time_s + out.log_write_s) * 1000),
+                                                  0xFFFFFFFF)})
 
     # ------------------------------------------------------------------ faults
     def _fault(self, code: int, text: str) -> None:

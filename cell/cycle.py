@@ -58,6 +58,7 @@ class CycleOutcome:
     fault_code: int = 0
     fault_text: str = ""
     record: CycleRecord | None = None
+    log_write_s: float = 0.0          #: time to write the row (the LOGGING step)
 
 
 @dataclass
@@ -240,17 +241,18 @@ class CycleRunner:
         return result
 
     def _write(self, rec: CycleRecord, outcome: CycleOutcome) -> CycleRecord:
+        """Write the cycle's row (the LOGGING step). Its own duration cannot be inside the row
+        it writes: it is returned in ``outcome.log_write_s`` and included in the cycle time
+        the PLC reads."""
+        t0 = time.monotonic()
         try:
-            self._step_logging(rec)
             rec.id = self.log.add_cycle(rec)
         except Exception as exc:                 # noqa: BLE001
             log.error("cycle_log_write_failed", error=repr(exc), part_id=rec.part_id)
             if outcome.status == "done":
                 outcome.status, outcome.fault_code = "fault", Fault.LOG_WRITE_FAILED
                 outcome.fault_text = f"cycle log write failed: {exc}"
+        outcome.log_write_s = time.monotonic() - t0
         log.info("cycle_end", part_id=rec.part_id, recipe=rec.recipe, status=outcome.status,
                  fault=outcome.fault_code, final_error_mm=rec.final_error_mm, moves=rec.moves)
         return rec
-
-    def _step_logging(self, rec: CycleRecord) -> None:
-        rec.step_times.setdefault("logging", 0.0)
