@@ -63,8 +63,9 @@ class CycleOutcome:
 
 @dataclass
 class OffsetMemory:
-    """Seed 000's step (5): the averaged joint offset (last − first command of earlier cycles)
-    per recipe, written back as the start offset of the next cycles. Keeps the last ``n``."""
+    """Seed 000's step (5): per recipe, the joint offsets (last command − nominal IK command,
+    in command units) of the last ``n`` completed cycles; their rounded mean is where the
+    next cycle starts."""
 
     n: int = 10
     history: dict[str, list[np.ndarray]] = field(default_factory=dict)
@@ -73,18 +74,10 @@ class OffsetMemory:
         h = self.history.get(recipe)
         return np.rint(np.mean(h, axis=0)).astype(np.int64) if h else np.zeros(2, np.int64)
 
-    def learn(self, recipe: str, result: CompensationResult) -> None:
-        moved = [s for s in result.steps if s.moved]
-        if len(moved) < 1:
-            return
-        # offset relative to the uncompensated command: first command minus what was added to it
+    def learn(self, recipe: str, offset_units) -> None:
         h = self.history.setdefault(recipe, [])
-        h.append(np.subtract(result.final.command_units, self._base(result)))
+        h.append(np.asarray(offset_units, dtype=np.int64))
         del h[:-self.n]
-
-    @staticmethod
-    def _base(result: CompensationResult) -> np.ndarray:
-        return np.asarray(result.steps[0].command_units) - np.asarray(getattr(result, "start_offset", (0, 0)))
 
 
 class CellArm:
@@ -156,14 +149,15 @@ class CycleRunner:
             image = self._step(rec, State.CAPTURE, self.camera.grab)
             part = self._step(rec, State.LOCATE, lambda: self._locate(image, r))
             rec.target_mm = (float(part[0]), float(part[1]))
-            result = self._step(rec, State.COMPENSATE, lambda: self._compensate(arm, r, part))
+            nominal = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow))
+            result = self._step(rec, State.COMPENSATE, lambda: self._compensate(arm, r, part, nominal))
             rec.initial_error_mm, rec.moves = result.initial_error_mm, result.moves
             rec.final_error_mm = result.final_error_mm
             rec.trace = [s.as_dict() for s in result.steps]
             last = self.robot.from_units(result.final.command_units)
             self._step(rec, State.FINAL_MOVE, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
             self._step(rec, State.VERIFY, lambda: self._verify(rec, r, part))
-            self.memory.learn(r.name, result)
+            self.memory.learn(r.name, np.subtract(result.final.command_units, nominal))
             outcome = CycleOutcome("done")
         except CycleCancelled:
             outcome = CycleOutcome("aborted", self.cancel_code, self.cancel_text)
@@ -226,19 +220,15 @@ class CycleRunner:
             raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"verified error {rec.verify_error_mm:.4f} mm "
                             f"> tolerance {r.verify.tolerance_mm} mm")
 
-    def _compensate(self, arm: CellArm, r, part: np.ndarray) -> CompensationResult:
+    def _compensate(self, arm: CellArm, r, part: np.ndarray, nominal: np.ndarray) -> CompensationResult:
         c = r.compensation
-        offset = self.memory.offset(r.name)
+        start = nominal + self.memory.offset(r.name)
         if c.method == "paper":
-            result = run_paper(self.robot, arm, part, k=c.k, start_offset_units=offset,
-                               repeatability_mm=c.repeatability_mm)
-        else:
-            start = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow)) + offset
-            result = run_lattice(self.robot, arm, part, start_units=start, max_moves=c.max_moves,
-                                 min_gain_mm=c.min_gain_mm, backlash_margin_units=c.backlash_margin_units,
-                                 approach_dirs=np.sign(self.robot.from_units(start) - arm.last_joints[:2]))
-        result.start_offset = tuple(int(v) for v in offset)
-        return result
+            return run_paper(self.robot, arm, part, k=c.k, start_units=start,
+                             repeatability_mm=c.repeatability_mm)
+        return run_lattice(self.robot, arm, part, start_units=start, max_moves=c.max_moves,
+                           min_gain_mm=c.min_gain_mm, backlash_margin_units=c.backlash_margin_units,
+                           approach_dirs=np.sign(self.robot.from_units(start) - arm.last_joints[:2]))
 
     def _write(self, rec: CycleRecord, outcome: CycleOutcome) -> CycleRecord:
         """Write the cycle's row (the LOGGING step). Its own duration cannot be inside the row
