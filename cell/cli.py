@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "cell.commands.registers",
     "cell.commands.run",
     "cell.commands.diagnose",
+    "cell.commands.calibrate",
 )
 
 

@@ -62,6 +62,11 @@ class FolderCamera(CameraBase):
     def _close(self) -> None:
         self._files = []
 
+    @property
+    def count(self) -> int:
+        """Images in the folder (known once opened)."""
+        return len(self._files)
+
     def _grab(self):
         if self._pos >= len(self._files):
             if not self.loop:

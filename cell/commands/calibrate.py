@@ -1,0 +1,99 @@
+"""``cellctl calibrate-camera``: the camera's plane calibration from images of a board.
+
+The board (circle grid or chessboard) lies on the work plane at a known place in the robot
+base frame, described in a small YAML file::
+
+    kind: circles          # or chessboard
+    cols: 11
+    rows: 7
+    pitch_mm: 4.0          # chessboard: square_mm
+    radius_mm: 1.0
+    origin_mm: [230.0, 918.0]
+    angle_deg: 0.0
+
+Images come from a folder (``--images DIR``, e.g. saved by the camera vendor's tool) or from
+the configured camera (``--config deploy/cell.yaml --views 3``). The result is the JSON file
+the cell loads at start-up (``vision.calibration``), written atomically; the command prints
+the reprojection error in pixels and mm.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from cell.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate-camera", help="plane calibration of the camera from board images")
+    p.add_argument("--board", required=True, help="board description (YAML, see cellctl calibrate-camera -h)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--images", help="folder of board images")
+    src.add_argument("--config", help="cell config: grab from its camera")
+    p.add_argument("--views", type=int, default=3, help="frames to grab with --config (default 3)")
+    p.add_argument("--u-axis-deg", type=float, default=0.0,
+                   help="rough direction of the image +u axis in the base frame, ±45° (default 0)")
+    p.add_argument("--no-distortion", action="store_true", help="fit a plain homography")
+    p.add_argument("--out", required=True, help="calibration JSON to write")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import yaml
+
+    from cell.vision import VisionError
+    from cell.vision.calibration import board_from_dict, calibrate
+    try:
+        board = board_from_dict(yaml.safe_load(Path(args.board).read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{args.board}: cannot read the board description: {exc}") from None
+    except ConfigError as exc:
+        raise ConfigError(f"{args.board}: {exc}") from None
+    images = _images(args)
+    try:
+        cal = calibrate([(img, board) for _, img in images], distortion=not args.no_distortion,
+                        u_axis_deg=args.u_axis_deg)
+    except VisionError as exc:
+        names = ", ".join(f"view {i} = {name}" for i, (name, _) in enumerate(images))
+        raise ConfigError(f"calibration failed: {exc} ({names})") from None
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(cal.as_dict(), f, indent=2)
+    os.replace(tmp, out)
+    print(f"{len(images)} view(s), {cal.n_points} board points: reprojection rms {cal.rms_px:.4f} px "
+          f"(max {cal.max_px:.4f}), rms {cal.rms_mm:.5f} mm; written to {out}")
+    return 0
+
+
+def _images(args) -> list[tuple[str, object]]:
+    """(name, image) of every folder image, or of ``--views`` frames of the configured camera."""
+    from drivers import camera as cameras
+    if args.views < 1:
+        raise ConfigError(f"--views {args.views} must be ≥ 1")
+    if args.images:
+        cam = cameras.create("folder", path=args.images)
+    else:
+        from cell.config import CellConfig
+        cam = cameras.from_config(CellConfig.load(args.config).camera)
+    out = []
+    try:
+        cam.open()
+        n = cam.count if args.images else args.views
+        for i in range(n):
+            frame = cam.grab()
+            out.append((frame.metadata.get("file", f"frame {i}"), frame.image))
+    except Exception as exc:                       # noqa: BLE001 -- camera errors name the file
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"camera: {exc}") from None
+    finally:
+        try:
+            cam.close()
+        except Exception:                          # noqa: BLE001 -- already closed
+            pass
+    return out
