@@ -106,4 +106,4 @@ class CellConfig(_Section):
     @classmethod
     def load(cls, path: Path | str) -> "CellConfig":
         """Load and validate ``path``; raises ConfigError naming file, line and field."""
-        return load_model(path, cls)
+        return load_model(path, cls, "cell config")

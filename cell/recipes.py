@@ -18,11 +18,12 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Callable, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cell.errors import ConfigError
 from cell.log import get_logger
-from cell.yamlio import parse_model
+from cell.yamlio import node_line, parse_yaml, validation_message
 
 log = get_logger("recipes")
 
@@ -116,11 +117,23 @@ class AuditEntry:
 
 def parse_recipe(text: str, source: str) -> Recipe:
     """Validate recipe text; raise ConfigError naming source, line and field."""
-    recipe = parse_model(text, Recipe, source)
+    data, root = parse_yaml(text, source, "recipe")
+    try:
+        recipe = Recipe.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(validation_message(source, exc, root)) from None
     stem = Path(source).stem
     if stem != recipe.name and not source.startswith("<"):
-        raise ConfigError(f"{source}, field name: recipe name {recipe.name!r} must match the file name {stem!r}")
+        raise ConfigError(f"{source}:{node_line(root, ('name',))}: name: recipe name {recipe.name!r} "
+                          f"must match the file name {stem!r}")
     return recipe
+
+
+def _line_of(text: str, key: str) -> int | None:
+    try:
+        return node_line(yaml.compose(text, Loader=yaml.SafeLoader), (key,))
+    except yaml.YAMLError:
+        return None
 
 
 def _owner(path: Path) -> str:
@@ -178,8 +191,8 @@ class RecipeStore:
                 clash = next((a for a in new.values() if a.recipe.number == recipe.number
                               and a.recipe.name != recipe.name), None)
                 if clash:
-                    raise ConfigError(f"{path}, field number: recipe number {recipe.number} is "
-                                      f"already used by {clash.path}")
+                    raise ConfigError(f"{path}:{_line_of(text, 'number')}: number: recipe number "
+                                      f"{recipe.number} is already used by {clash.path}")
             except ConfigError as exc:
                 self.last_rejection = str(exc)
                 entries.append(AuditEntry(_owner(path), "reject", str(path), h, str(exc)))

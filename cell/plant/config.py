@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from cell.effects import STATION_NAMES, EffectInstance, make_effect, station_order
 from cell.errors import ConfigError
 from cell.kinematics import PRESETS, Geometry
+from cell.yamlio import parse_yaml, read_text, validation_message
 
 FORMAT = "cell-plant/1"
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -139,64 +140,6 @@ class PlantConfig(BaseModel):
 
 
 # ------------------------------------------------------------------ loading with file:line
-def _field(loc) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out or "(top level)"
-
-
-def _line_of(root: yaml.Node | None, loc) -> int | None:
-    """1-based line of the deepest node along ``loc`` (the key's line for a mapping entry)."""
-    node, line = root, (root.start_mark.line + 1 if root is not None else None)
-    for part in loc:
-        if isinstance(node, yaml.MappingNode):
-            hit = next(((k, v) for k, v in node.value if k.value == str(part)), None)
-            if hit is None:
-                break
-            line, node = hit[0].start_mark.line + 1, hit[1]
-        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) \
-                and 0 <= part < len(node.value):
-            node = node.value[part]
-            line = node.start_mark.line + 1
-        else:
-            break
-    return line
-
-
-def _duplicate_key(node: yaml.Node | None, path=()) -> tuple[tuple, yaml.Node] | None:
-    if isinstance(node, yaml.MappingNode):
-        seen = set()
-        for k, v in node.value:
-            if k.value in seen:
-                return path + (k.value,), k
-            seen.add(k.value)
-            found = _duplicate_key(v, path + (k.value,))
-            if found:
-                return found
-    elif isinstance(node, yaml.SequenceNode):
-        for i, v in enumerate(node.value):
-            found = _duplicate_key(v, path + (i,))
-            if found:
-                return found
-    return None
-
-
-def _validation_message(source: str, exc: ValidationError, root: yaml.Node | None) -> str:
-    lines = []
-    for err in exc.errors():
-        loc = tuple(err["loc"])
-        cause = (err.get("ctx") or {}).get("error")
-        msg = err["msg"]
-        if isinstance(cause, Exception):
-            loc += tuple(getattr(cause, "loc", ()))
-            msg = str(cause)
-        line = _line_of(root, loc)
-        where = f"{source}:{line}" if line is not None else source
-        lines.append((line or 0, f"{where}: {_field(loc)}: {msg}"))
-    return "; ".join(m for _, m in sorted(lines, key=lambda x: x[0]))  # in file order
-
-
 def config_from_mapping(data: Any, source: str = "<plant config>",
                         root: yaml.Node | None = None) -> PlantConfig:
     """Validate a plant mapping; ConfigError names ``source``, line (if ``root`` is the
@@ -208,7 +151,7 @@ def config_from_mapping(data: Any, source: str = "<plant config>",
     try:
         return PlantConfig.model_validate(dict(data))
     except ValidationError as exc:
-        raise ConfigError(_validation_message(source, exc, root)) from None
+        raise ConfigError(validation_message(source, exc, root)) from None
 
 
 def load_plant_config(path) -> PlantConfig:
@@ -218,25 +161,5 @@ def load_plant_config(path) -> PlantConfig:
     is missing or unreadable, is not valid YAML, is empty, repeats a key, or fails validation.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: plant file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read plant file: {exc}") from None
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(f"{p}{line}: malformed YAML: {problem}") from None
-    if data is None:
-        raise ConfigError(f"{p}:1: (top level): the plant file is empty")
-    dup = _duplicate_key(root)
-    if dup:
-        loc, key = dup
-        raise ConfigError(f"{p}:{key.start_mark.line + 1}: {_field(loc)}: key given twice")
+    data, root = parse_yaml(read_text(p, "plant file"), str(p), "plant file")
     return config_from_mapping(data, str(p), root)
-

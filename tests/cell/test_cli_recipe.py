@@ -31,7 +31,7 @@ def test_validate_names_file_line_field(rdir, capsys):
     bad.write_text(bad.read_text().replace("number: 1", "number: 1000"))
     assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
     out = capsys.readouterr().out
-    assert f"{bad}, line 4, field number" in out and "pin-b.yaml: ok" in out
+    assert f"{bad}:4: number: " in out and "pin-b.yaml: ok" in out
     assert main(["recipe", "--dir", str(rdir), "list"]) == 0
     assert "INVALID" in capsys.readouterr().out
 

@@ -16,11 +16,11 @@ def test_shipped_example_is_valid():
 
 
 @pytest.mark.parametrize("old, new, words", [
-    ("  port: 502 ", "  port: 70000 ", r"line {line}, field plc.port"),
-    ("  heartbeat_ms: 100 ", "  heartbeat_ms: 1 ", r"line {line}, field stations.heartbeat_ms"),
-    ("  preset: seed000 ", "  preset: puma560 ", r"field robot: .*unknown robot preset 'puma560'"),
-    ("  tool_radius_mm: 3.0", "  tool_radius_mm: 3.0\n  tool_colour: red", r"line {line2}, field vision.tool_colour: Extra"),
-    ("format: cell-config/1", "format: cell-config/9", r"line {line}, field format"),
+    ("  port: 502 ", "  port: 70000 ", r":{line}: plc.port"),
+    ("  heartbeat_ms: 100 ", "  heartbeat_ms: 1 ", r":{line}: stations.heartbeat_ms"),
+    ("  preset: seed000 ", "  preset: puma560 ", r":{parent}: robot: .*unknown robot preset 'puma560'"),
+    ("  tool_radius_mm: 3.0", "  tool_radius_mm: 3.0\n  tool_colour: red", r":{line2}: vision.tool_colour: Extra"),
+    ("format: cell-config/1", "format: cell-config/9", r":{line}: format"),
 ])
 def test_bad_config_is_located(tmp_path, old, new, words):
     text = EXAMPLE.read_text()
@@ -28,14 +28,14 @@ def test_bad_config_is_located(tmp_path, old, new, words):
     line = text[:text.index(old)].count("\n") + 1
     bad = tmp_path / "cell.yaml"
     bad.write_text(text.replace(old, new, 1))
-    with pytest.raises(ConfigError, match=words.format(line=line, line2=line + 1)) as exc:
+    with pytest.raises(ConfigError, match=words.format(line=line, line2=line + 1, parent=line - 1)) as exc:
         CellConfig.load(bad)
     assert str(bad) in str(exc.value)
 
 
 def test_missing_and_garbage_files(tmp_path):
-    with pytest.raises(ConfigError, match="file not found"):
+    with pytest.raises(ConfigError, match="cell config not found"):
         CellConfig.load(tmp_path / "nope.yaml")
     (tmp_path / "bin.yaml").write_bytes(b"\xff\xfe\x00")
-    with pytest.raises(ConfigError, match="cannot read"):
+    with pytest.raises(ConfigError, match="cannot read cell config"):
         CellConfig.load(tmp_path / "bin.yaml")

@@ -271,7 +271,7 @@ def test_missing_empty_and_non_mapping_files(tmp_path):
         Plant.from_yaml(tmp_path / "nope.yaml")
     with pytest.raises(ConfigError, match=r":1: \(top level\): the plant file is empty"):
         Plant.from_yaml(write(tmp_path, "# nothing\n"))
-    with pytest.raises(ConfigError, match=r":1: \(top level\): the plant must be a mapping"):
+    with pytest.raises(ConfigError, match=r":1: \(top level\): the plant file must be a mapping"):
         Plant.from_yaml(write(tmp_path, "- robot\n- seed000\n"))
 
 

@@ -32,13 +32,13 @@ def test_committed_schema_is_current():
 
 
 @pytest.mark.parametrize("old, new, words", [
-    ("  fiducial_radius_mm: 1.5", "  fiducial_radius_mm: -1.5", r"line {line}, field part.fiducial_radius_mm: .*greater than 0.2"),
-    ("  max_moves: 4", "  max_moves: 4\n  max_movez: 5", r"line {line2}, field compensation.max_movez: Extra inputs"),
-    ("  method: lattice ", "  method: magic ", r"line {line}, field compensation.method"),
-    ("number: 1", "number: one", r"line {line}, field number"),
-    ("name: bracket-a", "name: [bracket", r"line \d+: not valid YAML"),
-    ("name: bracket-a", "name: other-name", r"must match the file name 'bracket-a'"),
-    ("number: 1", "number: 2", r"recipe number 2 is already used"),
+    ("  fiducial_radius_mm: 1.5", "  fiducial_radius_mm: -1.5", r":{line}: part.fiducial_radius_mm: .*greater than 0.2"),
+    ("  max_moves: 4", "  max_moves: 4\n  max_movez: 5", r":{line2}: compensation.max_movez: Extra inputs"),
+    ("  method: lattice ", "  method: magic ", r":{line}: compensation.method"),
+    ("number: 1", "number: one", r":{line}: number"),
+    ("name: bracket-a", "name: [bracket", r":\d+: malformed YAML"),
+    ("name: bracket-a", "name: other-name", r":{line}: name: .*must match the file name 'bracket-a'"),
+    ("number: 1", "number: 2", r":{line}: number: recipe number 2 is already used"),
 ])
 def test_bad_edit_is_rejected_and_last_good_stays(rdir, old, new, words):
     audit = []
@@ -93,7 +93,7 @@ def test_binary_garbage_is_rejected(rdir):
 
 
 def test_parse_recipe_top_level_must_be_mapping():
-    with pytest.raises(ConfigError, match="expected a mapping"):
+    with pytest.raises(ConfigError, match=r"<text>:1: \(top level\): the recipe must be a mapping"):
         parse_recipe("- a\n- b\n", "<text>")
 
 
