@@ -9,7 +9,6 @@ from __future__ import annotations
 import random
 import socket
 import struct
-import threading
 
 import pytest
 from pymodbus.server import ModbusTcpServer
@@ -24,14 +23,7 @@ from drivers.plc.server import PlcLink, build_datastore
 CMD_COIL = 16 * PLC_MAP["command_word"].address   # coil of command_word bit 0 (execute)
 
 
-OUR_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
-
-
-@pytest.fixture(autouse=True)
-def no_leaked_threads():
-    yield
-    leaked = [t.name for t in threading.enumerate() if t.name in OUR_THREADS]
-    assert not leaked, f"threads left running: {leaked}"
+pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 
 
 # ---------------------------------------------------------------- raw Modbus TCP helpers

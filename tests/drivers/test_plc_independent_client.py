@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import threading
 
 import pytest
 from pyModbusTCP.client import ModbusClient
@@ -17,14 +16,7 @@ from drivers.plc.server import PlcLink
 
 MBPOLL = shutil.which("mbpoll")
 
-OUR_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
-
-
-@pytest.fixture(autouse=True)
-def no_leaked_threads():
-    yield
-    leaked = [t.name for t in threading.enumerate() if t.name in OUR_THREADS]
-    assert not leaked, f"threads left running: {leaked}"
+pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 
 
 @pytest.fixture

@@ -17,14 +17,7 @@ from drivers.plc import BACKENDS, PlcConfig, open_link
 from drivers.plc.register_map import PLC_MAP, Access, PlcMapError, Register, RegisterMap, RegType
 from drivers.plc.server import PlcLink, PlcLinkError
 
-OUR_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
-
-
-@pytest.fixture(autouse=True)
-def no_leaked_threads():
-    yield
-    leaked = [t.name for t in threading.enumerate() if t.name in OUR_THREADS]
-    assert not leaked, f"threads left running: {leaked}"
+pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 
 
 @pytest.fixture(params=sorted(BACKENDS))

@@ -17,14 +17,7 @@ from drivers.plc.sim_plc import RESULTS, SimPlc, SimPlcError
 SCAN_S = 0.002
 RESULT = {"initial_error_um": 1234, "final_error_um": 17, "moves": 3, "cycle_time_ms": 2500}
 
-OUR_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
-
-
-@pytest.fixture(autouse=True)
-def no_leaked_threads():
-    yield
-    leaked = [t.name for t in threading.enumerate() if t.name in OUR_THREADS]
-    assert not leaked, f"threads left running: {leaked}"
+pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 
 
 class ControllerStandIn(threading.Thread):

@@ -1,0 +1,14 @@
+"""Shared fixtures of the driver tests."""
+import threading
+
+import pytest
+
+PLC_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
+
+
+@pytest.fixture
+def no_leaked_plc_threads():
+    """Fail a PLC test that leaves a server or scan thread running after it."""
+    yield
+    leaked = [t.name for t in threading.enumerate() if t.name in PLC_THREADS]
+    assert not leaked, f"threads left running: {leaked}"
