@@ -1,20 +1,11 @@
 """``cellctl recipe``: list, show, validate, diff and schema; bad files give exit 2 and a located message."""
-import shutil
-from pathlib import Path
 
 import pytest
 
 from cell.cli import main
 from cell.cyclelog import CycleLog
 
-REPO_RECIPES = Path(__file__).resolve().parents[2] / "recipes"
-
-
-@pytest.fixture
-def rdir(tmp_path):
-    d = tmp_path / "recipes"
-    shutil.copytree(REPO_RECIPES, d)
-    return d
+from tests.cell.conftest import REPO_RECIPES
 
 
 def test_list_and_show(rdir, capsys):

@@ -1,22 +1,13 @@
 """Recipes: validation messages name file, line and field; atomic activation; audit trail."""
 import json
 import re
-import shutil
-from pathlib import Path
 
 import pytest
 
 from cell.errors import ConfigError
 from cell.recipes import RecipeStore, parse_recipe, recipe_schema
 
-REPO_RECIPES = Path(__file__).resolve().parents[2] / "recipes"
-
-
-@pytest.fixture
-def rdir(tmp_path):
-    d = tmp_path / "recipes"
-    shutil.copytree(REPO_RECIPES, d)
-    return d
+from tests.cell.conftest import REPO_RECIPES
 
 
 def test_shipped_recipes_are_valid(rdir):
