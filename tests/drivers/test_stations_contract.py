@@ -25,7 +25,10 @@ from drivers.stations.driver import JointStations, StationCommandError
 from drivers.stations.faults import FaultCode, StationFaultError
 from drivers.stations.sim_station import SimStationSet
 
-FAST = dict(heartbeat_ms=50, heartbeat_tolerance=3.0, controller_heartbeat_ms=20, consumer_timeout_ms=120,
+# Short timings keep the tests fast; the margins (3x our heartbeat watchdog, 15x the drives'
+# consumer of our 20 ms heartbeat) absorb the scheduling stalls of Python threads on a loaded
+# 2-core CI machine, where a 120 ms consumer time once timed out during a reset.
+FAST = dict(heartbeat_ms=50, heartbeat_tolerance=3.0, controller_heartbeat_ms=20, consumer_timeout_ms=300,
             tpdo_event_ms=5)
 ROBOT = Scara.preset("seed002")
 
