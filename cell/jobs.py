@@ -48,9 +48,13 @@ class CellJobs:
         motion = self.c.motion
         states = {j: s.name for j, s in motion.drive_states().items()} if hasattr(motion, "drive_states") else {}
         fault = str(motion.fault) if getattr(motion, "fault", None) else None
+        cam = self.c.runner.camera
         report = {"state": self.c.sm.state.name, "drives": states, "station_fault": fault,
-                  "camera_frames": self.c.runner.camera.frames, "fault_code": self.c.fault_code}
-        log.info("health", **report)
+                  "camera_frames": cam.frames, "camera_error": cam.last_error,
+                  "camera_open": getattr(getattr(cam.camera, "state", None), "value", None) == "open",
+                  "fault_code": self.c.fault_code}
+        healthy = fault is None and cam.last_error is None and report["camera_open"]
+        (log.info if healthy else log.warning)("health", healthy=healthy, **report)
         return report
 
     def drift(self) -> bool:

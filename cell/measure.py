@@ -32,14 +32,17 @@ class MeasuringCamera:
         self.tool_radius_mm = float(tool_radius_mm)
         self.radius_tolerance = float(radius_tolerance)
         self.frames = 0
+        self.last_error: str | None = None           #: the last grab's failure (health job)
 
     def grab(self) -> np.ndarray:
         """One 8-bit grey frame. Raises CellFault(CAMERA_FAILED) if the camera gives none."""
         try:
             frame = self.camera.grab()
         except Exception as exc:                     # any driver failure is a camera fault
+            self.last_error = str(exc)
             raise CellFault(Fault.CAMERA_FAILED, f"camera grab failed: {exc}") from exc
         self.frames += 1
+        self.last_error = None
         return frame.image
 
     def find(self, image: np.ndarray, radius_mm: float, what: str) -> np.ndarray:

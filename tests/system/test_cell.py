@@ -198,3 +198,17 @@ def test_kill_9_during_a_run_leaves_a_clean_log(tmp_path):
         assert c.status == "done" and c.finished_at and c.moves >= 1 and c.trace
         assert c.verify_error_mm is not None and "verify" in c.step_times
     assert [c.part_id for c in cycles] == list(range(1, len(cycles) + 1))
+
+
+def test_health_job_sees_drives_and_camera(harness):
+    from cell.jobs import CellJobs
+    jobs = CellJobs(harness.controller, harness.config.scheduler, harness.config.log.retention_days)
+    assert harness.cycle()["done"] == 1
+    report = jobs.health()
+    assert set(report["drives"].values()) == {"OPERATION_ENABLED"}
+    assert report["camera_open"] and report["camera_error"] is None and report["station_fault"] is None
+    harness.cell.camera.close()                       # the camera goes away
+    res = harness.cycle()
+    assert res["error"] == 1 and res["fault_code"] == Fault.CAMERA_FAILED
+    report = jobs.health()
+    assert not report["camera_open"] and report["camera_error"] and report["station_fault"]
