@@ -11,7 +11,7 @@ from cell import log as cell_log
 from cell.clock import MonotonicClock
 from cell.config import CellConfig, SimSection
 from cell.controller import CellController, ControllerSettings
-from cell.cycle import CycleRunner, CycleSettings
+from cell.cycle import CycleRunner, CycleSettings, OffsetMemory
 from cell.cyclelog import CycleLog
 from cell.errors import ConfigError
 from cell.jobs import CellJobs
@@ -81,7 +81,8 @@ class Cell:
         sm = StateMachine()
         runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog, sm,
                              CycleSettings(c.move_timeout_s, c.reach_tol_deg, c.tool_phi_deg,
-                                           self.config.robot.elbow))
+                                           self.config.robot.elbow),
+                             OffsetMemory.from_log(self.cyclelog, self.robot, self.config.robot.elbow))
         settings = ControllerSettings(self.config.controller.scan_s, self.config.plc.heartbeat_timeout_s,
                                       self.config.controller.recipe_refresh_s)
         self.controller = CellController(self.plc, self.motion, runner, self.cyclelog, self.recipes,

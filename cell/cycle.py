@@ -79,6 +79,21 @@ class OffsetMemory:
         h.append(np.asarray(offset_units, dtype=np.int64))
         del h[:-self.n]
 
+    @classmethod
+    def from_log(cls, cyclelog: CycleLog, robot: Scara, elbow: str = "right", n: int = 10) -> "OffsetMemory":
+        """Rebuild the memory from the last completed cycles in the log (each row holds the
+        target and the trace's last command), so a restart does not forget what was learned."""
+        memory = cls(n=n)
+        for rec in cyclelog.cycles(limit=50 * n, status="done"):
+            if rec.target_mm is None or not rec.trace:
+                continue
+            try:
+                nominal = robot.to_units(robot.ik_planar(*rec.target_mm, elbow=elbow))
+            except KinematicsError:
+                continue
+            memory.learn(rec.recipe, robot.to_units(rec.trace[-1]["joints_deg"]) - nominal)
+        return memory
+
 
 class CellArm:
     """The compensation's "robot + measurer" on the real (or simulated) cell: move θ1, θ2 to a
