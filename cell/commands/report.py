@@ -75,7 +75,9 @@ def _plot(cycles, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=100)
     ids = [c.id for c in done]
     ax.semilogy(ids, [c.initial_error_mm for c in done], ".", color="0.6", label="initial error (first arrival)")
-    ax.semilogy(ids, [c.final_error_mm for c in done], "o", ms=3, label="final error (verified)")
+    ax.semilogy(ids, [c.verify_error_mm if c.verify_error_mm is not None else c.final_error_mm
+                      for c in done], "o", ms=3, label="final error (verified by the camera)")
+    ax.xaxis.get_major_locator().set_params(integer=True)
     bad = [c for c in cycles if c.status != "done"]
     for c in bad:
         ax.axvline(c.id, color="tab:red", lw=0.8, alpha=0.6)

@@ -20,7 +20,7 @@ from pathlib import Path
 from cell.config import CellConfig, SimSection
 from cell.errors import ConfigError
 
-DEFAULT_SIM_DB = "var/sim-cell.sqlite"
+DEFAULT_SIM_DB = "var/cell.sqlite"      #: where cellctl report/export/diagnose look by default
 
 
 def register(sub: argparse._SubParsersAction) -> None:
