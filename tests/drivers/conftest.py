@@ -3,6 +3,8 @@ import threading
 
 import pytest
 
+from drivers.plc.server import PlcLink
+
 PLC_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
 
 
@@ -12,3 +14,12 @@ def no_leaked_plc_threads():
     yield
     leaked = [t.name for t in threading.enumerate() if t.name in PLC_THREADS]
     assert not leaked, f"threads left running: {leaked}"
+
+
+@pytest.fixture
+def link():
+    """A started PlcLink on a free loopback port (test files may define their own variant)."""
+    link = PlcLink()
+    link.start()
+    yield link
+    link.stop()

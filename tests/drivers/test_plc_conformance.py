@@ -18,7 +18,7 @@ from drivers.plc.conformance import (
     exception_adu,
 )
 from drivers.plc.register_map import PLC_MAP
-from drivers.plc.server import PlcLink, build_datastore
+from drivers.plc.server import build_datastore
 
 CMD_COIL = 16 * PLC_MAP["command_word"].address   # coil of command_word bit 0 (execute)
 
@@ -71,14 +71,6 @@ def bare_port():
                           name="bare-pymodbus")
     yield server.start()
     server.stop()
-
-
-@pytest.fixture
-def link():
-    link = PlcLink()
-    link.start()
-    yield link
-    link.stop()
 
 
 # ---------------------------------------------------------------- bare pymodbus deviates

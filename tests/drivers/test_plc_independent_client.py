@@ -12,19 +12,10 @@ import pytest
 from pyModbusTCP.client import ModbusClient
 
 from drivers.plc.register_map import PLC_MAP
-from drivers.plc.server import PlcLink
 
 MBPOLL = shutil.which("mbpoll")
 
 pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
-
-
-@pytest.fixture
-def link():
-    link = PlcLink()
-    link.start()
-    yield link
-    link.stop()
 
 
 @pytest.fixture
