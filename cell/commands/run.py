@@ -15,7 +15,6 @@ import json
 import signal
 import threading
 import time
-from pathlib import Path
 
 from cell.config import CellConfig, SimSection
 from cell.errors import ConfigError

@@ -1,6 +1,5 @@
 """``cellctl recipe``: list, show, validate, diff and schema; bad files give exit 2 and a located message."""
 
-import pytest
 
 from cell.cli import main
 from cell.cyclelog import CycleLog
