@@ -34,6 +34,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from cell.errors import ConfigError, KinematicsError, TrajectoryError
+from cell.kinematics import planar_xy
 
 PLANAR_JOINTS = ("j1", "j2")
 STATION_NAMES = ("j1", "j2", "j3", "j4")
@@ -436,10 +437,7 @@ def true_links(geometry, effects: Sequence[EffectInstance], temp_c: np.ndarray) 
 
 def planar_fk(links_mm: np.ndarray, q_deg: np.ndarray) -> np.ndarray:
     """Stage 4: seed 000 eq. 4, vectorised: (x, y) mm (N,2) for links (N,2) mm, joints (N,2) deg."""
-    a = np.radians(q_deg[:, 0])
-    ab = a + np.radians(q_deg[:, 1])
-    return np.column_stack([links_mm[:, 0] * np.cos(a) + links_mm[:, 1] * np.cos(ab),
-                            links_mm[:, 0] * np.sin(a) + links_mm[:, 1] * np.sin(ab)])
+    return planar_xy(links_mm[:, 0], links_mm[:, 1], q_deg)
 
 
 def camera_view(effects: Sequence[EffectInstance], xy_mm: np.ndarray, camera_center_mm

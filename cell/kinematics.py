@@ -80,6 +80,17 @@ PRESETS: dict[str, Geometry] = {
 }
 
 
+def planar_xy(l1_mm, l2_mm, q_deg) -> np.ndarray:
+    """Seed 000 eq. 4, vectorised: tool centres (N, 2) mm for joints ``q_deg`` (N, 2)
+    (θ1, θ2 in degrees). Link lengths are scalars or (N,) arrays (true lengths per row).
+    No checks: callers validate their inputs."""
+    q = np.asarray(q_deg, dtype=float)
+    a = np.radians(q[:, 0])
+    ab = a + np.radians(q[:, 1])
+    return np.column_stack([l1_mm * np.cos(a) + l2_mm * np.cos(ab),
+                            l1_mm * np.sin(a) + l2_mm * np.sin(ab)])
+
+
 def _finite(name: str, value: float) -> float:
     v = float(value)
     if not math.isfinite(v):

@@ -28,7 +28,7 @@ import numpy as np
 
 from cell.compensation.base import Arm, CompensationResult, Recorder
 from cell.errors import KinematicsError
-from cell.kinematics import Scara
+from cell.kinematics import Scara, planar_xy
 
 _MAX_BOX = 12
 
@@ -50,10 +50,7 @@ def nearest_lattice(robot: Scara, q_units: np.ndarray, point: np.ndarray,
     radius = min(_MAX_BOX, int(math.ceil((d_centre + 1e-9) / smin)) + 1)
     span = range(-radius, radius + 1)
     cands = centre + np.array(list(itertools.product(span, span)), dtype=np.int64)
-    t = np.radians(cands * unit)
-    l1, l2 = robot.g.l1_mm, robot.g.l2_mm
-    fk = np.stack([l1 * np.cos(t[:, 0]) + l2 * np.cos(t[:, 0] + t[:, 1]),
-                   l1 * np.sin(t[:, 0]) + l2 * np.sin(t[:, 0] + t[:, 1])], axis=1)
+    fk = planar_xy(robot.g.l1_mm, robot.g.l2_mm, cands * unit)
     dist = np.hypot(*(point + fk - base - target).T)
     # never cross the stretched/folded singularity or leave the joint limits on the way
     deg = cands * unit
@@ -114,5 +111,3 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
         visited.add(tuple(best))
     return rec.result
 
-
-METHODS = {"lattice": run_lattice}

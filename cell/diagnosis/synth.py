@@ -31,7 +31,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from cell import effects as fx
-from cell.kinematics import PRESETS
+from cell.kinematics import PRESETS, planar_xy
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.diagnosis.replay import first_step_dirs
 from cell.plant import Plant
@@ -88,8 +88,7 @@ def _move(rng, design: Design, l1, l2, limits) -> tuple[np.ndarray, np.ndarray]:
     for _ in range(1000):
         elbow = float(rng.choice((-1.0, 1.0)))
         q0 = np.array([rng.uniform(-120, 120), elbow * rng.uniform(30, 120)])
-        a, ab = np.radians(q0[0]), np.radians(q0.sum())
-        p0 = np.array([l1 * np.cos(a) + l2 * np.cos(ab), l1 * np.sin(a) + l2 * np.sin(ab)])
+        p0 = planar_xy(l1, l2, q0[None, :])[0]
         ang = rng.uniform(0, 2 * np.pi)
         p1 = p0 + rng.uniform(100, 250) * np.array([np.cos(ang), np.sin(ang)])
         q = _ik(l1, l2, p0 + s[:, None] * (p1 - p0), elbow)

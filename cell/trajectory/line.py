@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.errors import CellError, TrajectoryError
-from cell.kinematics import JOINT_NAMES, Elbow, Scara
+from cell.kinematics import JOINT_NAMES, Elbow, Scara, planar_xy
 
 __all__ = [
     "LinePlan", "Segment", "SimulatedPath", "station_delays", "joint_delays",
@@ -348,10 +348,7 @@ def tool_positions(robot: Scara, joints_deg) -> np.ndarray:
     """Tool centre (x_mm, y_mm, z_mm) for joints (N, 4); vectorised :meth:`Scara.fk`."""
     q = np.asarray(joints_deg, dtype=float)
     g = robot.g
-    a, ab = np.radians(q[:, 0]), np.radians(q[:, 0] + q[:, 1])
-    return np.column_stack([g.l1_mm * np.cos(a) + g.l2_mm * np.cos(ab),
-                            g.l1_mm * np.sin(a) + g.l2_mm * np.sin(ab),
-                            g.base_z_mm + q[:, 2] + g.tool_z_mm])
+    return np.column_stack([planar_xy(g.l1_mm, g.l2_mm, q[:, :2]), g.base_z_mm + q[:, 2] + g.tool_z_mm])
 
 
 @dataclass(frozen=True)
