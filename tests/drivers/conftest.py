@@ -1,5 +1,6 @@
 """Shared fixtures of the driver tests."""
 import threading
+import time
 
 import pytest
 
@@ -23,3 +24,12 @@ def link():
     link.start()
     yield link
     link.stop()
+
+
+def wait_for(pred, timeout=2.0, what="condition"):
+    """Poll ``pred`` every 2 ms until true; AssertionError naming ``what`` after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.002)

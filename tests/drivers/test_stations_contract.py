@@ -24,6 +24,7 @@ from drivers.stations.config import StationsConfig
 from drivers.stations.driver import JointStations, StationCommandError
 from drivers.stations.faults import FaultCode, StationFaultError
 from drivers.stations.sim_station import SimStationSet
+from tests.drivers.conftest import wait_for
 
 # Short timings keep the tests fast; the margins (3x our heartbeat watchdog, 15x the drives'
 # consumer of our 20 ms heartbeat) absorb the scheduling stalls of Python threads on a loaded
@@ -31,14 +32,6 @@ from drivers.stations.sim_station import SimStationSet
 FAST = dict(heartbeat_ms=50, heartbeat_tolerance=3.0, controller_heartbeat_ms=20, consumer_timeout_ms=300,
             tpdo_event_ms=5)
 ROBOT = Scara.preset("seed002")
-
-
-def wait_for(pred, timeout=2.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.002)
 
 
 def wait_standstill(js, timeout=2.0):

@@ -14,14 +14,7 @@ from drivers.stations.cia402 import State
 from drivers.stations.config import StationsConfig
 from drivers.stations.driver import JointStations
 from drivers.stations.sim_station import EDS_PATH, SimStation, SimStationConfig, SimStationSet
-
-
-def wait_for(pred, timeout=2.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.002)
+from tests.drivers.conftest import wait_for
 
 
 @pytest.fixture
