@@ -189,8 +189,7 @@ class CellController:
         self.plc.write("part_id_echo", part_id)
         self.execute_refused = False
         self._outcome = None
-        self.runner.cancel.clear()
-        self.runner.cancel_code, self.runner.cancel_text = 0, ""
+        self.runner.clear_cancel()
         self.sm.fire(Event.EXECUTE)
         self._worker = threading.Thread(target=self._work, args=(active, part_id), name="cell-cycle",
                                         daemon=True)

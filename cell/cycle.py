@@ -143,6 +143,12 @@ class CycleRunner:
         self.cancel_code = 0
         self.cancel_text = ""
 
+    def clear_cancel(self) -> None:
+        """Called by the scan loop before it starts a cycle (not by the cycle itself, which
+        would erase a cancel that arrived before it ran)."""
+        self.cancel_code, self.cancel_text = 0, ""
+        self.cancel.clear()
+
     def request_cancel(self, code: int, text: str) -> None:
         """Called by the scan loop (any thread): stop at the next check; recorded as aborted."""
         if not self.cancel.is_set():
