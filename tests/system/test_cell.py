@@ -180,9 +180,14 @@ def test_kill_9_during_a_run_leaves_a_clean_log(tmp_path):
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             if os.path.exists(db):
-                with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
+                con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+                try:
                     if con.execute("SELECT COUNT(*) FROM cycles").fetchone()[0] >= 3:
                         break
+                except sqlite3.OperationalError:        # file created, schema not yet
+                    pass
+                finally:
+                    con.close()
             time.sleep(0.05)
         time.sleep(0.13)                                # land somewhere inside a cycle
     finally:
