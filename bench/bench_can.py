@@ -37,7 +37,7 @@ from cell.trajectory.line import (joint_delays, max_line_deviation, plan_line, s
 from drivers.stations.bus import frame_time_s, open_bus  # noqa: E402
 from drivers.stations.config import StationsConfig  # noqa: E402
 from drivers.stations.driver import JointStations  # noqa: E402
-from drivers.stations.sim_station import SimStationSet  # noqa: E402
+from cell.sim.stations import SimStationSet  # noqa: E402
 
 ROBOT = Scara.preset("seed002")
 START, END = np.array([400.0, 0.0, -50.0, 0.0]), np.array([300.0, 0.0, -20.0, 45.0])

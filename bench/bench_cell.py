@@ -5,7 +5,7 @@
     .venv/bin/python bench/bench_cell.py --probe-process   # latency probe in its own process
 
 The cell is the product's ``cell.app.Cell(sim=True)``, its PLC the simulated PLC
-(``drivers.plc.sim_plc.SimPlc``, a real Modbus TCP client, scan 10 ms) doing the full
+(``cell.sim.plc.SimPlc``, a real Modbus TCP client, scan 10 ms) doing the full
 handshake of ``SimPlc.run_cycle``. Sizes are the system tests' (a 640x512 camera at 0.08
 mm/px, the same field as the default 1280x1024 at 0.04; ``--full-frame`` for the latter) and
 the recipe is a fast one (joints at 240 deg/s, 2 mm z stroke), written by this script.
@@ -59,7 +59,7 @@ from cell.config import CellConfig, SimSection  # noqa: E402
 from drivers.plc.conformance import ServerThread  # noqa: E402
 from drivers.plc.register_map import PLC_MAP  # noqa: E402
 from drivers.plc.server import build_datastore  # noqa: E402
-from drivers.plc.sim_plc import SimPlc  # noqa: E402
+from cell.sim.plc import SimPlc  # noqa: E402
 
 RECIPE_NAME, RECIPE_NUMBER = "bench-fast", 7
 RECIPE = f"""\

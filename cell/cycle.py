@@ -1,47 +1,69 @@
 """One part's cycle, as the recipe says: approach, capture, locate, compensate, final move,
-verify, log. Runs in the cycle worker thread (see the README's architecture page).
+verify, log. Runs in the cycle task (see the README's architecture page).
 
-:class:`CycleRunner` fires ``STEP_DONE`` on the shared state machine after each step and
-times it. It never decides the cell's fault handling: it returns a :class:`CycleOutcome`
-(status, fault code) and the scan loop stops the joints and latches the fault. The cycle's
-row is written to the cycle log by the runner itself, *before* the scan loop raises Done,
-so a cycle the PLC was told is done is on disk. A cancelled cycle (abort, or a fault the
-scan loop saw such as PLC heartbeat loss) is recorded as ``aborted`` and never resumed.
+:class:`CycleRunner` publishes the step it is in (:attr:`CycleRunner.progress`) and times
+each step on the injected clock; the scan loop follows it with the state machine. It never
+decides the cell's fault handling: it returns a :class:`CycleOutcome` (status, fault code)
+and the scan loop stops the joints and latches the fault. The cycle's row is written to
+the cycle log by the runner itself, *before* the scan loop raises Done, so a cycle the PLC
+was told is done is on disk. The scan loop stops a cycle by *giving* it the reason in its
+:class:`CancelToken`; the cycle checks it between steps and after every move, and a motion
+cut short by the quick stop that follows ends the cycle with that reason. A cancelled
+cycle is recorded as ``aborted`` and never resumed.
+
+Every move streams seed 002's interpolation segments (:mod:`cell.motion`) in the recipe's
+synchronisation mode; the cycle's record keeps the mode, the segments and each station's
+delay of its moves.
 """
 from __future__ import annotations
 
-import threading
-import time
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
+from cell.clock import Clock, MonotonicClock
 from cell.compensation.base import CompensationResult
 from cell.compensation.lattice import run_lattice
 from cell.compensation.paper import run_paper
 from cell.cyclelog import CycleLog, CycleRecord, utc_now
-from cell.errors import KinematicsError
+from cell.errors import KinematicsError, TrajectoryError
 from cell.faults import CellFault, Fault, station_fault
 from cell.kinematics import Scara
 from cell.log import get_logger
 from cell.measure import MeasuringCamera
+from cell.motion import MotionSpec, MoveReport, Mover
 from cell.recipes import ActiveRecipe
-from cell.statemachine import Event, IllegalTransition, State, StateMachine
+from cell.statemachine import State
 
 log = get_logger("cycle")
 
 
-class Motion(Protocol):
-    """What the cycle needs of the joint stations (``drivers.stations.JointStations``)."""
-
-    def move_to(self, targets_deg, speed: float) -> float: ...
-    def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None: ...
-    def quick_stop_all(self, reason: str = "requested") -> None: ...
-
-
 class CycleCancelled(Exception):
     """The scan loop cancelled the cycle (abort or a fault it detected)."""
+
+
+class CancelToken:
+    """How the scan loop stops a cycle: the reason (fault code, 0 for an abort, and text),
+    then the flag. Set once; later cancels keep the first reason."""
+
+    def __init__(self, clock: Clock | None = None):
+        self._event = (clock or MonotonicClock()).event()
+        self.code = 0
+        self.text = ""
+
+    def cancel(self, code: int, text: str) -> None:
+        if not self._event.is_set():
+            self.code, self.text = int(code), text
+            self._event.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def check(self) -> None:
+        """:raises CycleCancelled: once cancelled."""
+        if self._event.is_set():
+            raise CycleCancelled()
 
 
 @dataclass(frozen=True)
@@ -96,14 +118,15 @@ class OffsetMemory:
 
 
 class CellArm:
-    """The compensation's "robot + measurer" on the real (or simulated) cell: move θ1, θ2 to a
-    command through the joint stations, wait until arrived, measure the tool with the camera."""
+    """The compensation's "robot + measurer" on the cell: move θ1, θ2 to a command by
+    streaming the recipe's seed 002 segments, wait until arrived, measure the tool."""
 
-    def __init__(self, robot: Scara, motion: Motion, camera: MeasuringCamera, z_mm: float,
-                 speed_deg_s: float, cancel: threading.Event, settings: CycleSettings):
-        self.robot, self.motion, self.camera = robot, motion, camera
-        self.z_mm, self.speed, self.cancel, self.settings = z_mm, speed_deg_s, cancel, settings
-        self.last_joints = np.full(4, np.nan)       #: last commanded joints (for directions)
+    def __init__(self, robot: Scara, mover: Mover, camera: MeasuringCamera, z_mm: float,
+                 spec: MotionSpec, cancel: CancelToken, settings: CycleSettings, start_joints):
+        self.robot, self.mover, self.camera = robot, mover, camera
+        self.z_mm, self.spec, self.cancel, self.settings = z_mm, spec, cancel, settings
+        self.last_joints = np.asarray(start_joints, dtype=float)   #: last commanded joints
+        self.reports: list[MoveReport] = []
 
     def joints(self, t1: float, t2: float, z_mm: float) -> np.ndarray:
         g = self.robot.g
@@ -113,79 +136,97 @@ class CellArm:
         return q
 
     def move(self, q: np.ndarray) -> None:
-        if self.cancel.is_set():
-            raise CycleCancelled()
-        self.last_joints = np.asarray(q, dtype=float)
-        self.motion.move_to(q, self.speed)
+        self.cancel.check()
+        q = np.asarray(q, dtype=float)
         try:
-            self.motion.wait_reached(self.settings.move_timeout_s, tol=self.settings.reach_tol_deg)
+            report = self.mover.move(self.last_joints, q, self.spec, self.settings.move_timeout_s,
+                                     self.settings.reach_tol_deg)
         except TimeoutError as exc:
             raise CellFault(Fault.MOTION_TIMEOUT, str(exc)) from exc
-        if self.cancel.is_set():
-            raise CycleCancelled()
+        except TrajectoryError as exc:
+            raise CellFault(Fault.UNREACHABLE, str(exc)) from exc
+        self.last_joints = q
+        self.reports.append(report)
+        self.cancel.check()
 
     def move_and_measure(self, command_units) -> np.ndarray:
         q = self.robot.from_units(command_units)
         self.move(self.joints(q[0], q[1], self.z_mm))
         return self.camera.tool()
 
+    def motion_summary(self) -> dict:
+        """Mode, moves, segments and the mean per-joint delay of this cycle's moves."""
+        if not self.reports:
+            return {"mode": self.spec.mode, "moves": 0}
+        delays = np.mean([r.delays_s for r in self.reports], axis=0)
+        return {"mode": self.spec.mode, "moves": len(self.reports),
+                "segments": int(sum(r.segments for r in self.reports)),
+                "segment_ms": round(self.spec.segment_s * 1e3, 6), "time_law": self.spec.time_law,
+                "paths": sorted({r.path for r in self.reports}),
+                "delays_ms": [round(float(d) * 1e3, 6) for d in delays]}
+
 
 class CycleRunner:
-    """Runs cycles; one instance per controller, one cycle at a time."""
+    """Runs cycles; one instance per controller, one cycle at a time.
 
-    def __init__(self, robot: Scara, motion: Motion, camera: MeasuringCamera, cyclelog: CycleLog,
-                 sm: StateMachine, settings: CycleSettings = CycleSettings(),
-                 memory: OffsetMemory | None = None):
-        self.robot, self.motion, self.camera, self.log, self.sm = robot, motion, camera, cyclelog, sm
+    :param motion: the joint stations (``stream``, ``burst_delays``, ``wait_reached``,
+        ``actual_positions``).
+    :param clock: the injected clock (step and cycle times are in its seconds).
+    """
+
+    def __init__(self, robot: Scara, motion, camera: MeasuringCamera, cyclelog: CycleLog,
+                 settings: CycleSettings = CycleSettings(), memory: OffsetMemory | None = None,
+                 clock: Clock | None = None):
+        self.robot, self.motion, self.camera, self.log = robot, motion, camera, cyclelog
         self.settings = settings
         self.memory = memory or OffsetMemory()
-        self.cancel = threading.Event()
-        self.cancel_code = 0
-        self.cancel_text = ""
+        self.clock = clock or MonotonicClock()
+        self.mover = Mover(robot, motion, settings.elbow)
+        self.progress: State = State.IDLE         #: the step the running cycle is in
+        self.outcome: CycleOutcome | None = None  #: how the last cycle ended
 
-    def clear_cancel(self) -> None:
-        """Called by the scan loop before it starts a cycle (not by the cycle itself, which
-        would erase a cancel that arrived before it ran)."""
-        self.cancel_code, self.cancel_text = 0, ""
-        self.cancel.clear()
+    def run_safely(self, active: ActiveRecipe | None, part_id: int, cancel: CancelToken) -> CycleOutcome:
+        """:meth:`run`, keeping the outcome in :attr:`outcome` (the cycle task's target)."""
+        self.outcome = None
+        if active is None:
+            self.outcome = CycleOutcome("aborted", cancel.code, cancel.text or "no recipe")
+        else:
+            self.outcome = self.run(active, part_id, cancel)
+        return self.outcome
 
-    def request_cancel(self, code: int, text: str) -> None:
-        """Called by the scan loop (any thread): stop at the next check; recorded as aborted."""
-        if not self.cancel.is_set():
-            self.cancel_code, self.cancel_text = int(code), text
-            self.cancel.set()
-
-    def run(self, active: ActiveRecipe, part_id: int) -> CycleOutcome:
-        """Run one cycle from state APPROACH; returns how it ended (never raises)."""
+    def run(self, active: ActiveRecipe, part_id: int, cancel: CancelToken) -> CycleOutcome:
+        """Run one cycle; returns how it ended (never raises)."""
         r = active.recipe
         rec = CycleRecord(part_id=part_id, recipe=r.name, recipe_hash=active.hash, started_at=utc_now(),
                           finished_at="", status="aborted", cycle_time_s=0.0,
                           method=r.compensation.method)
-        t_start = time.monotonic()
-        arm = CellArm(self.robot, self.motion, self.camera, r.approach.z_mm,
-                      r.approach.joint_speed_deg_s, self.cancel, self.settings)
+        t_start = self.clock.now()
+        spec = MotionSpec(r.motion.sync, r.motion.segment_ms / 1000.0, r.motion.time_law,
+                          r.approach.joint_speed_deg_s)
+        arm = None
         outcome = CycleOutcome("aborted")
         try:
-            self._step(rec, State.APPROACH, lambda: self._approach(arm, r))
-            image = self._step(rec, State.CAPTURE, self.camera.grab)
-            part = self._step(rec, State.LOCATE, lambda: self._locate(image, r))
+            arm = CellArm(self.robot, self.mover, self.camera, r.approach.z_mm, spec, cancel,
+                          self.settings, self.motion.actual_positions())
+            self._step(rec, State.APPROACH, cancel, lambda: self._approach(arm, r))
+            image = self._step(rec, State.CAPTURE, cancel, self.camera.grab)
+            part = self._step(rec, State.LOCATE, cancel, lambda: self._locate(image, r))
             rec.target_mm = (float(part[0]), float(part[1]))
             nominal = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow))
-            result = self._step(rec, State.COMPENSATE, lambda: self._compensate(arm, r, part, nominal))
+            result = self._step(rec, State.COMPENSATE, cancel, lambda: self._compensate(arm, r, part, nominal))
             rec.initial_error_mm, rec.moves = result.initial_error_mm, result.moves
             rec.final_error_mm = result.final_error_mm
             rec.trace = [s.as_dict() for s in result.steps]
             last = self.robot.from_units(result.final.command_units)
-            self._step(rec, State.FINAL_MOVE, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
-            self._step(rec, State.VERIFY, lambda: self._verify(rec, r, part))
+            self._step(rec, State.FINAL_MOVE, cancel, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
+            self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part))
+            self.progress = State.LOGGING
             self.memory.learn(r.name, np.subtract(result.final.command_units, nominal))
             outcome = CycleOutcome("done")
         except CycleCancelled:
-            outcome = CycleOutcome("aborted", self.cancel_code, self.cancel_text)
-        except IllegalTransition:                 # the scan loop moved the state machine away
-            outcome = CycleOutcome("aborted", self.cancel_code, self.cancel_text or "cycle interrupted")
+            outcome = CycleOutcome("aborted", cancel.code, cancel.text)
         except CellFault as exc:
-            outcome = CycleOutcome("fault" if self.sm.state is State.VERIFY else "aborted",
+            outcome = CycleOutcome("fault" if self.progress is State.VERIFY else "aborted",
                                    exc.code, exc.detail)
         except KinematicsError as exc:
             outcome = CycleOutcome("aborted", Fault.UNREACHABLE, str(exc))
@@ -196,30 +237,23 @@ class CycleRunner:
             else:
                 log.exception("cycle_internal_error", part_id=part_id)
                 outcome = CycleOutcome("aborted", Fault.INTERNAL, repr(exc))
-        if self.cancel.is_set() and outcome.status != "done":
+        if cancel.cancelled and outcome.status != "done":
             # the scan loop's reason is the cause; what the motion raised (a quick stop) follows
-            outcome = CycleOutcome("aborted", self.cancel_code, self.cancel_text)
+            outcome = CycleOutcome("aborted", cancel.code, cancel.text)
         rec.status, rec.fault_code, rec.fault_text = outcome.status, outcome.fault_code, outcome.fault_text
+        rec.motion = arm.motion_summary() if arm is not None else {"mode": spec.mode, "moves": 0}
         rec.finished_at = utc_now()
-        rec.cycle_time_s = time.monotonic() - t_start
+        rec.cycle_time_s = self.clock.now() - t_start
         outcome.record = self._write(rec, outcome)
-        if outcome.status == "done":
-            try:
-                self.sm.fire(Event.STEP_DONE)    # LOGGING -> DONE, after the row is on disk
-            except IllegalTransition:
-                pass
         return outcome
 
     # ------------------------------------------------------------------ steps
-    def _step(self, rec: CycleRecord, state: State, work):
-        if self.sm.state is not state:
-            raise IllegalTransition(f"cycle expected state {state.name}, is {self.sm.state.name}")
-        if self.cancel.is_set():
-            raise CycleCancelled()
-        t0 = time.monotonic()
+    def _step(self, rec: CycleRecord, state: State, cancel: CancelToken, work):
+        cancel.check()
+        self.progress = state
+        t0 = self.clock.now()
         out = work()
-        rec.step_times[state.name.lower()] = round(time.monotonic() - t0, 6)
-        self.sm.fire(Event.STEP_DONE)
+        rec.step_times[state.name.lower()] = round(self.clock.now() - t0, 6)
         return out
 
     def _approach(self, arm: CellArm, r) -> None:
@@ -255,7 +289,7 @@ class CycleRunner:
         """Write the cycle's row (the LOGGING step). Its own duration cannot be inside the row
         it writes: it is returned in ``outcome.log_write_s`` and included in the cycle time
         the PLC reads."""
-        t0 = time.monotonic()
+        t0 = self.clock.now()
         try:
             rec.id = self.log.add_cycle(rec)
         except Exception as exc:                 # noqa: BLE001
@@ -263,7 +297,7 @@ class CycleRunner:
             if outcome.status == "done":
                 outcome.status, outcome.fault_code = "fault", Fault.LOG_WRITE_FAILED
                 outcome.fault_text = f"cycle log write failed: {exc}"
-        outcome.log_write_s = time.monotonic() - t0
+        outcome.log_write_s = self.clock.now() - t0
         log.info("cycle_end", part_id=rec.part_id, recipe=rec.recipe, status=outcome.status,
                  fault=outcome.fault_code, final_error_mm=rec.final_error_mm, moves=rec.moves)
         return rec

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2     #: 2 added cycles.motion_json (how the cycle's moves were streamed)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -42,7 +42,8 @@ CREATE TABLE IF NOT EXISTS cycles (
     fault_code INTEGER NOT NULL DEFAULT 0,
     fault_text TEXT NOT NULL DEFAULT '',
     temp_c REAL,
-    trace_json TEXT NOT NULL DEFAULT '[]'
+    trace_json TEXT NOT NULL DEFAULT '[]',
+    motion_json TEXT NOT NULL DEFAULT '{}'
 );
 CREATE INDEX IF NOT EXISTS cycles_finished ON cycles (finished_at);
 CREATE TABLE IF NOT EXISTS audit (
@@ -92,6 +93,8 @@ class CycleRecord:
     fault_text: str = ""
     temp_c: float | None = None
     trace: list[dict] = field(default_factory=list)
+    #: how the moves were streamed: mode, moves, segments, segment_ms, time_law, delays_ms (j1..j4)
+    motion: dict = field(default_factory=dict)
     id: int | None = None
 
 
@@ -108,7 +111,10 @@ class CycleLog:
         self._db.execute("PRAGMA synchronous=FULL")
         self._db.execute("PRAGMA busy_timeout=5000")
         self._db.executescript(_SCHEMA)
-        self._db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        columns = {r[1] for r in self._db.execute("PRAGMA table_info(cycles)")}
+        if "motion_json" not in columns:           # a version 1 log: add the column, keep the rows
+            self._db.execute("ALTER TABLE cycles ADD COLUMN motion_json TEXT NOT NULL DEFAULT '{}'")
+        self._db.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
     def close(self) -> None:
         with self._lock:
@@ -126,13 +132,13 @@ class CycleLog:
             cur = db.execute(
                 "INSERT INTO cycles (part_id, recipe, recipe_hash, started_at, finished_at, status,"
                 " method, target_x_mm, target_y_mm, initial_error_mm, final_error_mm, verify_error_mm,"
-                " moves, cycle_time_s, step_times_json, fault_code, fault_text, temp_c, trace_json)"
-                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                " moves, cycle_time_s, step_times_json, fault_code, fault_text, temp_c, trace_json,"
+                " motion_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (row["part_id"], row["recipe"], row["recipe_hash"], row["started_at"], row["finished_at"],
                  row["status"], row["method"], tx, ty, row["initial_error_mm"], row["final_error_mm"],
                  row["verify_error_mm"], row["moves"], row["cycle_time_s"],
                  json.dumps(row["step_times"]), row["fault_code"], row["fault_text"], row["temp_c"],
-                 json.dumps(row["trace"])))
+                 json.dumps(row["trace"]), json.dumps(row["motion"])))
             return int(cur.lastrowid)
 
     def cycles(self, limit: int | None = None, status: str | None = None) -> list[CycleRecord]:
@@ -163,7 +169,7 @@ class CycleLog:
             final_error_mm=r["final_error_mm"], verify_error_mm=r["verify_error_mm"], moves=r["moves"],
             cycle_time_s=r["cycle_time_s"], step_times=json.loads(r["step_times_json"]),
             fault_code=r["fault_code"], fault_text=r["fault_text"], temp_c=r["temp_c"],
-            trace=json.loads(r["trace_json"]))
+            trace=json.loads(r["trace_json"]), motion=json.loads(r["motion_json"]))
 
     # ------------------------------------------------------------------ audit
     def audit(self, who: str, action: str, target: str, hash_: str, result: str) -> None:

@@ -1,6 +1,10 @@
-"""Background jobs of the controller (apscheduler): health checks, accuracy-drift watch, log
-retention. They run in the scheduler's own thread and only read devices or the log; any
-finding reaches the PLC through the controller (a fault or the recalibration_due bit).
+"""Background jobs of the controller: health checks, accuracy-drift watch, log retention.
+They only read devices or the log; any finding reaches the PLC through the controller (a
+fault or the recalibration_due bit).
+
+On wall time (a real cell) apscheduler runs them in its own thread. apscheduler reads the
+wall clock itself (``datetime.now``) and cannot be given another, so on the simulated clock
+the same jobs run from one task of that clock, at the same intervals of simulated time.
 """
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 from apscheduler.schedulers.background import BackgroundScheduler
 
+from cell.clock import Clock, MonotonicClock
 from cell.config import SchedulerSection
 from cell.log import get_logger
 
@@ -24,23 +29,48 @@ def drift_due(initial_errors_mm: list[float], window: int, threshold_mm: float) 
 
 
 class CellJobs:
-    """Schedules the three jobs for one controller."""
+    """Schedules the three jobs for one controller (see the module doc for the clock)."""
 
-    def __init__(self, controller, settings: SchedulerSection, retention_days: int):
+    def __init__(self, controller, settings: SchedulerSection, retention_days: int,
+                 clock: Clock | None = None):
         self.c, self.s, self.retention_days = controller, settings, retention_days
-        self.scheduler = BackgroundScheduler(daemon=True, timezone="UTC")
-        self.scheduler.add_job(self.health, "interval", seconds=settings.health_interval_s,
-                               id="health", max_instances=1, coalesce=True)
-        self.scheduler.add_job(self.drift, "interval", seconds=settings.drift_interval_s,
-                               id="drift", max_instances=1, coalesce=True)
-        self.scheduler.add_job(self.retention, "interval", seconds=settings.retention_interval_s,
-                               id="retention", max_instances=1, coalesce=True)
+        self.clock = clock or MonotonicClock()
+        self.jobs = [(self.health, settings.health_interval_s), (self.drift, settings.drift_interval_s),
+                     (self.retention, settings.retention_interval_s)]
+        self.scheduler: BackgroundScheduler | None = None
+        self._task = None
+        self._stop = self.clock.event()
+        if self.clock.wall:
+            self.scheduler = BackgroundScheduler(daemon=True, timezone="UTC")
+            for job, every in self.jobs:
+                self.scheduler.add_job(job, "interval", seconds=every, id=job.__name__,
+                                       max_instances=1, coalesce=True)
 
     def start(self) -> None:
-        self.scheduler.start()
+        if self.scheduler is not None:
+            self.scheduler.start()
+        else:
+            self._task = self.clock.spawn(self._run, "cell-jobs")
 
     def stop(self) -> None:
-        self.scheduler.shutdown(wait=False)
+        if self.scheduler is not None:
+            self.scheduler.shutdown(wait=False)
+        self._stop.set()
+        if self._task is not None:
+            self._task.join(timeout=5)
+
+    def _run(self) -> None:
+        due = [self.clock.now() + every for _, every in self.jobs]
+        while True:
+            k = min(range(len(due)), key=due.__getitem__)
+            if self._stop.wait(max(0.0, due[k] - self.clock.now())):
+                return
+            job, every = self.jobs[k]
+            due[k] += every
+            try:
+                job()
+            except Exception as exc:               # noqa: BLE001 -- a job must not end the others
+                log.error("job_failed", job=job.__name__, error=repr(exc))
 
     def health(self) -> dict:
         """Drive states and camera liveness, logged; a dead device shows up as a fault in the

@@ -64,6 +64,20 @@ class CompensationSpec(_Strict):
     repeatability_mm: float = Field(default=0.02, ge=0, le=1)
 
 
+class MotionSpec(_Strict):
+    """How every move of the cycle is streamed to the joint stations (seed 002)."""
+    sync: Literal["corrected", "sync", "none"] = Field(
+        default="corrected",
+        description="corrected: each station applies on reception, velocities Δθ/(T − λ) with λ "
+                    "measured on the bus (seed 002); sync: all stations apply on one SYNC frame "
+                    "(needs drives with SYNC support); none: Δθ/T on reception (for comparison)")
+    segment_ms: float = Field(default=10.0, ge=1, le=1000,
+                              description="interpolation segment time T; must exceed every station's delay")
+    time_law: Literal["smooth", "linear"] = Field(
+        default="smooth", description="smooth: smooth start and stop (seed 002 Fig. 8c); "
+                                      "linear: equal steps")
+
+
 class VerifySpec(_Strict):
     tolerance_mm: float = Field(default=0.08, gt=0, le=5,
                                 description="the cycle faults if the verified error exceeds this")
@@ -78,6 +92,7 @@ class Recipe(_Strict):
     approach: ApproachSpec = ApproachSpec()
     place: PlaceSpec = PlaceSpec()
     compensation: CompensationSpec = CompensationSpec()
+    motion: MotionSpec = MotionSpec()
     verify: VerifySpec = VerifySpec()
 
     @model_validator(mode="after")
@@ -143,12 +158,42 @@ def _owner(path: Path) -> str:
         return "unknown"
 
 
-class RecipeStore:
-    """The active recipes of one directory; see the module doc for the update rules."""
+#: a check of a parsed recipe against the cell it runs on: (recipe, text, source) → raises
+#: ConfigError naming source, line and field
+CellCheck = Callable[[Recipe, str, str], None]
 
-    def __init__(self, directory: Path | str, audit: Callable[[AuditEntry], None] | None = None):
+
+def motion_check(supports_sync: bool, delays_s) -> CellCheck:
+    """The cell's motion check: ``motion.sync: sync`` needs SYNC support on every station;
+    ``corrected`` and ``sync`` need ``motion.segment_ms`` above every station's delay λ
+    (``delays_s`` (4,) per joint, s: wire time of a burst plus the measured latency)."""
+    from cell.motion import check_mode
+
+    def check(recipe: Recipe, text: str, source: str) -> None:
+        m = recipe.motion
+        why = check_mode(m.sync, m.segment_ms / 1000.0, supports_sync, delays_s)
+        if why is None:
+            return
+        field = "sync" if "SYNC" in why else "segment_ms"
+        try:
+            line = node_line(yaml.compose(text, Loader=yaml.SafeLoader), ("motion", field))
+        except yaml.YAMLError:
+            line = None
+        raise ConfigError(f"{source}:{line}: motion.{field}: {why} (motion.sync: {m.sync})")
+    return check
+
+
+class RecipeStore:
+    """The active recipes of one directory; see the module doc for the update rules.
+
+    ``check`` (optional) validates each recipe against the cell it runs on (e.g.
+    :func:`motion_check`); a recipe it refuses is rejected like an invalid file."""
+
+    def __init__(self, directory: Path | str, audit: Callable[[AuditEntry], None] | None = None,
+                 check: CellCheck | None = None):
         self.directory = Path(directory)
         self._audit = audit or (lambda entry: None)
+        self.check = check
         self._active: Mapping[str, ActiveRecipe] = MappingProxyType({})
         self._seen: dict[str, str] = {}        # path -> hash of the last content looked at
         self.last_rejection: str | None = None
@@ -188,6 +233,8 @@ class RecipeStore:
                 if err:
                     raise ConfigError(err)
                 recipe = parse_recipe(text, str(path))
+                if self.check is not None:
+                    self.check(recipe, text, str(path))
                 clash = next((a for a in new.values() if a.recipe.number == recipe.number
                               and a.recipe.name != recipe.name), None)
                 if clash:

@@ -3,18 +3,24 @@
 ``run --sim --cycles N`` starts the whole cell on this machine — Modbus server on loopback,
 simulated stations on the virtual CAN bus, simulated camera, the plant — plus a simulated
 PLC, a real Modbus TCP client running a PLC scan loop, which indexes the part conveyor,
-selects the recipe, raises execute, waits for done and reads the results, N times.
+selects the recipe, raises execute, waits for done and reads the results, N times. It all
+runs on one simulated clock, as fast as the host allows: the same seed gives the same
+cycles, whatever the load. Only fields named ``wall_s`` depend on the host.
 
 ``serve --sim`` runs the same cell without the simulated PLC so any Modbus client (a real
-PLC, ``mbpoll``) can drive it; ``serve --config deploy/cell.yaml`` runs it on hardware.
+PLC, ``mbpoll``) can drive it; its simulated clock keeps to wall time. ``serve --config
+deploy/cell.yaml`` runs it on hardware.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
+import sys
 import threading
 import time
+from pathlib import Path
 
 from cell.config import CellConfig, SimSection
 from cell.errors import ConfigError
@@ -28,9 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--cycles", type=int, default=10, help="parts to run (default 10)")
     r.add_argument("--recipe", default="bracket-a", help="recipe name (default bracket-a)")
     r.add_argument("--config", help="cell config (default: built-in simulated cell)")
-    r.add_argument("--db", help=f"cycle log (default {DEFAULT_SIM_DB})")
+    r.add_argument("--seed", type=int, help="seed of the simulated cell (default: the config's, 0)")
+    r.add_argument("--db", help=f"cycle log to append to (default: a fresh {DEFAULT_SIM_DB}; "
+                                "the previous one is kept as var/cell.prev.sqlite)")
     r.add_argument("--first-part", type=int, default=1, help="first part id (default 1)")
-    r.add_argument("--json", action="store_true", help="print the cycles as JSON")
+    r.add_argument("--json", action="store_true", help="print the cycles as JSON at the end")
     r.set_defaults(func=run_sim)
     s = sub.add_parser("serve", help="run the controller (simulated devices with --sim)")
     s.add_argument("--sim", action="store_true", help="simulated devices, PLC link on loopback")
@@ -40,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=serve)
 
 
-def load_config(path: str | None, sim: bool, db: str | None = None) -> CellConfig:
+def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | None = None) -> CellConfig:
     if path:
         cfg = CellConfig.load(path)
     elif sim:
@@ -50,62 +58,125 @@ def load_config(path: str | None, sim: bool, db: str | None = None) -> CellConfi
     update = {}
     if sim and cfg.sim is None:
         update["sim"] = SimSection()
+    if seed is not None:
+        update["sim"] = (update.get("sim") or cfg.sim).model_copy(update={"seed": seed})
     if sim and not path:
         update["plc"] = cfg.plc.model_copy(update={"host": "127.0.0.1"})
         update["log"] = cfg.log.model_copy(update={"path": DEFAULT_SIM_DB})
     if db:
-        update["log"] = cfg.log.model_copy(update={"path": db})
+        update["log"] = (update.get("log") or cfg.log).model_copy(update={"path": db})
     return cfg.model_copy(update=update) if update else cfg
+
+
+def fresh_log(path: str) -> None:
+    """Start the simulated cell with an empty log: a previous one (with its WAL files) is
+    kept once, as ``<name>.prev.sqlite``."""
+    p = Path(path)
+    if not p.exists():
+        return
+    prev = p.with_name(p.stem + ".prev" + p.suffix)
+    for suffix in ("", "-wal", "-shm"):
+        old = Path(str(prev) + suffix)
+        if old.exists():
+            old.unlink()
+    for suffix in ("", "-wal", "-shm"):
+        cur = Path(str(p) + suffix)
+        if cur.exists():
+            os.replace(cur, str(prev) + suffix)
 
 
 def run_sim(args: argparse.Namespace) -> int:
     from cell.app import Cell
-    from drivers.plc.sim_plc import SimPlc
+    from cell.sim.plc import SimPlc, SimPlcError
     if args.cycles < 1:
         raise ConfigError(f"--cycles {args.cycles} must be ≥ 1")
-    cfg = load_config(args.config, True, args.db)
-    cell = Cell(cfg, sim=True, plc_port=0)
+    cfg = load_config(args.config, True, args.db, args.seed)
+    if not args.db and not args.config:
+        fresh_log(cfg.log.path)
+    wall0 = time.monotonic()
+    cell = Cell(cfg, devices="sim", plc_port=0)
     port = cell.start()
-    rows = []
+    rows: list[dict] = []
+    clock = cell.clock
     try:
         active = cell.recipes.active.get(args.recipe)
         if active is None:
             raise ConfigError(f"recipe {args.recipe!r} is not active (known: {sorted(cell.recipes.active)})")
-        plc = SimPlc("127.0.0.1", port)
-        plc.start()
-        try:
-            for part_id in range(args.first_part, args.first_part + args.cycles):
-                cell.sim.feeder.present(part_id, active.recipe)
-                t0 = time.monotonic()
-                res = plc.run_cycle(active.recipe.number, part_id, timeout_s=30.0)
-                fault = res.get("fault_code") or None
-                rows.append({"part_id": part_id, "recipe": active.recipe.name,
-                             "initial_error_mm": res["initial_error_um"] / 1000.0,
-                             "final_error_mm": res["final_error_um"] / 1000.0,
-                             "moves": res["moves"], "cycle_time_s": res["cycle_time_ms"] / 1000.0,
-                             "plc_round_trip_s": round(time.monotonic() - t0, 3),
-                             "fault": fault if not res["done"] else None})
-                if not res["done"]:
-                    break
-        finally:
-            plc.stop()
+        if not args.json:
+            _print_header()
+        with clock.attach():
+            plc = SimPlc("127.0.0.1", port, clock=clock)
+            plc.start()
+            try:
+                for part_id in range(args.first_part, args.first_part + args.cycles):
+                    row = _one_part(cell, plc, active, part_id, SimPlcError)
+                    rows.append(row)
+                    if not args.json:
+                        _print_row(row)
+                    if row["fault"] is not None:
+                        break
+            finally:
+                plc.stop()
+            sim_s = clock.now()
     finally:
         cell.stop()
+    wall_s = time.monotonic() - wall0
     if args.json:
-        print(json.dumps({"cycles": rows}, indent=2))
+        print(json.dumps({"cycles": rows, "sim_s": round(sim_s, 6), "wall_s": round(wall_s, 3)}, indent=2))
     else:
-        print(f"{'part':>5} {'recipe':<10} {'initial mm':>10} {'final mm':>9} {'moves':>5} "
-              f"{'cycle s':>8}  fault")
-        for r in rows:
-            print(f"{r['part_id']:>5} {r['recipe']:<10} {r['initial_error_mm']:>10.3f} "
-                  f"{r['final_error_mm']:>9.3f} {r['moves']:>5} {r['cycle_time_s']:>8.3f}  "
-                  f"{r['fault'] or '-'}")
         done = [r for r in rows if r["fault"] is None]
         if done:
             fin = [r["final_error_mm"] for r in done]
             print(f"{len(done)}/{len(rows)} cycles done; final error mean {sum(fin) / len(fin):.3f} mm, "
-                  f"max {max(fin):.3f} mm; log {cfg.log.path}")
+                  f"max {max(fin):.3f} mm; {sim_s:.1f} s simulated in {wall_s:.1f} s; log {cfg.log.path}")
+        else:
+            print(f"no cycle done; log {cfg.log.path}")
     return 0 if all(r["fault"] is None for r in rows) and len(rows) == args.cycles else 1
+
+
+def _one_part(cell, plc, active, part_id: int, plc_error) -> dict:
+    """Present a part, let the simulated PLC run its cycle, read back what the PLC got."""
+    clock = cell.clock
+    cell.devices.feeder.present(part_id, active.recipe)
+    t0, w0 = clock.now(), time.monotonic()
+    row = {"part_id": part_id, "recipe": active.recipe.name}
+    try:
+        res = plc.run_cycle(active.recipe.number, part_id, timeout_s=30.0)
+    except plc_error as exc:
+        row.update(initial_error_mm=None, final_error_mm=None, moves=None, cycle_time_s=None,
+                   plc_round_trip_s=round(clock.now() - t0, 6), motion=None, fault=f"PLC: {exc}",
+                   wall_s=round(time.monotonic() - w0, 3))
+        return row
+    out = cell.controller.last_outcome
+    rec = out.record if out is not None and out.record is not None and out.record.part_id == part_id else None
+    row.update(initial_error_mm=res["initial_error_um"] / 1000.0 if res["done"] else None,
+               final_error_mm=res["final_error_um"] / 1000.0 if res["done"] else None,
+               moves=res["moves"] if res["done"] else None,
+               cycle_time_s=res["cycle_time_ms"] / 1000.0 if res["done"] else None,
+               plc_round_trip_s=round(clock.now() - t0, 6),
+               motion=_motion(rec.motion) if rec is not None else None,
+               fault=None if res["done"] else (res.get("fault_code") or "aborted"),
+               wall_s=round(time.monotonic() - w0, 3))
+    return row
+
+
+def _motion(m: dict) -> dict:
+    return {"mode": m.get("mode"), "segments": m.get("segments"), "delays_ms": m.get("delays_ms")}
+
+
+def _print_header() -> None:
+    print(f"{'part':>5} {'recipe':<10} {'initial mm':>10} {'final mm':>9} {'moves':>5} "
+          f"{'cycle s':>8} {'mode':<9} {'λ j1..j4 ms':<27} fault", flush=True)
+
+
+def _print_row(r: dict) -> None:
+    def f(v, fmt):
+        return format(v, fmt) if v is not None else "-"
+    m = r.get("motion") or {}
+    lam = "/".join(f"{d:.3f}" for d in m.get("delays_ms") or []) or "-"
+    print(f"{r['part_id']:>5} {r['recipe']:<10} {f(r['initial_error_mm'], '>10.3f')} "
+          f"{f(r['final_error_mm'], '>9.3f')} {f(r['moves'], '>5')} {f(r['cycle_time_s'], '>8.3f')} "
+          f"{m.get('mode') or '-':<9} {lam:<27} {r['fault'] or '-'}", flush=True)
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -115,16 +186,17 @@ def serve(args: argparse.Namespace) -> int:
     if args.config:                            # a service logs as its config says
         log.configure(cfg.log.format, cfg.log.level)
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
-    cell = Cell(cfg, sim=args.sim, plc_port=port)
+    cell = Cell(cfg, devices="sim" if args.sim else "hardware", plc_port=port, pace=True)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     actual = cell.start()
     print(f"cell {cfg.name} serving Modbus TCP on {cfg.plc.host}:{actual}"
-          f"{' (simulated devices)' if args.sim else ''}; Ctrl-C to stop", flush=True)
+          f"{' (simulated devices, clock paced to wall time)' if args.sim else ''}; Ctrl-C to stop", flush=True)
     if args.sim:
-        _auto_feed(cell, stop)
+        cell.clock.spawn(_auto_feed, "sim-feeder", cell, stop)
     stop.wait(args.seconds)
+    print(f"cell {cfg.name} stopping", file=sys.stderr, flush=True)
     cell.stop()
     return 0
 
@@ -132,14 +204,11 @@ def serve(args: argparse.Namespace) -> int:
 def _auto_feed(cell, stop: threading.Event) -> None:
     """``serve --sim``: the conveyor presents a new part of the selected recipe after every
     logged cycle (the PLC program that indexes a real conveyor is not simulated here)."""
-    def feed():
-        part_id, seen = 1, -1
-        while not stop.is_set():
-            n = cell.cyclelog.count()
-            c = cell.controller
-            active = cell.recipes.by_number(c._recipe_number) if c else None
-            if active is not None and (n != seen or cell.sim.feeder.part is None):
-                cell.sim.feeder.present(part_id, active.recipe)
-                part_id, seen = part_id + 1, n
-            stop.wait(0.05)
-    threading.Thread(target=feed, name="sim-feeder", daemon=True).start()
+    part_id, seen = 1, -1
+    while not stop.is_set():
+        n = cell.cyclelog.count()
+        active = cell.recipes.by_number(cell.controller.recipe_number)
+        if active is not None and (n != seen or cell.devices.feeder.part is None):
+            cell.devices.feeder.present(part_id, active.recipe)
+            part_id, seen = part_id + 1, n
+        cell.clock.sleep(0.05)

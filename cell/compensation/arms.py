@@ -1,7 +1,7 @@
 """Simulated arms for compensation runs: the nominal model, and one whose true geometry differs.
 
 These are the "robot + measurer" stand-ins tests and benchmarks use. The whole cell uses
-the plant (``cell.plant``) behind the CAN stations and the camera instead.
+the plant (``cell.sim.plant``) behind the CAN stations and the camera instead.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Validation campaigns drawn from the plant (:class:`cell.plant.Plant`). Pure numerics.
+"""Validation campaigns drawn from the plant (:class:`cell.sim.plant.Plant`). Pure numerics.
 
 :func:`make_campaign` measures one campaign in the exchange format on a plant carrying the
 given effects. The design (:class:`Design`, defaults below) is meant to be what a careful
@@ -34,7 +34,7 @@ from cell import effects as fx
 from cell.kinematics import PRESETS, planar_xy
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.diagnosis.replay import first_step_dirs
-from cell.plant import Plant
+from cell.sim.plant import Plant
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,13 @@ Units: joints are (θ1_deg, θ2_deg, d3_mm, θ4_deg); the ``*_deg`` names below 
 (and mm/s) for the prismatic joint j3. Times are seconds. Delays are always given per
 *joint* (j1..j4); :func:`joint_delays` maps bus order to joints.
 
+Time law. Seed 002 spaces the interpolation points equally (``time_law="linear"``): the
+tool starts and stops at full speed. Its Fig. 8(c) adds a non-linear interpolation that
+makes start and stop smooth; here (``time_law="smooth"``) point k sits at the path fraction
+s(k/n) with s(u) = 10u³ − 15u⁴ + 6u⁵, whose velocity and acceleration are zero at both
+ends, while every segment still lasts T: the steps are short at the ends and long in the
+middle (peak speed 1.875× the mean).
+
 Every bad input raises :class:`~cell.errors.TrajectoryError` naming the value;
 T ≤ λ_i is an error, never a negative or infinite velocity.
 """
@@ -33,7 +40,7 @@ from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Elbow, Scara, planar_xy
 
 __all__ = [
-    "LinePlan", "Segment", "SimulatedPath", "station_delays", "joint_delays",
+    "TIME_LAWS", "LinePlan", "Segment", "SimulatedPath", "station_delays", "joint_delays",
     "delay_corrected_velocities", "plan_line", "joint_positions_at", "simulate_line",
     "max_line_deviation", "tool_positions",
 ]
@@ -151,6 +158,16 @@ def delay_corrected_velocities(delta_deg, segment_s: float, delays_s) -> np.ndar
 
 
 # --------------------------------------------------------------------------- planning
+def _smooth(u: np.ndarray) -> np.ndarray:
+    return u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
+
+
+#: path fraction s(u) at time fraction u, per law; s(0) = 0, s(1) = 1
+TIME_LAWS = {"linear": lambda u: u, "smooth": _smooth}
+#: peak speed of each law relative to the mean speed of the move
+TIME_LAW_PEAK = {"linear": 1.0, "smooth": 1.875}
+
+
 @dataclass(frozen=True)
 class Segment:
     """One interpolation segment as sent to the stations.
@@ -227,8 +244,8 @@ def _endpoint_ik(robot: Scara, pose: np.ndarray, elbow: Elbow) -> np.ndarray:
 
 def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: float,
               delays_s=None, elbow: Elbow = "right", *,
-              station_order=JOINT_NAMES) -> LinePlan:
-    """Plan a straight move with ``n_points`` equal Cartesian steps (seed 002).
+              station_order=JOINT_NAMES, time_law: str = "linear") -> LinePlan:
+    """Plan a straight move with ``n_points`` Cartesian steps of ``segment_s`` each (seed 002).
 
     :param robot: kinematics used for :meth:`Scara.ik` at every interpolation point.
     :param start_pose, end_pose: (x_mm, y_mm, z_mm, phi_deg); phi is interpolated linearly.
@@ -238,6 +255,8 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
         bus order), or ``None`` for the uncorrected velocities Δθ/T.
     :param elbow: ``"right"`` or ``"left"``, kept for the whole move.
     :param station_order: bus order of the joints, recorded in the plan.
+    :param time_law: ``"linear"`` (equal steps, seed 002) or ``"smooth"`` (smooth start
+        and stop, seed 002 Fig. 8c; see the module doc).
     :returns: :class:`LinePlan`. The first and last way-point may sit on the stretched-arm
         singularity (see :func:`_endpoint_ik`); interior points may not. θ1 and θ4 are unwrapped along the move (no 360° jumps)
         and re-checked against the joint limits.
@@ -251,10 +270,12 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
     if T <= 0:
         raise TrajectoryError(f"segment_s = {segment_s!r} must be > 0")
     order = _check_station_order(station_order)
+    if time_law not in TIME_LAWS:
+        raise TrajectoryError(f"time_law = {time_law!r}; choose one of {sorted(TIME_LAWS)}")
     lam = np.zeros(4) if delays_s is None else _finite_array("delays_s", delays_s, (4,))
     delay_corrected_velocities(np.zeros(4), T, lam)  # validate delays before any IK work
 
-    s = np.linspace(0.0, 1.0, n + 1)[:, None]
+    s = TIME_LAWS[time_law](np.linspace(0.0, 1.0, n + 1))[:, None]
     poses = p0 + s * (p1 - p0)
     poses[-1] = p1  # exact target, no rounding from the linspace
     joints = np.empty_like(poses)

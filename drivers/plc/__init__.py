@@ -4,7 +4,7 @@
   and the documents generated from it.
 - :mod:`drivers.plc.server`: :class:`~drivers.plc.server.PlcLink`, what the controller uses.
 - :mod:`drivers.plc.conformance`: spec fixes in front of pymodbus 3.16.1.
-- :mod:`drivers.plc.sim_plc`: :class:`~drivers.plc.sim_plc.SimPlc`, the simulated PLC, a
+- :mod:`cell.sim.plc`: :class:`~cell.sim.plc.SimPlc`, the simulated PLC, a
   real Modbus TCP client running a PLC-style scan loop.
 
 The controller depends only on :class:`PlcPort` and gets its object from :func:`open_link`

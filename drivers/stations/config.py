@@ -11,9 +11,11 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cell.errors import ConfigError
-from cell.kinematics import JOINT_NAMES, PRESETS
 
+#: the joints a cell's stations drive, in the order of every per-joint array
+JOINT_NAMES = ("j1", "j2", "j3", "j4")
 JointName = Literal["j1", "j2", "j3", "j4"]
+_I32 = 2 ** 31 - 1
 
 
 class StationConfig(BaseModel):
@@ -25,9 +27,12 @@ class StationConfig(BaseModel):
     node_id: int = Field(ge=1, le=127)
     gear_ratio: float = Field(default=50.0, gt=0, le=100_000)       #: motor deg per joint unit
     encoder_increments: int = Field(default=10_000, ge=4, le=1 << 24)  #: per motor revolution
-    limits: tuple[float, float] | None = None   #: joint units; None → seed 002 robot limits
+    limits: tuple[float, float] | None = None   #: joint units; None → the drive's whole 32-bit range
     max_velocity: float = Field(default=720.0, gt=0, le=100_000)      #: joint units/s
     quick_stop_decel: float = Field(default=5000.0, gt=0, le=1e7)     #: joint units/s²
+    #: the drive applies synchronous RPDOs on SYNC (CiA 301 transmission types 1..240);
+    #: a recipe may ask for ``motion.sync: sync`` only when every station can
+    supports_sync: bool = True
 
     @model_validator(mode="after")
     def _check(self) -> "StationConfig":
@@ -48,7 +53,8 @@ class StationConfig(BaseModel):
     def joint_limits(self) -> tuple[float, float]:
         if self.limits is not None:
             return self.limits
-        return tuple(PRESETS["seed002"].limits[JOINT_NAMES.index(self.joint)])  # type: ignore[return-value]
+        span = (_I32 - 1) / self.counts_per_unit
+        return (-span, span)
 
     @property
     def counts_per_unit(self) -> float:
@@ -65,13 +71,12 @@ class StationsConfig(BaseModel):
     interface: str = "virtual"
     channel: str = Field(default="cell0", min_length=1)
     bitrate: int = Field(default=1_000_000, ge=10_000, le=1_000_000)
-    rate_limited: bool = True               #: virtual only: False = unlimited (benchmarks)
     controller_node_id: int = Field(default=127, ge=1, le=127)
     heartbeat_ms: int = Field(default=100, ge=10, le=10_000)            #: stations' producer time
     heartbeat_tolerance: float = Field(default=1.5, ge=1.1, le=10)      #: silent after × heartbeat_ms
     controller_heartbeat_ms: int = Field(default=50, ge=10, le=10_000)
     consumer_timeout_ms: int = Field(default=150, ge=20, le=60_000)     #: stations fault after this
-    tpdo_event_ms: int = Field(default=10, ge=1, le=1000)               #: actual-position period
+    tpdo_event_ms: int = Field(default=10, ge=1, le=10_000)             #: actual-position period
     sdo_timeout_s: float = Field(default=0.5, gt=0, le=10)
     boot_timeout_s: float = Field(default=2.0, gt=0, le=60)
     sync_lead_s: float = Field(default=0.01, ge=0, le=1)                #: set-points ahead of 1st SYNC

@@ -1,5 +1,5 @@
 """Controller side of the joint stations: one :class:`JointStations` for all four CANopen
-drives (canopen ``RemoteNode`` on a python-can bus from the config; STYLE habits 2, 3, 9).
+drives (canopen ``RemoteNode`` on a python-can bus chosen by name in the config).
 
 Wire layout (per station with node id ``n``; set up by :meth:`JointStations.start`):
 
@@ -15,10 +15,12 @@ COB-ID     direction    content                                                a
 0x700+c    heartbeat →  the controller (node ``controller_node_id``)           consumed
 =========  ===========  =====================================================  ==========
 
-Threads (STYLE habit 9): canopen's notifier thread runs the TPDO/EMCY callbacks and our
-:class:`~drivers.stations.faults.BusMonitor`; the watchdog thread checks heartbeats;
-python-can's cyclic task sends the controller heartbeat; :meth:`stream` runs in the
-caller's thread and timestamps each set-point burst. A latched fault quick-stops all
+Threads: the bus's receive side (python-can's notifier thread on hardware, the simulated
+clock's thread on the virtual wire) runs the TPDO/EMCY callbacks and our
+:class:`~drivers.stations.faults.BusMonitor`; the watchdog task checks heartbeats;
+the bus's cyclic task sends the controller heartbeat; :meth:`stream` runs in the
+caller's thread and timestamps each set-point burst. Every wait (SDO answers, boot-up,
+targets reached) is a wait on the injected clock. A latched fault quick-stops all
 stations from whichever thread found it, under the command lock, so no set-point can
 follow the quick stop.
 
@@ -32,24 +34,27 @@ import struct
 import threading
 import time
 from fractions import Fraction
-from typing import Sequence
+from pathlib import Path
+from typing import Callable, Sequence
 
 import can
 import canopen
 import numpy as np
+from canopen.sdo.client import SdoClient
 
 from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
-from cell.kinematics import JOINT_NAMES
 from cell.log import get_logger
 from drivers.stations import cia402
-from drivers.stations.bus import open_bus
+from drivers.stations.bus import connect_network, open_bus
 from drivers.stations.cia402 import Command, State
-from drivers.stations.config import StationConfig, StationsConfig
+from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.faults import (EMCY_TO_FAULT, BusMonitor, Expected, FaultCode, FaultLatch,
                                      FaultRecord, HeartbeatWatchdog, StationFaultError)
-from drivers.stations.sim_station import EDS_PATH
 from drivers.stations.streaming import StationCommandError, StreamingMixin, StreamReport  # noqa: F401
+
+#: the drives' electronic data sheet (object dictionary), shared by controller and twin
+EDS_PATH = Path(__file__).with_name("scara_axis.eds")
 
 log = get_logger("stations.driver")
 _SETPOINT = struct.Struct("<iI")
@@ -61,6 +66,44 @@ class StationStartupError(CellError, RuntimeError):
     """Start-up or re-enable failed (no boot-up, SDO refused, drive would not enable)."""
 
 
+class _ClockSdoClient(SdoClient):
+    """canopen's SDO client, waiting for answers on the injected clock.
+
+    canopen waits with ``queue.Queue.get(timeout=...)`` and replaces the queue to drop a
+    stale answer; here the queue is the clock's and "replacing" it clears it."""
+
+    def __init__(self, rx_cobid: int, tx_cobid: int, od, clock: Clock):
+        self._clock_responses = clock.queue()
+        super().__init__(rx_cobid, tx_cobid, od)
+
+    @property
+    def responses(self):
+        return self._clock_responses
+
+    @responses.setter
+    def responses(self, _fresh) -> None:
+        self._clock_responses.clear()
+
+
+class _ClockRemoteNode(canopen.RemoteNode):
+    """canopen's remote node whose SDO channels wait on the injected clock."""
+
+    def __init__(self, node_id: int, od, clock: Clock):
+        self._clock = clock              # before RemoteNode.__init__ calls add_sdo
+        super().__init__(node_id, od)
+
+    def add_sdo(self, rx_cobid, tx_cobid):
+        client = _ClockSdoClient(rx_cobid, tx_cobid, self.object_dictionary, self._clock)
+        self.sdo_channels.append(client)
+        if self.has_network():
+            self.network.subscribe(client.tx_cobid, client.on_response)
+        return client
+
+
+def _remote_node(node_id: int, od_path: str, clock: Clock) -> canopen.RemoteNode:
+    return _ClockRemoteNode(node_id, canopen.import_od(od_path, node_id), clock)
+
+
 class _Station:
     """Controller-side record of one station: config, RemoteNode, latest TPDO."""
 
@@ -70,6 +113,7 @@ class _Station:
         self.pos_inc: int | None = None
         self.statusword = 0
         self.t_tpdo = 0.0
+        self.tpdo_data = b""
         self.tpdo_count = 0
         self.fault_tpdos = 0
         self.target: float | None = None
@@ -91,8 +135,10 @@ class JointStations(StreamingMixin):
     def __init__(self, cfg: StationsConfig, clock: Clock | None = None):
         self.cfg = cfg
         self.clock = clock or MonotonicClock()
+        self._changed = self.clock.event()     # set by every TPDO, heartbeat and fault
         self.latch = FaultLatch()
         self.latch.on_latch(self._react)
+        self.latch.on_latch(lambda record: self._changed.set())
         self._cmd_lock = threading.RLock()
         self._stations: list[_Station] = []
         self._by_node: dict[int, _Station] = {}
@@ -104,10 +150,10 @@ class JointStations(StreamingMixin):
         self._expect_operational = False
         self._recording: list[tuple[float, int, float]] | None = None
         self._heard: dict[int, int | None] = {}  # node id → NMT state of its last heartbeat
-        self._delays = np.zeros(4)
+        self._latency = np.zeros(4)            # per joint: frame end → set-point applied, s
         if cfg.delays_s != "measure":
             for s, d in zip(cfg.stations, cfg.delays_s):
-                self._delays[s.joint_index] = d
+                self._latency[s.joint_index] = d
 
     @classmethod
     def from_config(cls, data, clock: Clock | None = None) -> "JointStations":
@@ -130,12 +176,12 @@ class JointStations(StreamingMixin):
         if self._started:
             return
         c = self.cfg
-        bus = open_bus(c.interface, c.channel, c.bitrate, rate_limited=c.rate_limited)
+        bus = open_bus(c.interface, c.channel, c.bitrate, clock=self.clock)
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.05
         od_path = str(EDS_PATH)
         for sc in c.stations:
-            node = canopen.RemoteNode(sc.node_id, canopen.import_od(od_path, sc.node_id))
+            node = _remote_node(sc.node_id, od_path, self.clock)
             node.sdo.RESPONSE_TIMEOUT = c.sdo_timeout_s
             net.add_node(node)
             st = _Station(sc, node)
@@ -147,11 +193,11 @@ class JointStations(StreamingMixin):
         self.watchdog = HeartbeatWatchdog(
             self.latch, {s.cfg.node_id: s.joint for s in self._stations},
             timeout_s=c.heartbeat_tolerance * c.heartbeat_ms / 1000.0,
-            period_s=min(0.02, c.heartbeat_ms / 4000.0), bus=bus)
+            period_s=min(0.02, c.heartbeat_ms / 4000.0), bus=bus, clock=self.clock)
         self.monitor = BusMonitor(self.latch, self._expected(), c.unknown_frames, self._on_heartbeat)
         net.listeners.append(self.monitor)
         self.network = net
-        net.connect()
+        connect_network(net)
         try:
             self._wait_boot()
             self._configure_all()
@@ -178,20 +224,29 @@ class JointStations(StreamingMixin):
             exp[0x180 + n] = Expected("tpdo", j, n, frozenset({6}))
         return exp
 
-    def _wait_boot(self) -> None:
-        deadline = time.monotonic() + self.cfg.boot_timeout_s
+    def _await(self, ready: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait on the clock until ``ready()`` (checked at every TPDO, heartbeat and fault)."""
+        deadline = self.clock.now() + timeout_s
         while True:
-            missing = [s for s in self._stations if self._heard.get(s.cfg.node_id) is None]
-            if not missing:
-                return
-            if time.monotonic() > deadline:
-                raise StationStartupError(
-                    "no heartbeat within %.1f s from %s" % (self.cfg.boot_timeout_s, ", ".join(
-                        f"{s.joint} (node {s.cfg.node_id})" for s in missing)))
-            time.sleep(0.005)
+            self._changed.clear()
+            if ready():
+                return True
+            left = deadline - self.clock.now()
+            if left <= 0:
+                return False
+            self._changed.wait(left)
+
+    def _wait_boot(self) -> None:
+        def missing():
+            return [s for s in self._stations if self._heard.get(s.cfg.node_id) is None]
+        if not self._await(lambda: not missing(), self.cfg.boot_timeout_s):
+            raise StationStartupError(
+                "no heartbeat within %.1f s from %s" % (self.cfg.boot_timeout_s, ", ".join(
+                    f"{s.joint} (node {s.cfg.node_id})" for s in missing())))
 
     def _on_heartbeat(self, node_id: int, state: int) -> None:
         self._heard[node_id] = state
+        self._changed.set()
         if self.watchdog is not None:
             self.watchdog.beat(node_id, state)
         if self._expect_operational and state != 0x05:
@@ -227,13 +282,11 @@ class JointStations(StreamingMixin):
         # may still carry the old state).
         for s in self._stations:
             self._heard[s.cfg.node_id] = None
-        deadline = time.monotonic() + 3 * c.heartbeat_ms / 1000.0 + 0.1
-        while any(self._heard.get(s.cfg.node_id) != 0x05 for s in self._stations):
-            if time.monotonic() > deadline:
-                bad = [f"{s.joint} (NMT state {self._heard.get(s.cfg.node_id)})" for s in self._stations
-                       if self._heard.get(s.cfg.node_id) != 0x05]
-                raise StationStartupError(f"stations not NMT Operational after start: {', '.join(bad)}")
-            time.sleep(0.002)
+        if not self._await(lambda: all(self._heard.get(s.cfg.node_id) == 0x05 for s in self._stations),
+                           3 * c.heartbeat_ms / 1000.0 + 0.1):
+            bad = [f"{s.joint} (NMT state {self._heard.get(s.cfg.node_id)})" for s in self._stations
+                   if self._heard.get(s.cfg.node_id) != 0x05]
+            raise StationStartupError(f"stations not NMT Operational after start: {', '.join(bad)}")
 
     def _map_pdos(self, s: _Station) -> None:
         n = s.cfg.node_id
@@ -262,9 +315,9 @@ class JointStations(StreamingMixin):
         for s in self._stations:
             try:
                 state = self._read_state(s)
-                deadline = time.monotonic() + 1.0
-                while state is State.FAULT_REACTION_ACTIVE and time.monotonic() < deadline:
-                    time.sleep(0.005)   # the reaction ends by itself (axis stopping)
+                deadline = self.clock.now() + 1.0
+                while state is State.FAULT_REACTION_ACTIVE and self.clock.now() < deadline:
+                    self.clock.sleep(0.005)   # the reaction ends by itself (axis stopping)
                     state = self._read_state(s)
                 for cmd in cia402.path_to(state, State.OPERATION_ENABLED):
                     s.node.sdo[0x6040].raw = cmd.word
@@ -276,12 +329,10 @@ class JointStations(StreamingMixin):
                 raise StationStartupError(f"enabling {s.joint} (node {s.cfg.node_id}) failed: {exc}") from exc
             s.target = None
         # return only once the TPDOs say so too, so drive_states()/actual_positions() are fresh
-        deadline = time.monotonic() + 3 * self.cfg.tpdo_event_ms / 1000.0 + 0.2
-        while any(s.statusword & 0x6F != 0x27 for s in self._stations):
-            if time.monotonic() > deadline:
-                raise StationStartupError("no TPDO reporting Operation enabled from " + ", ".join(
-                    s.joint for s in self._stations if s.statusword & 0x6F != 0x27))
-            time.sleep(0.001)
+        if not self._await(lambda: all(s.statusword & 0x6F == 0x27 for s in self._stations),
+                           3 * self.cfg.tpdo_event_ms / 1000.0 + 0.2):
+            raise StationStartupError("no TPDO reporting Operation enabled from " + ", ".join(
+                s.joint for s in self._stations if s.statusword & 0x6F != 0x27))
 
     # ================================================================== callbacks (notifier thread)
     def _tpdo_callback(self, s: _Station):
@@ -290,7 +341,9 @@ class JointStations(StreamingMixin):
                 return  # the bus monitor latches GARBAGE_FRAME for it
             pos, sw = struct.unpack_from("<iH", pdo_map.data)
             s.pos_inc, s.statusword, s.t_tpdo = pos, sw, pdo_map.timestamp
+            s.tpdo_data = bytes(pdo_map.data)
             s.tpdo_count += 1
+            self._changed.set()
             rec = self._recording
             if rec is not None:
                 rec.append((pdo_map.timestamp, s.cfg.joint_index, pos / s.cpu))
@@ -351,11 +404,14 @@ class JointStations(StreamingMixin):
         return a
 
     def _setpoint_frame(self, s: _Station, target: float, vel: float) -> bytes:
-        vel_inc = min(int(round(abs(vel) * s.cpu)), 2 ** 32 - 1)
+        # at least 1 increment/s: a drive given 0 would stop short of a target a fraction
+        # of an increment away (the smooth time law's first and last steps are tiny)
+        vel_inc = min(max(1, int(round(abs(vel) * s.cpu))), 2 ** 32 - 1)
         return _SETPOINT.pack(int(round(target * s.cpu)), vel_inc)
 
     def _send(self, cob_id: int, data: bytes, action: str) -> float:
-        """Send one frame under the command lock; returns its bus timestamp."""
+        """Send one frame under the command lock; returns its bus timestamp (the end of its
+        slot where the bus tells, else the time ``send`` returned)."""
         try:
             self.network.send_message(cob_id, data)
         except (can.CanError, RuntimeError) as exc:
@@ -425,9 +481,15 @@ class JointStations(StreamingMixin):
         return rec.code if rec else FaultCode.NONE
 
     @property
-    def delays_s(self) -> np.ndarray:
-        """Per-joint command delays (4,), seconds: configured, or measured by :meth:`measure_delays`."""
-        return self._delays.copy()
+    def latency_s(self) -> np.ndarray:
+        """Per-joint station latency (4,), s: from the end of a set-point frame on the wire
+        to the drive applying it; configured, or measured by :meth:`measure_delays`."""
+        return self._latency.copy()
+
+    @property
+    def supports_sync(self) -> bool:
+        """Every station applies synchronous set-points on SYNC (config ``supports_sync``)."""
+        return all(s.supports_sync for s in self.cfg.stations)
 
     def quick_stop_all(self, reason: str = "requested") -> None:
         """CiA 402 quick stop of every station (category 2: ramp down, hold powered) and

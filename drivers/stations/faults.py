@@ -8,7 +8,7 @@ and only logs exceptions from malformed frames; it has no heartbeat-timeout moni
 either. :class:`BusMonitor` sits on the same ``can.Notifier`` and checks *every* frame
 against the table of frames the controller expects (COB-ID → allowed data lengths);
 :class:`HeartbeatWatchdog` is a thread that declares a station silent once its
-heartbeat is overdue and polls the CAN controller state for bus-off.
+heartbeat is overdue and polls the CAN controller state for bus-off, on the injected clock.
 
 Policy for frames the controller did not expect (documented, and tested):
 
@@ -31,6 +31,7 @@ from typing import Callable, Literal
 
 import can
 
+from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
 
@@ -64,7 +65,7 @@ EMCY_TO_FAULT = {0x8612: FaultCode.EMCY_LIMIT, 0x8611: FaultCode.EMCY_FOLLOWING_
 @dataclass(frozen=True)
 class FaultRecord:
     """One latched fault. ``joint``/``node_id`` are ``None`` for bus-wide faults;
-    ``t_s`` is ``time.monotonic()`` when it was latched."""
+    ``t_s`` is the wall time (``time.monotonic()``) it was latched, for logs only."""
 
     code: FaultCode
     detail: str
@@ -199,21 +200,22 @@ class BusMonitor(can.Listener):
 
 
 class HeartbeatWatchdog:
-    """Thread that latches :attr:`FaultCode.HEARTBEAT_LOST` when a station's heartbeat is
+    """Task that latches :attr:`FaultCode.HEARTBEAT_LOST` when a station's heartbeat is
     overdue and :attr:`FaultCode.BUS_OFF` when the bus reports an error state.
 
-    Real time: heartbeats are CAN events, so this uses ``time.monotonic()``, not the
-    injected (possibly simulated) clock. A station counts as silent when no heartbeat
-    came for ``timeout_s`` (the driver uses 1.5 × the producer time + one check period).
+    Time comes from the injected clock (the bus delivers heartbeats on that clock's time).
+    A station counts as silent when no heartbeat came for ``timeout_s``; it is found at the
+    next check, so within ``timeout_s + period_s``.
 
     :param stations: node_id → joint name of the watched stations.
     :param timeout_s: silence allowed, seconds (> 0).
     :param period_s: check period, seconds (> 0).
     :param bus: the CAN bus whose ``state`` is polled (``None`` to skip).
+    :param clock: the clock (default: wall time).
     """
 
     def __init__(self, latch: FaultLatch, stations: dict[int, str], timeout_s: float,
-                 period_s: float, bus: can.BusABC | None = None):
+                 period_s: float, bus: can.BusABC | None = None, clock: Clock | None = None):
         if not (timeout_s > 0 and period_s > 0):
             raise ValueError(f"timeout_s = {timeout_s}, period_s = {period_s}: both must be > 0")
         self.latch = latch
@@ -221,54 +223,58 @@ class HeartbeatWatchdog:
         self.timeout_s = timeout_s
         self.period_s = period_s
         self.bus = bus
+        self.clock = clock or MonotonicClock()
         self._last: dict[int, float] = {}
         self._reported: set[int] = set()
         self._bus_off_reported = False
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = self.clock.event()
+        self._task = None
 
     def beat(self, node_id: int, nmt_state: int = 5) -> None:
         """Record a heartbeat from ``node_id`` now (called from the bus monitor)."""
-        self._last[node_id] = time.monotonic()
+        self._last[node_id] = self.clock.now()
         self._reported.discard(node_id)
 
     def silent(self) -> list[int]:
         """Node ids whose heartbeat is overdue right now."""
-        now = time.monotonic()
+        now = self.clock.now()
         return [n for n in self.stations if now - self._last.get(n, -1e9) > self.timeout_s]
 
     def arm(self) -> None:
         """Start (or restart) watching: every station gets ``timeout_s`` from now."""
-        now = time.monotonic()
+        now = self.clock.now()
         for n in self.stations:
             self._last[n] = now
         self._reported.clear()
         self._bus_off_reported = False
-        if self._thread is None:
+        if self._task is None:
             self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name="stations-watchdog", daemon=True)
-            self._thread.start()
+            self._task = self.clock.spawn(self._run, "stations-watchdog")
 
     def stop(self) -> None:
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        if self._task is not None:
+            self._task.join(timeout=2.0)
+            self._task = None
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):
             try:
-                for n in self.silent():
-                    if n not in self._reported:
-                        self._reported.add(n)
-                        age = time.monotonic() - self._last.get(n, 0.0)
-                        self.latch.latch(FaultRecord(
-                            FaultCode.HEARTBEAT_LOST,
-                            f"no heartbeat for {age * 1e3:.0f} ms (allowed {self.timeout_s * 1e3:.0f} ms)",
-                            self.stations[n], n))
-                if self.bus is not None and getattr(self.bus, "state", None) is can.BusState.ERROR:
-                    if not self._bus_off_reported:
-                        self._bus_off_reported = True
-                        self.latch.latch(FaultRecord(FaultCode.BUS_OFF, "CAN interface reports bus state ERROR (bus-off)"))
+                self.check()
             except Exception as exc:  # the watchdog must survive anything
                 log.error("watchdog_error", error=repr(exc))
+
+    def check(self) -> None:
+        """One check: latch a fault for each newly silent station and for bus-off."""
+        for n in self.silent():
+            if n not in self._reported:
+                self._reported.add(n)
+                age = self.clock.now() - self._last.get(n, 0.0)
+                self.latch.latch(FaultRecord(
+                    FaultCode.HEARTBEAT_LOST,
+                    f"no heartbeat for {age * 1e3:.0f} ms (allowed {self.timeout_s * 1e3:.0f} ms)",
+                    self.stations[n], n))
+        if self.bus is not None and getattr(self.bus, "state", None) is can.BusState.ERROR:
+            if not self._bus_off_reported:
+                self._bus_off_reported = True
+                self.latch.latch(FaultRecord(FaultCode.BUS_OFF, "CAN interface reports bus state ERROR (bus-off)"))

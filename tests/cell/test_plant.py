@@ -10,7 +10,7 @@ from cell.clock import ManualClock
 from cell.compensation.lattice import run_lattice
 from cell.errors import ConfigError, KinematicsError, TrajectoryError
 from cell.kinematics import Scara
-from cell.plant import Plant, PlantArm, PlantConfig
+from cell.sim.plant import Plant, PlantArm, PlantConfig
 
 DEFAULT = Path(__file__).resolve().parents[2] / "deploy" / "plants" / "default.yaml"
 RNG = np.random.default_rng(11)

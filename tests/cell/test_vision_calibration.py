@@ -12,7 +12,7 @@ from cell.errors import ConfigError
 from cell.vision import (CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics,
                          PlaneCalibration, Pose, VisionError, board_from_dict, calibrate,
                          detect_board, find_fiducial, locate)
-from drivers.camera.sim import Fiducial, Optics, render
+from cell.sim.camera import Fiducial, Optics, render
 
 # A tilted, rotated camera with barrel distortion and an off-centre principal point;
 # ~0.5 mm per pixel over a 320 x 240 mm field centred on (300, 150) mm.

@@ -12,7 +12,7 @@ import pytest
 from cell.clock import ManualClock
 from drivers.plc.register_map import PLC_MAP, REGISTERS, PlcMapError, RegisterMap
 from drivers.plc.server import PlcLink
-from drivers.plc.sim_plc import RESULTS, SimPlc, SimPlcError
+from cell.sim.plc import RESULTS, SimPlc, SimPlcError
 
 SCAN_S = 0.002
 RESULT = {"initial_error_um": 1234, "final_error_um": 17, "moves": 3, "cycle_time_ms": 2500}

@@ -23,7 +23,7 @@ from drivers.stations.cia402 import State
 from drivers.stations.config import StationsConfig
 from drivers.stations.driver import JointStations, StationCommandError
 from drivers.stations.faults import FaultCode, StationFaultError
-from drivers.stations.sim_station import SimStationSet
+from cell.sim.stations import SimStationSet
 from tests.drivers.conftest import wait_for
 
 # Short timings keep the tests fast; the margins (3x our heartbeat watchdog, 15x the drives'

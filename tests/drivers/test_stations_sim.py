@@ -13,7 +13,7 @@ from drivers.stations.bus import open_bus
 from drivers.stations.cia402 import State
 from drivers.stations.config import StationsConfig
 from drivers.stations.driver import JointStations
-from drivers.stations.sim_station import EDS_PATH, SimStation, SimStationConfig, SimStationSet
+from cell.sim.stations import EDS_PATH, SimStation, SimStationConfig, SimStationSet
 from tests.drivers.conftest import wait_for
 
 

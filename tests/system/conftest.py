@@ -17,7 +17,7 @@ import pytest
 from cell.app import Cell
 from cell.config import CellConfig, SimSection
 from drivers.plc.register_map import PLC_MAP
-from drivers.plc.sim_plc import SimPlc
+from cell.sim.plc import SimPlc
 
 REPO = Path(__file__).resolve().parents[2]
 

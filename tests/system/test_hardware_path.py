@@ -18,10 +18,10 @@ from cell.sim import stations_config
 from cell.statemachine import State
 from cell.vision.calibration import CircleGridBoard, calibrate
 from cell.vision.camera_model import CameraModel
-from drivers.camera.sim import SimCamera
+from cell.sim.camera import SimCamera
 from drivers.plc.register_map import PLC_MAP
-from drivers.plc.sim_plc import SimPlc
-from drivers.stations.sim_station import SimStationSet
+from cell.sim.plc import SimPlc
+from cell.sim.stations import SimStationSet
 from tests.system.conftest import make_config
 
 

@@ -295,7 +295,9 @@ class SimCamera(CameraBase):
     """Simulated camera: each ``grab`` renders ``scene()`` through ``model``.
 
     ``model`` and ``optics`` may be given as dicts (config). ``seed`` seeds the noise, so
-    a run is repeatable frame by frame. The frame metadata holds the truth (sim only):
+    a run is repeatable frame by frame. ``frame_time_s`` is the exposure and read-out of one
+    frame in clock seconds: ``grab`` waits that long on the clock, then renders the scene
+    as it is at the end of the exposure. The frame metadata holds the truth (sim only):
     ``fiducials`` (the scene's fiducials) and ``fiducials_px`` (their projected centres).
     Raises :class:`~cell.errors.ConfigError` for bad parameters at construction and
     :class:`CameraError` when the scene returns a bad item (frame counter unchanged).
@@ -305,8 +307,13 @@ class SimCamera(CameraBase):
 
     def __init__(self, model: CameraModel | dict | None = None,
                  scene: Callable[[], Iterable] | None = None, *,
-                 optics: Optics | dict | None = None, seed: int = 0, clock: Clock | None = None):
+                 optics: Optics | dict | None = None, seed: int = 0, clock: Clock | None = None,
+                 frame_time_s: float = 0.0):
         super().__init__(clock)
+        if not (isinstance(frame_time_s, (int, float)) and math.isfinite(frame_time_s)
+                and 0 <= frame_time_s <= 10):
+            raise ConfigError(f"sim camera: frame_time_s = {frame_time_s!r} must be in [0, 10] s")
+        self.frame_time_s = float(frame_time_s)
         if model is None:
             model = CameraModel.nadir(1280, 1024, 0.1)
         self.model = model if isinstance(model, CameraModel) else CameraModel.from_dict(model)
@@ -329,6 +336,8 @@ class SimCamera(CameraBase):
         pass
 
     def _grab(self):
+        if self.frame_time_s:
+            self._clock.sleep(self.frame_time_s)
         items = check_scene(self.scene())
         img = render(self.model, items, self.optics, self._rng)
         fids = [f for f in items if isinstance(f, Fiducial)]

@@ -72,7 +72,7 @@ class PlantConfig(BaseModel):
     Units: mm, deg, s, °C. ``repeatability_mm`` / ``measurement_noise_mm`` are Gaussian σ
     per axis; ``camera_center_mm`` is where the camera's optical axis meets the work plane
     (base frame); ``stations`` the CAN station order (comm_delay); ``joint_speed_deg_s``
-    the speed of θ1, θ2 for :class:`~cell.plant.PlantArm`; ``start_deg`` / ``start_dirs``
+    the speed of θ1, θ2 for :class:`~cell.sim.plant.PlantArm`; ``start_deg`` / ``start_dirs``
     the drive positions and last-motion directions at t = 0 (default: seed 000's start
     pose (60°, 30°), approached from below); ``seed`` makes every run repeatable.
     """

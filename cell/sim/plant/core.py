@@ -25,7 +25,7 @@ import numpy as np
 from cell import effects as fx
 from cell.errors import ConfigError, KinematicsError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.plant.config import PlantConfig, config_from_mapping, load_plant_config
+from cell.sim.plant.config import PlantConfig, config_from_mapping, load_plant_config
 
 
 class Plant:

@@ -1,10 +1,16 @@
 """SimPlc: the simulated PLC, a real Modbus TCP client running a PLC-style scan loop.
 
-It is the twin of the real cell PLC (STYLE habit 2): it speaks Modbus TCP to the
-controller's :class:`~drivers.plc.server.PlcLink` over loopback and knows the controller only
+It is the twin of the real cell PLC: it speaks Modbus TCP to the controller's
+:class:`~drivers.plc.server.PlcLink` over loopback and knows the controller only
 through the register map (names -> addresses), never through the server's internals.
 
-Scan (thread ``sim-plc-scan``, every ``scan_s`` of the injected clock, default 10 ms):
+Time: the scan is a task of the injected clock (the simulated clock in the simulated
+cell), and every wait of :meth:`SimPlc.run_cycle` is in that clock's seconds. A Modbus
+request blocks the scan until the answer is back, so on the simulated clock no time
+passes while a request is in flight. The only wall-time limit is the socket's own
+``timeout_s`` (a dead server, not a slow host).
+
+Scan (task ``sim-plc-scan``, every ``scan_s`` of the injected clock, default 10 ms):
 
 1. read the whole map with one FC3 (``map.size`` registers) -> input image;
 2. write the outputs that changed since the last scan, data before commands so a rising
@@ -52,13 +58,13 @@ class SimPlc:
     """Simulated PLC connected to ``host:port``.
 
     ``scan_s``: scan period in seconds of ``clock`` (default 0.010); ``unit``: Modbus unit id;
-    ``timeout_s``: per-request response timeout. Raises :class:`SimPlcError` from
+    ``timeout_s``: per-request socket timeout, wall seconds. Raises :class:`SimPlcError` from
     :meth:`start` if the server cannot be reached or its ``map_version`` differs from the map.
     """
 
     def __init__(self, host: str, port: int, register_map: RegisterMap = PLC_MAP,
                  scan_s: float = 0.010, clock: Clock | None = None, unit: int = 1,
-                 timeout_s: float = 1.0):
+                 timeout_s: float = 10.0):
         if not scan_s > 0:
             raise SimPlcError(f"SimPlc: scan_s = {scan_s} must be > 0")
         self.map = register_map
@@ -66,21 +72,22 @@ class SimPlc:
         self._clock = clock or MonotonicClock()
         self._unit = unit
         self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
-        self._cv = threading.Condition()
+        self._cv = threading.Lock()              # guards the images (short holds only)
+        self._scanned = self._clock.event()      # set after every scan
         self._inputs: dict[str, int] = {}
         self._outputs = {n: 0 for n in OUTPUTS}    # wanted values (replaced at start)
         self._written = dict(self._outputs)        # values last sent (or refused)
         self._heartbeat = 0
         self._hb_paused = False
         self._scans = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = self._clock.event()
+        self._thread = None
         self.write_errors: list[tuple[str, int, int]] = []   # (name, value, exception code)
         self.link_errors = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Connect, check ``map_version``, start the scan thread."""
+        """Connect, check ``map_version``, start the scan task."""
         if self._thread is not None:
             raise SimPlcError("SimPlc already started")
         if not self._client.connect():
@@ -99,8 +106,7 @@ class SimPlc:
             self._outputs = {n: image[n] for n in OUTPUTS}
             self._written = dict(self._outputs)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-plc-scan", daemon=True)
-        self._thread.start()
+        self._thread = self._clock.spawn(self._run, "sim-plc-scan")
 
     def stop(self) -> None:
         """Stop scanning and close the connection. Idempotent."""
@@ -162,23 +168,34 @@ class SimPlc:
         """Named bits of ``status_word`` from the last scan."""
         return self.map.bits("status_word", self.inputs()["status_word"])
 
+    def _wait_for(self, ready: Callable[[], bool], timeout_s: float) -> bool:
+        deadline = self._clock.now() + timeout_s
+        while True:
+            self._scanned.clear()
+            with self._cv:
+                if ready():
+                    return True
+            left = deadline - self._clock.now()
+            if left <= 0:
+                return False
+            self._scanned.wait(left)
+
     def wait_scans(self, n: int = 1, timeout_s: float = 5.0) -> None:
-        """Block until ``n`` more scans completed; SimPlcError on timeout (real seconds)."""
+        """Block until ``n`` more scans completed; SimPlcError on timeout (clock seconds)."""
         with self._cv:
             target = self._scans + n
-            if not self._cv.wait_for(lambda: self._scans >= target, timeout_s):
-                raise SimPlcError(f"SimPlc: {n} scans did not complete within {timeout_s} s")
+        if not self._wait_for(lambda: self._scans >= target, timeout_s):
+            raise SimPlcError(f"SimPlc: {n} scans did not complete within {timeout_s} s")
 
     def wait_until(self, predicate: Callable[[dict[str, int]], bool], timeout_s: float,
                    what: str = "condition") -> dict[str, int]:
         """Block until ``predicate(inputs)`` holds after a scan; return that input image.
 
-        Raises SimPlcError naming ``what`` and the last status on timeout (real seconds).
+        Raises SimPlcError naming ``what`` and the last status on timeout (clock seconds).
         """
-        with self._cv:
-            if self._cv.wait_for(lambda: predicate(self._inputs), timeout_s):
-                return dict(self._inputs)
-            status = self.map.bits("status_word", self._inputs["status_word"])
+        if self._wait_for(lambda: predicate(self._inputs), timeout_s):
+            return self.inputs()
+        status = self.map.bits("status_word", self.inputs()["status_word"])
         raise SimPlcError(f"SimPlc: timed out after {timeout_s} s waiting for {what}; "
                           f"status {[k for k, v in status.items() if v]}")
 
@@ -272,10 +289,9 @@ class SimPlc:
         while not self._stop.is_set():
             self._scan()
             next_t += self.scan_s
-            delay = next_t - self._clock.now()
-            if delay < -self.scan_s:  # overran by more than one scan: do not try to catch up
+            if next_t - self._clock.now() < -self.scan_s:  # overran: do not try to catch up
                 next_t = self._clock.now()
-            self._clock.sleep(delay)
+            self._stop.wait(max(0.0, next_t - self._clock.now()))
 
     def _scan(self) -> None:
         image = self._read_image()
@@ -298,7 +314,7 @@ class SimPlc:
         with self._cv:
             if image is not None:
                 self._scans += 1
-            self._cv.notify_all()
+        self._scanned.set()
 
     def _read_image(self) -> dict[str, int] | None:
         try:

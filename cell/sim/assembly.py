@@ -1,17 +1,19 @@
-"""The simulated cell: the plant behind simulated CAN stations and a rendering camera.
+"""The simulated cell: the plant behind simulated CANopen drives and a rendering camera, all
+on one simulated clock.
 
 Only the devices are simulated; the controller talks to them exactly as to real ones:
 
-* joint stations: four CANopen devices (``drivers.stations.SimStationSet``) on a
-  rate-limited python-can ``virtual`` bus, driven by the real ``JointStations`` driver;
-  each axis reports its position to the plant (``Plant.update_drive``);
-* camera: ``drivers.camera.sim.SimCamera`` renders the tool's and the part's fiducials at
-  their TRUE positions (the plant's effects included) into 8-bit images;
+* clock: :class:`cell.sim.clock.VirtualClock` (pure for ``cellctl run --sim``, paced to
+  wall time for ``cellctl serve --sim``); the controller gets the same clock;
+* joint stations: four CANopen devices (:class:`cell.sim.stations.SimStationSet`) on the
+  virtual wire, driven by the real ``JointStations`` driver, which measures their
+  latency on the bus at start-up; each axis reports its position to the plant;
+* camera: :class:`cell.sim.camera.SimCamera` renders the tool's and the part's fiducials
+  at their TRUE positions (the plant's effects included) into 8-bit images, taking
+  ``frame_time_s`` of clock time per frame;
 * calibration: at start-up a circle-grid board is rendered through that camera and
   calibrated with the same code a real cell uses (``cell.vision.calibrate``);
-* parts: :class:`PartFeeder` is the conveyor; the PLC (real or simulated) indexes it.
-
-The stations run at real speed on the bus, so the simulated cell runs in real time.
+* parts: :class:`PartFeeder` is the conveyor; the PLC (simulated or real) indexes it.
 """
 from __future__ import annotations
 
@@ -22,18 +24,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.clock import SimClock
-from cell.config import CellConfig
+from cell.config import CellConfig, SimSection
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.plant import Plant
 from cell.recipes import Recipe
+from cell.sim.camera import Fiducial, Optics, SimCamera
+from cell.sim.clock import VirtualClock
+from cell.sim.plant import Plant
+from cell.sim.stations import SimStationSet
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration, calibrate
 from cell.vision.camera_model import CameraModel
-from drivers.camera.sim import Fiducial, Optics, SimCamera
-from drivers.stations import JointStations, StationsConfig
-from drivers.stations.sim_station import SimStationSet
+from drivers.stations import JointStations, StationConfig, StationsConfig
 
 _channels = itertools.count()
+CAMERA_FRAME_S = 0.02        #: exposure + read-out of one simulated frame, clock seconds
 
 
 @dataclass
@@ -73,28 +76,27 @@ class PartFeeder:
 
 
 def stations_config(robot: Scara, channel: str) -> StationsConfig:
-    """The four stations on ``channel`` with the robot's joint limits.
-
-    Heartbeat margins are wider than a hardware drive needs (3x the producer time, 500 ms
-    consumer time): the simulated drives are Python threads sharing two cores with the
-    renderer, and a late heartbeat there is scheduling jitter, not a silent station."""
-    from drivers.stations import StationConfig
-    return StationsConfig(interface="virtual", channel=channel, heartbeat_tolerance=3.0,
-                          consumer_timeout_ms=500, stations=tuple(
+    """The four stations on ``channel`` with the robot's joint limits; their latency is
+    measured on the bus at start-up (seed 002's λ, ``delays_s: measure``)."""
+    return StationsConfig(interface="virtual", channel=channel, delays_s="measure", stations=tuple(
         StationConfig(joint=j, node_id=i + 1, limits=tuple(robot.g.limits[i]))
         for i, j in enumerate(JOINT_NAMES)))
 
 
 class SimDevices:
-    """Everything below the controller for ``--sim``: plant, stations, camera, calibration."""
+    """Everything below the controller for ``--sim``: clock, plant, stations, camera,
+    calibration, conveyor (see the module doc).
 
-    def __init__(self, config: CellConfig, tool_radius_mm: float):
-        sim = config.sim
-        self.clock = SimClock(1.0)
+    :param clock: the simulated clock to use (default: a new one, paced if ``pace``).
+    """
+
+    def __init__(self, config: CellConfig, clock: VirtualClock | None = None, pace: bool = False):
+        sim = config.sim or SimSection()
+        self.clock = clock or VirtualClock(pace=pace)
         self.plant = Plant.from_yaml(sim.plant)
         self.robot = self.plant.robot
         self.feeder = PartFeeder(sim.part_jitter_mm, sim.seed)
-        self.tool_radius_mm = tool_radius_mm
+        self.tool_radius_mm = config.vision.tool_radius_mm
         channel = f"cell-sim-{os.getpid()}-{next(_channels)}"
         self.stations_cfg = stations_config(self.robot, channel)
         start = self.plant.drive_positions()
@@ -106,12 +108,13 @@ class SimDevices:
         self.camera_model = CameraModel.nadir(*sim.camera_px, sim.camera_mm_per_px, centre_mm=centre)
         self._board: CircleGridBoard | None = None
         self.camera = SimCamera(self.camera_model, self.scene, optics=Optics(), seed=sim.seed,
-                                clock=self.clock)
+                                clock=self.clock, frame_time_s=CAMERA_FRAME_S)
 
     def scene(self) -> list:
         """What lies on the work plane now: the part (under the tool if it is there) and the tool."""
         if self._board is not None:
             return [self._board]
+        self.sim_stations.positions()              # bring the plant's drive state up to now
         tool = self.plant.true_tool_xy(self.clock.now())
         items = [Fiducial(*tool, self.tool_radius_mm, "tool")]
         part = self.feeder.part
@@ -122,11 +125,13 @@ class SimDevices:
         return items
 
     def start(self) -> None:
+        """Power the drives, start the controller's side of the stations, open the camera
+        (call from a thread that keeps the clock's time, e.g. inside ``clock.attach()``)."""
         self.sim_stations.start()
         self.motion.start()
         self.camera.open()
 
-    def calibrate_camera(self) -> PlaneCalibration:
+    def calibration(self) -> PlaneCalibration:
         """Render a circle-grid board on the work plane and calibrate from it (the same call a
         real cell makes with a real board)."""
         cx, cy = self.plant.config.camera_center_mm

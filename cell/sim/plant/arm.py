@@ -7,7 +7,7 @@ import numpy as np
 from cell.clock import Clock
 from cell.errors import KinematicsError
 from cell.kinematics import Scara
-from cell.plant.core import Plant
+from cell.sim.plant.core import Plant
 
 
 class PlantArm:

@@ -1,60 +1,64 @@
-"""Simulated joint station: a CANopen device (canopen ``LocalNode`` with the shipped EDS)
-on the CAN bus, with a CiA 402 drive and an axis that follows set-points (STYLE habit 2).
+"""Simulated joint station: a CANopen device (canopen ``LocalNode`` with the drive's EDS)
+on the simulated CAN wire, with a CiA 402 drive and an axis that follows set-points.
 
 What the twin does on the wire, like a real integrated drive of seed 002:
 
 * NMT: boots (boot-up frame), pre-operational, heartbeat producer (0x1017); PDOs only
-  in Operational. SDO server for every object of ``scara_axis.eds``.
-* CiA 402 state machine (:mod:`.cia402`) stepped by the controlword (SDO or RPDO).
-  Quick stop option code 6: a quick stop ramps down at 0x6085 and holds, powered, in
-  *Quick stop active* (category 2 stop).
+  in Operational. SDO server for every object of the EDS.
+* CiA 402 state machine (:mod:`drivers.stations.cia402`) stepped by the controlword (SDO
+  or RPDO). Quick stop option code 6: a quick stop ramps down at 0x6085 and holds,
+  powered, in *Quick stop active* (category 2 stop).
 * RPDOs with transmission type 254/255 are applied on reception, those with type 0..240
   on the next SYNC (set-points written ahead, applied together). A set-point is
   (target position 0x607A, profile velocity 0x6081), in motor increments.
 * Heartbeat consumer (0x1016): once the controller's first heartbeat arrived, silence
-  longer than the consumer time → EMCY 0x8130, fault reaction (quick-stop ramp), Fault.
+  of the consumer time → EMCY 0x8130, fault reaction (quick-stop ramp), Fault.
 * EMCY: 0x8612 set-point beyond the software limits 0x607D (refused, fault);
   0x8611 following error (:meth:`SimStation.inject_following_error`); 0x8210 RPDO too
   short (ignored, no fault); 0x0000 on fault reset.
 * TPDO1 (position actual value + statusword): every event-timer period (0x1800:5) and
-  at once on any state change or applied set-point (statusword bit 12 toggles per
-  applied set-point: the streaming variant of profile position mode).
+  at once on a state change or an applied set-point (statusword bit 12 toggles per
+  applied set-point: the streaming variant of profile position mode). Reaching a target
+  sends nothing by itself: the next event-timer TPDO shows it.
+* A frame the station cannot transmit (the wire refuses it) puts its CAN controller
+  bus-off: the station leaves the bus and falls silent, as a real node does.
 
 Reception delay (seed 002's λ = σ·i): a set-point received by RPDO takes effect
-``reception_delay_s`` after it arrived; SYNC-applied set-points take effect at the
-SYNC (one frame reaches all stations at once), so the delay only has to be shorter
-than the time they were written ahead.
+``reception_delay_s`` after its frame ended on the wire; SYNC-applied set-points take
+effect at the SYNC (one frame reaches all stations at once), so the delay only has to be
+shorter than the time they were written ahead.
 
-Time: the axis integrates with the injected clock (``clock.now()``); the CAN side is
-real time. The honest combination, used everywhere here, is a clock running at real
-speed (:class:`cell.clock.MonotonicClock`, or ``SimClock(time_scale=1)``): stations run in
-real time on the bus. Motion is integrated exactly between events (set-point, SYNC,
-quick stop), so the ``tick_s`` period only sets how often positions are published.
+Time: everything runs on the simulated clock (:class:`cell.sim.clock.VirtualClock`). The
+station has no thread: frames arrive as clock callbacks and the axis schedules its own
+next event (a due set-point, the TPDO timer, the heartbeat consumer's deadline, the end
+of a stop ramp). Motion is integrated exactly between events.
 
 Gear and units: the axis lives in motor increments. Joint value (deg; mm for j3) =
 increments / (encoder increments per motor rev 0x608F × gear ratio 0x6091 / 360), i.e.
 the configured gear ratio is *motor degrees per joint unit*. ``on_position(joint_index,
-drive_deg, t_s)`` reports that nominal joint value; the plant applies the true
+drive_deg, t_s)`` reports that nominal joint value whenever the axis has moved (at every
+event, and whenever :attr:`SimStation.position` is read); the plant applies the true
 transmission errors, not the station.
 """
 from __future__ import annotations
 
 import threading
 from collections import deque
-from pathlib import Path
 from typing import Callable
 
+import can
 import canopen
 from pydantic import BaseModel, ConfigDict, Field
 
-from cell.clock import Clock, MonotonicClock
-from cell.kinematics import JOINT_NAMES
 from cell.log import get_logger
+from cell.sim.canbus import VirtualCanBus
+from cell.sim.clock import Timer, VirtualClock
 from drivers.stations import cia402
-from drivers.stations.bus import open_bus
+from drivers.stations.bus import connect_network
 from drivers.stations.cia402 import Command, DriveStateMachine, Internal, State
+from drivers.stations.config import JOINT_NAMES
+from drivers.stations.driver import EDS_PATH
 
-EDS_PATH = Path(__file__).with_name("scara_axis.eds")
 EMCY_LIMIT, EMCY_FOLLOWING, EMCY_HEARTBEAT, EMCY_PDO_LENGTH = 0x8612, 0x8611, 0x8130, 0x8210
 
 PositionHook = Callable[[int, float, float], None]
@@ -72,42 +76,55 @@ class SimStationConfig(BaseModel):
     #: the twin's mechanics (encoder increments × gear / 360), used only to place the axis
     #: at ``initial_position`` at first power-up; afterwards the encoder count is the truth
     counts_per_unit: float = Field(default=10_000 / 360, gt=0)
-    tick_s: float = Field(default=0.002, gt=0.0, le=0.05)
+
+
+class _DriveNetwork(canopen.Network):
+    """The station's side of the bus: a send the wire refuses puts the node bus-off."""
+
+    def __init__(self, bus: can.BusABC, on_tx_failure: Callable[[Exception], None]):
+        super().__init__(bus)
+        self._on_tx_failure = on_tx_failure
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        try:
+            super().send_message(can_id, data, remote)
+        except can.CanError as exc:
+            self._on_tx_failure(exc)
+            raise
 
 
 class SimStation:
     """One simulated station. :meth:`start` plugs it into the bus; :meth:`stop` unplugs it.
 
     :param cfg: node id, joint, reception delay, initial position.
-    :param interface, channel, bitrate: the bus to join (normally the controller's).
-    :param clock: injected clock (real-time speed, see module doc).
-    :param on_position: optional hook ``(joint_index, drive_deg, t_s)``, called from the
-        station's axis thread whenever the position changed (``Plant.update_drive``).
+    :param channel, bitrate: the virtual wire to join (normally the controller's).
+    :param clock: the simulated clock (the wire's).
+    :param on_position: optional hook ``(joint_index, drive_deg, t_s)`` called whenever
+        the axis has moved (``Plant.update_drive``).
     """
 
-    def __init__(self, cfg: SimStationConfig, *, interface: str = "virtual", channel: str = "cell0",
-                 bitrate: int = 1_000_000, clock: Clock | None = None,
-                 on_position: PositionHook | None = None):
+    def __init__(self, cfg: SimStationConfig, *, channel: str = "cell0", bitrate: int = 1_000_000,
+                 clock: VirtualClock, on_position: PositionHook | None = None):
         self.cfg = cfg
         self.joint_index = JOINT_NAMES.index(cfg.joint)
-        self._bus_args = (interface, channel, bitrate)
-        self.clock = clock or MonotonicClock()
+        self._bus_args = (channel, bitrate)
+        self.clock = clock
         self.on_position = on_position
         self.log = get_logger("stations.sim").bind(joint=cfg.joint, node_id=cfg.node_id)
         self._lock = threading.RLock()
         self._pos = 0.0            # motor increments (float)
         self._pos_set = False
-        self._stop_evt = threading.Event()
-        self._wake = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._timer: Timer | None = None
+        self._wake_at: float | None = None
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
+        self.bus_off = False
         self.applied: list[tuple[float, int, int]] = []  #: (t, target_inc, vel_inc_s) as applied
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Power up and join the bus: boot-up frame, pre-operational, heartbeat on."""
-        if self._thread is not None:
+        if self.network is not None:
             return
         self.node = canopen.LocalNode(self.cfg.node_id, canopen.import_od(str(EDS_PATH), self.cfg.node_id))
         self._values: dict[tuple[int, int], int] = {}
@@ -128,6 +145,7 @@ class SimStation:
         self._last_tpdo = -1e9
         self._last_pub: float | None = None
         self._t = self.clock.now()
+        self.bus_off = False
         if not self._pos_set:
             self._pos = self.cfg.initial_position * self.cfg.counts_per_unit
             self._target = self._pos
@@ -136,42 +154,45 @@ class SimStation:
         self.node.add_write_callback(self._on_write)
         for n in (1, 2, 3):
             self.node.rpdo[n].add_callback(self._on_rpdo)
-        net = canopen.Network(open_bus(*self._bus_args))
-        net.NOTIFIER_CYCLE = 0.05  # quick shutdown
+        channel, bitrate = self._bus_args
+        net = _DriveNetwork(VirtualCanBus(channel=channel, bitrate=bitrate, clock=self.clock),
+                            self._on_tx_failure)
         net.add_node(self.node)
-        net.connect()
+        connect_network(net)
         net.subscribe(0, self._on_nmt)
         net.subscribe(0x80, self._on_sync)
         self.network = net
         self.machine.apply(Internal.SELF_TEST_DONE)
         self.node.nmt.send_command(0x81)   # reset node → INITIALISING, boot-up frame
         self.node.nmt.send_command(0x80)   # → PRE-OPERATIONAL, heartbeat producer starts
-        self._stop_evt.clear()
-        self._thread = threading.Thread(target=self._run, name=f"sim-station-{self.cfg.joint}", daemon=True)
-        self._thread.start()
+        self._tick()
 
     def stop(self) -> None:
-        """Unplug: stop the axis thread and leave the bus (nothing more is sent). Idempotent."""
-        self._stop_evt.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        if self.network is not None:
-            net, self.network = self.network, None
-            net.disconnect()
+        """Switch off: leave the bus (nothing more is sent). Idempotent."""
+        self.unplug()
 
     def unplug(self) -> None:
-        """Cut the station off the bus while its drive keeps running (a pulled cable):
-        it falls silent; its own heartbeat consumer will see the controller vanish."""
-        if self.network is not None:
-            net, self.network = self.network, None
-            net.disconnect()
+        """Cut the station off the bus while its drive keeps its state (a pulled cable):
+        it falls silent; its own heartbeat consumer no longer hears the controller."""
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer, self._wake_at = None, None
+            if self.network is not None:
+                net, self.network = self.network, None
+                if self.node is not None:
+                    self.node.nmt.stop_heartbeat()
+                net.disconnect()
 
     def power_cycle(self) -> None:
         """Switch off and on again: fresh object dictionary, position kept (absolute encoder)."""
         self.stop()
         self.start()
+
+    def _on_tx_failure(self, exc: Exception) -> None:
+        self.log.error("station_bus_off", error=str(exc))
+        self.bus_off = True
+        self.clock.call_later(0.0, self.unplug)      # not from inside the send that failed
 
     # ------------------------------------------------------------------ observation
     @property
@@ -181,9 +202,10 @@ class SimStation:
 
     @property
     def position(self) -> float:
-        """Drive-side joint position now (deg; mm for j3)."""
+        """Drive-side joint position now (deg; mm for j3); reported to ``on_position``."""
         with self._lock:
             self._advance(self.clock.now())
+            self._publish(self.clock.now())
             return self._pos / self._counts_per_unit()
 
     @property
@@ -191,9 +213,10 @@ class SimStation:
         return self.node.nmt.state if self.node else "OFF"
 
     def inject_following_error(self) -> None:
-        """Test/fault-injection hook: the axis lagged beyond its window → EMCY 0x8611, Fault."""
+        """Fault-injection hook: the axis lagged beyond its window → EMCY 0x8611, Fault."""
         with self._lock:
             self._fault(EMCY_FOLLOWING, "following error injected")
+            self._tick()
 
     # ------------------------------------------------------------------ object dictionary
     def _value(self, index: int, sub: int = 0) -> int:
@@ -243,6 +266,7 @@ class SimStation:
                 self._controlword(value)
             elif index == 0x1016 and subindex == 1:
                 self._configure_consumer(value)
+            self._tick()
 
     # ------------------------------------------------------------------ NMT / heartbeat consumer
     def _on_nmt(self, can_id, data, timestamp):
@@ -253,6 +277,8 @@ class SimStation:
             self.node.tpdo.read()
             with self._lock:
                 self._dirty_tpdo = True
+        with self._lock:
+            self._tick()
 
     def _configure_consumer(self, value: int) -> None:
         node, time_ms = (value >> 16) & 0x7F, value & 0xFFFF
@@ -268,10 +294,11 @@ class SimStation:
         with self._lock:
             self._hb_last = self.clock.now()
             self._hb_timed_out = False
+            self._tick()
 
     # ------------------------------------------------------------------ PDO / SYNC
     def _operational(self) -> bool:
-        return self.node is not None and self.node.nmt.state == "OPERATIONAL"
+        return self.node is not None and self.network is not None and self.node.nmt.state == "OPERATIONAL"
 
     def _on_rpdo(self, pdo_map) -> None:
         if not self._operational():
@@ -290,7 +317,7 @@ class SimStation:
                     self._staged.append((now + self.cfg.reception_delay_s, *sp))
                 else:
                     self._setpoints.append((now + self.cfg.reception_delay_s, *sp))
-                    self._wake.set()
+            self._tick()
 
     def _on_sync(self, can_id, data, timestamp):
         if not self._operational():
@@ -302,7 +329,7 @@ class SimStation:
             self._advance(now)
             for _, target, vel in due:
                 self._apply_setpoint(now, target, vel)
-        self._wake.set()  # publish the acknowledgement at once
+            self._tick()
 
     # ------------------------------------------------------------------ drive logic (lock held)
     def _controlword(self, word: int) -> None:
@@ -351,7 +378,7 @@ class SimStation:
         try:
             if self.network is not None:
                 self.node.emcy.send(code, 1 if code else 0)
-        except Exception as exc:  # unplugged: the frame is lost
+        except Exception as exc:  # unplugged or bus-off: the frame is lost
             self.log.info("emcy_not_sent", error=repr(exc))
 
     def _apply_setpoint(self, t: float, target: int, vel: int) -> None:
@@ -361,6 +388,7 @@ class SimStation:
         if not lo <= target <= hi:
             self._fault(EMCY_LIMIT, f"set-point {target} inc outside software limits [{lo}, {hi}]")
             return
+        self._publish(t)                      # where the last motion ended (direction changes)
         self._target = float(target)
         self._speed = float(min(abs(vel), self._value(0x607F)))
         self._ack = not self._ack
@@ -399,7 +427,7 @@ class SimStation:
             tau = min(dt, t_stop)
             sign = 1.0 if v > 0 else -1.0
             self._pos += v * tau - sign * 0.5 * a * tau * tau
-            self._ramp_v = v - sign * a * tau if tau < t_stop else 0.0
+            self._ramp_v = v - sign * a * tau if t_stop - tau > 1e-12 else 0.0
             if self._ramp_v == 0.0:
                 self._target = self._pos
             return
@@ -409,86 +437,113 @@ class SimStation:
         step = self._speed * dt
         self._pos = self._target if abs(gap) <= step else self._pos + (step if gap > 0 else -step)
 
-    # ------------------------------------------------------------------ axis thread
-    def _run(self) -> None:
-        # Waits in real time until the next tick or the next due set-point (whichever is
-        # first), so an applied set-point is acknowledged by TPDO when it takes effect.
-        while not self._stop_evt.is_set():
-            self._wake.clear()
-            try:
-                self._tick()
-            except Exception as exc:  # keep the twin alive, like drive firmware would
-                self.log.error("sim_station_tick_failed", error=repr(exc))
-            with self._lock:
-                due = self._setpoints[0][0] - self.clock.now() if self._setpoints else self.cfg.tick_s
-            self._wake.wait(max(0.0, min(self.cfg.tick_s, due)))
+    def _publish(self, t: float) -> None:
+        if self._last_pub != self._pos and self.on_position is not None:
+            self._last_pub = self._pos
+            self.on_position(self.joint_index, self._pos / self._counts_per_unit(), t)
 
+    # ------------------------------------------------------------------ events
     def _tick(self) -> None:
-        now = self.clock.now()
-        pub = None
+        """Bring the drive up to now, send what is due, schedule the next event (lock held
+        or called from a clock callback)."""
         with self._lock:
+            now = self.clock.now()
             self._advance(now)
             st = self.machine.state
             if (self._hb_node is not None and self._hb_last is not None and not self._hb_timed_out
-                    and now - self._hb_last > self._hb_time_s):
+                    and now >= self._hb_last + self._hb_time_s):
                 self._hb_timed_out = True
                 if st not in (State.SWITCH_ON_DISABLED, State.NOT_READY_TO_SWITCH_ON):
                     self._fault(EMCY_HEARTBEAT, f"controller heartbeat (node {self._hb_node}) "
-                                f"silent > {self._hb_time_s * 1e3:.0f} ms")
+                                f"silent for {self._hb_time_s * 1e3:.0f} ms")
             if self.machine.state is State.FAULT_REACTION_ACTIVE and self._ramp_v == 0.0:
                 self._ramp_v = None
                 self.machine.apply(Internal.REACTION_DONE)
                 self._dirty_tpdo = True
-            if self._last_pub != self._pos:
-                self._last_pub = self._pos
-                pub = self._pos / self._counts_per_unit()
-            event_s = self._value(0x1800, 5) / 1000.0
-            send = self._dirty_tpdo or (event_s > 0 and now - self._last_tpdo >= event_s)
-            if send and self._operational() and self.network is not None:
+            self._publish(now)
+            event_s = self._value(0x1800, 5) / 1000.0 if self.node is not None else 0.0
+            if (self._dirty_tpdo or (event_s > 0 and now >= self._last_tpdo + event_s)) and self._operational():
                 self._dirty_tpdo, self._last_tpdo = False, now
-                tx = self.node.tpdo[1]
-                if tx.enabled and tx.map:
-                    live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
-                            0x606C: int(round(self._velocity()))}
-                    for var in tx.map:
-                        if var.length:
-                            var.raw = live.get(var.index, 0)
-                    try:
-                        tx.transmit()
-                    except Exception as exc:
-                        self.log.info("tpdo_not_sent", error=repr(exc))
-        if pub is not None and self.on_position is not None:
-            self.on_position(self.joint_index, pub, now)
+                self._send_tpdo()
+            self._schedule(now, event_s)
+
+    def _send_tpdo(self) -> None:
+        tx = self.node.tpdo[1]
+        if not (tx.enabled and tx.map):
+            return
+        live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
+                0x606C: int(round(self._velocity()))}
+        for var in tx.map:
+            if var.length:
+                var.raw = live.get(var.index, 0)
+        try:
+            tx.transmit()
+        except can.CanError as exc:
+            self.log.info("tpdo_not_sent", error=str(exc))
+
+    def _schedule(self, now: float, event_s: float) -> None:
+        if self.network is None:
+            return
+        due = []
+        if self._setpoints:
+            due.append(self._setpoints[0][0])
+        if event_s > 0 and self._operational():
+            due.append(self._last_tpdo + event_s)
+        if self._hb_node is not None and self._hb_last is not None and not self._hb_timed_out:
+            due.append(self._hb_last + self._hb_time_s)
+        if self._ramp_v:
+            due.append(self._t + abs(self._ramp_v) / float(max(self._value(0x6085), 1)))
+        t = max(min(due), now) if due else None
+        if t == self._wake_at:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._wake_at = t
+        self._timer = self.clock.call_at(t, self._on_timer) if t is not None else None
+
+    def _on_timer(self) -> None:
+        self._timer, self._wake_at = None, None
+        self._tick()
 
 
 class SimStationSet:
-    """The four twins of one cell, built from the controller's :class:`StationsConfig`
-    (same bus, node ids and order) plus per-station twin properties.
+    """The four twins of one cell, built from the controller's
+    :class:`~drivers.stations.config.StationsConfig` (same wire, node ids and order) plus
+    per-station twin properties.
 
-    :param stations_cfg: a ``drivers.stations.driver.StationsConfig``.
+    :param stations_cfg: the controller's stations config.
     :param reception_delays_s: per station in *bus order* (seed 002: σ·1, σ·2, ...);
         default zeros.
     :param initial_positions: per joint j1..j4 (joint units); default zeros.
+    :param clock: the simulated clock.
     """
 
     def __init__(self, stations_cfg, reception_delays_s=None, initial_positions=None, *,
-                 clock: Clock | None = None, on_position: PositionHook | None = None):
+                 clock: VirtualClock, on_position: PositionHook | None = None):
         n = len(stations_cfg.stations)
         delays = list(reception_delays_s) if reception_delays_s is not None else [0.0] * n
         init = list(initial_positions) if initial_positions is not None else [0.0] * 4
         if len(delays) != n or len(init) != 4:
             raise ValueError(f"reception_delays_s needs {n} values (bus order), initial_positions 4 "
                              f"(j1..j4); got {len(delays)} and {len(init)}")
+        self.clock = clock
         self.stations = [
             SimStation(SimStationConfig(joint=s.joint, node_id=s.node_id, reception_delay_s=d,
                                         initial_position=init[JOINT_NAMES.index(s.joint)],
                                         counts_per_unit=s.counts_per_unit),
-                       interface=stations_cfg.interface, channel=stations_cfg.channel,
-                       bitrate=stations_cfg.bitrate, clock=clock, on_position=on_position)
+                       channel=stations_cfg.channel, bitrate=stations_cfg.bitrate, clock=clock,
+                       on_position=on_position)
             for s, d in zip(stations_cfg.stations, delays)]
 
     def by_joint(self, joint: str) -> SimStation:
         return next(s for s in self.stations if s.cfg.joint == joint)
+
+    def positions(self) -> list[float]:
+        """Drive positions now, per joint j1..j4 (each reported to ``on_position``)."""
+        out = [0.0] * 4
+        for s in self.stations:
+            out[s.joint_index] = s.position
+        return out
 
     def start(self) -> "SimStationSet":
         for s in self.stations:

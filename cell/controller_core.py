@@ -1,0 +1,399 @@
+"""The controller's decisions as one step over typed inputs and outputs, with no I/O.
+
+:meth:`ControllerCore.step` takes what one scan read (:class:`ScanInputs`: the time, the
+PLC's writes and heartbeat, station faults, the running cycle's progress or its end, the
+results of last scan's requests) and returns what to write and do (:class:`ScanOutputs`:
+register values and :data:`Action` requests). :class:`cell.controller.CellController`
+does the reading, the writing and the actions; unit tests drive the core directly with
+made-up inputs and a made-up clock.
+
+Handshake (PLCopen Execute/Busy/Done/Error over the register map):
+
+* ``execute`` starts a cycle only on a rising edge seen while the PLC heartbeat is alive
+  and after ``execute`` was seen low with the link alive: written low by the PLC, or low in
+  the register image once the link has been alive for ``arm_grace_s`` (an execute held
+  high across a heartbeat gap, a reconnect or a controller restart starts nothing). The
+  edge latches the active recipe and ``part_id``. An edge while not ready sets
+  ``execute_refused``.
+* ``done``/``aborted`` are held until ``acknowledge``; ``error`` until ``reset``.
+* PLC heartbeat unchanged for longer than ``plc_heartbeat_timeout_s`` (also mid-cycle), a
+  joint-station fault, or a failed cycle step: the cycle is cancelled, every joint gets a
+  quick stop, the fault code goes to the PLC and nothing moves again until ``reset``.
+  The heartbeat fault is raised at the first scan after the time-out: no earlier than the
+  time-out, no later than one scan after it.
+* Recipe files are re-read only between cycles; an invalid edit is rejected
+  (recipe_status 2), the last good version stays active.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Union
+
+from cell.cycle import CycleOutcome
+from cell.faults import Fault
+from cell.log import get_logger
+from cell.statemachine import CYCLE_STEPS, Event, State, StateMachine
+
+log = get_logger("controller")
+
+EXECUTE, RESET, ABORT, ACK = 1, 2, 4, 8        # command_word bits (drivers/plc/register_map.py)
+RECIPE_OK, RECIPE_UNKNOWN, RECIPE_REJECTED, RECIPE_BUSY = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    scan_s: float = 0.01
+    plc_heartbeat_timeout_s: float = 1.0
+    recipe_refresh_s: float = 1.0
+    arm_grace_s: float = 0.3
+
+
+# ---------------------------------------------------------------------------- inputs
+@dataclass(frozen=True)
+class PlcWriteIn:
+    """One register the PLC wrote, in the order it wrote them (``drivers.plc.PlcWrite``)."""
+
+    name: str
+    value: int
+    previous: int
+
+
+@dataclass(frozen=True)
+class StationFaultIn:
+    """The joint stations' latched fault: its PLC code (200 + station code), text, and
+    whether it is the quick stop the controller itself asked for."""
+
+    code: int
+    text: str
+    requested: bool = False
+
+
+@dataclass(frozen=True)
+class DrivesResetIn:
+    """How last scan's :class:`ResetDrives` ended."""
+
+    purpose: Literal["reset", "rearm"]
+    ok: bool
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class RecipesIn:
+    """The recipe store as the core needs it: active numbers, and what the last
+    :class:`RefreshRecipes` found (``None`` if none ran since the last step)."""
+
+    numbers: frozenset[int] = frozenset()
+    refreshed: bool = False
+    rejected: bool = False
+    changed: bool = False
+
+
+@dataclass(frozen=True)
+class ScanInputs:
+    now: float                                  #: clock time of this scan, s
+    writes: tuple = ()                          #: PlcWriteIn (or PlcWrite) in PLC order
+    last_heartbeat_change: float | None = None  #: clock time plc_heartbeat last changed
+    command_word: int = 0                       #: command_word in the register image
+    part_id: int = 0                            #: part_id in the register image
+    station_fault: StationFaultIn | None = None
+    cycle_step: State | None = None             #: the running cycle's current step
+    cycle_ended: CycleOutcome | None = None     #: the cycle worker has ended with this
+    drives_reset: DrivesResetIn | None = None
+    recipes: RecipesIn = RecipesIn()
+    recalibration_due: bool = False
+
+
+# ---------------------------------------------------------------------------- outputs
+@dataclass(frozen=True)
+class StartCycle:
+    recipe_number: int
+    part_id: int
+
+
+@dataclass(frozen=True)
+class CancelCycle:
+    code: int
+    text: str
+
+
+@dataclass(frozen=True)
+class QuickStop:
+    reason: str
+
+
+@dataclass(frozen=True)
+class ResetDrives:
+    purpose: Literal["reset", "rearm"]
+
+
+@dataclass(frozen=True)
+class RefreshRecipes:
+    pass
+
+
+Action = Union[StartCycle, CancelCycle, QuickStop, ResetDrives, RefreshRecipes]
+
+
+@dataclass
+class ScanOutputs:
+    status: dict[str, bool]                      #: status_word bits
+    registers: dict[str, int]                    #: other registers to write
+    actions: list = field(default_factory=list)  #: Action requests, in order
+
+
+# ---------------------------------------------------------------------------- the core
+class ControllerCore:
+    """State of the handshake, watchdogs, fault latch and recipe selection."""
+
+    def __init__(self, settings: ControllerSettings = ControllerSettings()):
+        self.settings = settings
+        self.sm = StateMachine()
+        self.fault_code = 0
+        self.fault_text = ""
+        self.execute_refused = False
+        self.cycle_count = 0
+        self.recipe_number = 0
+        self.recipe_status = RECIPE_OK
+        self.last_outcome: CycleOutcome | None = None
+        self._pending_select: int | None = None
+        self._armed = False
+        self._link_ok = False
+        self._link_since = 0.0
+        self._heartbeat = 0
+        self._cycle_running = False
+        self._next_refresh = 0.0
+        self._recipes = RecipesIn()
+        self._actions: list = []
+        self._results: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ lifecycle
+    def started(self, now: float, recipes: RecipesIn) -> ScanOutputs:
+        """The controller came up (recipes read once): STARTING → IDLE, nothing moves."""
+        self._actions = []
+        self._take_recipes(recipes)
+        self._next_refresh = now + self.settings.recipe_refresh_s
+        self.sm.fire(Event.STARTED)
+        return self._outputs(False)
+
+    def shutdown(self) -> list:
+        """The controller is going down: a running cycle is cancelled, joints stopped."""
+        self._actions = []
+        if self.sm.state.busy:
+            self._fault(Fault.INTERNAL, "controller shutting down")
+        return self._actions
+
+    @property
+    def link_ok(self) -> bool:
+        return self._link_ok
+
+    @property
+    def cycle_running(self) -> bool:
+        return self._cycle_running
+
+    # ------------------------------------------------------------------ one step
+    def step(self, inp: ScanInputs) -> ScanOutputs:
+        """Read → update: decide this scan's register values and actions."""
+        self._actions = []
+        self._results = {}
+        now = inp.now
+        s = self.settings
+        if inp.cycle_step is not None and self._cycle_running:
+            self._follow(inp.cycle_step)
+        if inp.drives_reset is not None:
+            self._drives_reset_done(inp.drives_reset)
+        if inp.recipes.refreshed or inp.recipes.numbers != self._recipes.numbers:
+            self._take_recipes(inp.recipes)
+
+        last_hb = inp.last_heartbeat_change
+        link_ok = last_hb is not None and now - last_hb <= s.plc_heartbeat_timeout_s
+        if self._link_ok and not link_ok:
+            log.warning("plc_heartbeat_lost", timeout_s=s.plc_heartbeat_timeout_s)
+            self._fault(Fault.PLC_HEARTBEAT_LOST, f"PLC heartbeat lost for more than "
+                        f"{s.plc_heartbeat_timeout_s} s")
+        if not link_ok:
+            self._armed = False
+        elif not self._link_ok:
+            self._link_since = now
+        self._link_ok = link_ok
+
+        st = inp.station_fault
+        if st is not None and not st.requested and \
+                self.sm.state not in (State.FAULT, State.STOPPING, State.RESETTING):
+            self._fault(st.code, f"joint stations: {st.text}")
+
+        if inp.cycle_ended is not None:
+            self._cycle_ended(inp.cycle_ended)
+        for w in inp.writes:                        # in the order the PLC wrote them
+            if w.name == "recipe_select":
+                self._pending_select = w.value
+            if self._pending_select is not None and not self.sm.state.busy:
+                self._select_recipe(self._pending_select)
+                self._pending_select = None
+            if w.name == "command_word" and link_ok:
+                self._on_command(w.value & ~w.previous, w.value, inp.part_id)
+        if self._pending_select is not None:
+            self.recipe_status = RECIPE_BUSY
+        # execute low in the image, with the link alive for a grace time: long enough for a PLC
+        # that rewrites its outputs after a reconnect to have done so
+        if link_ok and now - self._link_since >= s.arm_grace_s and not inp.command_word & EXECUTE:
+            self._armed = True
+        if not self.sm.state.busy and not self._cycle_running and now >= self._next_refresh:
+            self._next_refresh = now + s.recipe_refresh_s
+            self._actions.append(RefreshRecipes())
+        return self._outputs(inp.recalibration_due)
+
+    # ------------------------------------------------------------------ cycle
+    def _follow(self, step: State) -> None:
+        """Move the state machine along with the cycle's own progress."""
+        while self.sm.state in CYCLE_STEPS and self.sm.state < step:
+            self.sm.fire(Event.STEP_DONE)
+
+    def _start_cycle(self, part_id: int) -> None:
+        if self.recipe_number not in self._recipes.numbers:  # nothing moved: refuse, no fault
+            self.execute_refused = True
+            log.warning("execute_refused", reason=f"recipe {self.recipe_number} is not active")
+            return
+        self.execute_refused = False
+        self.sm.fire(Event.EXECUTE)
+        self._cycle_running = True
+        self._results["part_id_echo"] = part_id
+        self._actions.append(StartCycle(self.recipe_number, part_id))
+        log.info("cycle_started", part_id=part_id, recipe_number=self.recipe_number)
+
+    def _cycle_ended(self, out: CycleOutcome) -> None:
+        self._cycle_running = False
+        self.last_outcome = out
+        self._publish(out)
+        if out.status == "done" and self.sm.state in CYCLE_STEPS:
+            self._follow(State.LOGGING)
+            self.sm.fire(Event.STEP_DONE)            # LOGGING → DONE: the row is on disk
+            self.cycle_count += 1
+            self._results["cycle_count"] = self.cycle_count & 0xFFFFFFFF
+            return
+        if self.sm.state is State.STOPPING:
+            self._stopped()
+            return
+        self._fault(out.fault_code or Fault.INTERNAL, out.fault_text or "cycle failed")
+
+    def _publish(self, out: CycleOutcome) -> None:
+        rec = out.record
+        if rec is None:
+            return
+        final = rec.verify_error_mm if rec.verify_error_mm is not None else rec.final_error_mm
+
+        def um(v):
+            return 0 if v is None else min(int(round(v * 1000)), 0xFFFFFFFF)
+        self._results.update(initial_error_um=um(rec.initial_error_mm), final_error_um=um(final),
+                             moves=rec.moves or 0,
+                             cycle_time_ms=min(int((rec.cycle_time_s + out.log_write_s) * 1000), 0xFFFFFFFF))
+
+    # ------------------------------------------------------------------ commands
+    def _on_command(self, rising: int, value: int, part_id: int) -> None:
+        state = self.sm.state
+        if rising & ABORT and state.busy and state is not State.STOPPING:
+            self._actions.append(CancelCycle(0, "abort by PLC"))
+            self.sm.fire(Event.ABORT)
+            self._actions.append(QuickStop("abort by PLC"))
+            log.info("cycle_abort_requested")
+        if rising & RESET and state is State.FAULT:
+            self._reset()
+        if rising & ACK and state in (State.DONE, State.ABORTED):
+            if state is State.ABORTED:
+                self._actions.append(ResetDrives("rearm"))
+            self.sm.fire(Event.ACKNOWLEDGE)
+            self.execute_refused = False
+        if rising & EXECUTE:
+            if self._armed and self.sm.state is State.IDLE:
+                self._start_cycle(part_id)
+            else:
+                self.execute_refused = True
+                why = "not armed (execute must be written low while the PLC link is alive)" \
+                    if not self._armed else f"state {self.sm.state.name}"
+                log.warning("execute_refused", reason=why)
+        if not value & EXECUTE:                    # the PLC wrote execute low: armed
+            self._armed = True
+
+    # ------------------------------------------------------------------ faults
+    def _fault(self, code: int, text: str) -> None:
+        """Latch a fault (the first one wins until reset) and stop every joint under control."""
+        state = self.sm.state
+        if state is State.FAULT:
+            log.warning("further_fault_while_latched", code=int(code), detail=text)
+            return
+        if self.fault_code == 0:
+            self.fault_code, self.fault_text = int(code), text
+        log.error("fault", code=int(code), detail=text, state=state.name)
+        if state.busy and state is not State.STOPPING:
+            self._actions.append(CancelCycle(int(code), text))
+        if state is State.STARTING or state is State.RESETTING:
+            self.sm.fire(Event.FAULT)
+            return
+        if state is not State.STOPPING:
+            self.sm.fire(Event.FAULT)
+        self._actions.append(QuickStop(text))
+        if not self._cycle_running:                # no cycle to wind down: stopped now
+            self.sm.fire(Event.STOPPED_FAULT)
+
+    def _stopped(self) -> None:
+        """The cycle has ended after STOPPING: settle in FAULT or ABORTED."""
+        self.sm.fire(Event.STOPPED_FAULT if self.fault_code else Event.STOPPED_ABORT)
+
+    def _reset(self) -> None:
+        if not self._link_ok:
+            log.warning("reset_refused", reason="PLC link not alive")
+            return
+        self.sm.fire(Event.RESET)
+        self._actions.append(ResetDrives("reset"))
+
+    def _drives_reset_done(self, r: DrivesResetIn) -> None:
+        if r.purpose == "rearm":
+            if not r.ok:
+                self._fault(Fault.STATION, f"drives could not be re-enabled after abort: {r.text}")
+            return
+        if self.sm.state is not State.RESETTING:
+            return
+        if not r.ok:                               # the cause persists: stay in FAULT
+            log.error("reset_failed", error=r.text)
+            self.sm.fire(Event.FAULT)
+            return
+        self.fault_code, self.fault_text = 0, ""
+        self.execute_refused = False
+        self.sm.fire(Event.RESET_DONE)
+        log.info("reset_done")
+
+    # ------------------------------------------------------------------ recipes
+    def _select_recipe(self, number: int) -> None:
+        if number == 0:
+            return
+        if number not in self._recipes.numbers:
+            self.recipe_status = RECIPE_UNKNOWN
+            log.warning("recipe_select_unknown", number=number)
+            return
+        self.recipe_number = number
+        self.recipe_status = RECIPE_OK
+
+    def _take_recipes(self, r: RecipesIn) -> None:
+        self._recipes = r
+        if r.refreshed:
+            if r.rejected:
+                self.recipe_status = RECIPE_REJECTED
+            elif r.changed and self.recipe_status == RECIPE_REJECTED:
+                self.recipe_status = RECIPE_OK
+        if self.recipe_number and self.recipe_number not in r.numbers:
+            self.recipe_status = RECIPE_UNKNOWN
+
+    # ------------------------------------------------------------------ outputs
+    def _outputs(self, recalibration_due: bool) -> ScanOutputs:
+        state = self.sm.state
+        self._heartbeat = (self._heartbeat + 1) & 0xFFFF
+        status = dict(
+            ready=state is State.IDLE and self._link_ok and self._armed and self.fault_code == 0,
+            busy=state.busy, done=state is State.DONE,
+            error=state in (State.FAULT, State.RESETTING) or self.fault_code != 0,
+            auto=True, homed=state is not State.STARTING,
+            recalibration_due=recalibration_due, aborted=state is State.ABORTED,
+            plc_link_ok=self._link_ok, execute_refused=self.execute_refused)
+        registers = {**self._results, "controller_heartbeat": self._heartbeat, "state_code": int(state),
+                     "fault_code": self.fault_code, "recipe_ack": self.recipe_number,
+                     "recipe_status": self.recipe_status}
+        return ScanOutputs(status, registers, self._actions)

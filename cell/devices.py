@@ -1,0 +1,98 @@
+"""The devices a cell runs with, chosen by name in one registry.
+
+* ``hardware`` — the joint stations, camera and camera calibration the cell config
+  names (``stations``, ``camera``, ``vision.calibration``), on wall time.
+* ``sim`` — the simulated cell (:mod:`cell.sim.assembly`): the plant behind simulated
+  CANopen drives on the virtual wire and a rendering camera, on the simulated clock.
+
+Backends are imported only when chosen, so the hardware path never loads a simulation
+module. Every backend gives the same :class:`Devices` face to :class:`cell.app.Cell`.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+from pathlib import Path
+from typing import Any, Protocol
+
+from cell.clock import Clock, MonotonicClock
+from cell.config import CellConfig
+from cell.errors import ConfigError
+from cell.kinematics import Scara
+from cell.vision.calibration import PlaneCalibration
+
+#: backend name → "module:class", imported only when chosen
+BACKENDS: dict[str, str] = {
+    "hardware": "cell.devices:HardwareDevices",
+    "sim": "cell.sim.assembly:SimDevices",
+}
+
+
+class Devices(Protocol):
+    """What a cell needs below the controller."""
+
+    clock: Clock        #: the clock everything in the cell takes its time from
+    robot: Scara        #: the nominal robot model
+    motion: Any         #: the joint stations (``drivers.stations.JointStations``)
+    camera: Any         #: the camera (``drivers.camera.Camera``)
+
+    def start(self) -> None:
+        """Bring the devices up (stations enabled, camera open)."""
+        ...
+
+    def calibration(self) -> PlaneCalibration:
+        """The camera's plane calibration (from file, or measured by the backend)."""
+        ...
+
+    def stop(self) -> None:
+        """Take the devices down; never raises."""
+        ...
+
+
+class HardwareDevices:
+    """The devices the config names, on wall time (or on ``clock`` if given)."""
+
+    def __init__(self, config: CellConfig, clock: Clock | None = None, pace: bool = False):
+        from drivers import camera as cameras
+        from drivers.stations import JointStations
+        self.config = config
+        self.clock = clock or MonotonicClock()
+        self.robot = config.robot.scara()
+        self.motion = JointStations.from_config(config.stations, clock=self.clock)
+        self.camera = cameras.from_config({**config.camera, "clock": self.clock})
+
+    def start(self) -> None:
+        self.motion.start()
+        self.camera.open()
+
+    def calibration(self) -> PlaneCalibration:
+        path = Path(self.config.vision.calibration)
+        try:
+            return PlaneCalibration.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: camera calibration not found (vision.calibration)") from None
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+
+    def stop(self) -> None:
+        for step in (self.camera.close, self.motion.shutdown):
+            try:
+                step()
+            except Exception:                    # noqa: BLE001 -- best effort on the way down
+                pass
+
+
+def open_devices(config: CellConfig, name: str, *, clock: Clock | None = None, pace: bool = False) -> Devices:
+    """Build (not start) the devices of backend ``name`` for ``config``.
+
+    :param clock: use this clock instead of the backend's own (tests).
+    :param pace: simulated devices only: keep the simulated clock to wall time (a cell
+        serving an outside PLC).
+    :raises ConfigError: unknown backend name, or a bad config value.
+    """
+    try:
+        target = BACKENDS[name]
+    except KeyError:
+        raise ConfigError(f"devices: unknown backend {name!r} (known: {', '.join(sorted(BACKENDS))})") from None
+    module, cls = target.split(":")
+    return getattr(importlib.import_module(module), cls)(config, clock=clock, pace=pace)

@@ -1,0 +1,279 @@
+"""The simulated CAN wire: python-can's ``virtual`` bus with a bitrate and a clock.
+
+python-can's :class:`~can.interfaces.virtual.VirtualBus` hands a frame to every other
+bus on its channel at once and without limit. Here every bus opened on one channel also
+shares one :class:`VirtualWire` on the simulated clock (:class:`cell.sim.clock.VirtualClock`):
+
+* each frame occupies the wire for ``frame_bits(msg) / bitrate`` seconds of clock time,
+  with the bit stuffing computed exactly from the frame's bits, so an 8-byte standard data
+  frame takes 111..135 µs at 1 Mbit/s;
+* frames go out one after another in the order ``send`` was called (FIFO; real CAN
+  arbitrates by identifier, which only matters under contention and is not modelled);
+* at the *end* of its slot the frame goes through python-can's ``VirtualBus`` to the other
+  buses, stamped with that clock time, and each receiving bus hands it at once to its
+  listeners (a canopen ``Network`` and our bus monitor), in the order the buses joined:
+  the clock's thread plays the part of python-can's notifier thread, so delivery never
+  waits for a thread to get the CPU;
+* ``send`` never blocks: the frame is queued, as in a CAN controller's transmit mailboxes.
+  A frame the wire cannot carry — a CAN FD frame, more than 8 data bytes, an identifier
+  beyond 11 (29) bits, or a send while ``tx_queue`` frames already wait — raises
+  ``can.CanOperationError`` naming the frame and the reason, as a real interface refuses
+  it; the sender treats that as its own transmit failure (the controller latches a
+  send-failed fault, a simulated drive falls silent as a bus-off node does).
+
+Periodic frames (a heartbeat producer, ``bus.send_periodic``) are clock callbacks too.
+"""
+from __future__ import annotations
+
+import threading
+from copy import copy
+from typing import Any, Callable, Sequence
+
+import can
+from can.interfaces.virtual import VirtualBus
+
+from cell.errors import ConfigError
+from cell.log import get_logger
+from cell.sim.clock import VirtualClock
+from drivers.stations.bus import frame_bits
+
+log = get_logger("sim.canbus")
+
+
+class VirtualWire:
+    """One channel's wire: slot reservation on the clock and timed delivery.
+
+    ``frames`` and ``bits`` count every frame carried. Created by the first
+    :class:`VirtualCanBus` on a channel, dropped when the last one leaves.
+    """
+
+    def __init__(self, channel: str, bitrate: int, clock: VirtualClock):
+        self.channel, self.bitrate, self.clock = channel, bitrate, clock
+        self.frames = 0
+        self.bits = 0
+        self.buses: list[VirtualCanBus] = []
+        self.free_at = clock.now()
+
+    def reserve(self, msg: can.Message, sender: "VirtualCanBus") -> float:
+        """Queue ``msg``; returns the clock time its slot ends (its receive timestamp)."""
+        bits = frame_bits(msg)
+        start = max(self.clock.now(), self.free_at)
+        end = start + bits / self.bitrate
+        self.free_at = end
+        self.frames += 1
+        self.bits += bits
+        stamped = copy(msg)
+        stamped.timestamp = end
+        sender._pending += 1
+        self.clock.call_at(end, self._deliver, stamped, sender)
+        return end
+
+    def _deliver(self, msg: can.Message, sender: "VirtualCanBus") -> None:
+        sender._pending -= 1
+        try:
+            sender._inner.send(msg)          # python-can copies it to every other bus's queue
+        except can.CanError:
+            return                           # unplugged mid-frame: lost, as on a real wire
+        finally:
+            if sender._closed and sender._pending == 0:
+                sender._inner.shutdown()
+        for bus in list(self.buses):
+            if bus is not sender:
+                bus._dispatch()
+
+
+_wires: dict[str, VirtualWire] = {}
+_wires_lock = threading.Lock()
+
+
+def wire_stats(channel: str) -> tuple[int, int] | None:
+    """(frames, bits) carried so far on a channel's wire, ``None`` if nobody is on it."""
+    with _wires_lock:
+        w = _wires.get(channel)
+        return (w.frames, w.bits) if w else None
+
+
+class ClockCyclicTask:
+    """``bus.send_periodic`` on the clock: the first frame at once, then every ``period``
+    seconds (counted from the start, no drift), until :meth:`stop` or ``duration``."""
+
+    def __init__(self, bus: "VirtualCanBus", msgs: Sequence[can.Message], period: float,
+                 duration: float | None, modifier: Callable[[can.Message], None] | None):
+        self.bus, self.period, self.modifier = bus, float(period), modifier
+        self.messages = list(msgs)
+        self.t0 = bus.clock.now()
+        self.end = None if duration is None else self.t0 + duration
+        self._k = 0
+        self._timer = None
+        self.stopped = False
+        self._tick()
+
+    def _tick(self) -> None:
+        if self.stopped or self.bus._closed:
+            return
+        msg = self.messages[self._k % len(self.messages)]
+        if self.modifier is not None:
+            self.modifier(msg)
+        try:
+            self.bus.send(msg)
+        except can.CanError as exc:
+            log.info("periodic_frame_not_sent", channel=self.bus._wire.channel, error=str(exc))
+        self._k += 1
+        t = self.t0 + self._k * self.period
+        if self.end is None or t <= self.end:
+            self._timer = self.bus.clock.call_at(t, self._tick)
+
+    def modify_data(self, msgs: can.Message | Sequence[can.Message]) -> None:
+        self.messages = [msgs] if isinstance(msgs, can.Message) else list(msgs)
+
+    def start(self) -> None:
+        if self.stopped:
+            self.stopped = False
+            self.t0, self._k = self.bus.clock.now(), 0
+            self._tick()
+
+    def stop(self) -> None:
+        self.stopped = True
+        if self._timer is not None:
+            self._timer.cancel()
+
+
+class VirtualCanBus(can.BusABC):
+    """A python-can bus on the simulated wire of ``channel``.
+
+    :param channel: buses with the same name share one wire.
+    :param bitrate: bit/s (10 k .. 1 M); all buses on a channel must agree.
+    :param tx_queue: frames this bus may have waiting for the wire.
+    :param clock: the simulated clock; all buses on a channel share it.
+    :raises ConfigError: bad bitrate or queue size, a clock that is not a
+        :class:`VirtualClock`, or a bitrate/clock differing from the channel's.
+    """
+
+    def __init__(self, channel: str = "cell0", bitrate: int = 1_000_000, tx_queue: int = 8,
+                 clock: VirtualClock | None = None, **kwargs: Any):
+        if isinstance(bitrate, bool) or not isinstance(bitrate, int) or not 10_000 <= bitrate <= 1_000_000:
+            raise ConfigError(f"virtual CAN bitrate = {bitrate!r} must be an integer in 10000..1000000 bit/s")
+        if isinstance(tx_queue, bool) or not isinstance(tx_queue, int) or tx_queue < 1:
+            raise ConfigError(f"virtual CAN tx_queue = {tx_queue!r} must be an integer ≥ 1")
+        if not isinstance(clock, VirtualClock):
+            raise ConfigError(f"virtual CAN {channel!r} runs on the simulated clock; got "
+                              f"{type(clock).__name__} (the virtual bus exists only in the simulated cell)")
+        with _wires_lock:
+            wire = _wires.get(channel)
+            if wire is None:
+                wire = _wires[channel] = VirtualWire(channel, bitrate, clock)
+            elif wire.bitrate != bitrate:
+                raise ConfigError(f"virtual CAN channel {channel!r} runs at {wire.bitrate} bit/s; "
+                                  f"cannot open it at {bitrate} bit/s")
+            elif wire.clock is not clock:
+                raise ConfigError(f"virtual CAN channel {channel!r} is already on another clock")
+            wire.buses.append(self)
+        self._wire = wire
+        self.clock = clock
+        self._inner = VirtualBus(channel=f"vw:{channel}", preserve_timestamps=True)
+        self._listeners: list | None = None
+        self._rx = clock.event()
+        self._pending = 0
+        self._tx_queue = tx_queue
+        self._closed = False
+        self._state = can.BusState.ACTIVE
+        self.bitrate = bitrate
+        self.last_tx_timestamp: float | None = None
+        self.channel_info = f"virtual CAN {channel!r} at {bitrate} bit/s (simulated clock)"
+        super().__init__(channel=channel, **kwargs)
+
+    # ------------------------------------------------------------------ sending
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._closed:
+            raise can.CanOperationError("Cannot operate on a closed bus")
+        why = _cannot_carry(msg)
+        if why is None and self._pending >= self._tx_queue:
+            why = f"transmit queue full ({self._tx_queue} frames waiting for the wire)"
+        if why is not None:
+            raise can.CanOperationError(f"virtual CAN {self._wire.channel!r}: frame "
+                                        f"0x{msg.arbitration_id:X} not sent: {why}")
+        self.last_tx_timestamp = self._wire.reserve(msg, self)
+
+    def _send_periodic_internal(self, msgs, period, duration=None, autostart=True, modifier_callback=None):
+        return ClockCyclicTask(self, msgs if not isinstance(msgs, can.Message) else [msgs],
+                               period, duration, modifier_callback)
+
+    # ------------------------------------------------------------------ receiving
+    def attach_listeners(self, listeners: list) -> None:
+        """Deliver every received frame at once to ``listeners`` (``can.Listener`` objects,
+        the list is read at each delivery), instead of queueing it for :meth:`recv`."""
+        self._listeners = listeners
+
+    def _dispatch(self) -> None:
+        if self._closed:
+            return
+        if self._listeners is None:
+            self._rx.set()                   # someone may be waiting in recv()
+            return
+        while True:
+            msg, _ = self._inner._recv_internal(0)
+            if msg is None:
+                return
+            for listener in list(self._listeners):
+                try:
+                    listener.on_message_received(msg)
+                except Exception:            # noqa: BLE001 -- like python-can's notifier: keep delivering
+                    log.exception("can_listener_failed", channel=self._wire.channel)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        """Pull mode (no listeners attached): wait in clock time for the next frame."""
+        while True:
+            self._rx.clear()
+            try:
+                msg, _ = self._inner._recv_internal(0)
+            except can.CanError:
+                return None, False
+            if msg is not None or timeout == 0:
+                return msg, False
+            if not self._rx.wait(timeout):
+                return None, False
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> can.BusState:
+        return self._state
+
+    @state.setter
+    def state(self, new_state: can.BusState) -> None:
+        # the interface's error state; ERROR (bus-off) is what the controller's watchdog detects
+        self._state = new_state
+
+    def shutdown(self) -> None:
+        """Leave the wire; frames already queued still go out (a thread that keeps the
+        clock's time waits for them, others leave them to the clock). Idempotent."""
+        if self._closed:
+            return
+        if self._pending and threading.current_thread() in self.clock._actors:
+            self.clock.sleep_until(self._wire.free_at)
+        self._closed = True
+        super().shutdown()
+        with _wires_lock:
+            if self in self._wire.buses:
+                self._wire.buses.remove(self)
+            if not self._wire.buses and _wires.get(self._wire.channel) is self._wire:
+                del _wires[self._wire.channel]
+        if self._pending == 0:
+            self._inner.shutdown()
+
+
+def _cannot_carry(msg: can.Message) -> str | None:
+    if msg.is_fd:
+        return "CAN FD frames are not carried by this wire"
+    if len(msg.data) > 8:
+        return f"{len(msg.data)} data bytes (a classic CAN frame holds at most 8)"
+    limit = 0x1FFFFFFF if msg.is_extended_id else 0x7FF
+    if not 0 <= msg.arbitration_id <= limit:
+        return f"identifier beyond {29 if msg.is_extended_id else 11} bits"
+    return None
+
+
+def open_virtual_bus(channel: str, bitrate: int | None, clock: VirtualClock | None = None,
+                     **kwargs: Any) -> VirtualCanBus:
+    """Backend ``"virtual"`` of :func:`drivers.stations.bus.open_bus`."""
+    kwargs.pop("rate_limited", None)
+    return VirtualCanBus(channel=channel, bitrate=bitrate or 1_000_000, clock=clock, **kwargs)

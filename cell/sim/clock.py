@@ -1,0 +1,459 @@
+"""The simulated cell's clock: discrete-event time shared by every simulated device and
+by the controller running against them.
+
+Rules (what makes a run independent of host load):
+
+* **One runner at a time.** Threads that keep this clock's time (*participants*: tasks
+  from :meth:`VirtualClock.spawn`, or a thread inside :meth:`VirtualClock.attach`) run
+  one at a time, handing over a baton whenever they wait on the clock (``sleep``, an
+  :meth:`event`, a :meth:`queue`). Timed callbacks (:meth:`call_at`: CAN frames ending
+  their slot on the wire, a drive's timers) run in the clock's own thread, also holding
+  the baton.
+* **Time moves only when everybody waits.** The next thing to happen is the earliest
+  entry of one agenda (callbacks and wake-ups), ties broken by the order in which they
+  were scheduled. Work in flight — a frame on the virtual wire, a Modbus request a
+  participant is blocked on — is either on the agenda or keeps its participant running,
+  so it is always delivered before time passes it.
+* **Pure or paced.** ``pace=False`` (``cellctl run --sim``, the tests): time jumps to the
+  next entry at once, as fast as the host allows. ``pace=True`` (``cellctl serve --sim``,
+  for an outside PLC): an entry at clock time ``t`` runs no earlier than wall time
+  ``origin + t``; when the host stalls, ``origin`` moves forward, so simulated time
+  stretches and never jumps: every device still sees its own deadlines in order.
+* **No participant, no time** (pure mode): with nobody to wait for, the clock stands still.
+
+Threads that are not participants (the Modbus server's event loop, a test's main thread)
+may read :meth:`now`, set events, put to queues and schedule callbacks; waiting on the
+clock from such a thread is a :class:`~cell.clock.ClockError`, as is scheduling a
+callback in the past. If every participant waits with nothing on the agenda the run is
+stuck for good: every waiter gets a ``ClockError`` naming them.
+"""
+from __future__ import annotations
+
+import contextlib
+import heapq
+import itertools
+import math
+import queue
+import sys
+import threading
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator
+
+from cell.clock import ClockError
+from cell.log import get_logger
+
+log = get_logger("sim.clock")
+
+_SCHEDULER = object()     # the baton holder while a callback runs
+
+
+@dataclass(eq=False)
+class _Actor:
+    name: str
+    go: threading.Event = field(default_factory=threading.Event)
+    token: int = 0            # id of the current wait; stale wake-ups carry an older one
+    woke_by: str = ""         # "event", "timeout", "start" or "stuck"
+
+
+@dataclass(eq=False)
+class _Resume:
+    actor: _Actor
+    token: int
+    why: str
+
+
+@dataclass(eq=False)
+class Timer:
+    """A scheduled callback; :meth:`cancel` stops it if it has not run yet."""
+
+    fn: Callable[..., Any]
+    args: tuple
+    cancelled: bool = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class VirtualClock:
+    """Discrete-event clock (see the module doc).
+
+    :param start: clock time at creation, s.
+    :param pace: run no faster than wall time (for an outside PLC).
+    :param wall: wall-time source for pacing (injectable for tests).
+    :param stall_warn_s: log the baton holder's stack if it runs longer than this (wall s);
+        a diagnostic only, it changes nothing.
+    """
+
+    wall = False
+
+    def __init__(self, start: float = 0.0, *, pace: bool = False,
+                 wall: Callable[[], float] = time.monotonic, stall_warn_s: float = 120.0):
+        if not math.isfinite(start):
+            raise ClockError(f"VirtualClock: start = {start!r} is not a finite time")
+        self.pace = pace
+        self._wall = wall
+        self._stall_warn_s = stall_warn_s
+        self._mu = threading.Lock()
+        self._cv = threading.Condition(self._mu)
+        self._now = float(start)
+        self._agenda: list[tuple[float, int, Any]] = []
+        self._seq = itertools.count()
+        self._actors: dict[threading.Thread, _Actor] = {}
+        self._holder: Any = None
+        self._origin = wall() - self._now
+        self._last_wall = wall()
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self.callbacks_run = 0
+        self.handoffs = 0
+
+    # ------------------------------------------------------------------ reading time
+    def now(self) -> float:
+        return self._now
+
+    def __repr__(self) -> str:
+        return f"VirtualClock(t={self._now:.6f}, pace={self.pace}, participants={len(self._actors)})"
+
+    # ------------------------------------------------------------------ scheduling
+    def call_at(self, t: float, fn: Callable[..., Any], *args: Any) -> Timer:
+        """Run ``fn(*args)`` in the clock's thread at clock time ``t`` (any thread may call).
+
+        :raises ClockError: ``t`` is not finite or lies in the past (the clock never goes back).
+        """
+        t = float(t)
+        with self._mu:
+            if not math.isfinite(t) or t < self._now - 1e-9:
+                raise ClockError(f"VirtualClock: cannot schedule at t = {t!r} s, the clock is at "
+                                 f"{self._now!r} s and never goes back")
+            timer = Timer(fn, args)
+            self._push(max(t, self._now), timer)
+            return timer
+
+    def call_later(self, delay: float, fn: Callable[..., Any], *args: Any) -> Timer:
+        """:meth:`call_at` ``now() + delay`` (``delay`` ≥ 0)."""
+        if not delay >= 0:
+            raise ClockError(f"VirtualClock: delay = {delay!r} s must be ≥ 0")
+        return self.call_at(self._now + delay, fn, *args)
+
+    def _push(self, t: float, entry: Any) -> None:
+        # caller holds _mu
+        heapq.heappush(self._agenda, (t, next(self._seq), entry))
+        self._ensure_thread()
+        self._cv.notify_all()
+
+    # ------------------------------------------------------------------ participants
+    def _me(self, what: str) -> _Actor:
+        a = self._actors.get(threading.current_thread())
+        if a is None:
+            raise ClockError(f"VirtualClock: {what} from thread {threading.current_thread().name!r}, "
+                             "which does not keep this clock's time; start it with clock.spawn() "
+                             "or wrap the code in 'with clock.attach():'")
+        return a
+
+    def _park(self, a: _Actor, deadline: float | None) -> str:
+        """Caller holds _mu and the baton: let go, wait to be resumed; returns why."""
+        a.token += 1
+        if deadline is not None:
+            self._push(max(deadline, self._now), _Resume(a, a.token, "timeout"))
+        a.go.clear()
+        self._holder = None
+        self._cv.notify_all()
+        self._mu.release()
+        try:
+            a.go.wait()
+        finally:
+            self._mu.acquire()
+        if a.woke_by == "stuck":
+            raise ClockError(f"VirtualClock: simulation stuck at t = {self._now:.6f} s: every "
+                             f"participant waits with nothing scheduled ({self._names()})")
+        return a.woke_by
+
+    def _wake(self, a: _Actor, token: int, why: str) -> None:
+        # caller holds _mu: resume ``a`` after everything already due now
+        self._push(self._now, _Resume(a, token, why))
+
+    def _names(self) -> str:
+        return ", ".join(sorted(a.name for a in self._actors.values()))
+
+    @contextlib.contextmanager
+    def attach(self, name: str | None = None) -> Iterator["VirtualClock"]:
+        """Make the calling thread a participant for the ``with`` block (re-entrant)."""
+        me = threading.current_thread()
+        if me in self._actors:
+            yield self
+            return
+        a = _Actor(name or me.name)
+        with self._mu:
+            self._actors[me] = a
+            self._wake(a, a.token, "start")
+            self._mu.release()
+            try:
+                a.go.wait()
+            finally:
+                self._mu.acquire()
+        try:
+            yield self
+        finally:
+            with self._mu:
+                del self._actors[me]
+                if self._holder is a:
+                    self._holder = None
+                self._cv.notify_all()
+
+    def spawn(self, target: Callable[..., Any], name: str, *args: Any) -> "VirtualTask":
+        """Start ``target(*args)`` in a participant thread; it first runs once the caller
+        lets go of the baton, after everything already due now."""
+        task = VirtualTask(self, name)
+        a = _Actor(name)
+
+        def body() -> None:
+            a.go.wait()
+            try:
+                target(*args)
+            except ClockError as exc:
+                log.error("task_stopped_by_clock", task=name, error=str(exc))
+            except BaseException:          # noqa: BLE001 -- a task must never die silently
+                log.exception("task_failed", task=name)
+            finally:
+                with self._mu:
+                    task._finished = True
+                    task._done._set_locked()
+                    del self._actors[th]
+                    if self._holder is a:
+                        self._holder = None
+                    self._cv.notify_all()
+
+        th = threading.Thread(target=body, name=name, daemon=True)
+        with self._mu:
+            self._actors[th] = a
+            self._wake(a, a.token, "start")
+        th.start()
+        task._thread = th
+        return task
+
+    # ------------------------------------------------------------------ waiting
+    def sleep_until(self, t: float) -> None:
+        t = float(t)
+        if math.isnan(t):
+            raise ClockError("VirtualClock: cannot sleep until t = nan")
+        a = self._me("sleep")
+        with self._mu:
+            self._park(a, max(t, self._now))
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` of simulated time; ≤ 0 lets everything due now run first."""
+        self.sleep_until(self._now + max(0.0, seconds))
+
+    def event(self) -> "VirtualEvent":
+        return VirtualEvent(self)
+
+    def queue(self) -> "VirtualQueue":
+        return VirtualQueue(self)
+
+    # ------------------------------------------------------------------ the agenda loop
+    def _ensure_thread(self) -> None:
+        if self._thread is None and not self._closed:
+            self._thread = threading.Thread(target=self._run, name="sim-clock", daemon=True)
+            self._thread.start()
+
+    def close(self) -> None:
+        """Stop the clock's thread (pending entries are dropped). Idempotent."""
+        with self._mu:
+            self._closed = True
+            self._cv.notify_all()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    def _run(self) -> None:
+        with self._mu:
+            while not self._closed:
+                if self._holder is not None:
+                    if not self._cv.wait(self._stall_warn_s) and self._holder is not None:
+                        self._warn_stall()
+                    continue
+                if not self._agenda:
+                    if self._actors and not self.pace:
+                        self._stuck()
+                    self._cv.wait()
+                    continue
+                if not self._actors and not self.pace:
+                    self._cv.wait()                      # nobody to wait for: time stands still
+                    continue
+                t, _, entry = self._agenda[0]
+                if self._stale(entry):
+                    heapq.heappop(self._agenda)
+                    continue
+                if self.pace and not self._paced(t):
+                    continue
+                heapq.heappop(self._agenda)
+                self._now = max(self._now, t)
+                if isinstance(entry, _Resume):
+                    entry.actor.woke_by = entry.why
+                    entry.actor.token += 1               # later wake-ups of this wait are stale
+                    self._holder = entry.actor
+                    self.handoffs += 1
+                    entry.actor.go.set()
+                    continue
+                self._holder = _SCHEDULER
+                self._mu.release()
+                try:
+                    entry.fn(*entry.args)
+                except Exception:                        # noqa: BLE001 -- keep the world turning
+                    log.exception("sim_callback_failed", callback=getattr(entry.fn, "__qualname__", repr(entry.fn)))
+                finally:
+                    self._mu.acquire()
+                    self.callbacks_run += 1
+                    self._holder = None
+
+    @staticmethod
+    def _stale(entry: Any) -> bool:
+        if isinstance(entry, _Resume):
+            return entry.token != entry.actor.token
+        return entry.cancelled
+
+    def _paced(self, t: float) -> bool:
+        """Pacing (lock held): True when ``t`` may run now; otherwise waits and returns False."""
+        wall = self._wall()
+        if wall < self._last_wall:
+            raise ClockError(f"VirtualClock: the wall clock went back from {self._last_wall} "
+                             f"to {wall}; pacing needs a monotonic source")
+        self._last_wall = wall
+        due = self._origin + t
+        if due > wall:
+            self._cv.wait(due - wall)
+            return False
+        self._origin = max(self._origin, wall - t)       # late (host stalled): stretch, never jump
+        return True
+
+    def _stuck(self) -> None:
+        for a in self._actors.values():
+            a.woke_by = "stuck"
+            a.token += 1
+            a.go.set()
+        self._holder = None
+
+    def _warn_stall(self) -> None:
+        holder = self._holder
+        th = next((t for t, a in self._actors.items() if a is holder), None)
+        frame = sys._current_frames().get(th.ident) if th is not None and th.ident else None
+        stack = "".join(traceback.format_stack(frame)) if frame is not None else "(callback)"
+        log.warning("sim_clock_stalled", holder=getattr(holder, "name", "callback"),
+                    wall_s=self._stall_warn_s, at=self._now, stack=stack)
+
+
+class VirtualTask:
+    """A participant thread started by :meth:`VirtualClock.spawn`."""
+
+    def __init__(self, clock: VirtualClock, name: str):
+        self.name = name
+        self._clock = clock
+        self._finished = False
+        self._done = VirtualEvent(clock)
+        self._thread: threading.Thread | None = None
+
+    @property
+    def finished(self) -> bool:
+        return self._finished
+
+    def join(self, timeout: float | None = None) -> bool:
+        """A participant waits in clock time; any other thread waits in wall time."""
+        if threading.current_thread() in self._clock._actors:
+            return self._done.wait(timeout)
+        if self._thread is not None:
+            self._thread.join(timeout)
+        return self._finished
+
+
+class VirtualEvent:
+    """``threading.Event`` on a :class:`VirtualClock` (time-outs in clock seconds)."""
+
+    def __init__(self, clock: VirtualClock):
+        self._clock = clock
+        self._flag = False
+        self._waiters: list[tuple[_Actor, int]] = []
+
+    def is_set(self) -> bool:
+        return self._flag
+
+    def set(self) -> None:
+        with self._clock._mu:
+            self._set_locked()
+
+    def _set_locked(self) -> None:
+        self._flag = True
+        for a, token in self._waiters:
+            if token == a.token:
+                self._clock._wake(a, token, "event")
+        self._waiters.clear()
+
+    def clear(self) -> None:
+        self._flag = False
+
+    def wait(self, timeout: float | None = None) -> bool:
+        c = self._clock
+        a = c._me("event wait")
+        with c._mu:
+            if self._flag:
+                return True
+            if timeout is not None and timeout <= 0:
+                return False
+            self._waiters.append((a, a.token + 1))   # the token _park is about to take
+            c._park(a, None if timeout is None else c._now + timeout)
+            self._waiters = [(w, t) for w, t in self._waiters if w is not a]
+            return self._flag
+
+
+class VirtualQueue:
+    """FIFO on a :class:`VirtualClock`: ``get`` waits in clock time and raises
+    ``queue.Empty`` on time-out, as ``queue.Queue.get`` does."""
+
+    def __init__(self, clock: VirtualClock):
+        self._clock = clock
+        self._items: deque = deque()
+        self._waiters: list[tuple[_Actor, int]] = []
+
+    def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None:
+        c = self._clock
+        with c._mu:
+            self._items.append(item)
+            for a, token in self._waiters:
+                if token == a.token:
+                    c._wake(a, token, "event")
+            self._waiters.clear()
+
+    def put_nowait(self, item: Any) -> None:
+        self.put(item)
+
+    def get(self, block: bool = True, timeout: float | None = None) -> Any:
+        c = self._clock
+        with c._mu:
+            if self._items:
+                return self._items.popleft()
+            if not block or (timeout is not None and timeout <= 0):
+                raise queue.Empty
+        a = c._me("queue get")
+        with c._mu:
+            deadline = None if timeout is None else c._now + timeout
+            while not self._items:
+                if deadline is not None and c._now >= deadline:
+                    raise queue.Empty
+                self._waiters.append((a, a.token + 1))
+                c._park(a, deadline)
+                self._waiters = [(w, t) for w, t in self._waiters if w is not a]
+            return self._items.popleft()
+
+    def get_nowait(self) -> Any:
+        return self.get(block=False)
+
+    def empty(self) -> bool:
+        return not self._items
+
+    def qsize(self) -> int:
+        return len(self._items)
+
+    def clear(self) -> None:
+        with self._clock._mu:
+            self._items.clear()
