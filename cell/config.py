@@ -83,8 +83,8 @@ class SimSection(_Section):
     plant: str = "deploy/plants/default.yaml"
     part_jitter_mm: float = Field(default=1.0, ge=0, le=20)
     station_sigma_s: float = Field(default=0.0005, ge=0, le=0.1)   #: seed 002 λ = σ·i
-    camera_px: tuple[int, int] = (1280, 1024)                        #: rendered image size
-    camera_mm_per_px: float = Field(default=0.04, gt=0.001, le=1)
+    camera_px: tuple[int, int] = (640, 512)                          #: rendered image size
+    camera_mm_per_px: float = Field(default=0.08, gt=0.001, le=1)    #: 51 × 41 mm field
     seed: int = 0
 
 

@@ -84,7 +84,8 @@ class Mover:
 
     def _vmax(self, spec: MotionSpec) -> np.ndarray:
         cfg = getattr(self.stations, "cfg", None)
-        limits = [cfg.station(j).max_velocity if cfg is not None else math.inf for j in JOINT_NAMES]
+        # 1 % below the drive's own limit, which would clip (and so delay) a faster set-point
+        limits = [0.99 * cfg.station(j).max_velocity if cfg is not None else math.inf for j in JOINT_NAMES]
         return np.minimum(float(spec.joint_speed), np.array(limits, dtype=float))
 
     def plan(self, q_from, q_to, spec: MotionSpec) -> tuple[list[Segment], MoveReport]:
@@ -104,12 +105,15 @@ class Mover:
         n = max(1, math.ceil(ideal / T - 1e-9))
         for _ in range(6):
             joints, path = self._waypoints(q0, q1, n, spec)
-            segs, delays = self._segments(joints, spec)
-            speed = np.max(np.abs(np.array([s.velocity_deg_s for s in segs])), axis=0)
-            over = float(np.max(speed / vmax))
-            if over <= 1.0 + 1e-9:
+            steps = np.abs(np.diff(joints, axis=0))
+            slack = T
+            if spec.mode == "corrected":           # corrected velocities are Δθ/(T − λ)
+                slack -= float(np.max(self.stations.burst_delays(joints[1], steps[0] / T)))
+            over = float(np.max(np.max(steps, axis=0) / max(slack, 1e-9) / vmax))
+            if over <= 1.0:
                 break
             n = math.ceil(n * over * 1.02)
+        segs, delays = self._segments(joints, spec)
         return segs, MoveReport(spec.mode, path, n, T, tuple(float(d) for d in delays), n * T)
 
     def move(self, q_from, q_to, spec: MotionSpec, timeout_s: float, tol: float) -> MoveReport:
@@ -141,13 +145,19 @@ class Mover:
         T = float(spec.segment_s)
         steps = np.diff(joints, axis=0)
         segs, lams = [], []
+        lam = None
         for k in range(1, len(joints)):
             d = steps[k - 1]
             v = d / T
-            lam = self.stations.burst_delays(joints[k], v, 0x400 if spec.mode == "sync" else 0x200)
-            if spec.mode == "corrected":
+            if spec.mode != "corrected":
+                lam = self.stations.burst_delays(joints[k], v, 0x400 if spec.mode == "sync" else 0x200)
+            else:
+                if lam is None:
+                    lam = self.stations.burst_delays(joints[k], v)
                 for _ in range(5):               # the velocities change the frames' bits
-                    v = delay_corrected_velocities(d, T, lam)
+                    if T <= float(np.max(lam)):  # seed 002's formula has no answer: refuse
+                        delay_corrected_velocities(d, T, lam)
+                    v = d / (T - lam)            # seed 002: ωᵢ = Δθᵢ / (T − λᵢ)
                     again = self.stations.burst_delays(joints[k], v)
                     if np.array_equal(again, lam):
                         break

@@ -37,6 +37,9 @@ from drivers.stations import JointStations, StationConfig, StationsConfig
 
 _channels = itertools.count()
 CAMERA_FRAME_S = 0.02        #: exposure + read-out of one simulated frame, clock seconds
+#: the cell's renderer: 2×2 samples per pixel (the vision bench uses 4×4 for its Cramér–Rao
+#: comparison; at 2×2 a fiducial's edge is still anti-aliased and its centre unbiased)
+CAMERA_OPTICS = Optics(supersample=2)
 
 
 @dataclass
@@ -77,8 +80,10 @@ class PartFeeder:
 
 def stations_config(robot: Scara, channel: str) -> StationsConfig:
     """The four stations on ``channel`` with the robot's joint limits; their latency is
-    measured on the bus at start-up (seed 002's λ, ``delays_s: measure``)."""
-    return StationsConfig(interface="virtual", channel=channel, delays_s="measure", stations=tuple(
+    measured on the bus at start-up (seed 002's λ, ``delays_s: measure``); positions come
+    every 20 ms and with every applied set-point."""
+    return StationsConfig(interface="virtual", channel=channel, delays_s="measure", tpdo_event_ms=20,
+                          stations=tuple(
         StationConfig(joint=j, node_id=i + 1, limits=tuple(robot.g.limits[i]))
         for i, j in enumerate(JOINT_NAMES)))
 
@@ -107,7 +112,7 @@ class SimDevices:
         centre = tuple(self.plant.config.camera_center_mm)
         self.camera_model = CameraModel.nadir(*sim.camera_px, sim.camera_mm_per_px, centre_mm=centre)
         self._board: CircleGridBoard | None = None
-        self.camera = SimCamera(self.camera_model, self.scene, optics=Optics(), seed=sim.seed,
+        self.camera = SimCamera(self.camera_model, self.scene, optics=CAMERA_OPTICS, seed=sim.seed,
                                 clock=self.clock, frame_time_s=CAMERA_FRAME_S)
 
     def scene(self) -> list:

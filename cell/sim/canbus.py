@@ -1,19 +1,23 @@
 """The simulated CAN wire: python-can's ``virtual`` bus with a bitrate and a clock.
 
 python-can's :class:`~can.interfaces.virtual.VirtualBus` hands a frame to every other
-bus on its channel at once and without limit. Here every bus opened on one channel also
-shares one :class:`VirtualWire` on the simulated clock (:class:`cell.sim.clock.VirtualClock`):
+bus on its channel at once and without limit. :class:`VirtualCanBus` is that bus, and
+every one opened on a channel also shares one :class:`VirtualWire` on the simulated clock
+(:class:`cell.sim.clock.VirtualClock`):
 
 * each frame occupies the wire for ``frame_bits(msg) / bitrate`` seconds of clock time,
   with the bit stuffing computed exactly from the frame's bits, so an 8-byte standard data
   frame takes 111..135 µs at 1 Mbit/s;
 * frames go out one after another in the order ``send`` was called (FIFO; real CAN
   arbitrates by identifier, which only matters under contention and is not modelled);
-* at the *end* of its slot the frame goes through python-can's ``VirtualBus`` to the other
-  buses, stamped with that clock time, and each receiving bus hands it at once to its
-  listeners (a canopen ``Network`` and our bus monitor), in the order the buses joined:
-  the clock's thread plays the part of python-can's notifier thread, so delivery never
-  waits for a thread to get the CPU;
+* at the *end* of its slot the frame reaches the other buses, stamped with that clock
+  time, in the order they joined; a bus with listeners attached (a canopen ``Network``
+  and our bus monitor) hands it to them at once — the clock's thread plays the part of
+  python-can's notifier thread, so delivery never waits for a thread to get the CPU —
+  and a bus without puts a copy in its ``VirtualBus`` queue for ``recv``. Listeners share
+  one read-only copy of the frame (``VirtualBus.send`` deep-copies per receiver, ten
+  times the cost, which the simulated cell's thousand frames per simulated second cannot
+  afford);
 * ``send`` never blocks: the frame is queued, as in a CAN controller's transmit mailboxes.
   A frame the wire cannot carry — a CAN FD frame, more than 8 data bytes, an identifier
   beyond 11 (29) bits, or a send while ``tx_queue`` frames already wait — raises
@@ -25,6 +29,7 @@ Periodic frames (a heartbeat producer, ``bus.send_periodic``) are clock callback
 """
 from __future__ import annotations
 
+import queue
 import threading
 from copy import copy
 from typing import Any, Callable, Sequence
@@ -70,16 +75,10 @@ class VirtualWire:
 
     def _deliver(self, msg: can.Message, sender: "VirtualCanBus") -> None:
         sender._pending -= 1
-        try:
-            sender._inner.send(msg)          # python-can copies it to every other bus's queue
-        except can.CanError:
-            return                           # unplugged mid-frame: lost, as on a real wire
-        finally:
-            if sender._closed and sender._pending == 0:
-                sender._inner.shutdown()
+        msg.is_rx = True
         for bus in list(self.buses):
             if bus is not sender:
-                bus._dispatch()
+                bus._receive(msg)
 
 
 _wires: dict[str, VirtualWire] = {}
@@ -138,8 +137,8 @@ class ClockCyclicTask:
             self._timer.cancel()
 
 
-class VirtualCanBus(can.BusABC):
-    """A python-can bus on the simulated wire of ``channel``.
+class VirtualCanBus(VirtualBus):
+    """python-can's virtual bus on the simulated wire of ``channel``.
 
     :param channel: buses with the same name share one wire.
     :param bitrate: bit/s (10 k .. 1 M); all buses on a channel must agree.
@@ -170,7 +169,6 @@ class VirtualCanBus(can.BusABC):
             wire.buses.append(self)
         self._wire = wire
         self.clock = clock
-        self._inner = VirtualBus(channel=f"vw:{channel}", preserve_timestamps=True)
         self._listeners: list | None = None
         self._rx = clock.event()
         self._pending = 0
@@ -179,13 +177,12 @@ class VirtualCanBus(can.BusABC):
         self._state = can.BusState.ACTIVE
         self.bitrate = bitrate
         self.last_tx_timestamp: float | None = None
+        super().__init__(channel=f"vw:{channel}", preserve_timestamps=True, **kwargs)
         self.channel_info = f"virtual CAN {channel!r} at {bitrate} bit/s (simulated clock)"
-        super().__init__(channel=channel, **kwargs)
 
     # ------------------------------------------------------------------ sending
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if self._closed:
-            raise can.CanOperationError("Cannot operate on a closed bus")
+        self._check_if_open()
         why = _cannot_carry(msg)
         if why is None and self._pending >= self._tx_queue:
             why = f"transmit queue full ({self._tx_queue} frames waiting for the wire)"
@@ -204,34 +201,35 @@ class VirtualCanBus(can.BusABC):
         the list is read at each delivery), instead of queueing it for :meth:`recv`."""
         self._listeners = listeners
 
-    def _dispatch(self) -> None:
+    def _receive(self, msg: can.Message) -> None:
         if self._closed:
             return
         if self._listeners is None:
-            self._rx.set()                   # someone may be waiting in recv()
+            m = copy(msg)
+            m.channel = self.channel_id
+            self.queue.put(m)                # python-can's own receive queue, for recv()
+            self._rx.set()
             return
-        while True:
-            msg, _ = self._inner._recv_internal(0)
-            if msg is None:
-                return
-            for listener in list(self._listeners):
-                try:
-                    listener.on_message_received(msg)
-                except Exception:            # noqa: BLE001 -- like python-can's notifier: keep delivering
-                    log.exception("can_listener_failed", channel=self._wire.channel)
+        for listener in list(self._listeners):
+            try:
+                listener.on_message_received(msg)
+            except Exception:                # noqa: BLE001 -- like python-can's notifier: keep delivering
+                log.exception("can_listener_failed", channel=self._wire.channel)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         """Pull mode (no listeners attached): wait in clock time for the next frame."""
+        self._check_if_open()
+        deadline = None if timeout is None else self.clock.now() + timeout
         while True:
             self._rx.clear()
             try:
-                msg, _ = self._inner._recv_internal(0)
-            except can.CanError:
+                return self.queue.get_nowait(), False
+            except queue.Empty:
+                pass
+            left = None if deadline is None else deadline - self.clock.now()
+            if left is not None and left <= 0:
                 return None, False
-            if msg is not None or timeout == 0:
-                return msg, False
-            if not self._rx.wait(timeout):
-                return None, False
+            self._rx.wait(left)
 
     # ------------------------------------------------------------------ state
     @property
@@ -257,8 +255,6 @@ class VirtualCanBus(can.BusABC):
                 self._wire.buses.remove(self)
             if not self._wire.buses and _wires.get(self._wire.channel) is self._wire:
                 del _wires[self._wire.channel]
-        if self._pending == 0:
-            self._inner.shutdown()
 
 
 def _cannot_carry(msg: can.Message) -> str | None:

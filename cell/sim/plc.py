@@ -12,11 +12,12 @@ passes while a request is in flight. The only wall-time limit is the socket's ow
 
 Scan (task ``sim-plc-scan``, every ``scan_s`` of the injected clock, default 10 ms):
 
-1. read the whole map with one FC3 (``map.size`` registers) -> input image;
+1. write ``plc_heartbeat`` + 1 and read the whole map in one FC23 (read/write multiple
+   registers: the write happens first) -> input image; a plain FC3 read while the
+   heartbeat is paused;
 2. write the outputs that changed since the last scan, data before commands so a rising
    edge of ``execute`` always finds recipe and part id already written:
-   ``recipe_select`` (FC6), ``part_id`` (FC16, both words), ``command_word`` (FC6);
-3. write ``plc_heartbeat`` + 1 (FC6) unless paused.
+   ``recipe_select`` (FC6), ``part_id`` (FC16, both words), ``command_word`` (FC6).
 
 API calls (``select_recipe``, ``set_part_id``, ``set_command``) only change the output image;
 the next scan writes it, as a PLC program sets outputs that the I/O scan transfers.
@@ -72,8 +73,8 @@ class SimPlc:
         self._clock = clock or MonotonicClock()
         self._unit = unit
         self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
-        self._cv = threading.Lock()              # guards the images (short holds only)
-        self._scanned = self._clock.event()      # set after every scan
+        self._cv = threading.RLock()             # guards the images (short holds only)
+        self._waiters: list = []                 # (ready, event): set by the scan that makes ready() true
         self._inputs: dict[str, int] = {}
         self._outputs = {n: 0 for n in OUTPUTS}    # wanted values (replaced at start)
         self._written = dict(self._outputs)        # values last sent (or refused)
@@ -93,7 +94,7 @@ class SimPlc:
         if not self._client.connect():
             raise SimPlcError(f"SimPlc: cannot connect to {self._client.comm_params.host}:"
                               f"{self._client.comm_params.port}")
-        image = self._read_image()
+        image = self._exchange(None)
         if image is None or image["map_version"] != self.map.version:
             self._client.close()
             raise SimPlcError(f"SimPlc: server map_version "
@@ -169,16 +170,21 @@ class SimPlc:
         return self.map.bits("status_word", self.inputs()["status_word"])
 
     def _wait_for(self, ready: Callable[[], bool], timeout_s: float) -> bool:
-        deadline = self._clock.now() + timeout_s
-        while True:
-            self._scanned.clear()
+        """Wait (clock seconds) until a scan makes ``ready()`` true; the scan itself checks it,
+        so the waiter sleeps until then."""
+        event = self._clock.event()
+        with self._cv:
+            if ready():
+                return True
+            entry = (ready, event)
+            self._waiters.append(entry)
+        try:
+            event.wait(timeout_s)
+        finally:
             with self._cv:
-                if ready():
-                    return True
-            left = deadline - self._clock.now()
-            if left <= 0:
-                return False
-            self._scanned.wait(left)
+                if entry in self._waiters:
+                    self._waiters.remove(entry)
+                return ready()
 
     def wait_scans(self, n: int = 1, timeout_s: float = 5.0) -> None:
         """Block until ``n`` more scans completed; SimPlcError on timeout (clock seconds)."""
@@ -294,12 +300,15 @@ class SimPlc:
             self._stop.wait(max(0.0, next_t - self._clock.now()))
 
     def _scan(self) -> None:
-        image = self._read_image()
+        with self._cv:
+            hb = None if self._hb_paused else (self._heartbeat + 1) & 0xFFFF
+        image = self._exchange(hb)
         with self._cv:
             if image is not None:
                 self._inputs = image
+                if hb is not None:
+                    self._heartbeat = hb
             todo = [(n, self._outputs[n]) for n in OUTPUTS if self._outputs[n] != self._written[n]]
-            hb = None if self._hb_paused else (self._heartbeat + 1) & 0xFFFF
         for name, value in todo:
             code = self._write(name, value)
             if code < 0:
@@ -308,17 +317,22 @@ class SimPlc:
                 self._written[name] = value   # refused values are not retried
                 if code:
                     self.write_errors.append((name, value, code))
-        if hb is not None and self._write("plc_heartbeat", hb) == 0:
-            with self._cv:
-                self._heartbeat = hb
         with self._cv:
             if image is not None:
                 self._scans += 1
-        self._scanned.set()
+            for entry in [w for w in self._waiters if w[0]()]:
+                self._waiters.remove(entry)
+                entry[1].set()
 
-    def _read_image(self) -> dict[str, int] | None:
+    def _exchange(self, heartbeat: int | None) -> dict[str, int] | None:
+        """Read the whole map; with ``heartbeat``, write it first in the same FC23."""
         try:
-            rr = self._client.read_holding_registers(0, count=self.map.size, device_id=self._unit)
+            if heartbeat is None:
+                rr = self._client.read_holding_registers(0, count=self.map.size, device_id=self._unit)
+            else:
+                rr = self._client.readwrite_registers(
+                    read_address=0, read_count=self.map.size, write_address=self.map["plc_heartbeat"].address,
+                    values=[heartbeat], device_id=self._unit)
         except ModbusException as exc:
             self._link_error("read", exc)
             return None

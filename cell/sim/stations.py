@@ -306,7 +306,7 @@ class SimStation:
         if len(pdo_map.data) * 8 < pdo_map.length:
             self._emcy(EMCY_PDO_LENGTH, f"{pdo_map.name}: {len(pdo_map.data)} bytes, mapped {pdo_map.length} bits")
             return
-        vals = {v.index: v.raw for v in pdo_map.map if v.length}
+        vals = {v.index: v.od.decode_raw(v.get_data()) for v in pdo_map.map if v.length}
         now = self.clock.now()
         with self._lock:
             if 0x6040 in vals:
@@ -475,7 +475,7 @@ class SimStation:
                 0x606C: int(round(self._velocity()))}
         for var in tx.map:
             if var.length:
-                var.raw = live.get(var.index, 0)
+                var.set_data(var.od.encode_raw(live.get(var.index, 0)))
         try:
             tx.transmit()
         except can.CanError as exc:

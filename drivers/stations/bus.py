@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import re
 from typing import Any
 
 import can
@@ -26,18 +27,47 @@ _FIXED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, in
 _ERROR_FRAME_BITS = 6 + 8 + 3      # error flag, error delimiter, intermission
 
 
-def _crc15(bits: list[int]) -> int:
+_CRC15_POLY = 0x4599
+
+
+def _crc15_table() -> list[int]:
+    table = []
+    for i in range(256):
+        reg = i << 7
+        for _ in range(8):
+            reg = ((reg << 1) ^ _CRC15_POLY) & 0x7FFF if reg & 0x4000 else (reg << 1) & 0x7FFF
+        table.append(reg)
+    return table
+
+
+_CRC15_TABLE = _crc15_table()
+_LONG_RUNS = re.compile(r"0{4,}|1{4,}")     # shorter runs never hold a stuff bit
+
+
+def _crc15(value: int, nbits: int) -> int:
+    """CAN's CRC-15 of the ``nbits``-bit sequence ``value`` (most significant bit first):
+    the leading ``nbits % 8`` bits one at a time, the rest a byte at a time by table."""
     crc = 0
-    for b in bits:
-        nxt = b ^ ((crc >> 14) & 1)
-        crc = (crc << 1) & 0x7FFF
-        if nxt:
-            crc ^= 0x4599
+    lead = nbits % 8
+    for i in range(lead):
+        bit = (value >> (nbits - 1 - i)) & 1
+        crc = (((crc << 1) & 0x7FFF) ^ _CRC15_POLY) if bit ^ (crc >> 14) else (crc << 1) & 0x7FFF
+    rest = nbits - lead
+    for byte in (value & ((1 << rest) - 1)).to_bytes(rest // 8, "big"):
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC15_TABLE[((crc >> 7) ^ byte) & 0xFF]
     return crc
 
 
-def _bits(value: int, width: int) -> list[int]:
-    return [(value >> (width - 1 - i)) & 1 for i in range(width)]
+def _stuff_bits(bits: str) -> int:
+    """Stuff bits CAN inserts in ``bits`` ('0'/'1'): one after every 5 equal bits; a stuff
+    bit counts towards the run that follows it when that run has its value."""
+    stuffed, carry_to = 0, -1
+    for run in _LONG_RUNS.finditer(bits):
+        start, end = run.span()
+        n = end - start + (start == carry_to)
+        stuffed += n // 5
+        carry_to = end if n % 5 == 0 else -1
+    return stuffed
 
 
 def frame_bits(msg: can.Message) -> int:
@@ -55,28 +85,23 @@ def frame_bits(msg: can.Message) -> int:
     return _data_frame_bits(msg.arbitration_id, bool(msg.is_extended_id), bool(msg.is_remote_frame), dlc, data)
 
 
-@functools.lru_cache(maxsize=4096)
+def data_frame_bits(arbitration_id: int, data: bytes) -> int:
+    """:func:`frame_bits` of a standard-identifier data frame, without building a Message."""
+    return _data_frame_bits(arbitration_id, False, False, len(data), bytes(data))
+
+
+@functools.lru_cache(maxsize=8192)
 def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int, data: bytes) -> int:
     rtr = 1 if remote else 0
-    if extended:
+    if extended:      # SOF, base id 11, SRR, IDE, id extension 18, RTR, r1, r0
         aid = arbitration_id & 0x1FFFFFFF
-        bits = [0] + _bits(aid >> 18, 11) + [1, 1] + _bits(aid & 0x3FFFF, 18) + [rtr, 0, 0]
-    else:
-        bits = [0] + _bits(arbitration_id & 0x7FF, 11) + [rtr, 0, 0]
-    bits += _bits(dlc, 4)
-    for byte in data:
-        bits += _bits(byte, 8)
-    bits += _bits(_crc15(bits), 15)
-    stuffed, run, last = 0, 0, -1
-    for b in bits:
-        if b == last:
-            run += 1
-        else:
-            run, last = 1, b
-        if run == 5:  # insert the complement; it starts a new run of length 1
-            stuffed += 1
-            last, run = 1 - b, 1
-    return len(bits) + stuffed + _FIXED_TAIL_BITS
+        head, n = (((aid >> 18) << 2 | 0b11) << 18 | (aid & 0x3FFFF)) << 3 | rtr << 2, 1 + 11 + 2 + 18 + 3
+    else:             # SOF, id 11, RTR, IDE, r0
+        head, n = (arbitration_id & 0x7FF) << 3 | rtr << 2, 1 + 11 + 3
+    value = (head << 4 | dlc) << 8 * len(data) | int.from_bytes(data, "big")
+    n += 4 + 8 * len(data)
+    value, n = value << 15 | _crc15(value, n), n + 15
+    return n + _stuff_bits(format(value, f"0{n}b")) + _FIXED_TAIL_BITS
 
 
 def frame_time_s(msg: can.Message, bitrate: int) -> float:

@@ -406,8 +406,8 @@ class JointStations(StreamingMixin):
     def _setpoint_frame(self, s: _Station, target: float, vel: float) -> bytes:
         # at least 1 increment/s: a drive given 0 would stop short of a target a fraction
         # of an increment away (the smooth time law's first and last steps are tiny)
-        vel_inc = min(max(1, int(round(abs(vel) * s.cpu))), 2 ** 32 - 1)
-        return _SETPOINT.pack(int(round(target * s.cpu)), vel_inc)
+        vel_inc = min(max(1, round(abs(float(vel)) * s.cpu)), 2 ** 32 - 1)
+        return _SETPOINT.pack(round(float(target) * s.cpu), vel_inc)
 
     def _send(self, cob_id: int, data: bytes, action: str) -> float:
         """Send one frame under the command lock; returns its bus timestamp (the end of its

@@ -20,7 +20,7 @@ import numpy as np
 from cell.errors import CellError
 from cell.log import get_logger
 from drivers.stations import cia402
-from drivers.stations.bus import frame_bits, frame_time_s
+from drivers.stations.bus import data_frame_bits, frame_time_s
 
 log = get_logger("stations.driver")
 
@@ -134,9 +134,7 @@ class StreamingMixin:
         t = 0.0
         for s in self._stations:
             j = s.cfg.joint_index
-            msg = can.Message(arbitration_id=base + s.cfg.node_id, is_extended_id=False,
-                              data=self._setpoint_frame(s, q[j], v[j]))
-            t += frame_bits(msg) / self.cfg.bitrate
+            t += data_frame_bits(base + s.cfg.node_id, self._setpoint_frame(s, q[j], v[j])) / self.cfg.bitrate
             out[j] = t + self._latency[j]
         return out
 
