@@ -150,6 +150,7 @@ class ControllerCore:
         self.sm = StateMachine()
         self.fault_code = 0
         self.fault_text = ""
+        self.fault_at: float | None = None      #: clock time the latched fault was raised
         self.execute_refused = False
         self.cycle_count = 0
         self.recipe_number = 0
@@ -163,6 +164,7 @@ class ControllerCore:
         self._cycle_running = False
         self._next_refresh = 0.0
         self._recipes = RecipesIn()
+        self._now = 0.0
         self._actions: list = []
         self._results: dict[str, int] = {}
 
@@ -170,6 +172,7 @@ class ControllerCore:
     def started(self, now: float, recipes: RecipesIn) -> ScanOutputs:
         """The controller came up (recipes read once): STARTING → IDLE, nothing moves."""
         self._actions = []
+        self._now = now
         self._take_recipes(recipes)
         self._next_refresh = now + self.settings.recipe_refresh_s
         self.sm.fire(Event.STARTED)
@@ -195,7 +198,7 @@ class ControllerCore:
         """Read → update: decide this scan's register values and actions."""
         self._actions = []
         self._results = {}
-        now = inp.now
+        now = self._now = inp.now
         s = self.settings
         if inp.cycle_step is not None and self._cycle_running:
             self._follow(inp.cycle_step)
@@ -321,7 +324,7 @@ class ControllerCore:
             log.warning("further_fault_while_latched", code=int(code), detail=text)
             return
         if self.fault_code == 0:
-            self.fault_code, self.fault_text = int(code), text
+            self.fault_code, self.fault_text, self.fault_at = int(code), text, self._now
         log.error("fault", code=int(code), detail=text, state=state.name)
         if state.busy and state is not State.STOPPING:
             self._actions.append(CancelCycle(int(code), text))
@@ -356,7 +359,7 @@ class ControllerCore:
             log.error("reset_failed", error=r.text)
             self.sm.fire(Event.FAULT)
             return
-        self.fault_code, self.fault_text = 0, ""
+        self.fault_code, self.fault_text, self.fault_at = 0, "", None
         self.execute_refused = False
         self.sm.fire(Event.RESET_DONE)
         log.info("reset_done")
