@@ -35,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--recipe", default="bracket-a", help="recipe name (default bracket-a)")
     r.add_argument("--config", help="cell config (default: built-in simulated cell)")
     r.add_argument("--seed", type=int, help="seed of the simulated cell (default: the config's, 0)")
-    r.add_argument("--db", help=f"cycle log to append to (default: a fresh {DEFAULT_SIM_DB}; "
-                                "the previous one is kept as var/cell.prev.sqlite)")
+    r.add_argument("--db", help=f"cycle log to append to (default: a fresh log at the config's path, "
+                                f"{DEFAULT_SIM_DB} without --config; the previous one is kept as "
+                                "<name>.prev.sqlite)")
     r.add_argument("--first-part", type=int, default=1, help="first part id (default 1)")
     r.add_argument("--json", action="store_true", help="print the cycles as JSON at the end")
     r.set_defaults(func=run_sim)
@@ -91,7 +92,7 @@ def run_sim(args: argparse.Namespace) -> int:
     if args.cycles < 1:
         raise ConfigError(f"--cycles {args.cycles} must be ≥ 1")
     cfg = load_config(args.config, True, args.db, args.seed)
-    if not args.db and not args.config:
+    if not args.db:                        # a simulated cell starts from power-on, log included
         fresh_log(cfg.log.path)
     wall0 = time.monotonic()
     cell = Cell(cfg, devices="sim", plc_port=0)

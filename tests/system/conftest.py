@@ -1,14 +1,15 @@
 """Whole-cell fixtures: the simulated cell (real Modbus server on loopback, CANopen stations on
-the virtual bus, rendered camera, plant) driven by the simulated PLC (a real Modbus client).
+the virtual wire, rendered camera, plant) driven by the simulated PLC (a real Modbus client),
+all on one simulated clock.
 
-The cell here is the product's own ``cell.app.Cell``; only its sizes are shrunk for speed
-(a 640x512 camera at 0.08 mm/px covers the same field as the default 1280x1024 at 0.04; a
-recipe with a short z stroke and fast joints), and the PLC heartbeat timeout is 0.4 s.
+The cell here is the product's own ``cell.app.Cell``; only its recipe is shrunk for speed (a
+short z stroke and fast joints), and the PLC heartbeat timeout is 0.4 s. The test thread
+keeps the simulated time too (``Harness`` attaches it): every wait below is in simulated
+seconds, so host load changes how long a test takes, never what it sees.
 """
 from __future__ import annotations
 
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,9 @@ import pytest
 
 from cell.app import Cell
 from cell.config import CellConfig, SimSection
-from drivers.plc.register_map import PLC_MAP
+from cell.sim.clock import VirtualClock
 from cell.sim.plc import SimPlc
+from drivers.plc.register_map import PLC_MAP
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -52,8 +54,7 @@ def make_config(tmp_path: Path, **plc) -> CellConfig:
     shutil.copytree(REPO / "recipes", rdir)
     (rdir / "fast-a.yaml").write_text(FAST_RECIPE)
     (rdir / "slow-a.yaml").write_text(SLOW_RECIPE)      # a 2 s final move, to fail mid-motion
-    cfg = CellConfig(sim=SimSection(plant=str(REPO / "deploy/plants/default.yaml"),
-                                    camera_px=(640, 512), camera_mm_per_px=0.08))
+    cfg = CellConfig(sim=SimSection(plant=str(REPO / "deploy/plants/default.yaml")))
     return cfg.model_copy(update={
         "plc": cfg.plc.model_copy(update={"host": "127.0.0.1", "heartbeat_timeout_s": 0.4, **plc}),
         "log": cfg.log.model_copy(update={"path": str(tmp_path / "cell.sqlite")}),
@@ -63,38 +64,55 @@ def make_config(tmp_path: Path, **plc) -> CellConfig:
 
 
 class Harness:
-    """A started cell plus a connected simulated PLC."""
+    """A started cell plus a connected simulated PLC, on one simulated clock that the test
+    thread keeps too (until :meth:`close`)."""
 
     def __init__(self, tmp_path: Path):
         self.tmp_path = tmp_path
         self.config = make_config(tmp_path)
-        self.cell = Cell(self.config, sim=True, plc_port=0, jobs=False)
+        self.clock = VirtualClock()
+        self._attached = self.clock.attach("test")
+        self._attached.__enter__()
+        self.cell = self.new_cell()
         self.port = self.cell.start()
-        self.plc = SimPlc("127.0.0.1", self.port, scan_s=0.01)
+        self.plc = SimPlc("127.0.0.1", self.port, scan_s=0.01, clock=self.clock)
         self.plc.start()
         self.next_part = 1
+
+    def new_cell(self, port: int = 0) -> Cell:
+        """A cell on this harness's clock (a restart builds a second one on the same port)."""
+        return Cell(self.config, devices="sim", plc_port=port, jobs=False, clock=self.clock)
 
     @property
     def controller(self):
         return self.cell.controller
 
+    @property
+    def now(self) -> float:
+        return self.clock.now()
+
     def status(self) -> dict[str, bool]:
         return PLC_MAP.bits("status_word", self.plc.inputs()["status_word"])
 
-    def wait(self, pred, timeout_s: float = 10.0, what: str = "condition"):
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+    def sleep(self, seconds: float) -> None:
+        """Let ``seconds`` of simulated time pass."""
+        self.clock.sleep(seconds)
+
+    def wait(self, pred, timeout_s: float = 10.0, what: str = "condition", step_s: float = 0.001):
+        """Poll ``pred`` every ``step_s`` simulated seconds; returns its first true value."""
+        deadline = self.clock.now() + timeout_s
+        while self.clock.now() <= deadline:
             value = pred()
             if value:
                 return value
-            time.sleep(0.01)
-        raise AssertionError(f"timed out waiting for {what}; state {self.controller.sm.state.name}, "
-                             f"fault {self.controller.fault_code}")
+            self.clock.sleep(step_s)
+        raise AssertionError(f"timed out after {timeout_s} simulated s waiting for {what}; state "
+                             f"{self.controller.sm.state.name}, fault {self.controller.fault_code}")
 
     def present(self, recipe: str = "fast-a") -> int:
         part_id = self.next_part
         self.next_part += 1
-        self.cell.sim.feeder.present(part_id, self.cell.recipes.active[recipe].recipe)
+        self.cell.devices.feeder.present(part_id, self.cell.recipes.active[recipe].recipe)
         return part_id
 
     def cycle(self, recipe: str = "fast-a", timeout_s: float = 20.0) -> dict:
@@ -105,8 +123,12 @@ class Harness:
         return self.cell.motion.actual_positions()
 
     def close(self) -> None:
-        self.plc.stop()
-        self.cell.stop()
+        try:
+            self.plc.stop()
+            self.cell.stop()
+        finally:
+            self._attached.__exit__(None, None, None)
+            self.clock.close()
 
 
 @pytest.fixture
