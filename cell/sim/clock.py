@@ -317,9 +317,9 @@ class VirtualClock:
     def _paced(self, t: float) -> bool:
         """Pacing (lock held): True when ``t`` may run now; otherwise waits and returns False."""
         wall = self._wall()
-        if wall < self._last_wall:
-            raise ClockError(f"VirtualClock: the wall clock went back from {self._last_wall} "
-                             f"to {wall}; pacing needs a monotonic source")
+        if wall < self._last_wall:           # a broken wall source: never let it move us back
+            log.error("wall_clock_went_back", was=self._last_wall, now=wall)
+            self._origin -= self._last_wall - wall
         self._last_wall = wall
         due = self._origin + t
         if due > wall:

@@ -1,0 +1,176 @@
+"""The simulated cell's clock (cell/sim/clock.py): discrete-event time, one runner at a time,
+time moving only when every participant waits, pure or paced to wall time."""
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+
+import pytest
+
+from cell.clock import ClockError, ManualClock, MonotonicClock
+from cell.sim.clock import VirtualClock
+
+
+@pytest.fixture
+def clock():
+    c = VirtualClock()
+    yield c
+    c.close()
+
+
+def trace_of_three_tasks(clock: VirtualClock) -> list:
+    trace = []
+
+    def worker(name, period, n):
+        for _ in range(n):
+            clock.sleep(period)
+            trace.append((round(clock.now(), 9), name))
+    with clock.attach():
+        tasks = [clock.spawn(worker, n, n, p, k) for n, p, k in (("a", 0.01, 6), ("b", 0.015, 4), ("c", 0.03, 2))]
+        for t in tasks:
+            assert t.join()
+    return trace
+
+
+def test_tasks_run_in_time_order_and_the_same_way_every_time(clock):
+    first = trace_of_three_tasks(clock)
+    assert [t for t, _ in first] == sorted(t for t, _ in first)
+    # ties at 0.03 and 0.06 go in the order the waits were scheduled, the same every run
+    again = trace_of_three_tasks(VirtualClock())
+    assert [(round(t - first[0][0], 9), n) for t, n in first] == \
+        [(round(t - again[0][0], 9), n) for t, n in again]
+    assert len(first) == 12
+
+
+def test_time_moves_only_when_every_participant_waits(clock):
+    seen = []
+
+    def busy():
+        t0 = clock.now()
+        end = time.monotonic() + 0.05          # 50 ms of work on the host, no simulated time
+        while time.monotonic() < end:
+            pass
+        seen.append(("busy done", clock.now() - t0))
+
+    def sleeper():
+        clock.sleep(0.001)
+        seen.append(("slept", clock.now()))
+    with clock.attach():
+        a = clock.spawn(busy, "busy")
+        b = clock.spawn(sleeper, "sleeper")
+        a.join()
+        b.join()
+    assert seen[0] == ("busy done", 0.0)       # the sleeper's 1 ms did not pass meanwhile
+    assert seen[1] == ("slept", pytest.approx(0.001))
+
+
+def test_no_participant_no_time(clock):
+    fired = []
+    clock.call_at(0.5, fired.append, 1)
+    time.sleep(0.05)
+    assert clock.now() == 0.0 and fired == []  # nobody keeps the clock's time: it stands still
+    with clock.attach():
+        clock.sleep(1.0)
+    assert fired == [1] and clock.now() == 1.0
+
+
+def test_events_and_queues_time_out_in_clock_seconds(clock):
+    with clock.attach():
+        ev = clock.event()
+        t0 = clock.now()
+        assert ev.wait(0.25) is False and clock.now() - t0 == pytest.approx(0.25)
+        clock.call_later(0.1, ev.set)
+        assert ev.wait(5.0) is True and clock.now() - t0 == pytest.approx(0.35)
+        q = clock.queue()
+        clock.call_later(0.2, q.put, "x")
+        assert q.get(timeout=1.0) == "x" and clock.now() - t0 == pytest.approx(0.55)
+        with pytest.raises(queue.Empty):
+            q.get(timeout=0.05)
+        assert clock.now() - t0 == pytest.approx(0.6)
+        q.put("y")
+        q.clear()
+        assert q.empty()
+
+
+def test_a_participant_joins_a_task_in_clock_time(clock):
+    with clock.attach():
+        task = clock.spawn(clock.sleep, "sleeper", 2.0)
+        assert task.join(timeout=0.5) is False and clock.now() == pytest.approx(0.5)
+        assert task.join() is True and task.finished and clock.now() == pytest.approx(2.0)
+
+
+def test_waiting_from_a_thread_that_does_not_keep_the_time_is_refused(clock):
+    with pytest.raises(ClockError, match="does not keep this clock's time.*clock.attach"):
+        clock.sleep(0.1)
+    with pytest.raises(ClockError, match="MainThread"):
+        clock.event().wait(0.1)
+
+
+def test_the_clock_never_goes_back():
+    c = VirtualClock(start=10.0)
+    with c.attach():
+        c.sleep(1.0)
+        with pytest.raises(ClockError, match="cannot schedule at t = 5.0 s, the clock is at 11.0 s"):
+            c.call_at(5.0, print)
+        with pytest.raises(ClockError, match="must be ≥ 0"):
+            c.call_later(-1.0, print)
+        with pytest.raises(ClockError, match="nan"):
+            c.sleep_until(math.nan)
+        c.sleep_until(3.0)                    # a deadline already past: returns at once
+        assert c.now() == 11.0
+    c.close()
+    with pytest.raises(ClockError, match="not a finite time"):
+        VirtualClock(start=math.inf)
+    m = ManualClock(5.0)
+    with pytest.raises(ClockError, match="cannot advance by -1.0 s; a clock never goes back"):
+        m.advance(-1.0)
+    assert m.now() == 5.0
+
+
+def test_a_simulation_where_everybody_waits_forever_is_named(clock):
+    with clock.attach("tester"):
+        never = clock.event()
+        with pytest.raises(ClockError, match=r"simulation stuck at t = 0.000000 s.*tester"):
+            never.wait()
+
+
+def test_a_failing_callback_is_logged_and_time_goes_on(clock):
+    done = []
+    clock.call_at(0.1, lambda: 1 / 0)
+    clock.call_at(0.2, done.append, "after")
+    with clock.attach():
+        clock.sleep(0.3)
+    assert done == ["after"]
+
+
+def test_paced_clock_keeps_to_wall_time_and_stretches_after_a_stall():
+    """Entries never run before their wall time; after the host stalls, simulated time is
+    stretched (the next entries keep their spacing), never compressed to catch up."""
+    offset = [0.0]
+    c = VirtualClock(pace=True, wall=lambda: time.monotonic() + offset[0])
+    runs = []
+    for k in range(1, 9):
+        c.call_at(0.02 * k, lambda k=k: runs.append((c.now(), time.monotonic() + offset[0])))
+    c.call_at(0.085, lambda: offset.__setitem__(0, offset[0] + 1.0))   # the host "freezes" for 1 s
+    time.sleep(0.0)
+    deadline = time.monotonic() + 30
+    while len(runs) < 8 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    c.close()
+    assert [round(t, 9) for t, _ in runs] == [round(0.02 * k, 9) for k in range(1, 9)]
+    walls = [w for _, w in runs]
+    gaps = [b - a for a, b in zip(walls, walls[1:])]
+    assert all(g >= 0.02 - 1e-3 for g in gaps), gaps      # never faster than wall time
+
+
+def test_wall_clock_primitives_are_the_standard_ones():
+    c = MonotonicClock()
+    assert c.wall and isinstance(c.event(), threading.Event)
+    task = c.spawn(lambda: None, "noop")
+    assert task.join(1.0) and task.finished
+    with c.attach():
+        t0 = c.now()
+        c.sleep(0.001)
+        assert c.now() > t0
