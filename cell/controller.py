@@ -160,6 +160,7 @@ class CellController:
         active: ActiveRecipe | None = self.recipes.by_number(a.recipe_number)
         self._cancel = CancelToken(self.clock)
         cancel = self._cancel
+        self.runner.progress = State.APPROACH     # not the last cycle's step while this one starts
         if active is None:                       # the core saw it active: cannot happen
             cancel.cancel(0, f"recipe {a.recipe_number} vanished")
         self._worker = self.clock.spawn(self.runner.run_safely, "cell-cycle", active, a.part_id, cancel)

@@ -226,14 +226,22 @@ class ControllerCore:
 
         if inp.cycle_ended is not None:
             self._cycle_ended(inp.cycle_ended)
+        # part_id as it stood at each write: an execute edge latches the value written before
+        # it, not one the PLC wrote after it in the same scan
+        part_id = next((w.previous for w in inp.writes if w.name == "part_id"), inp.part_id)
         for w in inp.writes:                        # in the order the PLC wrote them
-            if w.name == "recipe_select":
+            if w.name == "part_id":
+                part_id = w.value
+            if w.name == "recipe_select" and w.value:   # 0 = no selection
                 self._pending_select = w.value
             if self._pending_select is not None and not self.sm.state.busy:
                 self._select_recipe(self._pending_select)
                 self._pending_select = None
             if w.name == "command_word" and link_ok:
-                self._on_command(w.value & ~w.previous, w.value, inp.part_id)
+                self._on_command(w.value & ~w.previous, w.value, part_id)
+        if self._pending_select is not None and not self.sm.state.busy:
+            self._select_recipe(self._pending_select)   # asked while busy: applied once idle
+            self._pending_select = None
         if self._pending_select is not None:
             self.recipe_status = RECIPE_BUSY
         # execute low in the image, with the link alive for a grace time: long enough for a PLC

@@ -196,6 +196,7 @@ class CycleRunner:
 
     def run(self, active: ActiveRecipe, part_id: int, cancel: CancelToken) -> CycleOutcome:
         """Run one cycle; returns how it ended (never raises)."""
+        self.progress = State.APPROACH
         r = active.recipe
         rec = CycleRecord(part_id=part_id, recipe=r.name, recipe_hash=active.hash, started_at=utc_now(),
                           finished_at="", status="aborted", cycle_time_s=0.0,

@@ -30,9 +30,10 @@ import numpy as np
 
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.trajectory.line import TIME_LAW_PEAK, TIME_LAWS, Segment, delay_corrected_velocities, plan_line
+from cell.trajectory.line import TIME_LAW_PEAK, TIME_LAWS, Segment, plan_line
 
 Mode = Literal["corrected", "sync", "none"]
+MAX_SEGMENTS = 100_000      #: a longer move is refused (at T = 10 ms: over 16 minutes)
 MODES: tuple[str, ...] = ("corrected", "sync", "none")
 
 
@@ -43,6 +44,7 @@ class Stations(Protocol):
 
     def stream(self, segments, mode: str = "reception", lead_s: float | None = None): ...
     def burst_delays(self, targets_deg, velocities_deg_s, base: int = 0x200) -> np.ndarray: ...
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float): ...
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None: ...
 
 
@@ -108,11 +110,19 @@ class Mover:
             steps = np.abs(np.diff(joints, axis=0))
             slack = T
             if spec.mode == "corrected":           # corrected velocities are Δθ/(T − λ)
-                slack -= float(np.max(self.stations.burst_delays(joints[1], steps[0] / T)))
-            over = float(np.max(np.max(steps, axis=0) / max(slack, 1e-9) / vmax))
+                lam = self.stations.burst_delays(joints[1], steps[0] / T)
+                slack -= float(np.max(lam))
+                if slack <= 0:
+                    j = int(np.argmax(lam))
+                    raise TrajectoryError(f"segment time T = {T * 1e3:.6g} ms is not longer than the delay "
+                                          f"of {JOINT_NAMES[j]} λ = {lam[j] * 1e3:.6g} ms")
+            over = float(np.max(np.max(steps, axis=0) / slack / vmax))
             if over <= 1.0:
                 break
             n = math.ceil(n * over * 1.02)
+            if n > MAX_SEGMENTS:
+                raise TrajectoryError(f"move needs more than {MAX_SEGMENTS} segments of "
+                                      f"{T * 1e3:.3f} ms at {spec.joint_speed:g} units/s")
         segs, delays = self._segments(joints, spec)
         return segs, MoveReport(spec.mode, path, n, T, tuple(float(d) for d in delays), n * T)
 
@@ -142,31 +152,36 @@ class Mover:
         return joints, "joints"
 
     def _segments(self, joints: np.ndarray, spec: MotionSpec) -> tuple[list[Segment], np.ndarray]:
-        T = float(spec.segment_s)
-        steps = np.diff(joints, axis=0)
-        segs, lams = [], []
-        lam = None
-        for k in range(1, len(joints)):
-            d = steps[k - 1]
+        segs, lams = segments_for(self.stations, joints, spec.segment_s, spec.mode)
+        return segs, (np.mean(lams, axis=0) if spec.mode == "corrected" else lams[0])
+
+
+def segments_for(stations: Stations, joints, segment_s: float, mode: str) -> tuple[list[Segment], np.ndarray]:
+    """The segments to stream through way-points ``joints`` (n+1, 4), one every ``segment_s``,
+    with the velocities of ``mode``, and each segment's burst delays λ (n, 4), s.
+
+    ``corrected`` velocities come from the stations (``corrected_velocities``): a velocity
+    is part of its own frame, so the two are solved together.
+    :raises TrajectoryError: T not longer than a delay (``corrected``).
+    """
+    T = float(segment_s)
+    joints = np.asarray(joints, dtype=float)
+    steps = np.diff(joints, axis=0)
+    segs, lams = [], []
+    for k in range(1, len(joints)):
+        d = steps[k - 1]
+        if mode == "corrected":
+            try:
+                v, lam = stations.corrected_velocities(joints[k], d, T)   # seed 002: Δθ/(T − λ)
+            except CellError as exc:
+                raise TrajectoryError(str(exc)) from exc
+        else:
             v = d / T
-            if spec.mode != "corrected":
-                lam = self.stations.burst_delays(joints[k], v, 0x400 if spec.mode == "sync" else 0x200)
-            else:
-                if lam is None:
-                    lam = self.stations.burst_delays(joints[k], v)
-                for _ in range(5):               # the velocities change the frames' bits
-                    if T <= float(np.max(lam)):  # seed 002's formula has no answer: refuse
-                        delay_corrected_velocities(d, T, lam)
-                    v = d / (T - lam)            # seed 002: ωᵢ = Δθᵢ / (T − λᵢ)
-                    again = self.stations.burst_delays(joints[k], v)
-                    if np.array_equal(again, lam):
-                        break
-                    lam = again
-            lams.append(lam)
-            segs.append(Segment(index=k, start_s=(k - 1) * T, duration_s=T,
-                                target_deg=joints[k].copy(), velocity_deg_s=v))
-        mean = np.mean(lams, axis=0) if spec.mode == "corrected" else lams[0]
-        return segs, mean
+            lam = stations.burst_delays(joints[k], v, 0x400 if mode == "sync" else 0x200)
+        lams.append(lam)
+        segs.append(Segment(index=k, start_s=(k - 1) * T, duration_s=T,
+                            target_deg=joints[k].copy(), velocity_deg_s=v))
+    return segs, np.array(lams)
 
 
 def check_mode(mode: str, segment_s: float, supports_sync: bool, delays_s) -> str | None:

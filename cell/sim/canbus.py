@@ -216,6 +216,18 @@ class VirtualCanBus(VirtualBus):
             except Exception:                # noqa: BLE001 -- like python-can's notifier: keep delivering
                 log.exception("can_listener_failed", channel=self._wire.channel)
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """The next frame that passes the filters, waiting up to ``timeout`` clock seconds
+        (python-can's ``BusABC.recv`` counts its time-out on the wall clock)."""
+        deadline = None if timeout is None else self.clock.now() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - self.clock.now())
+            msg, already_filtered = self._recv_internal(left)
+            if msg is not None and (already_filtered or self._matches_filters(msg)):
+                return msg
+            if deadline is not None and self.clock.now() >= deadline:
+                return None
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         """Pull mode (no listeners attached): wait in clock time for the next frame."""
         self._check_if_open()
@@ -271,5 +283,4 @@ def _cannot_carry(msg: can.Message) -> str | None:
 def open_virtual_bus(channel: str, bitrate: int | None, clock: VirtualClock | None = None,
                      **kwargs: Any) -> VirtualCanBus:
     """Backend ``"virtual"`` of :func:`drivers.stations.bus.open_bus`."""
-    kwargs.pop("rate_limited", None)
     return VirtualCanBus(channel=channel, bitrate=bitrate or 1_000_000, clock=clock, **kwargs)

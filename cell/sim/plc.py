@@ -184,7 +184,8 @@ class SimPlc:
             with self._cv:
                 if entry in self._waiters:
                     self._waiters.remove(entry)
-                return ready()
+        with self._cv:
+            return ready()
 
     def wait_scans(self, n: int = 1, timeout_s: float = 5.0) -> None:
         """Block until ``n`` more scans completed; SimPlcError on timeout (clock seconds)."""

@@ -116,6 +116,7 @@ class SimStation:
         self._pos_set = False
         self._timer: Timer | None = None
         self._wake_at: float | None = None
+        self._powered = False
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
         self.bus_off = False
@@ -124,8 +125,9 @@ class SimStation:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Power up and join the bus: boot-up frame, pre-operational, heartbeat on."""
-        if self.network is not None:
+        if self._powered:
             return
+        self._powered = True
         self.node = canopen.LocalNode(self.cfg.node_id, canopen.import_od(str(EDS_PATH), self.cfg.node_id))
         self._values: dict[tuple[int, int], int] = {}
         self.machine = DriveStateMachine()
@@ -168,16 +170,19 @@ class SimStation:
         self._tick()
 
     def stop(self) -> None:
-        """Switch off: leave the bus (nothing more is sent). Idempotent."""
-        self.unplug()
-
-    def unplug(self) -> None:
-        """Cut the station off the bus while its drive keeps its state (a pulled cable):
-        it falls silent; its own heartbeat consumer no longer hears the controller."""
+        """Switch off: leave the bus, the drive stops doing anything. Idempotent."""
         with self._lock:
+            self._powered = False
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer, self._wake_at = None, None
+        self.unplug()
+
+    def unplug(self) -> None:
+        """Cut the station off the bus (a pulled cable, or its CAN controller bus-off): it
+        falls silent, while the drive keeps running — its heartbeat consumer then no longer
+        hears the controller and faults it (a quick-stop ramp), as a real drive does."""
+        with self._lock:
             if self.network is not None:
                 net, self.network = self.network, None
                 if self.node is not None:
@@ -190,6 +195,8 @@ class SimStation:
         self.start()
 
     def _on_tx_failure(self, exc: Exception) -> None:
+        if self.bus_off:
+            return
         self.log.error("station_bus_off", error=str(exc))
         self.bus_off = True
         self.clock.call_later(0.0, self.unplug)      # not from inside the send that failed
@@ -482,7 +489,7 @@ class SimStation:
             self.log.info("tpdo_not_sent", error=str(exc))
 
     def _schedule(self, now: float, event_s: float) -> None:
-        if self.network is None:
+        if not self._powered:
             return
         due = []
         if self._setpoints:

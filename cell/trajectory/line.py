@@ -303,13 +303,15 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
 
 
 # --------------------------------------------------------------------------- simulation
-def _joint_breakpoints(plan: LinePlan, j: int, delay: float) -> tuple[np.ndarray, np.ndarray]:
-    """(times, positions) of joint ``j``'s piecewise-linear motion under ``delay``.
+def _joint_breakpoints(plan: LinePlan, j: int, delay) -> tuple[np.ndarray, np.ndarray]:
+    """(times, positions) of joint ``j``'s piecewise-linear motion under ``delay`` (s, one
+    value, or one per segment).
 
     Model (seed 002 stations): segment k's command arrives at start_s + delay; the joint
     then moves from wherever it is toward the segment target at |ω| and holds on arrival.
     A late joint that has not arrived when the next command comes simply takes the new one.
     """
+    delays = np.broadcast_to(np.asarray(delay, dtype=float), (len(plan.segments),))
     t_now, p_now = 0.0, float(plan.joints_deg[0, j])
     target, speed = p_now, 0.0
     ts, ps = [0.0], [p_now]
@@ -329,38 +331,41 @@ def _joint_breakpoints(plan: LinePlan, j: int, delay: float) -> tuple[np.ndarray
         ts.append(t_now)
         ps.append(p_now)
 
-    for seg in plan.segments:
-        advance(seg.start_s + delay)
+    for seg, d in zip(plan.segments, delays):
+        advance(seg.start_s + float(d))
         target, speed = float(seg.target_deg[j]), abs(float(seg.velocity_deg_s[j]))
     if target != p_now and speed > 0.0:
         advance(t_now + abs(target - p_now) / speed)
     return np.asarray(ts), np.asarray(ps)
 
 
-def _check_actual(actual_delays_s) -> np.ndarray:
-    lam = _finite_array("actual_delays_s", actual_delays_s, (4,))
+def _check_actual(actual_delays_s, n_segments: int | None = None) -> np.ndarray:
+    lam = _finite_array("actual_delays_s", actual_delays_s)
+    if lam.shape != (4,) and not (n_segments is not None and lam.shape == (n_segments, 4)):
+        raise TrajectoryError(f"actual_delays_s must have shape (4,)"
+                              f"{'' if n_segments is None else f' or ({n_segments}, 4)'}, got {lam.shape}")
     if (lam < 0).any():
-        i = int(np.argmax(lam < 0))
-        raise TrajectoryError(f"actual delay of {JOINT_NAMES[i]} = {lam[i]!r} s must be ≥ 0")
+        i = int(np.argwhere(lam < 0)[0][-1])
+        raise TrajectoryError(f"actual delay of {JOINT_NAMES[i]} = {float(lam[lam < 0][0])!r} s must be ≥ 0")
     return lam
 
 
 def joint_positions_at(plan: LinePlan, actual_delays_s, times_s) -> np.ndarray:
     """Exact joint positions (len(times), 4) of the simulated stations at ``times_s``.
 
-    ``actual_delays_s`` (4,) per joint, seconds: when each station really starts a
-    segment after its nominal start (may differ from ``plan.delays_s``).
+    ``actual_delays_s`` (4,) per joint, or (n, 4) per segment and joint, seconds: when each
+    station really starts a segment after its nominal start (may differ from ``plan.delays_s``).
     ``times_s`` is a scalar or 1-D array in seconds from the first segment's start;
     before 0 the joints are at the start way-point.
     :raises TrajectoryError: negative or non-finite delays, non-finite or non-1-D times.
     """
-    lam = _check_actual(actual_delays_s)
+    lam = _check_actual(actual_delays_s, plan.n_points)
     t = np.atleast_1d(_finite_array("times_s", times_s))
     if t.ndim != 1:
         raise TrajectoryError(f"times_s must be a scalar or 1-D array, got shape {t.shape}")
     out = np.empty((t.size, 4))
     for j in range(4):
-        bt, bp = _joint_breakpoints(plan, j, float(lam[j]))
+        bt, bp = _joint_breakpoints(plan, j, lam[..., j])
         out[:, j] = np.interp(t, bt, bp)
     return out
 
@@ -397,9 +402,9 @@ def simulate_line(robot: Scara, plan: LinePlan, actual_delays_s,
     :raises TrajectoryError: bad delays or ``samples_per_segment`` < 1.
     """
     m = _positive_int("samples_per_segment", samples_per_segment)
-    lam = _check_actual(actual_delays_s)
+    lam = _check_actual(actual_delays_s, plan.n_points)
     n, T = plan.n_points, plan.segment_s
-    t_end = max(float(_joint_breakpoints(plan, j, float(lam[j]))[0][-1]) for j in range(4))
+    t_end = max(float(_joint_breakpoints(plan, j, lam[..., j])[0][-1]) for j in range(4))
     t_main = np.linspace(0.0, n * T, n * m + 1)
     extra = max(0.0, t_end - n * T)
     n_tail = int(math.ceil(extra / (T / m))) if extra > 0 else 0

@@ -150,6 +150,7 @@ class JointStations(StreamingMixin):
         self._expect_operational = False
         self._recording: list[tuple[float, int, float]] | None = None
         self._heard: dict[int, int | None] = {}  # node id → NMT state of its last heartbeat
+        self._quick_stop_at = -1e9              # clock time the last quick stop was sent
         self._latency = np.zeros(4)            # per joint: frame end → set-point applied, s
         if cfg.delays_s != "measure":
             for s, d in zip(cfg.stations, cfg.delays_s):
@@ -194,6 +195,7 @@ class JointStations(StreamingMixin):
             self.latch, {s.cfg.node_id: s.joint for s in self._stations},
             timeout_s=c.heartbeat_tolerance * c.heartbeat_ms / 1000.0,
             period_s=min(0.02, c.heartbeat_ms / 4000.0), bus=bus, clock=self.clock)
+        self.watchdog.on_check = self._enforce_quick_stop
         self.monitor = BusMonitor(self.latch, self._expected(), c.unknown_frames, self._on_heartbeat)
         net.listeners.append(self.monitor)
         self.network = net
@@ -370,7 +372,27 @@ class JointStations(StreamingMixin):
     def _react(self, record: FaultRecord) -> None:
         """First fault: quick-stop every station (category 2), whatever thread we are in."""
         with self._cmd_lock:
+            self._quick_stop_at = self.clock.now()
             self._send_controlword_all(Command.QUICK_STOP)
+
+    def _enforce_quick_stop(self) -> None:
+        """While a fault is latched, a station whose statusword still says *Operation
+        enabled* did not get the quick stop (its frame was refused, e.g. a full transmit
+        queue): send it again, at every watchdog check, until it stops."""
+        if self.latch.record is None or not self._expect_operational or self.network is None:
+            return
+        if self.clock.now() - self._quick_stop_at < self.watchdog.period_s:
+            return                            # give the last one time to show in a TPDO
+        moving = [s for s in self._stations if s.tpdo_count and s.statusword & 0x6F == 0x27]
+        if not moving:
+            return
+        self._quick_stop_at = self.clock.now()
+        with self._cmd_lock:
+            for s in moving:
+                try:
+                    self.network.send_message(0x300 + s.cfg.node_id, _CONTROLWORD.pack(Command.QUICK_STOP.word))
+                except Exception as exc:      # noqa: BLE001 -- try again at the next check
+                    log.error("quick_stop_resend_failed", joint=s.joint, error=repr(exc))
 
     def _send_controlword_all(self, cmd: Command) -> None:
         if self.network is None or self.network.bus is None:

@@ -229,6 +229,8 @@ class HeartbeatWatchdog:
         self._bus_off_reported = False
         self._stop = self.clock.event()
         self._task = None
+        #: called after every check (the driver re-sends a quick stop that did not arrive)
+        self.on_check: Callable[[], None] | None = None
 
     def beat(self, node_id: int, nmt_state: int = 5) -> None:
         """Record a heartbeat from ``node_id`` now (called from the bus monitor)."""
@@ -278,3 +280,5 @@ class HeartbeatWatchdog:
             if not self._bus_off_reported:
                 self._bus_off_reported = True
                 self.latch.latch(FaultRecord(FaultCode.BUS_OFF, "CAN interface reports bus state ERROR (bus-off)"))
+        if self.on_check is not None:
+            self.on_check()

@@ -22,6 +22,8 @@ from cell.log import get_logger
 from drivers.stations import cia402
 from drivers.stations.bus import data_frame_bits, frame_time_s
 
+_SETPOINT = struct.Struct("<iI")                     # the driver's set-point frame layout
+
 log = get_logger("stations.driver")
 
 
@@ -137,6 +139,66 @@ class StreamingMixin:
             t += data_frame_bits(base + s.cfg.node_id, self._setpoint_frame(s, q[j], v[j])) / self.cfg.bitrate
             out[j] = t + self._latency[j]
         return out
+
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Seed 002's corrected velocities ωᵢ = Δθᵢ / (T − λᵢ) for one reception-applied burst,
+        solved together with the frames that carry them.
+
+        A velocity is part of its own frame, so it changes the frame's bits and with them
+        λᵢ (the end of the frame on the wire, plus the station's latency). Station by station
+        in bus order, the frames before it being fixed, the velocity and its frame are made
+        to agree; where they cannot (a stuff bit flips back and forth), the whole increment
+        per second whose frame comes closest is taken.
+
+        :param targets_deg: (4,) segment targets per joint; ``deltas_deg`` (4,) the joint
+            steps of the segment (target − previous target); ``segment_s`` T, s.
+        :returns: (velocities (4,) joint units/s, signed like the steps; λ (4,) s).
+        :raises StationCommandError: T not longer than a station's λ (the correction does
+            not exist: lengthen T or shorten the bus delays).
+        """
+        T = float(segment_s)
+        q = np.asarray(targets_deg, dtype=float)
+        d = np.asarray(deltas_deg, dtype=float)
+        vel, lam = np.zeros(4), np.zeros(4)
+        rate = float(self.cfg.bitrate)
+        t = 0.0
+        for s in self._stations:
+            j, cob = s.cfg.joint_index, 0x200 + s.cfg.node_id
+            target = round(float(q[j]) * s.cpu)
+            need = abs(float(d[j])) * s.cpu               # increments to travel
+
+            def frame_end(v_inc: int) -> float:
+                return t + data_frame_bits(cob, _SETPOINT.pack(target, v_inc)) / rate
+
+            def wanted(v_inc: int) -> float:
+                left = T - frame_end(v_inc) - self._latency[j]
+                if left <= 0:
+                    raise StationCommandError(
+                        f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
+                        f"λ = {(frame_end(v_inc) + self._latency[j]) * 1e3:.6g} ms")
+                return need / left
+            v_inc = max(1, round(wanted(max(1, round(need / T)))))
+            seen = [v_inc]
+            for _ in range(6):
+                nxt = max(1, round(wanted(v_inc)))
+                if nxt == v_inc:
+                    break
+                v_inc = nxt
+                seen.append(v_inc)
+            else:                                        # a flip-flop between frame lengths:
+                # a velocity agrees with its frame when, for the frame length b it gives, it
+                # is the velocity length b asks for; try every length near those met
+                lengths = {round((frame_end(v) - t) * rate) for v in seen}
+                near = set()
+                for b in range(min(lengths) - 6, max(lengths) + 7):
+                    c = round(need / max(T - t - b / rate - self._latency[j], 1e-12))
+                    near.update(range(max(1, c - 2), c + 3))
+                v_inc = min(sorted(near), key=lambda c: abs(c - wanted(c)))
+            end = frame_end(v_inc)
+            vel[j] = math.copysign(v_inc / s.cpu, d[j]) if d[j] else v_inc / s.cpu
+            lam[j] = end + self._latency[j]
+            t = end
+        return vel, lam
 
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None:
         """Block (clock time) until every station reports (TPDO) its last commanded target

@@ -33,3 +33,46 @@ def wait_for(pred, timeout=2.0, what="condition"):
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out waiting for {what}")
         time.sleep(0.002)
+
+
+# ------------------------------------------------------------------ simulated clock helpers
+def clock_wait_for(clock, pred, timeout=2.0, what="condition", step=0.0005):
+    """:func:`wait_for` in the time of ``clock`` (a ``VirtualClock`` the calling thread keeps
+    time on, or a wall clock): poll ``pred`` every ``step`` clock seconds; returns the clock
+    time at which it was first seen true; AssertionError naming ``what`` after ``timeout``
+    clock seconds. On the simulated clock the result is exact to ``step``."""
+    deadline = clock.now() + timeout
+    while not pred():
+        if clock.now() >= deadline:
+            raise AssertionError(f"timed out after {timeout} s of clock time waiting for {what} "
+                                 f"(clock at {clock.now():.6f} s)")
+        clock.sleep(step)
+    return clock.now()
+
+
+def unique_channel(prefix="t"):
+    """A virtual CAN channel name no other test uses (wires are shared by name)."""
+    import uuid
+    return f"{prefix}-{uuid.uuid4().hex[:8]}"
+
+
+def drain(bus):
+    """Every frame a pull-mode (sniffing) bus holds right now, oldest first (never waits)."""
+    out = []
+    while True:
+        msg = bus.recv(0)
+        if msg is None:
+            return out
+        out.append(msg)
+
+
+@pytest.fixture
+def vclock():
+    """A fresh pure ``VirtualClock`` whose time the test's thread keeps for the whole test
+    (setup, body and teardown of fixtures requested after it); closed afterwards."""
+    from cell.sim.clock import VirtualClock
+    clock = VirtualClock()
+    with clock.attach("test"):
+        yield clock
+    clock.close()
+    assert clock._thread is None or not clock._thread.is_alive(), "the clock's thread outlived the test"

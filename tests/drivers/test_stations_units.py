@@ -1,22 +1,21 @@
-"""Unit tests: CiA 402 state machine, wire timing, bus factory, config, bus monitor.
-Real frames (python-can Message), real buses; no mocks."""
+"""Unit tests: CiA 402 state machine, frame bits, bus factory, config, bus monitor, fault
+latch, heartbeat watchdog (on the simulated clock). Real frames (python-can Message), real
+buses; no mocks. The wire itself is tested in test_canbus.py."""
 from __future__ import annotations
 
-import threading
-import time
-import uuid
-
 import can
+import numpy as np
 import pytest
 
 from cell.errors import CellError, ConfigError
 from drivers.stations import cia402
-from drivers.stations.bus import frame_bits, frame_time_s, open_bus, wire_stats
+from drivers.stations.bus import data_frame_bits, frame_bits, frame_time_s, open_bus
 from drivers.stations.cia402 import Command, DriveStateMachine, IllegalTransition, Internal, State
-from drivers.stations.config import StationsConfig
-from drivers.stations.driver import JointStations
+from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
+from drivers.stations.driver import EDS_PATH, JointStations
 from drivers.stations.faults import (BusMonitor, Expected, FaultCode, FaultLatch, FaultRecord,
                                      HeartbeatWatchdog, StationFaultError)
+from tests.drivers.conftest import unique_channel
 
 # ------------------------------------------------------------------ CiA 402
 # statuswords from CiA 402-2 table 30 (state bits only)
@@ -98,52 +97,58 @@ def test_frame_bits_bounds_and_stuffing():
         frame_bits(can.Message(arbitration_id=1, data=bytes(12), is_fd=True))
 
 
-def test_shared_wire_limits_two_senders_together():
-    ch = f"u-{uuid.uuid4().hex[:8]}"
-    a, b, rx = open_bus("virtual", ch), open_bus("virtual", ch), open_bus("virtual", ch)
-    try:
-        msg = can.Message(arbitration_id=0x201, data=bytes(8), is_extended_id=False)
-        ts = threading.Thread(target=lambda: [a.send(msg) for _ in range(100)])
-        ts.start()
-        for _ in range(100):
-            b.send(msg)
-        ts.join()
-        stamps = sorted(rx.recv(2.0).timestamp for _ in range(200))
-        assert (stamps[-1] - stamps[0]) >= 199 * frame_time_s(msg, 1_000_000) - 1e-6
-        assert wire_stats(ch)[0] == 200
-    finally:
-        for bus in (a, b, rx):
-            bus.shutdown()
-    assert wire_stats(ch) is None
+def _reference_bits(aid: int, data: bytes, extended: bool = False, remote: bool = False, dlc=None) -> int:
+    """ISO 11898-1 written out bit by bit (independent of the table-driven production code):
+    arbitration + control + data + CRC-15, stuffed (a complementary bit after five equal
+    ones, which starts the next run), + CRC delimiter, ACK, EOF, intermission (13)."""
+    dlc = len(data) if dlc is None else dlc
+    rtr = "1" if remote else "0"
+    if extended:
+        bits = "0" + f"{aid >> 18:011b}" + "11" + f"{aid & 0x3FFFF:018b}" + rtr + "00"
+    else:
+        bits = "0" + f"{aid:011b}" + rtr + "00"
+    bits += f"{dlc:04b}" + ("" if remote else "".join(f"{b:08b}" for b in data))
+    crc = 0
+    for b in bits:
+        feedback = int(b) ^ (crc >> 14)
+        crc = (crc << 1) & 0x7FFF
+        if feedback:
+            crc ^= 0x4599
+    bits += f"{crc:015b}"
+    stuffed, run, last = 0, 0, None
+    for b in bits:
+        run = run + 1 if b == last else 1
+        last = b
+        if run == 5:
+            stuffed += 1
+            last, run = ("1" if b == "0" else "0"), 1
+    return len(bits) + stuffed + 13
+
+
+def test_frame_bits_match_the_standard_bit_by_bit():
+    rng = np.random.default_rng(2002)
+    cases = [(0x000, bytes(8)), (0x7FF, b"\xff" * 8), (0x555, b""), (0x080, b""), (0x181, b"\x0f" * 8)]
+    cases += [(int(rng.integers(0, 0x800)), rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8).tobytes())
+              for _ in range(300)]
+    for aid, data in cases:
+        msg = can.Message(arbitration_id=aid, data=data, is_extended_id=False)
+        assert frame_bits(msg) == _reference_bits(aid, data), (hex(aid), data.hex())
+        assert data_frame_bits(aid, data) == frame_bits(msg)
+    for _ in range(100):
+        aid = int(rng.integers(0, 0x20000000))
+        data = rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8).tobytes()
+        msg = can.Message(arbitration_id=aid, data=data, is_extended_id=True)
+        assert frame_bits(msg) == _reference_bits(aid, data, extended=True), (hex(aid), data.hex())
+    remote = can.Message(arbitration_id=0x181, is_remote_frame=True, dlc=6, is_extended_id=False)
+    assert frame_bits(remote) == _reference_bits(0x181, b"", remote=True, dlc=6)
+    assert frame_bits(can.Message(is_error_frame=True)) == 17
 
 
 def test_bus_factory_errors():
     with pytest.raises(ConfigError, match="'nosuchcan' is not a known CAN interface"):
         open_bus("nosuchcan", "x")
-    with pytest.raises(ConfigError, match="bitrate = 2000000"):
-        open_bus("virtual", "x", 2_000_000)
-    with pytest.raises(ConfigError, match="only applies to the virtual"):
-        open_bus("socketcan", "can0", rate_limited=False)
-    ch = f"u-{uuid.uuid4().hex[:8]}"
-    a = open_bus("virtual", ch, 1_000_000)
-    try:
-        with pytest.raises(ConfigError, match="runs at 1000000 bit/s"):
-            open_bus("virtual", ch, 500_000)
-    finally:
-        a.shutdown()
-
-
-def test_unlimited_virtual_bus_is_separate_and_fast():
-    ch = f"u-{uuid.uuid4().hex[:8]}"
-    a, b = open_bus("virtual", ch, rate_limited=False), open_bus("virtual", ch, rate_limited=False)
-    try:
-        msg = can.Message(arbitration_id=0x201, data=bytes(8), is_extended_id=False)
-        for _ in range(50):
-            a.send(msg)
-        assert sum(1 for _ in range(50) if b.recv(1.0) is not None) == 50
-    finally:
-        a.shutdown()
-        b.shutdown()
+    with pytest.raises(ConfigError, match="runs on the simulated clock"):
+        open_bus("virtual", unique_channel("u"))          # no clock: the virtual wire needs one
 
 
 # ------------------------------------------------------------------ config
@@ -165,10 +170,46 @@ def test_config_errors_name_the_field(data, match):
         JointStations.from_config(data)
 
 
-def test_config_default_is_seed002_order():
+@pytest.mark.parametrize("data, match", [
+    ({"rate_limited": False}, r"stations.rate_limited: Extra inputs"),      # removed with the real wire
+    ({"tpdo_event_ms": 10_001}, r"stations.tpdo_event_ms"),
+    ({"tpdo_event_ms": 0}, r"stations.tpdo_event_ms"),
+    ({"stations": [{"joint": "j1", "node_id": 1, "limits": [-2e6, 2e6]}] + [{"joint": j, "node_id": i}
+      for i, j in ((2, "j2"), (3, "j3"), (4, "j4"))]}, "do not fit a 32-bit position"),
+    ({"stations": [{"joint": "j1", "node_id": 1, "supports_sync": "maybe"}]}, r"supports_sync"),
+])
+def test_config_errors_of_the_new_fields(data, match):
+    with pytest.raises(ConfigError, match=match):
+        StationsConfig.load(data)
+
+
+def test_config_defaults():
     cfg = StationsConfig()
     assert [s.node_id for s in cfg.stations] == [1, 2, 3, 4]
-    assert cfg.station("j3").joint_limits == (0, 100)
+    assert JOINT_NAMES == ("j1", "j2", "j3", "j4")
+    assert [s.joint_index for s in cfg.stations] == [0, 1, 2, 3]
+    # limits=None: the drive's whole 32-bit range (no preset), symmetric and just inside it
+    j3 = cfg.station("j3")
+    lo, hi = j3.joint_limits
+    assert lo == -hi and hi * j3.counts_per_unit == pytest.approx(2 ** 31 - 2)
+    assert j3.counts_per_unit == pytest.approx(10_000 * 50 / 360)
+    assert all(s.supports_sync for s in cfg.stations)
+    assert StationsConfig.load({"tpdo_event_ms": 10_000}).tpdo_event_ms == 10_000
+    assert EDS_PATH.name == "scara_axis.eds" and EDS_PATH.is_file()
+
+
+def test_supports_sync_and_latency_from_config():
+    st = [StationConfig(joint=j, node_id=i + 1, supports_sync=(j != "j3")) for i, j in enumerate(JOINT_NAMES)]
+    js = JointStations.from_config({"stations": st, "delays_s": [0.004, 0.001, 0.003, 0.002]})
+    assert js.supports_sync is False
+    np.testing.assert_array_equal(js.latency_s, [0.004, 0.001, 0.003, 0.002])
+    # bus order ≠ joint order: delays_s is in bus order, latency_s per joint j1..j4
+    order = [StationConfig(joint=j, node_id=n) for j, n in (("j3", 1), ("j1", 2), ("j4", 3), ("j2", 4))]
+    js = JointStations.from_config({"stations": order, "delays_s": [0.001, 0.002, 0.003, 0.004]})
+    assert js.supports_sync is True
+    np.testing.assert_array_equal(js.latency_s, [0.002, 0.004, 0.001, 0.003])
+    js.latency_s[0] = 99.0                             # a copy: the driver's value is safe
+    assert js.latency_s[0] == 0.002
 
 
 # ------------------------------------------------------------------ bus monitor, latch, watchdog
@@ -222,34 +263,61 @@ def test_latch_first_fault_wins_and_reacts_once():
     latch.check("move_to")
 
 
-def test_watchdog_declares_silence():
-    latch = FaultLatch()
-    wd = HeartbeatWatchdog(latch, {1: "j1", 2: "j2"}, timeout_s=0.05, period_s=0.005)
+def test_watchdog_declares_silence_within_one_period(vclock):
+    latch, when = FaultLatch(), []
+    latch.on_latch(lambda r: when.append(vclock.now()))
+    timeout, period = 0.05, 0.005
+    wd = HeartbeatWatchdog(latch, {1: "j1", 2: "j2"}, timeout_s=timeout, period_s=period, clock=vclock)
+    t_arm = vclock.now()
     wd.arm()
     try:
-        deadline = time.monotonic() + 1.0
-        while latch.record is None and time.monotonic() < deadline:
-            wd.beat(1)
-            time.sleep(0.005)
+        while latch.record is None and vclock.now() < t_arm + 1.0:
+            wd.beat(1)                        # j1 keeps beating, j2 never does
+            vclock.sleep(0.001)
+        assert wd.silent() == [2]
     finally:
         wd.stop()
     assert latch.record.code is FaultCode.HEARTBEAT_LOST and latch.record.joint == "j2"
+    assert latch.record.node_id == 2 and len(latch.history) == 1      # j1 was never reported
+    # silent = overdue by more than timeout_s, found at the next check: (timeout, timeout + period]
+    assert t_arm + timeout - 1e-9 < when[0] <= t_arm + timeout + period + 1e-9
     with pytest.raises(ValueError, match="must be > 0"):
         HeartbeatWatchdog(latch, {}, timeout_s=0, period_s=1)
 
 
-def test_watchdog_sees_bus_off():
-    ch = f"u-{uuid.uuid4().hex[:8]}"
-    bus = open_bus("virtual", ch)
+def test_watchdog_reports_a_station_once_and_again_after_it_came_back(vclock):
     latch = FaultLatch()
-    wd = HeartbeatWatchdog(latch, {}, timeout_s=1.0, period_s=0.005, bus=bus)
+    wd = HeartbeatWatchdog(latch, {3: "j3"}, timeout_s=0.02, period_s=0.004, clock=vclock)
+    wd.arm()
+    try:
+        vclock.sleep(0.1)
+        assert [r.code for r in latch.history] == [FaultCode.HEARTBEAT_LOST]   # once, not per check
+        latch.clear()
+        t_beat = vclock.now()
+        wd.beat(3)
+        assert wd.silent() == []
+        vclock.sleep(0.1)
+        assert len(latch.history) == 2 and latch.record.joint == "j3"
+        assert "no heartbeat for" in latch.record.detail and "allowed 20 ms" in latch.record.detail
+    finally:
+        wd.stop()
+    assert t_beat > 0 and wd._task is None
+
+
+def test_watchdog_sees_bus_off(vclock):
+    bus = open_bus("virtual", unique_channel("u"), clock=vclock)
+    latch, when = FaultLatch(), []
+    latch.on_latch(lambda r: when.append(vclock.now()))
+    wd = HeartbeatWatchdog(latch, {}, timeout_s=1.0, period_s=0.005, bus=bus, clock=vclock)
     try:
         wd.arm()
+        vclock.sleep(0.0123)
+        assert latch.record is None               # ACTIVE bus: nothing to report
+        t_err = vclock.now()
         bus.state = can.BusState.ERROR
-        deadline = time.monotonic() + 1.0
-        while latch.record is None and time.monotonic() < deadline:
-            time.sleep(0.005)
+        vclock.sleep(0.05)
     finally:
         wd.stop()
         bus.shutdown()
-    assert latch.record.code is FaultCode.BUS_OFF and len(latch.history) == 1
+    assert latch.record.code is FaultCode.BUS_OFF and len(latch.history) == 1   # reported once
+    assert t_err < when[0] <= t_err + 0.005 + 1e-9                              # at the next check
