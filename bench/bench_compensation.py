@@ -1,4 +1,4 @@
-"""Compensation benchmarks (issue 2, benchmarks 1 and 2). Prints Markdown tables.
+"""Compensation benchmarks. Prints Markdown tables.
 
 1. Seed 000 Table 1 side by side: as published, our ``paper`` run, our ``lattice`` method.
 2. A robot whose true geometry differs from the nominal one (link lengths ±0.5 mm, joint

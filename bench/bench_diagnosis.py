@@ -1,4 +1,4 @@
-"""Sim-to-real diagnosis validation (issue 5). Prints Markdown tables.
+"""Sim-to-real diagnosis validation. Prints Markdown tables.
 
 Runs ``cellctl diagnose validate`` twice: single hidden effects (the vocabulary plus
 ``none``, uniform), then a main effect plus a smaller second one (combos). Campaign design:

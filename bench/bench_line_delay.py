@@ -1,4 +1,4 @@
-"""Straight lines under CAN station delays (issue 2, benchmark 3). Prints Markdown tables.
+"""Straight lines under CAN station delays. Prints Markdown tables.
 
 Seed 002 robot (l1 = l2 = 200 mm, tool (0, 0, −50)), 4 stations in bus order j1..j4
 (λ_i = σ·i), segments T = 10 ms. A planar line at x = 300 mm, z = −30 mm, phi = 0, centred

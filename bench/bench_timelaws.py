@@ -1,4 +1,4 @@
-"""Time laws through joint way-points (issue 2, benchmark 4). Prints Markdown tables.
+"""Time laws through joint way-points. Prints Markdown tables.
 
 The three laws of :mod:`cell.trajectory.timelaw` (quintic polynomial, quintic B-spline,
 septic B-spline) on the same way-points and duration:

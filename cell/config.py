@@ -1,6 +1,6 @@
 """The cell config (``deploy/cell.yaml``): one section per subsystem, validated at load.
 
-Each section is a pydantic model with ``extra="forbid"`` (STYLE habit 1): an unknown key or
+Each section is a pydantic model with ``extra="forbid"``: an unknown key or
 a value out of range is a :class:`~cell.errors.ConfigError` naming file, line and field.
 Driver sections reuse the drivers' own models (``plc`` → ``drivers.plc.PlcConfig``,
 ``stations`` → ``drivers.stations.StationsConfig``); ``camera`` is handed to the camera

@@ -4,7 +4,7 @@ diagnosis (which fits it). Pure, vectorised numerics; no I/O.
 Each effect of :data:`EFFECTS` is a pure function of an explicit parameter vector, so a
 fitter can hand candidate vectors to :func:`simulate_points` / :func:`simulate_path` (e.g.
 inside ``scipy.optimize.least_squares``) exactly as the plant does with its true values.
-Names, subsystems and ``depends_on`` follow ``/work/shared/spec/measurements.md``.
+Names, subsystems and ``depends_on`` follow the measurement format, ``cell/measurements.md``.
 
 Composition order (one order, used everywhere)::
 

@@ -1,5 +1,5 @@
 """Export logged cycles to the measurement exchange format, so the diagnosis can read what the
-cell logged (``../shared/spec/measurements.md``).
+cell logged (``cell/measurements.md``).
 
 Every physical move of a cycle's compensation trace is one static measurement: the joint
 command it was reached with, the point the camera measured, the direction each joint last

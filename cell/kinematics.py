@@ -33,7 +33,7 @@ JOINT_NAMES = ("j1", "j2", "j3", "j4")
 
 
 class Geometry(BaseModel):
-    """A SCARA's geometry and joint set-up as data (robot models are data: STYLE habit 7).
+    """A SCARA's geometry and joint set-up as data (robot models are data).
 
     ``unit`` holds one command unit per joint (deg, deg, mm, deg); ``limits`` one
     ``[low, high]`` per joint in the same units.

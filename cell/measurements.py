@@ -1,4 +1,4 @@
-"""Measurement exchange format v1 (``../shared/spec/measurements.md``): read and write campaigns.
+"""Measurement exchange format v1 (``cell/measurements.md``): read and write campaigns.
 
 A campaign directory holds ``model.yaml`` (required), ``points.csv`` and/or ``paths.csv``.
 :func:`read_campaign` validates everything before returning: any bad input raises

@@ -1,4 +1,4 @@
-"""The cell's state machine: explicit states, events and one transition table (STYLE habit 6).
+"""The cell's state machine: explicit states, events and one transition table.
 
 An event that the table does not list for the current state raises
 :class:`IllegalTransition`; nothing changes silently. The numeric value of each state is

@@ -1,5 +1,5 @@
 """``cellctl diagnose``: where the sim-to-real gap lies, which effect causes it, how far it
-shrinks on withheld rows (issue 5; report format in ``shared/spec/measurements.md``).
+shrinks on withheld rows (report format in ``cell/measurements.md``).
 
     cellctl diagnose CAMPAIGN [--json] [--html DIR]
     cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]

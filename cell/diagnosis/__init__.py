@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (issue 5): where the gap lies, which unmodelled effect of the
+"""Sim-to-real gap diagnosis: where the gap lies, which unmodelled effect of the
 vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld rows.
 
 * :mod:`.replay`     campaign -> arrays, nominal replay, residuals

@@ -1,4 +1,4 @@
-"""Camera backends, chosen by name (STYLE habit 3) and imported only when asked for.
+"""Camera backends, chosen by name and imported only when asked for.
 
 ``create("sim", model=..., scene=...)``, ``create("folder", path=...)``,
 ``create("opencv", source=0)``; ``from_config({"backend": "folder", "path": ...})`` does the

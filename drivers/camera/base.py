@@ -1,7 +1,7 @@
 """What every camera backend is: the :class:`Camera` protocol, the :class:`Frame` it returns,
 and :class:`CameraBase`, which holds the lifecycle and the frame checks once for all backends.
 
-Lifecycle (STYLE habit 6): ``CLOSED --open--> OPEN --grab--> OPEN --close--> CLOSED``; any
+Lifecycle: ``CLOSED --open--> OPEN --grab--> OPEN --close--> CLOSED``; any
 other action raises :class:`CameraError` naming the camera and its state. A failed
 ``open`` or ``grab`` leaves the state and the frame counter as they were.
 

@@ -1,4 +1,4 @@
-"""The PLC link (issue 3): Modbus TCP server over one named register map, plus its twin.
+"""The PLC link: Modbus TCP server over one named register map, plus its twin.
 
 - :mod:`drivers.plc.register_map`: the one table (addresses, types, access, ranges, meanings)
   and the documents generated from it.
@@ -8,7 +8,7 @@
   real Modbus TCP client running a PLC-style scan loop.
 
 The controller depends only on :class:`PlcPort` and gets its object from :func:`open_link`
-(backends by name, imported lazily: STYLE habits 2 and 3); the cell config's ``plc``
+(backends by name, imported lazily); the cell config's ``plc``
 section is :class:`PlcConfig`.
 """
 from __future__ import annotations

@@ -4,7 +4,7 @@ The pymodbus datastore (:mod:`drivers.plc.server`), the Markdown register refere
 README (:meth:`RegisterMap.to_markdown`) and ``cellctl registers --format md|csv`` are all
 built from :data:`PLC_MAP`; nothing else lists addresses.
 
-Address base (STYLE habit 8): ``Register.address`` is the **protocol address**, i.e. the
+Address base: ``Register.address`` is the **protocol address**, i.e. the
 0-based register number carried in the Modbus PDU. The Modicon "4xxxx" reference printed
 alongside is ``40001 + address`` (1-based), so ``plc_heartbeat`` at protocol address 1 is
 "40002" in a PLC tool that counts the Modicon way. Everything is a holding register,
@@ -444,5 +444,5 @@ class RegisterMap:
         return "\n".join(out)
 
 
-#: The cell controller's register map (issue 3). 60 registers: 0..59.
+#: The cell controller's register map. 60 registers: 0..59.
 PLC_MAP = RegisterMap(REGISTERS, size=60, version=MAP_VERSION)

@@ -1,10 +1,14 @@
-"""Joint stations over CAN (issue 3): CANopen CiA 301/402 drives on python-can.
+"""Joint stations over CAN: CANopen CiA 301/402 drives on python-can.
 
-* :mod:`.driver` — :class:`JointStations`, the controller side (one object for all four).
+* :mod:`.driver` — :class:`JointStations`, the controller side (one object for all four),
+  with the drives' EDS (``scara_axis.eds``); :mod:`.streaming` — its line streaming and
+  seed 002's delays.
 * :mod:`.config` — :class:`StationsConfig`, the ``stations`` config section.
-* :mod:`.sim_station` — the simulated twin (canopen ``LocalNode`` + shipped ``scara_axis.eds``).
-* :mod:`.bus` — bus factory by interface name; rate-limited virtual wire.
+* :mod:`.bus` — bus factory by interface name, CAN bit timing.
 * :mod:`.cia402` — the drive state machine; :mod:`.faults` — fault codes, latch, monitors.
+
+The simulated drives and the virtual CAN wire are part of the simulated cell
+(:mod:`cell.sim.stations`, :mod:`cell.sim.canbus`).
 """
 from drivers.stations.config import StationConfig, StationsConfig
 from drivers.stations.driver import JointStations, StationStartupError

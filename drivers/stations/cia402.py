@@ -33,7 +33,7 @@ Transition 16 exists for quick-stop option codes 5..8; the stations use option c
 ("stop on the quick-stop ramp and stay in Quick stop active"), which is a category 2
 stop: the axis stands under control with power on.
 
-An illegal transition raises :class:`IllegalTransition` (STYLE habit 6), never a silent
+An illegal transition raises :class:`IllegalTransition`, never a silent
 no-op. Statusword ↔ state decoding uses the masks of CiA 402-2 table 30.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The ``stations`` section of the cell config, validated at load (STYLE habit 1).
+"""The ``stations`` section of the cell config, validated at load.
 
 Units: joint values in deg (mm for j3), velocities per second, times as named
 (``_ms`` milliseconds, ``_s`` seconds). ``gear_ratio`` is *motor degrees per joint unit*

@@ -1,4 +1,4 @@
-"""The camera contract, written once and run against every backend (STYLE habit 4).
+"""The camera contract, written once and run against every backend.
 
 sim, folder (PNG files), opencv on a video file (MJPG/.avi from cv2.VideoWriter) and on an
 image-sequence pattern; a real device runs the same contract when ``--hw`` is given.

@@ -1,4 +1,4 @@
-"""Backends are chosen by name and imported lazily (STYLE habit 3)."""
+"""Backends are chosen by name and imported lazily."""
 from __future__ import annotations
 
 import subprocess

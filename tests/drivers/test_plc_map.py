@@ -13,7 +13,7 @@ from drivers.plc.register_map import (
     PlcMapError, Register, RegisterMap, RegType,
 )
 
-# What issue 3 asks for: name -> (type, access)
+# The registers the PLC programmer relies on: name -> (type, access)
 REQUIRED = {
     "map_version": ("u16", "RO"), "plc_heartbeat": ("u16", "RW"),
     "controller_heartbeat": ("u16", "RO"), "status_word": ("bitfield", "RO"),

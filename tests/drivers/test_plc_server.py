@@ -1,6 +1,6 @@
 """PlcLink: controller accessors, PLC write events, and every refused PLC write.
 
-Contract tests (STYLE habit 4): the ``link`` fixture is parametrised over every backend in
+Contract tests: the ``link`` fixture is parametrised over every backend in
 ``drivers.plc.BACKENDS``; each runs a real server on a loopback port and real clients.
 """
 from __future__ import annotations

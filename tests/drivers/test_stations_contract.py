@@ -1,5 +1,5 @@
 """Contract tests for the joint stations, written once and run against every backend
-(STYLE habit 4): the simulated stations on the virtual wire of a simulated clock now; real
+: the simulated stations on the virtual wire of a simulated clock now; real
 drives when marked ``hw`` (set CELL_STATIONS_HW="interface:channel", e.g. "socketcan:can0").
 
 The simulated backend runs on a :class:`~cell.sim.clock.VirtualClock`: the test's thread

@@ -1,4 +1,4 @@
-"""The plant: the simulated "real" robot that stands in for the real cell (issue 3).
+"""The plant: the simulated "real" robot that stands in for the real cell.
 
 * :mod:`cell.sim.plant.config` — the plant file model (``PlantConfig``) and loading with
   file:line:field errors.
