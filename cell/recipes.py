@@ -183,6 +183,24 @@ def motion_check(supports_sync: bool, delays_s) -> CellCheck:
     return check
 
 
+#: bits of the longest 8-byte standard CAN data frame (worst-case stuffing, inter-frame space)
+_MAX_SETPOINT_FRAME_BITS = 135
+
+
+def motion_check_from_config(stations) -> tuple[CellCheck, bool]:
+    """:func:`motion_check` for the stations a cell config names (``StationsConfig``), before
+    the controller runs: each station's λ is bounded by the wire time of longest frames up to
+    and including its own, plus its configured latency. Returns (check, complete): with
+    ``delays_s: measure`` the latency is not known yet (``complete`` False; the controller
+    checks again with what it measures)."""
+    measured = stations.delays_s == "measure"
+    lam = [0.0] * 4
+    for p, s in enumerate(stations.stations):
+        latency = 0.0 if measured else stations.delays_s[p]
+        lam[s.joint_index] = (p + 1) * _MAX_SETPOINT_FRAME_BITS / stations.bitrate + latency
+    return motion_check(all(s.supports_sync for s in stations.stations), lam), not measured
+
+
 class RecipeStore:
     """The active recipes of one directory; see the module doc for the update rules.
 

@@ -45,3 +45,39 @@ def test_schema(tmp_path, capsys):
     out = tmp_path / "s.json"
     assert main(["recipe", "schema", "--out", str(out)]) == 0
     assert out.read_text() == (REPO_RECIPES / "recipe.schema.json").read_text()
+
+
+def _cell_yaml(tmp_path, **stations) -> str:
+    import yaml
+
+    from cell.config import CellConfig
+    cfg = CellConfig()
+    st = cfg.stations.model_dump(mode="json")
+    st.update(stations)
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump({**cfg.model_dump(mode="json", exclude={"sim", "stations"}), "stations": st}))
+    return str(path)
+
+
+def test_validate_against_the_cells_stations_names_the_motion_field(rdir, tmp_path, capsys):
+    recipe = rdir / "bracket-a.yaml"
+    text = recipe.read_text()
+    # drives that apply a set-point 0.5..2 ms after it arrives: T = 2 ms is too short for j4
+    slow = _cell_yaml(tmp_path, delays_s=[0.0005, 0.001, 0.0015, 0.002])
+    recipe.write_text(text.replace("segment_ms: 10 ", "segment_ms: 2  "))
+    assert main(["recipe", "--dir", str(rdir), "validate", "--config", slow]) == 2
+    out = capsys.readouterr().out
+    line = next(i for i, s in enumerate(recipe.read_text().splitlines(), 1) if "segment_ms" in s)
+    assert f"{recipe}:{line}: motion.segment_ms: " in out and "delay of j4" in out
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 0      # fine on its own
+    # SYNC asked of drives that cannot do it
+    stations = _cell_yaml(tmp_path)
+    import yaml
+    cfg = yaml.safe_load(open(stations))
+    cfg["stations"]["stations"][2]["supports_sync"] = False
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cfg))
+    recipe.write_text(text.replace("sync: corrected ", "sync: sync      "))
+    capsys.readouterr()
+    assert main(["recipe", "--dir", str(rdir), "validate", "--config", str(tmp_path / "cell.yaml")]) == 2
+    out = capsys.readouterr().out
+    assert "motion.sync: the joint stations do not support SYNC" in out and f"{recipe}:" in out
