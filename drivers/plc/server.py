@@ -192,7 +192,9 @@ class PlcLink:
         return self.map.decode_image(image)
 
     def next_write(self, timeout: float | None = 0.0) -> PlcWrite | None:
-        """Oldest PLC write event not yet taken, waiting up to ``timeout`` s (None = forever).
+        """Oldest PLC write event not yet taken, waiting up to ``timeout`` *wall* seconds (None =
+        forever). The controller polls :meth:`drain_writes` once per scan instead; a task of
+        the simulated clock must not wait here (nothing can arrive while it holds the clock).
 
         Returns None on timeout. Events come in the order the PLC's requests were served.
         """

@@ -80,7 +80,10 @@ class StationsConfig(BaseModel):
     sdo_timeout_s: float = Field(default=0.5, gt=0, le=10)
     boot_timeout_s: float = Field(default=2.0, gt=0, le=60)
     sync_lead_s: float = Field(default=0.01, ge=0, le=1)                #: set-points ahead of 1st SYNC
-    delays_s: Literal["measure"] | tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)  #: bus order
+    #: each station's latency, bus order: from the end of its set-point frame on the wire to
+    #: the drive applying it, s; or "measure" on the bus at start-up. Seed 002's delay λ of a
+    #: station is this plus the wire time of the frames up to its own (computed per burst).
+    delays_s: Literal["measure"] | tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     unknown_frames: Literal["fault", "log"] = "fault"
     stations: tuple[StationConfig, ...] = Field(default_factory=lambda: tuple(
         StationConfig(joint=j, node_id=i + 1) for i, j in enumerate(JOINT_NAMES)))
