@@ -96,16 +96,18 @@ def run_sim(args: argparse.Namespace) -> int:
         fresh_log(cfg.log.path)
     wall0 = time.monotonic()
     cell = Cell(cfg, devices="sim", plc_port=0)
-    port = cell.start()
     rows: list[dict] = []
     clock = cell.clock
-    try:
-        active = cell.recipes.active.get(args.recipe)
-        if active is None:
-            raise ConfigError(f"recipe {args.recipe!r} is not active (known: {sorted(cell.recipes.active)})")
-        if not args.json:
-            _print_header()
-        with clock.attach():
+    # this thread keeps the simulated time from power-on to the end: no simulated time may
+    # pass while it does anything else, or the run would depend on how fast it does it
+    with clock.attach("run"):
+        port = cell.start()
+        try:
+            active = cell.recipes.active.get(args.recipe)
+            if active is None:
+                raise ConfigError(f"recipe {args.recipe!r} is not active (known: {sorted(cell.recipes.active)})")
+            if not args.json:
+                _print_header()
             plc = SimPlc("127.0.0.1", port, clock=clock)
             plc.start()
             try:
@@ -119,8 +121,8 @@ def run_sim(args: argparse.Namespace) -> int:
             finally:
                 plc.stop()
             sim_s = clock.now()
-    finally:
-        cell.stop()
+        finally:
+            cell.stop()
     wall_s = time.monotonic() - wall0
     if args.json:
         print(json.dumps({"cycles": rows, "sim_s": round(sim_s, 6), "wall_s": round(wall_s, 3)}, indent=2))

@@ -154,7 +154,8 @@ class StreamingMixin:
             steps of the segment (target − previous target); ``segment_s`` T, s.
         :returns: (velocities (4,) joint units/s, signed like the steps; λ (4,) s).
         :raises StationCommandError: T not longer than a station's λ (the correction does
-            not exist: lengthen T or shorten the bus delays).
+            not exist: lengthen T or shorten the bus delays), or a corrected velocity above
+            the station's ``max_velocity``.
         """
         T = float(segment_s)
         q = np.asarray(targets_deg, dtype=float)
@@ -166,6 +167,7 @@ class StreamingMixin:
             j, cob = s.cfg.joint_index, 0x200 + s.cfg.node_id
             target = round(float(q[j]) * s.cpu)
             need = abs(float(d[j])) * s.cpu               # increments to travel
+            top = min(s.cfg.max_velocity * s.cpu, 2 ** 32 - 1)
 
             def frame_end(v_inc: int) -> float:
                 return t + data_frame_bits(cob, _SETPOINT.pack(target, v_inc)) / rate
@@ -176,6 +178,10 @@ class StreamingMixin:
                     raise StationCommandError(
                         f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
                         f"λ = {(frame_end(v_inc) + self._latency[j]) * 1e3:.6g} ms")
+                if need / left > top:
+                    raise StationCommandError(
+                        f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
+                        f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
                 return need / left
             v_inc = max(1, round(wanted(max(1, round(need / T)))))
             seen = [v_inc]
@@ -185,20 +191,42 @@ class StreamingMixin:
                     break
                 v_inc = nxt
                 seen.append(v_inc)
-            else:                                        # a flip-flop between frame lengths:
-                # a velocity agrees with its frame when, for the frame length b it gives, it
-                # is the velocity length b asks for; try every length near those met
-                lengths = {round((frame_end(v) - t) * rate) for v in seen}
-                near = set()
-                for b in range(min(lengths) - 6, max(lengths) + 7):
-                    c = round(need / max(T - t - b / rate - self._latency[j], 1e-12))
-                    near.update(range(max(1, c - 2), c + 3))
-                v_inc = min(sorted(near), key=lambda c: abs(c - wanted(c)))
+            else:                                        # a flip-flop between frame lengths
+                v_inc = self._closest_consistent(
+                    seen, need, T - t - self._latency[j], rate,
+                    lambda c: data_frame_bits(cob, _SETPOINT.pack(target, c)))
             end = frame_end(v_inc)
             vel[j] = math.copysign(v_inc / s.cpu, d[j]) if d[j] else v_inc / s.cpu
             lam[j] = end + self._latency[j]
             t = end
         return vel, lam
+
+    @staticmethod
+    def _closest_consistent(seen: list[int], need: float, budget: float, rate: float, bits_of) -> int:
+        """The whole increments per second that best agree with their own frame, when the
+        iteration flips between two frame lengths. A velocity ``c`` agrees with a frame
+        length ``b`` when ``c`` is what ``b`` asks for, ``c_b = need / (budget − b/rate)``, and
+        its frame is ``b`` bits long. Near each ``c_b`` (within 32 increments/s: parts per
+        million of it) the first velocity whose frame has that length is a candidate; the
+        lengths met while iterating are tried first and the closest candidate wins."""
+        met = {bits_of(v) for v in seen}
+        best: tuple[float, int] | None = None
+        for b in sorted(range(min(met) - 6, max(met) + 7), key=lambda b: min(abs(b - m) for m in met)):
+            left = budget - b / rate
+            if left <= 0:
+                continue
+            c_b = need / left
+            for k in range(33):
+                hit = next((c for c in sorted({round(c_b) - k, round(c_b) + k}) if c >= 1 and bits_of(c) == b), None)
+                if hit is not None:
+                    if best is None or abs(hit - c_b) < best[0]:
+                        best = (abs(hit - c_b), hit)
+                    break
+            if best is not None and best[0] <= 1.0:
+                break
+        if best is not None:
+            return best[1]
+        return min(seen, key=lambda c: abs(c - need / max(budget - bits_of(c) / rate, 1e-12)))
 
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None:
         """Block (clock time) until every station reports (TPDO) its last commanded target
