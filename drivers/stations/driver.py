@@ -33,17 +33,14 @@ import math
 import struct
 import threading
 import time
-from fractions import Fraction
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import can
 import canopen
 import numpy as np
-from canopen.sdo.client import SdoClient
 
 from cell.clock import Clock, MonotonicClock
-from cell.errors import CellError
 from cell.log import get_logger
 from drivers.stations import cia402
 from drivers.stations.bus import connect_network, open_bus
@@ -51,6 +48,7 @@ from drivers.stations.cia402 import Command, State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.faults import (EMCY_TO_FAULT, BusMonitor, Expected, FaultCode, FaultLatch,
                                      FaultRecord, HeartbeatWatchdog, StationFaultError)
+from drivers.stations.bringup import BringUpMixin, StationStartupError, _remote_node  # noqa: F401
 from drivers.stations.streaming import StationCommandError, StreamingMixin, StreamReport  # noqa: F401
 
 #: the drives' electronic data sheet (object dictionary), shared by controller and twin
@@ -60,48 +58,6 @@ log = get_logger("stations.driver")
 _SETPOINT = struct.Struct("<iI")
 _CONTROLWORD = struct.Struct("<H")
 _I32 = 2 ** 31 - 1
-
-
-class StationStartupError(CellError, RuntimeError):
-    """Start-up or re-enable failed (no boot-up, SDO refused, drive would not enable)."""
-
-
-class _ClockSdoClient(SdoClient):
-    """canopen's SDO client, waiting for answers on the injected clock.
-
-    canopen waits with ``queue.Queue.get(timeout=...)`` and replaces the queue to drop a
-    stale answer; here the queue is the clock's and "replacing" it clears it."""
-
-    def __init__(self, rx_cobid: int, tx_cobid: int, od, clock: Clock):
-        self._clock_responses = clock.queue()
-        super().__init__(rx_cobid, tx_cobid, od)
-
-    @property
-    def responses(self):
-        return self._clock_responses
-
-    @responses.setter
-    def responses(self, _fresh) -> None:
-        self._clock_responses.clear()
-
-
-class _ClockRemoteNode(canopen.RemoteNode):
-    """canopen's remote node whose SDO channels wait on the injected clock."""
-
-    def __init__(self, node_id: int, od, clock: Clock):
-        self._clock = clock              # before RemoteNode.__init__ calls add_sdo
-        super().__init__(node_id, od)
-
-    def add_sdo(self, rx_cobid, tx_cobid):
-        client = _ClockSdoClient(rx_cobid, tx_cobid, self.object_dictionary, self._clock)
-        self.sdo_channels.append(client)
-        if self.has_network():
-            self.network.subscribe(client.tx_cobid, client.on_response)
-        return client
-
-
-def _remote_node(node_id: int, od_path: str, clock: Clock) -> canopen.RemoteNode:
-    return _ClockRemoteNode(node_id, canopen.import_od(od_path, node_id), clock)
 
 
 class _Station:
@@ -123,7 +79,7 @@ class _Station:
         return self.cfg.joint
 
 
-class JointStations(StreamingMixin):
+class JointStations(BringUpMixin, StreamingMixin):
     """All joint stations of one cell behind one object.
 
     Lifecycle: :meth:`from_config` → :meth:`start` (Operation enabled) → commands
@@ -226,26 +182,6 @@ class JointStations(StreamingMixin):
             exp[0x180 + n] = Expected("tpdo", j, n, frozenset({6}))
         return exp
 
-    def _await(self, ready: Callable[[], bool], timeout_s: float) -> bool:
-        """Wait on the clock until ``ready()`` (checked at every TPDO, heartbeat and fault)."""
-        deadline = self.clock.now() + timeout_s
-        while True:
-            self._changed.clear()
-            if ready():
-                return True
-            left = deadline - self.clock.now()
-            if left <= 0:
-                return False
-            self._changed.wait(left)
-
-    def _wait_boot(self) -> None:
-        def missing():
-            return [s for s in self._stations if self._heard.get(s.cfg.node_id) is None]
-        if not self._await(lambda: not missing(), self.cfg.boot_timeout_s):
-            raise StationStartupError(
-                "no heartbeat within %.1f s from %s" % (self.cfg.boot_timeout_s, ", ".join(
-                    f"{s.joint} (node {s.cfg.node_id})" for s in missing())))
-
     def _on_heartbeat(self, node_id: int, state: int) -> None:
         self._heard[node_id] = state
         self._changed.set()
@@ -255,86 +191,6 @@ class JointStations(StreamingMixin):
             st = self._by_node[node_id]
             what = "rebooted (boot-up)" if state == 0 else f"left NMT Operational (state {state})"
             self.latch.latch(FaultRecord(FaultCode.STATION_RESET, what, st.joint, node_id))
-
-    def _configure_all(self) -> None:
-        c = self.cfg
-        self._expect_operational = False
-        for s in self._stations:
-            node, sc = s.node, s.cfg
-            try:
-                node.nmt.state = "PRE-OPERATIONAL"
-                sdo = node.sdo
-                sdo[0x1017].raw = c.heartbeat_ms
-                sdo[0x1016][1].raw = (c.controller_node_id << 16) | c.consumer_timeout_ms
-                gear = Fraction(sc.gear_ratio).limit_denominator(1000)
-                sdo[0x608F][1].raw, sdo[0x608F][2].raw = sc.encoder_increments, 1
-                sdo[0x6091][1].raw, sdo[0x6091][2].raw = gear.numerator, gear.denominator
-                lo, hi = sc.joint_limits
-                sdo[0x607D][1].raw = math.ceil(lo * s.cpu)
-                sdo[0x607D][2].raw = math.floor(hi * s.cpu)
-                sdo[0x607F].raw = min(round(sc.max_velocity * s.cpu), 2 ** 32 - 1)
-                sdo[0x6085].raw = min(round(sc.quick_stop_decel * s.cpu), 2 ** 32 - 1)
-                sdo[0x605A].raw = 6   # quick stop: ramp, then hold in Quick stop active
-                sdo[0x6060].raw = 1   # profile position (set-point streaming)
-                self._map_pdos(s)
-                node.nmt.state = "OPERATIONAL"
-            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-                raise StationStartupError(f"configuring {s.joint} (node {sc.node_id}) by SDO failed: {exc}") from exc
-        # Operational only counts once each station's heartbeat says so (frames in flight
-        # may still carry the old state).
-        for s in self._stations:
-            self._heard[s.cfg.node_id] = None
-        if not self._await(lambda: all(self._heard.get(s.cfg.node_id) == 0x05 for s in self._stations),
-                           3 * c.heartbeat_ms / 1000.0 + 0.1):
-            bad = [f"{s.joint} (NMT state {self._heard.get(s.cfg.node_id)})" for s in self._stations
-                   if self._heard.get(s.cfg.node_id) != 0x05]
-            raise StationStartupError(f"stations not NMT Operational after start: {', '.join(bad)}")
-
-    def _map_pdos(self, s: _Station) -> None:
-        n = s.cfg.node_id
-        node = s.node
-        node.rpdo.read(from_od=True)
-        layout = {1: ((0x607A, 0x6081), 255), 2: ((0x6040,), 255), 3: ((0x607A, 0x6081), 1)}
-        for k, (objs, trans) in layout.items():
-            m = node.rpdo[k]
-            m.clear()
-            for index in objs:
-                m.add_variable(index)
-            m.cob_id, m.trans_type, m.enabled = 0x100 + 0x100 * k + n, trans, True
-        node.rpdo.save()
-        t = node.tpdo[1]
-        t.clear()
-        t.add_variable(0x6064)
-        t.add_variable(0x6041)
-        t.cob_id, t.trans_type, t.event_timer, t.enabled = 0x180 + n, 255, self.cfg.tpdo_event_ms, True
-        t.inhibit_time, t.sync_start_value = 0, 0
-        t.save()
-
-    def _read_state(self, s: _Station) -> State:
-        return cia402.decode_statusword(int(s.node.sdo[0x6041].raw))
-
-    def _enable_all(self) -> None:
-        for s in self._stations:
-            try:
-                state = self._read_state(s)
-                deadline = self.clock.now() + 1.0
-                while state is State.FAULT_REACTION_ACTIVE and self.clock.now() < deadline:
-                    self.clock.sleep(0.005)   # the reaction ends by itself (axis stopping)
-                    state = self._read_state(s)
-                for cmd in cia402.path_to(state, State.OPERATION_ENABLED):
-                    s.node.sdo[0x6040].raw = cmd.word
-                    state = self._read_state(s)
-                if state is not State.OPERATION_ENABLED:
-                    raise StationStartupError(f"{s.joint} (node {s.cfg.node_id}) stayed in "
-                                              f"{state.label!r} after the enable sequence")
-            except (canopen.SdoCommunicationError, canopen.SdoAbortedError, cia402.IllegalTransition) as exc:
-                raise StationStartupError(f"enabling {s.joint} (node {s.cfg.node_id}) failed: {exc}") from exc
-            s.target = None
-        # return only once the TPDOs say so too, so drive_states()/actual_positions() are fresh
-        if not self._await(lambda: all(s.statusword & 0x6F == 0x27 for s in self._stations),
-                           3 * self.cfg.tpdo_event_ms / 1000.0 + 0.2):
-            raise StationStartupError("no TPDO reporting Operation enabled from " + ", ".join(
-                s.joint for s in self._stations if s.statusword & 0x6F != 0x27))
 
     # ================================================================== callbacks (notifier thread)
     def _tpdo_callback(self, s: _Station):

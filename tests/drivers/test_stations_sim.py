@@ -177,7 +177,7 @@ def test_quick_stop_ramps_down_and_holds(rig):
 
 @pytest.mark.parametrize("rig", [{"heartbeat": False}], indirect=True)
 def test_tpdo_goes_out_on_the_event_timer_and_on_changes_not_on_arrival(rig):
-    clock, st, tpdos = rig.clock, rig.st, rig.tpdos
+    clock, tpdos = rig.clock, rig.tpdos
 
     def sent_at(t, data):                              # a frame's start on the wire (its own bits)
         return t - frame_bits(can.Message(arbitration_id=0x182, data=data, is_extended_id=False)) / 1e6
