@@ -193,7 +193,7 @@ def faster_than_real_time(n: int, runs: int, tmp: Path, seed: int | None) -> lis
         shown += ["--seed", str(seed)]
     shown = " ".join(shown)
     print(f"### 1. Faster than real time: `{shown}`, "
-          f"{f'{runs} runs one after another' if runs > 1 else '1 run'}, each with a fresh log\n")
+          f"{f'{runs} runs one after another, each' if runs > 1 else '1 run'} with a fresh log\n")
     print(f"Recipe {MAIN_RECIPE}, the built-in simulated cell (seed "
           f"{seed if seed is not None else SimSection().seed}). Load average (1 / 5 / 15 min) "
           f"before: {load0}; after: {load1}.\n")
@@ -224,18 +224,37 @@ def faster_than_real_time(n: int, runs: int, tmp: Path, seed: int | None) -> lis
           f"{statistics.fmean(cw):.3f}, p50 {pct(cw, 0.5):.3f}, p95 {pct(cw, 0.95):.3f}, max "
           f"{max(cw):.3f}. Slowest run: {slow['wall']:.2f} s wall for {slow['done']} parts done "
           f"({slow['done'] / slow['wall'] * 60:.1f} parts / min).")
-    sims = {r["sim_s"] for r in res}
-    same = len({json.dumps([{k: v for k, v in c.items() if k != "wall_s"} for c in r["cycles"]],
-                           sort_keys=True) for r in res}) == 1
     if len(res) > 1:
-        print(f"Every run simulated the same: {'yes' if same and len(sims) == 1 else 'NO'} "
-              f"(simulated s {', '.join(f'{s:g}' for s in sorted(sims))}; cycle results "
-              f"{'identical' if same else 'differ'} apart from `wall_s`).")
+        print(same_simulation(res))
     faults = sum((r["faults"] for r in res), Counter())
     if faults:
         print(f"Faults: {dict(faults)}.")
     print()
     return res
+
+
+def same_simulation(res: list[dict]) -> str:
+    """Compare every run's simulated results (all but ``wall_s``) with the first run's."""
+    sims = sorted({r["sim_s"] for r in res})
+    diffs: Counter = Counter()
+    example = ""
+    ref = res[0]["cycles"]
+    for i, r in enumerate(res[1:], 2):
+        if len(r["cycles"]) != len(ref):
+            diffs["number of cycles"] += 1
+        for c0, c in zip(ref, r["cycles"]):
+            for k in sorted(set(c0) | set(c)):
+                if k != "wall_s" and c0.get(k) != c.get(k):
+                    diffs[k] += 1
+                    if not example:
+                        example = (f"; first: run {i}, part {c.get('part_id')}, {k} "
+                                   f"{json.dumps(c0.get(k))} in run 1, {json.dumps(c.get(k))} in run {i}")
+    if len(sims) == 1 and not diffs:
+        return (f"Every run simulated the same: yes (simulated s {sims[0]:g}; every cycle's results "
+                f"identical apart from `wall_s`).")
+    return (f"Every run simulated the same: **NO** (simulated s {', '.join(f'{x:g}' for x in sims)}; "
+            f"cycles that differ from run 1, by field: "
+            f"{', '.join(f'{k} {v}' for k, v in diffs.most_common()) or 'none'}{example}).")
 
 
 # ---------------------------------------------------------------------------- part 2

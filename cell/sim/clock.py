@@ -17,8 +17,10 @@ Rules (what makes a run independent of host load):
 * **Pure or paced.** ``pace=False`` (``cellctl run --sim``, the tests): time jumps to the
   next entry at once, as fast as the host allows. ``pace=True`` (``cellctl serve --sim``,
   for an outside PLC): an entry at clock time ``t`` runs no earlier than wall time
-  ``origin + t``; when the host stalls, ``origin`` moves forward, so simulated time
-  stretches and never jumps: every device still sees its own deadlines in order.
+  ``origin + t``. A wake-up a little late (a thread's usual lateness) is caught up; when
+  the host stalls for longer than ``max_lag_s``, ``origin`` moves forward, so simulated time
+  stretches and never jumps by more than that: every device still sees its own deadlines
+  in order.
 * **No participant, no time** (pure mode): with nobody to wait for, the clock stands still.
 
 Threads that are not participants (the Modbus server's event loop, a test's main thread)
@@ -82,6 +84,8 @@ class VirtualClock:
 
     :param start: clock time at creation, s.
     :param pace: run no faster than wall time (for an outside PLC).
+    :param max_lag_s: pacing: how far simulated time may run behind wall time and catch up;
+        a longer stall stretches simulated time instead.
     :param wall: wall-time source for pacing (injectable for tests).
     :param stall_warn_s: log the baton holder's stack if it runs longer than this (wall s);
         a diagnostic only, it changes nothing.
@@ -89,11 +93,12 @@ class VirtualClock:
 
     wall = False
 
-    def __init__(self, start: float = 0.0, *, pace: bool = False,
+    def __init__(self, start: float = 0.0, *, pace: bool = False, max_lag_s: float = 0.02,
                  wall: Callable[[], float] = time.monotonic, stall_warn_s: float = 120.0):
         if not math.isfinite(start):
             raise ClockError(f"VirtualClock: start = {start!r} is not a finite time")
         self.pace = pace
+        self.max_lag_s = max_lag_s
         self._wall = wall
         self._stall_warn_s = stall_warn_s
         self._mu = threading.Lock()
@@ -325,7 +330,8 @@ class VirtualClock:
         if due > wall:
             self._cv.wait(due - wall)
             return False
-        self._origin = max(self._origin, wall - t)       # late (host stalled): stretch, never jump
+        # a little late: catch up; stalled: stretch, never jump by more than max_lag_s
+        self._origin = max(self._origin, wall - t - self.max_lag_s)
         return True
 
     def _stuck(self) -> None:

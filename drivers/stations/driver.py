@@ -295,7 +295,8 @@ class JointStations(BringUpMixin, StreamingMixin):
         except (can.CanError, RuntimeError) as exc:
             self.latch.latch(FaultRecord(FaultCode.SEND_FAILED, f"{action}: frame 0x{cob_id:03X} not sent: {exc}"))
             raise StationFaultError(self.latch.record, action) from exc
-        return getattr(self.network.bus, "last_tx_timestamp", None) or time.time()
+        stamp = getattr(self.network.bus, "last_tx_timestamp", None)
+        return time.time() if stamp is None else stamp
 
     def _burst(self, targets: np.ndarray, vels: np.ndarray, base: int, action: str) -> float:
         """Send one set-point per station in bus order; returns the first frame's timestamp."""

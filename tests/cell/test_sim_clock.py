@@ -147,9 +147,10 @@ def test_a_failing_callback_is_logged_and_time_goes_on(clock):
 
 def test_paced_clock_keeps_to_wall_time_and_stretches_after_a_stall():
     """Entries never run before their wall time; after the host stalls, simulated time is
-    stretched (the next entries keep their spacing), never compressed to catch up."""
+    stretched: it catches up at most ``max_lag_s``, never the whole stall."""
     offset = [0.0]
-    c = VirtualClock(pace=True, wall=lambda: time.monotonic() + offset[0])
+    lag = 0.005
+    c = VirtualClock(pace=True, max_lag_s=lag, wall=lambda: time.monotonic() + offset[0])
     runs = []
     for k in range(1, 9):
         c.call_at(0.02 * k, lambda k=k: runs.append((c.now(), time.monotonic() + offset[0])))
@@ -162,7 +163,24 @@ def test_paced_clock_keeps_to_wall_time_and_stretches_after_a_stall():
     assert [round(t, 9) for t, _ in runs] == [round(0.02 * k, 9) for k in range(1, 9)]
     walls = [w for _, w in runs]
     gaps = [b - a for a, b in zip(walls, walls[1:])]
-    assert all(g >= 0.02 - 1e-3 for g in gaps), gaps      # never faster than wall time
+    assert gaps[3] >= 1.0, gaps                              # the entry after the stall ...
+    # ... and the ones after it keep their spacing: at most max_lag_s of the stall is caught up
+    assert walls[-1] - walls[4] >= 3 * 0.02 - lag - 1e-3, walls
+    assert all(g >= 0.02 - lag - 1e-3 for g in gaps), gaps
+
+
+def test_paced_clock_keeps_up_with_wall_time_when_the_host_does():
+    """A task sleeping in short steps: the wake-ups' own lateness is caught up, so simulated
+    time keeps to wall time (it used to fall behind by every wake-up's lateness)."""
+    c = VirtualClock(pace=True)
+    with c.attach():
+        w0, t0 = time.monotonic(), c.now()
+        for _ in range(200):
+            c.sleep(0.001)
+        ratio = (c.now() - t0) / (time.monotonic() - w0)
+    c.close()
+    assert c.now() - t0 == pytest.approx(0.2)
+    assert ratio > 0.5                     # a loose floor: a loaded host may stretch it
 
 
 def test_wall_clock_primitives_are_the_standard_ones():
