@@ -44,7 +44,7 @@ class Stations(Protocol):
 
     def stream(self, segments, mode: str = "reception", lead_s: float | None = None): ...
     def burst_delays(self, targets_deg, velocities_deg_s, base: int = 0x200) -> np.ndarray: ...
-    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float): ...
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float, hint_s=None): ...
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None: ...
 
 
@@ -171,8 +171,8 @@ def segments_for(stations: Stations, joints, segment_s: float, mode: str) -> tup
     for k in range(1, len(joints)):
         d = steps[k - 1]
         if mode == "corrected":
-            try:
-                v, lam = stations.corrected_velocities(joints[k], d, T)   # seed 002: Δθ/(T − λ)
+            try:                                                          # seed 002: Δθ/(T − λ)
+                v, lam = stations.corrected_velocities(joints[k], d, T, lams[-1] if lams else None)
             except CellError as exc:
                 raise TrajectoryError(str(exc)) from exc
         else:

@@ -140,7 +140,8 @@ class StreamingMixin:
             out[j] = t + self._latency[j]
         return out
 
-    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float,
+                             hint_s=None) -> tuple[np.ndarray, np.ndarray]:
         """Seed 002's corrected velocities ωᵢ = Δθᵢ / (T − λᵢ) for one reception-applied burst,
         solved together with the frames that carry them.
 
@@ -151,7 +152,8 @@ class StreamingMixin:
         per second whose frame comes closest is taken.
 
         :param targets_deg: (4,) segment targets per joint; ``deltas_deg`` (4,) the joint
-            steps of the segment (target − previous target); ``segment_s`` T, s.
+            steps of the segment (target − previous target); ``segment_s`` T, s; ``hint_s``
+            (4,) λ of a similar burst (the previous segment's) to start from, or None.
         :returns: (velocities (4,) joint units/s, signed like the steps; λ (4,) s).
         :raises StationCommandError: T not longer than a station's λ (the correction does
             not exist: lengthen T or shorten the bus delays), or a corrected velocity above
@@ -168,22 +170,26 @@ class StreamingMixin:
             target = round(float(q[j]) * s.cpu)
             need = abs(float(d[j])) * s.cpu               # increments to travel
             top = min(s.cfg.max_velocity * s.cpu, 2 ** 32 - 1)
+            lat = float(self._latency[j])                 # plain floats: round() is slow on numpy's
 
             def frame_end(v_inc: int) -> float:
                 return t + data_frame_bits(cob, _SETPOINT.pack(target, v_inc)) / rate
 
             def wanted(v_inc: int) -> float:
-                left = T - frame_end(v_inc) - self._latency[j]
+                left = T - frame_end(v_inc) - lat
                 if left <= 0:
                     raise StationCommandError(
                         f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
-                        f"λ = {(frame_end(v_inc) + self._latency[j]) * 1e3:.6g} ms")
+                        f"λ = {(frame_end(v_inc) + lat) * 1e3:.6g} ms")
                 if need / left > top:
                     raise StationCommandError(
                         f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
                         f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
                 return need / left
-            v_inc = max(1, round(wanted(max(1, round(need / T)))))
+            if hint_s is not None and T > float(hint_s[j]):
+                v_inc = max(1, round(need / (T - float(hint_s[j]))))
+            else:
+                v_inc = max(1, round(wanted(max(1, round(need / T)))))
             seen = [v_inc]
             for _ in range(6):
                 nxt = max(1, round(wanted(v_inc)))
@@ -193,39 +199,39 @@ class StreamingMixin:
                 seen.append(v_inc)
             else:                                        # a flip-flop between frame lengths
                 v_inc = self._closest_consistent(
-                    seen, need, T - t - self._latency[j], rate,
+                    seen, need, T - t - lat, rate,
                     lambda c: data_frame_bits(cob, _SETPOINT.pack(target, c)))
             end = frame_end(v_inc)
             vel[j] = math.copysign(v_inc / s.cpu, d[j]) if d[j] else v_inc / s.cpu
-            lam[j] = end + self._latency[j]
+            lam[j] = end + lat
             t = end
         return vel, lam
 
     @staticmethod
     def _closest_consistent(seen: list[int], need: float, budget: float, rate: float, bits_of) -> int:
         """The whole increments per second that best agree with their own frame, when the
-        iteration flips between two frame lengths. A velocity ``c`` agrees with a frame
-        length ``b`` when ``c`` is what ``b`` asks for, ``c_b = need / (budget − b/rate)``, and
-        its frame is ``b`` bits long. Near each ``c_b`` (within 32 increments/s: parts per
-        million of it) the first velocity whose frame has that length is a candidate; the
-        lengths met while iterating are tried first and the closest candidate wins."""
-        met = {bits_of(v) for v in seen}
-        best: tuple[float, int] | None = None
-        for b in sorted(range(min(met) - 6, max(met) + 7), key=lambda b: min(abs(b - m) for m in met)):
-            left = budget - b / rate
-            if left <= 0:
-                continue
-            c_b = need / left
-            for k in range(33):
-                hit = next((c for c in sorted({round(c_b) - k, round(c_b) + k}) if c >= 1 and bits_of(c) == b), None)
-                if hit is not None:
-                    if best is None or abs(hit - c_b) < best[0]:
-                        best = (abs(hit - c_b), hit)
-                    break
-            if best is not None and best[0] <= 1.0:
-                break
-        if best is not None:
-            return best[1]
+        iteration flips between frame lengths. A velocity ``c`` agrees with a frame length
+        ``b`` when ``c`` is what ``b`` asks for, ``c_b = need / (budget − b/rate)``, and its frame
+        is ``b`` bits long. Near each ``c_b`` (within 32 increments/s: parts per million of it)
+        the nearest velocity whose frame has that length is a candidate; the lengths met while
+        iterating come first, the lengths around them only if those give none."""
+        met = sorted({bits_of(v) for v in seen})
+        for lengths in (met, [b for b in range(met[0] - 6, met[-1] + 7) if b not in met]):
+            best: tuple[float, int] | None = None
+            for b in lengths:
+                left = budget - b / rate
+                if left <= 0:
+                    continue
+                c_b = need / left
+                for k in range(33):
+                    hit = next((c for c in sorted({round(c_b) - k, round(c_b) + k})
+                                if c >= 1 and bits_of(c) == b), None)
+                    if hit is not None:
+                        if best is None or abs(hit - c_b) < best[0]:
+                            best = (abs(hit - c_b), hit)
+                        break
+            if best is not None:
+                return best[1]
         return min(seen, key=lambda c: abs(c - need / max(budget - bits_of(c) / rate, 1e-12)))
 
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None:
