@@ -72,7 +72,7 @@ class FakeStations:
         assert base in (0x200, 0x400)
         return (self.lam_sync if base == 0x400 else self.lam).copy()
 
-    def corrected_velocities(self, targets_deg, deltas_deg, segment_s):
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s, hint_s=None):
         """Seed 002's ωᵢ = Δθᵢ / (T − λᵢ) for a reception burst (the λ above)."""
         lam = self.burst_delays(targets_deg, np.abs(deltas_deg) / segment_s)
         if segment_s <= float(np.max(lam)):

@@ -44,7 +44,7 @@ class Stations:
         self.bases.append(base)
         return (self.lam_sync if base == 0x400 else self.lam).copy()
 
-    def corrected_velocities(self, targets_deg, deltas_deg, segment_s):
+    def corrected_velocities(self, targets_deg, deltas_deg, segment_s, hint_s=None):
         lam = self.lam + self.drift_s * len(self.corrected)
         if segment_s <= float(np.max(lam)):
             raise StationCommandError(f"segment time T = {segment_s * 1e3:.6g} ms is not longer "
