@@ -644,6 +644,30 @@ def test_delay_measurement_sees_the_configured_delays(make):
     np.testing.assert_allclose(js.burst_delays(q, v, base=0x400), sync_wire + lam, rtol=0, atol=1e-12)
 
 
+def test_corrected_velocities_agree_with_their_own_frames(make):
+    """Seed 002's ω = Δθ/(T − λ) where λ includes the frame that carries ω: over many bursts,
+    where each joint stands at T (λ recomputed from the frames actually built, ω as the
+    frame carries it in whole increments/s) is its target to within half an increment, below
+    what the drive itself can resolve;
+    T not above λ is refused naming the joint."""
+    backend, js = make(delays=(0.0005, 0.001, 0.0015, 0.002))
+    rng = np.random.default_rng(5)
+    T = 0.01
+    worst = 0.0
+    for _ in range(300):
+        q = np.array(START) + rng.uniform(-5, 5, 4)
+        d = rng.uniform(-2, 2, 4)
+        v, lam = js.corrected_velocities(q, d, T)
+        again = js.burst_delays(q, v)                      # the frames that will really go out
+        v_sent = np.maximum(1, np.round(np.abs(v) * CPU))  # what they carry, increments/s
+        short = np.abs(d) * CPU - v_sent * (T - again)       # increments still to go at T
+        worst = max(worst, float(np.max(np.abs(short))))
+        np.testing.assert_allclose(again, lam, rtol=0, atol=3 / js.cfg.bitrate)   # a few bits at most
+    assert worst < 0.5, worst
+    with pytest.raises(StationCommandError, match="not longer than the delay of j4"):
+        js.corrected_velocities(np.array(START), np.ones(4), 0.002)
+
+
 def test_delays_measured_at_start_when_configured_so(make):
     configured = (0.001, 0.002, 0.003, 0.004)
     backend, js = make(delays=configured, delays_s="measure")
