@@ -650,7 +650,7 @@ def test_corrected_velocities_agree_with_their_own_frames(make):
     frame carries it in whole increments/s) is its target to within half an increment, below
     what the drive itself can resolve;
     T not above λ is refused naming the joint."""
-    backend, js = make(delays=(0.0005, 0.001, 0.0015, 0.002))
+    backend, js = make(delays=(0.0005, 0.001, 0.0015, 0.002), delays_s="measure")
     rng = np.random.default_rng(5)
     T = 0.01
     worst = 0.0
