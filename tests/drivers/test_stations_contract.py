@@ -665,6 +665,8 @@ def test_corrected_velocities_agree_with_their_own_frames(make):
         np.testing.assert_allclose(again, lam, rtol=0, atol=3 / js.cfg.bitrate)   # a few bits at most
     assert worst < 0.5, worst
     with pytest.raises(StationCommandError, match="not longer than the delay of j4"):
+        js.corrected_velocities(np.array(START), np.full(4, 0.1), 0.002)
+    with pytest.raises(StationCommandError, match="j1 would need .* units/s .* above its max_velocity 720"):
         js.corrected_velocities(np.array(START), np.ones(4), 0.002)
 
 
