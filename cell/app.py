@@ -13,7 +13,7 @@ from cell.cyclelog import CycleLog
 from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
 from cell.measure import MeasuringCamera
-from cell.recipes import RecipeStore, motion_check
+from cell.recipes import RecipeStore, motion_check_from_config
 from drivers.plc import open_link
 
 log = cell_log.get_logger("app")
@@ -49,8 +49,9 @@ class Cell:
             self.devices.start()
             camera = MeasuringCamera(self.camera, self.devices.calibration(), self.config.vision.tool_radius_mm,
                                      self.config.vision.radius_tolerance)
-            typical = self.motion.burst_delays(self.motion.actual_positions(), [0.0] * 4)
-            self.recipes.check = motion_check(self.motion.supports_sync, typical)
+            # recipes are checked against these stations: SYNC support, and the segment time
+            # against each station's delay (longest frames on the wire + measured latency)
+            self.recipes.check, _ = motion_check_from_config(self.motion.cfg, self.motion.latency_s)
             c = self.config.cycle
             runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog,
                                  CycleSettings(c.move_timeout_s, c.reach_tol_deg, c.tool_phi_deg,

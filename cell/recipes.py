@@ -187,16 +187,20 @@ def motion_check(supports_sync: bool, delays_s) -> CellCheck:
 _MAX_SETPOINT_FRAME_BITS = 135
 
 
-def motion_check_from_config(stations) -> tuple[CellCheck, bool]:
-    """:func:`motion_check` for the stations a cell config names (``StationsConfig``), before
-    the controller runs: each station's λ is bounded by the wire time of longest frames up to
-    and including its own, plus its configured latency. Returns (check, complete): with
-    ``delays_s: measure`` the latency is not known yet (``complete`` False; the controller
-    checks again with what it measures)."""
-    measured = stations.delays_s == "measure"
+def motion_check_from_config(stations, latency_s=None) -> tuple[CellCheck, bool]:
+    """:func:`motion_check` for the stations a cell config names (``StationsConfig``): each
+    station's λ is bounded by the wire time of the longest frames up to and including its
+    own, plus its latency — ``latency_s`` (4,) per joint as measured by the running cell, or
+    the configured one. Returns (check, complete): with ``delays_s: measure`` and nothing
+    measured yet, the latency is unknown (``complete`` False; the controller checks again
+    with what it measures)."""
+    measured = stations.delays_s == "measure" and latency_s is None
     lam = [0.0] * 4
     for p, s in enumerate(stations.stations):
-        latency = 0.0 if measured else stations.delays_s[p]
+        if latency_s is not None:
+            latency = float(latency_s[s.joint_index])
+        else:
+            latency = 0.0 if measured else stations.delays_s[p]
         lam[s.joint_index] = (p + 1) * _MAX_SETPOINT_FRAME_BITS / stations.bitrate + latency
     return motion_check(all(s.supports_sync for s in stations.stations), lam), not measured
 
