@@ -45,7 +45,6 @@ class CellController:
         self.scans = 0
         self._worker = None
         self._cancel: CancelToken | None = None
-        self._outcome: CycleOutcome | None = None
         self._drives_reset: DrivesResetIn | None = None
         self._recipes_in = RecipesIn()
         self._stop = self.clock.event()
@@ -115,7 +114,7 @@ class CellController:
         self._apply(out.actions)
 
     def _read(self) -> ScanInputs:
-        ended, self._outcome = None, None
+        ended = None
         if self._worker is not None and self._worker.finished:
             ended = self.runner.outcome
             self._worker = None
@@ -202,7 +201,3 @@ class CellController:
                     self.log.remember_recipe(a.recipe.name, a.hash, a.text)
         except Exception as exc:                   # noqa: BLE001
             log.error("audit_write_failed", error=repr(exc))
-
-    @property
-    def state(self) -> State:
-        return self.core.sm.state

@@ -49,13 +49,12 @@ from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.faults import (EMCY_TO_FAULT, BusMonitor, Expected, FaultCode, FaultLatch,
                                      FaultRecord, HeartbeatWatchdog, StationFaultError)
 from drivers.stations.bringup import BringUpMixin, StationStartupError, _remote_node  # noqa: F401
-from drivers.stations.streaming import StationCommandError, StreamingMixin, StreamReport  # noqa: F401
+from drivers.stations.streaming import _SETPOINT, StationCommandError, StreamingMixin, StreamReport  # noqa: F401
 
 #: the drives' electronic data sheet (object dictionary), shared by controller and twin
 EDS_PATH = Path(__file__).with_name("scara_axis.eds")
 
 log = get_logger("stations.driver")
-_SETPOINT = struct.Struct("<iI")
 _CONTROLWORD = struct.Struct("<H")
 _I32 = 2 ** 31 - 1
 
@@ -244,16 +243,14 @@ class JointStations(BringUpMixin, StreamingMixin):
             return
         self._quick_stop_at = self.clock.now()
         with self._cmd_lock:
-            for s in moving:
-                try:
-                    self.network.send_message(0x300 + s.cfg.node_id, _CONTROLWORD.pack(Command.QUICK_STOP.word))
-                except Exception as exc:      # noqa: BLE001 -- try again at the next check
-                    log.error("quick_stop_resend_failed", joint=s.joint, error=repr(exc))
+            self._send_controlword_all(Command.QUICK_STOP, moving)   # a refusal: again next check
 
-    def _send_controlword_all(self, cmd: Command) -> None:
+    def _send_controlword_all(self, cmd: Command, stations=None) -> None:
+        """Send ``cmd`` to ``stations`` (default every one), in bus order; a refused frame is
+        logged and the others still get theirs."""
         if self.network is None or self.network.bus is None:
             return
-        for s in self._stations:
+        for s in self._stations if stations is None else stations:
             try:
                 self.network.send_message(0x300 + s.cfg.node_id, _CONTROLWORD.pack(cmd.word))
             except Exception as exc:  # keep stopping the others

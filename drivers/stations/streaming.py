@@ -172,8 +172,11 @@ class StreamingMixin:
             top = min(s.cfg.max_velocity * s.cpu, 2 ** 32 - 1)
             lat = float(self._latency[j])                 # plain floats: round() is slow on numpy's
 
+            def bits_of(v_inc: int) -> int:
+                return data_frame_bits(cob, _SETPOINT.pack(target, v_inc))
+
             def frame_end(v_inc: int) -> float:
-                return t + data_frame_bits(cob, _SETPOINT.pack(target, v_inc)) / rate
+                return t + bits_of(v_inc) / rate
 
             def wanted(v_inc: int) -> float:
                 left = T - frame_end(v_inc) - lat
@@ -198,9 +201,7 @@ class StreamingMixin:
                 v_inc = nxt
                 seen.append(v_inc)
             else:                                        # a flip-flop between frame lengths
-                v_inc = self._closest_consistent(
-                    seen, need, T - t - lat, rate,
-                    lambda c: data_frame_bits(cob, _SETPOINT.pack(target, c)))
+                v_inc = self._closest_consistent(seen, need, T - t - lat, rate, bits_of)
             end = frame_end(v_inc)
             vel[j] = math.copysign(v_inc / s.cpu, d[j]) if d[j] else v_inc / s.cpu
             lam[j] = end + lat
@@ -271,7 +272,7 @@ class StreamingMixin:
                 if s.pos_inc is None:
                     raise TimeoutError(f"measure_delays: {s.joint} has not reported a position")
                 before = (s.statusword & cia402.SW_SETPOINT_ACK, s.tpdo_count)
-                frame = struct.pack("<iI", s.pos_inc, 0)
+                frame = _SETPOINT.pack(s.pos_inc, 0)
                 with self._cmd_lock:
                     self.latch.check("measure_delays")
                     t_end = self._send(0x200 + s.cfg.node_id, frame, "measure_delays")
