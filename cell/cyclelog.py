@@ -5,6 +5,17 @@ survives a power cut. Each cycle is ONE row written in ONE transaction when the 
 (done, fault or aborted): a crash at any moment leaves either the whole row or nothing,
 never a half-written cycle. The controller writes the row *before* it raises Done to the PLC.
 
+A row records what the PLC was told. The ``open_cycle`` table holds the one cycle in
+flight: :meth:`CycleLog.begin_cycle` before its first move, ``logged`` when its row is
+written, gone once the PLC has been told the outcome (:meth:`CycleLog.settle_cycle`, which
+also corrects the row if the PLC was told something else, e.g. a heartbeat fault while the
+row was being written). A controller that died with a cycle in flight finds it at the next
+start (:meth:`CycleLog.recover_interrupted`): the cycle is recorded as aborted with fault 503,
+and stays pending (``interrupted``) until the PLC has reset that fault.
+
+Opening (:mod:`cell.logfile`): the controller's log is locked against a second controller
+and checked (``quick_check``) before use; readers open it read-only.
+
 The ``audit`` table is hash-chained (each row stores the SHA-256 of the previous row's hash
 and its own content), the first brick of the tamper-evident audit trail to come;
 :meth:`CycleLog.verify_audit` checks the chain.
@@ -19,7 +30,13 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-SCHEMA_VERSION = 2     #: 2 added cycles.motion_json (how the cycle's moves were streamed)
+from cell import logfile
+from cell.errors import LogError
+from cell.faults import Fault
+from cell.logfile import LogLock
+
+SCHEMA_VERSION = 3     #: 2 added cycles.motion_json (how the cycle's moves were streamed),
+                       #: 3 the open_cycle table (the cycle in flight)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -56,6 +73,15 @@ CREATE TABLE IF NOT EXISTS audit (
     result TEXT NOT NULL,
     prev_hash TEXT NOT NULL,
     row_hash TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS open_cycle (
+    slot INTEGER PRIMARY KEY CHECK (slot = 1),
+    part_id INTEGER NOT NULL,
+    recipe TEXT NOT NULL,
+    recipe_hash TEXT NOT NULL,
+    started_at TEXT NOT NULL,
+    stage TEXT NOT NULL CHECK (stage IN ('running', 'logged', 'interrupted')),
+    cycle_id INTEGER
 );
 CREATE TABLE IF NOT EXISTS recipe_versions (
     hash TEXT PRIMARY KEY,
@@ -98,29 +124,84 @@ class CycleRecord:
     id: int | None = None
 
 
-class CycleLog:
-    """The SQLite log. Thread-safe: one connection guarded by a lock."""
+@dataclass(frozen=True)
+class Interrupted:
+    """A cycle a controller restart interrupted: the PLC must hear of it once."""
 
-    def __init__(self, path: Path | str):
+    cycle_id: int
+    part_id: int
+    recipe: str
+    started_at: str
+
+
+class CycleLog:
+    """The SQLite log. Thread-safe: one connection guarded by a lock.
+
+    :param readonly: open for reading only: no lock, no check, nothing created or changed
+        (``report``, ``export``, ``diagnose``; works beside a running controller).
+    :raises LogError: the file is damaged, not a database, cannot be written (writer), is
+        missing (reader), or another controller holds it (writer); see :mod:`cell.logfile`.
+    """
+
+    def __init__(self, path: Path | str, readonly: bool = False):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.readonly = readonly
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None)
-        self._db.row_factory = sqlite3.Row
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=FULL")
-        self._db.execute("PRAGMA busy_timeout=5000")
-        self._db.executescript(_SCHEMA)
-        columns = {r[1] for r in self._db.execute("PRAGMA table_info(cycles)")}
-        if "motion_json" not in columns:           # a version 1 log: add the column, keep the rows
-            self._db.execute("ALTER TABLE cycles ADD COLUMN motion_json TEXT NOT NULL DEFAULT '{}'")
-        self._db.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        self._file_lock: LogLock | None = None
+        if readonly:
+            self._db = logfile.connect(self.path, readonly=True)
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise LogError(f"{self.path}: cannot create the cycle log's folder: {exc.strerror}") from None
+        self._file_lock = LogLock(self.path)
+        self._file_lock.acquire()
+        try:
+            self._db = logfile.connect(self.path, readonly=False)
+            self._open_for_writing()
+        except BaseException:
+            self._file_lock.release()
+            raise
+
+    def _open_for_writing(self) -> None:
+        db = self._db
+        try:
+            problems = logfile.damage(db)
+        except sqlite3.Error as exc:
+            db.close()
+            raise logfile.explain(self.path, exc, "quick_check failed") from None
+        if problems:
+            db.close()
+            raise LogError(f"{self.path}: cycle log is damaged (quick_check: {'; '.join(problems[:3])}); "
+                           f"{logfile.recovery(self.path)}")
+        try:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.execute("PRAGMA synchronous=FULL")
+            db.execute("PRAGMA busy_timeout=5000")
+            db.executescript(_SCHEMA)
+            columns = {r[1] for r in db.execute("PRAGMA table_info(cycles)")}
+            if "motion_json" not in columns:       # a version 1 log: add the column, keep the rows
+                db.execute("ALTER TABLE cycles ADD COLUMN motion_json TEXT NOT NULL DEFAULT '{}'")
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        except sqlite3.Error as exc:
+            db.close()
+            raise logfile.explain(self.path, exc, "cannot prepare it for writing") from None
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
+            if self._file_lock is not None:
+                self._file_lock.release()
+
+    def check(self, full: bool = True) -> list[str]:
+        """What ``integrity_check`` (``quick_check`` if not ``full``) finds; empty if sound."""
+        with self._lock:
+            return logfile.damage(self._db, full=full)
 
     def _tx(self):
+        if self.readonly:
+            raise LogError(f"{self.path}: cycle log opened read-only")
         return _Transaction(self._db, self._lock)
 
     # ------------------------------------------------------------------ cycles
@@ -139,7 +220,71 @@ class CycleLog:
                  row["verify_error_mm"], row["moves"], row["cycle_time_s"],
                  json.dumps(row["step_times"]), row["fault_code"], row["fault_text"], row["temp_c"],
                  json.dumps(row["trace"]), json.dumps(row["motion"])))
-            return int(cur.lastrowid)
+            cycle_id = int(cur.lastrowid)
+            db.execute("UPDATE open_cycle SET stage = 'logged', cycle_id = ? WHERE stage = 'running'"
+                       " AND started_at = ?", (cycle_id, rec.started_at))
+            return cycle_id
+
+    # ------------------------------------------------------------------ the cycle in flight
+    def begin_cycle(self, part_id: int, recipe: str, recipe_hash: str, started_at: str) -> None:
+        """Record that a cycle is starting, before its first move (one durable transaction)."""
+        with self._tx() as db:
+            db.execute("INSERT OR REPLACE INTO open_cycle VALUES (1, ?, ?, ?, ?, 'running', NULL)",
+                       (part_id, recipe, recipe_hash, started_at))
+
+    def settle_cycle(self, started_at: str, cycle_id: int | None, status: str, fault_code: int,
+                     fault_text: str) -> bool:
+        """The PLC has been told ``status``/``fault_code`` for the cycle that started at
+        ``started_at``: correct its row if it says otherwise, and close the cycle. Returns
+        True if the row was corrected."""
+        with self._tx() as db:
+            changed = 0
+            if cycle_id is not None:
+                changed = db.execute(
+                    "UPDATE cycles SET status = ?, fault_code = ?, fault_text = CASE WHEN fault_text = ''"
+                    " THEN ? ELSE fault_text || '; ' || ? END WHERE id = ? AND (status != ? OR fault_code != ?)",
+                    (status, fault_code, fault_text, fault_text, cycle_id, status, fault_code)).rowcount
+            db.execute("DELETE FROM open_cycle WHERE started_at = ? AND stage != 'interrupted'", (started_at,))
+        return bool(changed)
+
+    def recover_interrupted(self) -> Interrupted | None:
+        """At start: a cycle the last controller left in flight is recorded as aborted with
+        fault 503 (a row is added if it had none; a logged row is corrected, since the PLC was
+        never told its outcome) and kept pending until :meth:`clear_interrupted`. Returns the
+        pending interruption, or None."""
+        with self._tx() as db:
+            r = db.execute("SELECT * FROM open_cycle WHERE slot = 1").fetchone()
+            if r is None:
+                return None
+            cycle_id = r["cycle_id"]
+            if r["stage"] == "running":
+                text = (f"interrupted by a controller restart (the cycle started at {r['started_at']} "
+                        "and was never finished)")
+                cycle_id = int(db.execute(
+                    "INSERT INTO cycles (part_id, recipe, recipe_hash, started_at, finished_at, status,"
+                    " cycle_time_s, step_times_json, fault_code, fault_text) VALUES (?,?,?,?,?,'aborted',"
+                    " 0.0, '{}', ?, ?)", (r["part_id"], r["recipe"], r["recipe_hash"], r["started_at"],
+                                         utc_now(), Fault.INTERRUPTED, text)).lastrowid)
+            elif r["stage"] == "logged":
+                db.execute("UPDATE cycles SET fault_text = fault_text || CASE WHEN fault_text = '' THEN ''"
+                           " ELSE '; ' END || 'controller restarted before the PLC was told: was ' || status,"
+                           " status = 'aborted', fault_code = ? WHERE id = ?", (Fault.INTERRUPTED, cycle_id))
+            db.execute("UPDATE open_cycle SET stage = 'interrupted', cycle_id = ?", (cycle_id,))
+            return Interrupted(int(cycle_id), int(r["part_id"]), r["recipe"], r["started_at"])
+
+    def clear_interrupted(self) -> None:
+        """The PLC has reset the fault that reported the interrupted cycle."""
+        with self._tx() as db:
+            db.execute("DELETE FROM open_cycle WHERE stage = 'interrupted'")
+
+    def open_cycle(self) -> dict | None:
+        """The cycle in flight (or pending as interrupted), as a dict; None if none."""
+        with self._lock:
+            try:
+                r = self._db.execute("SELECT * FROM open_cycle").fetchone()
+            except sqlite3.OperationalError:           # a log from before schema version 3
+                return None
+        return dict(r) if r else None
 
     def cycles(self, limit: int | None = None, status: str | None = None) -> list[CycleRecord]:
         """Cycles in id order (the last ``limit`` if given)."""
@@ -169,18 +314,29 @@ class CycleLog:
             final_error_mm=r["final_error_mm"], verify_error_mm=r["verify_error_mm"], moves=r["moves"],
             cycle_time_s=r["cycle_time_s"], step_times=json.loads(r["step_times_json"]),
             fault_code=r["fault_code"], fault_text=r["fault_text"], temp_c=r["temp_c"],
-            trace=json.loads(r["trace_json"]), motion=json.loads(r["motion_json"]))
+            trace=json.loads(r["trace_json"]),
+            motion=json.loads(r["motion_json"]) if "motion_json" in r.keys() else {})
 
     # ------------------------------------------------------------------ audit
     def audit(self, who: str, action: str, target: str, hash_: str, result: str) -> None:
         """Append one hash-chained audit row."""
         with self._tx() as db:
-            last = db.execute("SELECT row_hash FROM audit ORDER BY id DESC LIMIT 1").fetchone()
-            prev = last[0] if last else "0" * 64
-            at = utc_now()
-            row_hash = _chain(prev, at, who, action, target, hash_, result)
-            db.execute("INSERT INTO audit (at, who, action, target, hash, result, prev_hash, row_hash)"
-                       " VALUES (?,?,?,?,?,?,?,?)", (at, who, action, target, hash_, result, prev, row_hash))
+            _append_audit(db, who, action, target, hash_, result)
+
+    def record_recipe_changes(self, changes) -> None:
+        """Audit rows for recipe changes, and the text of each activated version, in ONE
+        transaction: all of them are on disk, or none (then the caller must not apply them).
+
+        :param changes: ``(who, action, target, hash, result, version)`` tuples, ``version``
+            ``(name, hash, text)`` for an activation, else None.
+        """
+        with self._tx() as db:
+            for who, action, target, hash_, result, version in changes:
+                _append_audit(db, who, action, target, hash_, result)
+                if version is not None:
+                    name, vhash, text = version
+                    db.execute("INSERT OR IGNORE INTO recipe_versions (hash, name, content, first_active_at)"
+                               " VALUES (?,?,?,?)", (vhash, name, text, utc_now()))
 
     def audit_rows(self) -> list[dict]:
         with self._lock:
@@ -208,6 +364,15 @@ class CycleLog:
             r = self._db.execute("SELECT hash, content FROM recipe_versions WHERE name = ?"
                                  " ORDER BY first_active_at DESC, rowid DESC LIMIT 1", (name,)).fetchone()
         return (r[0], r[1]) if r else None
+
+
+def _append_audit(db: sqlite3.Connection, who: str, action: str, target: str, hash_: str, result: str) -> None:
+    last = db.execute("SELECT row_hash FROM audit ORDER BY id DESC LIMIT 1").fetchone()
+    prev = last[0] if last else "0" * 64
+    at = utc_now()
+    row_hash = _chain(prev, at, who, action, target, hash_, result)
+    db.execute("INSERT INTO audit (at, who, action, target, hash, result, prev_hash, row_hash)"
+               " VALUES (?,?,?,?,?,?,?,?)", (at, who, action, target, hash_, result, prev, row_hash))
 
 
 def _chain(prev: str, *fields: str) -> str:

@@ -20,3 +20,8 @@ class ConfigError(CellError, ValueError):
 
 class MeasurementError(CellError):
     """A measurement could not be taken or is not trustworthy (no target, saturated image, ...)."""
+
+
+class LogError(CellError):
+    """The cycle log cannot be used (damaged, read-only, disk full, in use by another
+    controller); the message names the file, the cause and how to recover."""

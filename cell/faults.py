@@ -35,6 +35,8 @@ class Fault(enum.IntEnum):
     MOTION_TIMEOUT = 403          #: the joints did not reach their target in time
     INTERNAL = 501                #: an unexpected error in the controller (see the log)
     LOG_WRITE_FAILED = 502        #: the cycle could not be written to the cycle log
+    INTERRUPTED = 503             #: a cycle was interrupted by a controller restart (crash, power
+                                  #: loss); part_id_echo holds its part id; cleared by reset
 
 
 class CellFault(Exception):

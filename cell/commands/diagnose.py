@@ -125,7 +125,7 @@ def load(target: str, robot: str = "seed000", camera_center=None) -> tuple[Campa
     if robot not in PRESETS:
         raise ConfigError(f"--robot {robot!r}: unknown preset; known: {sorted(PRESETS)}")
     g = PRESETS[robot]
-    log = CycleLog(p)
+    log = CycleLog(p, readonly=True)
     try:
         c = cycles_to_campaign(log.cycles(status="done"), g.l1_mm, g.l2_mm,
                                command_unit_deg=g.unit[0],

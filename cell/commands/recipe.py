@@ -107,7 +107,11 @@ def run(args: argparse.Namespace) -> int:
         b_text, b_name = _read(path), str(path)
         if not Path(args.db).is_file():
             raise ConfigError(f"{args.db}: no cycle log, so no activated version of {args.a!r} to compare")
-        last = CycleLog(args.db).last_recipe_version(args.a)
+        reader = CycleLog(args.db, readonly=True)
+        try:
+            last = reader.last_recipe_version(args.a)
+        finally:
+            reader.close()
         if last is None:
             raise ConfigError(f"{args.db}: recipe {args.a!r} was never activated")
         a_text, a_name = last[1], f"{args.a} (active, {last[0][:12]})"

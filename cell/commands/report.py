@@ -34,7 +34,7 @@ def _open(db: str):
     from cell.cyclelog import CycleLog
     if not Path(db).is_file():
         raise ConfigError(f"{db}: no cycle log here (run the cell first, or pass --db)")
-    return CycleLog(db)
+    return CycleLog(db, readonly=True)
 
 
 def run_report(args: argparse.Namespace) -> int:
