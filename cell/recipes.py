@@ -1,31 +1,24 @@
 """Recipes: one YAML file per part type in ``recipes/``, edited by maintenance.
 
-A recipe is validated by :class:`Recipe` (units in names, ranges, unknown keys rejected).
-:class:`RecipeStore` keeps the *active* set as one immutable mapping that is replaced in a
-single assignment, so a reader always sees wholly the old or wholly the new set. An edited
-file is validated when :meth:`RecipeStore.refresh` runs (the controller calls it only
-between cycles); an invalid edit is rejected with a message naming file, line and field, the
-last good version stays active, and every change — accepted or rejected — goes to the audit
-sink with who/when/hash/result.
+A recipe is validated by :class:`Recipe` (units in names, ranges, unknown keys rejected);
+:func:`parse_recipe` names file, line and field of what is wrong. The cell checks recipes
+against its stations with :func:`motion_check`. The active set and how edits reach it are
+in :mod:`cell.recipe_store`.
 """
 from __future__ import annotations
 
 import hashlib
 import json
-import pwd
 from dataclasses import dataclass
 from pathlib import Path
-from types import MappingProxyType
-from typing import Callable, Literal, Mapping
+from typing import Callable, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cell.errors import ConfigError
-from cell.log import get_logger
 from cell.yamlio import node_line, parse_yaml, validation_message
 
-log = get_logger("recipes")
 
 
 class _Strict(BaseModel):
@@ -144,18 +137,12 @@ def parse_recipe(text: str, source: str) -> Recipe:
     return recipe
 
 
-def _line_of(text: str, key: str) -> int | None:
+def line_of(text: str, key: str) -> int | None:
+    """Line of top-level ``key`` in YAML ``text`` (None if the text does not parse)."""
     try:
         return node_line(yaml.compose(text, Loader=yaml.SafeLoader), (key,))
     except yaml.YAMLError:
         return None
-
-
-def _owner(path: Path) -> str:
-    try:
-        return pwd.getpwuid(path.stat().st_uid).pw_name
-    except (KeyError, OSError):
-        return "unknown"
 
 
 #: a check of a parsed recipe against the cell it runs on: (recipe, text, source) → raises
@@ -203,82 +190,6 @@ def motion_check_from_config(stations, latency_s=None) -> tuple[CellCheck, bool]
             latency = 0.0 if measured else stations.delays_s[p]
         lam[s.joint_index] = (p + 1) * _MAX_SETPOINT_FRAME_BITS / stations.bitrate + latency
     return motion_check(all(s.supports_sync for s in stations.stations), lam), not measured
-
-
-class RecipeStore:
-    """The active recipes of one directory; see the module doc for the update rules.
-
-    ``check`` (optional) validates each recipe against the cell it runs on (e.g.
-    :func:`motion_check`); a recipe it refuses is rejected like an invalid file."""
-
-    def __init__(self, directory: Path | str, audit: Callable[[AuditEntry], None] | None = None,
-                 check: CellCheck | None = None):
-        self.directory = Path(directory)
-        self._audit = audit or (lambda entry: None)
-        self.check = check
-        self._active: Mapping[str, ActiveRecipe] = MappingProxyType({})
-        self._seen: dict[str, str] = {}        # path -> hash of the last content looked at
-        self.last_rejection: str | None = None
-
-    @property
-    def active(self) -> Mapping[str, ActiveRecipe]:
-        """Read-only name -> ActiveRecipe mapping; replaced whole on every change."""
-        return self._active
-
-    def by_number(self, number: int) -> ActiveRecipe | None:
-        for a in self._active.values():
-            if a.recipe.number == number:
-                return a
-        return None
-
-    def refresh(self) -> list[AuditEntry]:
-        """Re-read the directory; activate valid changes, reject invalid ones. Returns the
-        audit entries written. Call only between cycles."""
-        if not self.directory.is_dir():
-            raise ConfigError(f"{self.directory}: recipe directory not found")
-        new = dict(self._active)
-        entries: list[AuditEntry] = []
-        present = set()
-        for path in sorted(self.directory.glob("*.yaml")):
-            present.add(str(path))
-            try:
-                text = path.read_text(encoding="utf-8")
-            except (OSError, UnicodeDecodeError) as exc:
-                text, err = "", f"{path}: cannot read: {exc}"
-            else:
-                err = None
-            h = content_hash(text)
-            if self._seen.get(str(path)) == h:
-                continue
-            self._seen[str(path)] = h
-            try:
-                if err:
-                    raise ConfigError(err)
-                recipe = parse_recipe(text, str(path))
-                if self.check is not None:
-                    self.check(recipe, text, str(path))
-                clash = next((a for a in new.values() if a.recipe.number == recipe.number
-                              and a.recipe.name != recipe.name), None)
-                if clash:
-                    raise ConfigError(f"{path}:{_line_of(text, 'number')}: number: recipe number "
-                                      f"{recipe.number} is already used by {clash.path}")
-            except ConfigError as exc:
-                self.last_rejection = str(exc)
-                entries.append(AuditEntry(_owner(path), "reject", str(path), h, str(exc)))
-                log.warning("recipe_rejected", file=str(path), error=str(exc))
-                continue
-            new[recipe.name] = ActiveRecipe(recipe, h, text, str(path))
-            entries.append(AuditEntry(_owner(path), "activate", str(path), h, "ok", recipe.name))
-            log.info("recipe_activated", recipe=recipe.name, number=recipe.number, hash=h[:12])
-        for name, a in list(new.items()):
-            if a.path not in present:
-                del new[name]
-                self._seen.pop(a.path, None)
-                entries.append(AuditEntry("unknown", "remove", a.path, a.hash, "ok", name))
-        for e in entries:
-            self._audit(e)
-        self._active = MappingProxyType(new)       # the atomic swap
-        return entries
 
 
 def export_schema(path: Path | str) -> None:

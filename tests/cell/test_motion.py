@@ -15,7 +15,8 @@ import cell.motion
 from cell.errors import ConfigError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.motion import MotionSpec, Mover, check_mode
-from cell.recipes import RecipeStore, motion_check, parse_recipe
+from cell.recipe_store import RecipeStore
+from cell.recipes import motion_check, parse_recipe
 from cell.trajectory.line import TIME_LAWS
 from drivers.stations.streaming import StationCommandError
 

@@ -5,7 +5,8 @@ import re
 import pytest
 
 from cell.errors import ConfigError
-from cell.recipes import RecipeStore, parse_recipe, recipe_schema
+from cell.recipe_store import RecipeStore
+from cell.recipes import parse_recipe, recipe_schema
 
 from tests.cell.conftest import REPO_RECIPES
 
@@ -33,7 +34,7 @@ def test_committed_schema_is_current():
 ])
 def test_bad_edit_is_rejected_and_last_good_stays(rdir, old, new, words):
     audit = []
-    store = RecipeStore(rdir, audit=audit.append)
+    store = RecipeStore(rdir, commit=audit.extend)
     store.refresh()
     good = store.active["bracket-a"]
     path = rdir / "bracket-a.yaml"
@@ -47,7 +48,8 @@ def test_bad_edit_is_rejected_and_last_good_stays(rdir, old, new, words):
     assert str(path) in entries[0].result
     assert re.search(words, entries[0].result), entries[0].result
     assert store.active["bracket-a"] is good           # the last good version stays active
-    assert audit[-1] == entries[0] and audit[-1].who
+    e = entries[0]
+    assert audit[-1] == (e.who, "recipe_reject", e.target, e.hash, e.result, None) and e.who
     assert store.last_rejection == entries[0].result
 
 
@@ -89,5 +91,5 @@ def test_parse_recipe_top_level_must_be_mapping():
 
 
 def test_missing_directory(tmp_path):
-    with pytest.raises(ConfigError, match="not found"):
+    with pytest.raises(ConfigError, match="nope: recipe directory cannot be read: No such file"):
         RecipeStore(tmp_path / "nope").refresh()
