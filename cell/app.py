@@ -13,7 +13,8 @@ from cell.cyclelog import CycleLog
 from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
 from cell.measure import MeasuringCamera
-from cell.recipes import RecipeStore, motion_check_from_config
+from cell.recipe_store import RecipeStore
+from cell.recipes import motion_check_from_config
 from drivers.plc import open_link
 
 log = cell_log.get_logger("app")
@@ -31,24 +32,35 @@ class Cell:
     def __init__(self, config: CellConfig, devices: str = "hardware", plc_port: int | None = None,
                  jobs: bool = True, pace: bool = False, clock: Clock | None = None):
         self.config = config
-        self.devices: Devices = open_devices(config, devices, clock=clock, pace=pace)
+        # the log first: a log that cannot be used (damaged, read-only, in use by another
+        # controller) refuses the start before any device is touched
+        self.cyclelog = CycleLog(config.log.path)
+        try:
+            self.devices: Devices = open_devices(config, devices, clock=clock, pace=pace)
+        except BaseException:
+            self.cyclelog.close()
+            raise
         self.clock = self.devices.clock
         self._own_clock = clock is None
         self.robot, self.motion, self.camera = self.devices.robot, self.devices.motion, self.devices.camera
         self.plc = open_link(config.plc.backend, clock=self.clock)
         self.plc_port = config.plc.port if plc_port is None else plc_port
-        self.cyclelog = CycleLog(config.log.path)
-        self.recipes = RecipeStore(config.recipes.directory)
+        r = config.recipes
+        self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,
+                                   max_bytes=r.max_bytes, settle_s=r.settle_s, clock=self.clock)
         self.with_jobs = jobs
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
+        self.measuring_camera: MeasuringCamera | None = None
 
     def start(self) -> int:
         """Start devices, controller and jobs; returns the PLC link's TCP port."""
         with self.clock.attach():
             self.devices.start()
-            camera = MeasuringCamera(self.camera, self.devices.calibration(), self.config.vision.tool_radius_mm,
-                                     self.config.vision.radius_tolerance)
+            v = self.config.vision
+            camera = MeasuringCamera(self.camera, self.devices.calibration(), v.tool_radius_mm,
+                                     v.radius_tolerance, v.grab_timeout_s, clock=self.clock)
+            self.measuring_camera = camera
             # recipes are checked against these stations: SYNC support, and the segment time
             # against each station's delay (longest frames on the wire + measured latency)
             self.recipes.check, _ = motion_check_from_config(self.motion.cfg, self.motion.latency_s)
@@ -74,7 +86,8 @@ class Cell:
     def stop(self) -> None:
         with self.clock.attach():
             for step in (lambda: self.jobs and self.jobs.stop(), self.plc.stop,
-                         lambda: self.controller and self.controller.stop(), self.devices.stop):
+                         lambda: self.controller and self.controller.stop(),
+                         lambda: self.measuring_camera and self.measuring_camera.close(), self.devices.stop):
                 try:
                     step()
                 except Exception as exc:               # noqa: BLE001 -- keep going down

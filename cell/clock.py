@@ -201,6 +201,7 @@ class ManualClock:
     """
 
     wall = False
+    single_threaded = True      #: a worker runs its jobs at once, in the caller (cell.worker)
 
     def __init__(self, start: float = 0.0):
         if not math.isfinite(start):

@@ -46,10 +46,13 @@ class VisionSection(_Section):
     calibration: str = "var/calibration.json"      #: PlaneCalibration JSON (cell-vision-calibration/1)
     tool_radius_mm: float = Field(default=3.0, gt=0.2, le=20)
     radius_tolerance: float = Field(default=0.3, gt=0, lt=1)
+    grab_timeout_s: float = Field(default=2.0, gt=0, le=60)   #: a grab that takes longer is fault 301
 
 
 class RecipesSection(_Section):
     directory: str = "recipes"
+    max_bytes: int = Field(default=64 * 1024, ge=1024, le=16 * 1024 * 1024)   #: larger files are refused unread
+    settle_s: float = Field(default=1.0, ge=0, le=60)   #: a changed file must stay unchanged this long
 
 
 class LogSection(_Section):

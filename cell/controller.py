@@ -12,20 +12,29 @@ handshake); this shell only moves data in and out:
   and recipe refresh;
 * out: status bits and registers; actions — start a cycle (with an atomic snapshot of
   the recipe), cancel it (the cycle is *given* the reason), quick-stop every joint, reset
-  the drives, re-read the recipes (auditing every change).
+  the drives, re-read the recipes (auditing every change), record what the PLC was told.
+
+Nothing slow runs on the scan task. Re-reading recipes and log updates go to the
+``cell-log`` worker, re-enabling drives to the ``cell-drives`` worker
+(:class:`~cell.worker.Worker`); their results are picked up at a later scan. Only the quick
+stop is sent from the scan itself (a few CAN frames).
 """
 from __future__ import annotations
 
+from collections import deque
+
 from cell.clock import Clock, MonotonicClock
-from cell.controller_core import (CancelCycle, ControllerCore, ControllerSettings, DrivesResetIn,
-                                  QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
-                                  StartCycle, StationFaultIn)
+from cell.controller_core import (CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
+                                  DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
+                                  ScanInputs, SettleCycle, StartCycle, StationFaultIn)
 from cell.cycle import CancelToken, CycleOutcome, CycleRunner
 from cell.cyclelog import CycleLog
 from cell.faults import station_fault
 from cell.log import get_logger
-from cell.recipes import ActiveRecipe, AuditEntry, RecipeStore
+from cell.recipe_store import RecipeStore
+from cell.recipes import ActiveRecipe
 from cell.statemachine import State, StateMachine
+from cell.worker import Job, Worker
 
 log = get_logger("controller")
 
@@ -45,10 +54,13 @@ class CellController:
         self.scans = 0
         self._worker = None
         self._cancel: CancelToken | None = None
-        self._drives_reset: DrivesResetIn | None = None
         self._recipes_in = RecipesIn()
         self._stop = self.clock.event()
         self._task = None
+        self.log_worker = Worker(self.clock, "cell-log")        #: recipes and log updates
+        self.drives_worker = Worker(self.clock, "cell-drives")  #: re-enabling drives
+        self._refresh: Job | None = None
+        self._resets: deque[tuple[str, Job]] = deque()      # in the order asked
 
     # ------------------------------------------------------------------ views (jobs, tests)
     @property
@@ -77,10 +89,20 @@ class CellController:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Read the recipes, come up in IDLE (nothing moves), start the scan task."""
-        self._refresh_recipes()
-        out = self.core.started(self.clock.now(), self._recipes_in)
+        """Read the recipes, find a cycle a restart interrupted, come up in IDLE — or FAULT 503
+        if there was one — with nothing moving, start the scan task.
+
+        :raises LogError: the log cannot record the interrupted cycle.
+        """
+        self._recipes_in = self._recipes_result(self._refresh_now())
+        interrupted = self.log.recover_interrupted()
+        if interrupted is not None:
+            log.error("cycle_interrupted_by_restart", part_id=interrupted.part_id, cycle_id=interrupted.cycle_id)
+        out = self.core.started(self.clock.now(), self._recipes_in, interrupted)
         self._write(out.status, out.registers)
+        self._apply(out.actions)
+        self.log_worker.start()
+        self.drives_worker.start()
         self._task = self.clock.spawn(self._run, "cell-scan")
         log.info("controller_started", recipes=sorted(self.recipes.active))
 
@@ -92,6 +114,9 @@ class CellController:
             self._task.join(timeout=5)
         if self._worker is not None:
             self._worker.join(timeout=10)
+        for w in (self.log_worker, self.drives_worker):
+            if not w.stop(timeout_s=10):
+                log.error("worker_did_not_stop", worker=w.name)
 
     def _run(self) -> None:
         next_t = self.clock.now()
@@ -118,7 +143,13 @@ class CellController:
         if self._worker is not None and self._worker.finished:
             ended = self.runner.outcome
             self._worker = None
-        reset, self._drives_reset = self._drives_reset, None
+        reset = None
+        if self._resets and self._resets[0][1].done:
+            purpose, job = self._resets.popleft()
+            reset = DrivesResetIn(purpose, job.error is None, "" if job.error is None else str(job.error))
+        if self._refresh is not None and self._refresh.done:
+            self._recipes_in = self._recipes_result(self._refresh)
+            self._refresh = None
         recipes, self._recipes_in = self._recipes_in, RecipesIn(self._recipes_in.numbers)
         return ScanInputs(
             now=self.clock.now(), writes=tuple(self.plc.drain_writes()),
@@ -151,9 +182,14 @@ class CellController:
             elif isinstance(a, StartCycle):
                 self._start_cycle(a)
             elif isinstance(a, ResetDrives):
-                self._reset_drives(a.purpose)
+                self._resets.append((a.purpose, self.drives_worker.submit(self.motion.reset)))
             elif isinstance(a, RefreshRecipes):
-                self._refresh_recipes()
+                if self._refresh is None:
+                    self._refresh = self.log_worker.submit(self.recipes.refresh)
+            elif isinstance(a, SettleCycle):
+                self.log_worker.submit(self._settle, a)
+            elif isinstance(a, ClearInterrupted):
+                self.log_worker.submit(self._logged, "clear_interrupted", self.log.clear_interrupted)
 
     def _start_cycle(self, a: StartCycle) -> None:
         active: ActiveRecipe | None = self.recipes.by_number(a.recipe_number)
@@ -171,33 +207,35 @@ class CellController:
         except Exception as exc:                   # noqa: BLE001 -- stations may be gone already
             log.error("quick_stop_failed", error=repr(exc))
 
-    def _reset_drives(self, purpose: str) -> None:
+    # ------------------------------------------------------------------ log worker jobs
+    def _settle(self, a: SettleCycle) -> None:
+        def settle():
+            if self.log.settle_cycle(a.started_at, a.cycle_id, a.status, a.fault_code, a.text):
+                log.warning("cycle_row_corrected", cycle_id=a.cycle_id, told=a.status, fault=a.fault_code)
+        self._logged("settle_cycle", settle)
+
+    @staticmethod
+    def _logged(what: str, fn) -> None:
         try:
-            self.motion.reset()
-        except Exception as exc:                   # noqa: BLE001 -- the cause persists
-            self._drives_reset = DrivesResetIn(purpose, False, str(exc))
-        else:
-            self._drives_reset = DrivesResetIn(purpose, True)
+            fn()
+        except Exception as exc:                   # noqa: BLE001 -- e.g. disk full; the next start reports it
+            log.error("log_update_failed", update=what, error=repr(exc))
 
     # ------------------------------------------------------------------ recipes
-    def _refresh_recipes(self) -> None:
+    def _refresh_now(self) -> Job:
+        """A refresh run on the calling task (start-up), as a finished job."""
+        job = Job(self.clock, self.recipes.refresh, ())
         try:
-            entries = self.recipes.refresh()
-        except Exception as exc:                   # noqa: BLE001 -- e.g. directory gone: keep the last good set
-            log.error("recipe_refresh_failed", error=str(exc))
-            entries = []
-        for e in entries:
-            self._audit(e)
-        numbers = frozenset(a.recipe.number for a in self.recipes.active.values())
-        self._recipes_in = RecipesIn(numbers, refreshed=True, changed=bool(entries),
-                                     rejected=any(e.action == "reject" for e in entries))
-
-    def _audit(self, e: AuditEntry) -> None:
-        try:
-            self.log.audit(e.who, f"recipe_{e.action}", e.target, e.hash, e.result)
-            if e.action == "activate":
-                a = self.recipes.active.get(e.recipe)
-                if a is not None:
-                    self.log.remember_recipe(a.recipe.name, a.hash, a.text)
+            job.result = self.recipes.refresh()
         except Exception as exc:                   # noqa: BLE001
-            log.error("audit_write_failed", error=repr(exc))
+            job.error = exc
+        job.done = True
+        return job
+
+    def _recipes_result(self, job: Job) -> RecipesIn:
+        if job.error is not None:                  # e.g. folder gone, audit failed: keep the last good set
+            log.error("recipe_refresh_failed", error=str(job.error))
+        entries = job.result or []
+        numbers = frozenset(a.recipe.number for a in self.recipes.active.values())
+        return RecipesIn(numbers, refreshed=True, changed=bool(entries),
+                         rejected=any(e.action == "reject" for e in entries))

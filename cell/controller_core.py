@@ -9,12 +9,14 @@ made-up inputs and a made-up clock.
 
 Handshake (PLCopen Execute/Busy/Done/Error over the register map):
 
-* ``execute`` starts a cycle only on a rising edge seen while the PLC heartbeat is alive
-  and after ``execute`` was seen low with the link alive: written low by the PLC, or low in
-  the register image once the link has been alive for ``arm_grace_s`` (an execute held
-  high across a heartbeat gap, a reconnect or a controller restart starts nothing). The
-  edge latches the active recipe and ``part_id``. An edge while not ready sets
-  ``execute_refused``.
+* ``execute`` starts a cycle only on a rising edge the PLC writes while its heartbeat is
+  alive, and only after the PLC has *written* ``execute`` low while its heartbeat was alive
+  (armed). Arming is observed, never inferred: after a controller start, a heartbeat gap
+  or a reconnect, an ``execute`` the PLC held high — or rewrites high — starts nothing
+  until the PLC has written it low and raised it again. The edge latches the active recipe
+  and ``part_id``. An edge while not ready sets ``execute_refused``.
+* A cycle a controller restart interrupted (:meth:`ControllerCore.started` is told of it)
+  comes up as fault 503 with its part id in ``part_id_echo``; ``reset`` clears it.
 * ``done``/``aborted`` are held until ``acknowledge``; ``error`` until ``reset``.
 * PLC heartbeat unchanged for longer than ``plc_heartbeat_timeout_s`` (also mid-cycle), a
   joint-station fault, or a failed cycle step: the cycle is cancelled, every joint gets a
@@ -23,6 +25,9 @@ Handshake (PLCopen Execute/Busy/Done/Error over the register map):
   time-out, no later than one scan after it.
 * Recipe files are re-read only between cycles; an invalid edit is rejected
   (recipe_status 2), the last good version stays active.
+* When a cycle ends, :class:`SettleCycle` says what the PLC was told (done, aborted, or the
+  fault code), after the outputs that tell it were written; the cycle's row is corrected
+  to match if it says otherwise.
 """
 from __future__ import annotations
 
@@ -45,7 +50,6 @@ class ControllerSettings:
     scan_s: float = 0.01
     plc_heartbeat_timeout_s: float = 1.0
     recipe_refresh_s: float = 1.0
-    arm_grace_s: float = 0.3
 
 
 # ---------------------------------------------------------------------------- inputs
@@ -131,7 +135,25 @@ class RefreshRecipes:
     pass
 
 
-Action = Union[StartCycle, CancelCycle, QuickStop, ResetDrives, RefreshRecipes]
+@dataclass(frozen=True)
+class SettleCycle:
+    """The PLC has been told this about the cycle that started at ``started_at`` (its row
+    ``cycle_id``): status ``done``/``aborted``/``fault`` and the fault code (0 for none)."""
+
+    started_at: str
+    cycle_id: int | None
+    status: str
+    fault_code: int
+    text: str
+
+
+@dataclass(frozen=True)
+class ClearInterrupted:
+    """The PLC has reset the fault that reported a cycle interrupted by a restart."""
+
+
+Action = Union[StartCycle, CancelCycle, QuickStop, ResetDrives, RefreshRecipes, SettleCycle,
+               ClearInterrupted]
 
 
 @dataclass
@@ -158,8 +180,8 @@ class ControllerCore:
         self.last_outcome: CycleOutcome | None = None
         self._pending_select: int | None = None
         self._armed = False
+        self._rearming = False                   # drives being re-enabled after an abort
         self._link_ok = False
-        self._link_since = 0.0
         self._heartbeat = 0
         self._cycle_running = False
         self._next_refresh = 0.0
@@ -169,13 +191,22 @@ class ControllerCore:
         self._results: dict[str, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
-    def started(self, now: float, recipes: RecipesIn) -> ScanOutputs:
-        """The controller came up (recipes read once): STARTING → IDLE, nothing moves."""
+    def started(self, now: float, recipes: RecipesIn, interrupted=None) -> ScanOutputs:
+        """The controller came up (recipes read once): STARTING → IDLE, nothing moves.
+
+        :param interrupted: the cycle a restart interrupted (``part_id``, ``started_at``;
+            :class:`cell.cyclelog.Interrupted`), if any: STARTING → FAULT 503 instead.
+        """
         self._actions = []
         self._now = now
         self._take_recipes(recipes)
         self._next_refresh = now + self.settings.recipe_refresh_s
-        self.sm.fire(Event.STARTED)
+        if interrupted is not None:
+            self._results["part_id_echo"] = int(interrupted.part_id) & 0xFFFFFFFF
+            self._fault(Fault.INTERRUPTED, f"the cycle of part {interrupted.part_id} (started "
+                        f"{interrupted.started_at}) was interrupted by a controller restart")
+        else:
+            self.sm.fire(Event.STARTED)
         return self._outputs(False)
 
     def shutdown(self) -> list:
@@ -215,8 +246,6 @@ class ControllerCore:
                         f"{s.plc_heartbeat_timeout_s} s")
         if not link_ok:
             self._armed = False
-        elif not self._link_ok:
-            self._link_since = now
         self._link_ok = link_ok
 
         st = inp.station_fault
@@ -244,10 +273,6 @@ class ControllerCore:
             self._pending_select = None
         if self._pending_select is not None:
             self.recipe_status = RECIPE_BUSY
-        # execute low in the image, with the link alive for a grace time: long enough for a PLC
-        # that rewrites its outputs after a reconnect to have done so
-        if link_ok and now - self._link_since >= s.arm_grace_s and not inp.command_word & EXECUTE:
-            self._armed = True
         if not self.sm.state.busy and not self._cycle_running and now >= self._next_refresh:
             self._next_refresh = now + s.recipe_refresh_s
             self._actions.append(RefreshRecipes())
@@ -280,11 +305,26 @@ class ControllerCore:
             self.sm.fire(Event.STEP_DONE)            # LOGGING → DONE: the row is on disk
             self.cycle_count += 1
             self._results["cycle_count"] = self.cycle_count & 0xFFFFFFFF
-            return
-        if self.sm.state is State.STOPPING:
+        elif self.sm.state is State.STOPPING:
             self._stopped()
+        else:
+            self._fault(out.fault_code or Fault.INTERNAL, out.fault_text or "cycle failed")
+        self._settle(out)
+
+    def _settle(self, out: CycleOutcome) -> None:
+        """What this scan tells the PLC about the cycle that ended, for its row."""
+        rec = out.record
+        if rec is None:
             return
-        self._fault(out.fault_code or Fault.INTERNAL, out.fault_text or "cycle failed")
+        state = self.sm.state
+        if state is State.DONE:
+            told = ("done", 0, "")
+        elif state is State.ABORTED:
+            told = ("aborted", 0, "abort by PLC")
+        else:
+            told = (out.status if out.status != "done" else "aborted", self.fault_code,
+                    self.fault_text if out.status == "done" or self.fault_code != out.fault_code else "")
+        self._actions.append(SettleCycle(rec.started_at, rec.id, *told))
 
     def _publish(self, out: CycleOutcome) -> None:
         rec = out.record
@@ -310,16 +350,18 @@ class ControllerCore:
             self._reset()
         if rising & ACK and state in (State.DONE, State.ABORTED):
             if state is State.ABORTED:
+                self._rearming = True
                 self._actions.append(ResetDrives("rearm"))
             self.sm.fire(Event.ACKNOWLEDGE)
             self.execute_refused = False
         if rising & EXECUTE:
-            if self._armed and self.sm.state is State.IDLE:
+            if self._armed and self.sm.state is State.IDLE and not self._rearming:
                 self._start_cycle(part_id)
             else:
                 self.execute_refused = True
                 why = "not armed (execute must be written low while the PLC link is alive)" \
-                    if not self._armed else f"state {self.sm.state.name}"
+                    if not self._armed else "drives still re-enabling after abort" \
+                    if self._rearming else f"state {self.sm.state.name}"
                 log.warning("execute_refused", reason=why)
         if not value & EXECUTE:                    # the PLC wrote execute low: armed
             self._armed = True
@@ -358,6 +400,7 @@ class ControllerCore:
 
     def _drives_reset_done(self, r: DrivesResetIn) -> None:
         if r.purpose == "rearm":
+            self._rearming = False
             if not r.ok:
                 self._fault(Fault.STATION, f"drives could not be re-enabled after abort: {r.text}")
             return
@@ -367,6 +410,8 @@ class ControllerCore:
             log.error("reset_failed", error=r.text)
             self.sm.fire(Event.FAULT)
             return
+        if self.fault_code == Fault.INTERRUPTED:
+            self._actions.append(ClearInterrupted())
         self.fault_code, self.fault_text, self.fault_at = 0, "", None
         self.execute_refused = False
         self.sm.fire(Event.RESET_DONE)
@@ -398,7 +443,8 @@ class ControllerCore:
         state = self.sm.state
         self._heartbeat = (self._heartbeat + 1) & 0xFFFF
         status = dict(
-            ready=state is State.IDLE and self._link_ok and self._armed and self.fault_code == 0,
+            ready=state is State.IDLE and self._link_ok and self._armed and self.fault_code == 0
+            and not self._rearming,
             busy=state.busy, done=state is State.DONE,
             error=state in (State.FAULT, State.RESETTING) or self.fault_code != 0,
             auto=True, homed=state is not State.STARTING,

@@ -48,6 +48,7 @@ class CancelToken:
 
     def __init__(self, clock: Clock | None = None):
         self._event = (clock or MonotonicClock()).event()
+        self._wake: list = []
         self.code = 0
         self.text = ""
 
@@ -55,6 +56,14 @@ class CancelToken:
         if not self._event.is_set():
             self.code, self.text = int(code), text
             self._event.set()
+            for event in list(self._wake):
+                event.set()
+
+    def wake_on_cancel(self, event) -> None:
+        """Set ``event`` (a clock event someone waits on) when the cycle is cancelled."""
+        self._wake.append(event)
+        if self._event.is_set():
+            event.set()
 
     @property
     def cancelled(self) -> bool:
@@ -152,7 +161,7 @@ class CellArm:
     def move_and_measure(self, command_units) -> np.ndarray:
         q = self.robot.from_units(command_units)
         self.move(self.joints(q[0], q[1], self.z_mm))
-        return self.camera.tool()
+        return self.camera.tool(self.cancel)
 
     def motion_summary(self) -> dict:
         """Mode, moves, segments and the mean per-joint delay of this cycle's moves."""
@@ -207,10 +216,11 @@ class CycleRunner:
         arm = None
         outcome = CycleOutcome("aborted")
         try:
+            self._begin(rec)
             arm = CellArm(self.robot, self.mover, self.camera, r.approach.z_mm, spec, cancel,
                           self.settings, self.motion.actual_positions())
             self._step(rec, State.APPROACH, cancel, lambda: self._approach(arm, r))
-            image = self._step(rec, State.CAPTURE, cancel, self.camera.grab)
+            image = self._step(rec, State.CAPTURE, cancel, lambda: self.camera.grab(cancel))
             part = self._step(rec, State.LOCATE, cancel, lambda: self._locate(image, r))
             rec.target_mm = (float(part[0]), float(part[1]))
             nominal = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow))
@@ -220,7 +230,7 @@ class CycleRunner:
             rec.trace = [s.as_dict() for s in result.steps]
             last = self.robot.from_units(result.final.command_units)
             self._step(rec, State.FINAL_MOVE, cancel, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
-            self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part))
+            self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part, cancel))
             self.progress = State.LOGGING
             self.memory.learn(r.name, np.subtract(result.final.command_units, nominal))
             outcome = CycleOutcome("done")
@@ -249,6 +259,14 @@ class CycleRunner:
         return outcome
 
     # ------------------------------------------------------------------ steps
+    def _begin(self, rec: CycleRecord) -> None:
+        """Record the cycle as in flight before anything moves, so a controller that dies
+        during it reports it at the next start (:meth:`CycleLog.recover_interrupted`)."""
+        try:
+            self.log.begin_cycle(rec.part_id, rec.recipe, rec.recipe_hash, rec.started_at)
+        except Exception as exc:                 # noqa: BLE001 -- nothing moves unless it is recorded
+            raise CellFault(Fault.LOG_WRITE_FAILED, f"cycle log cannot record the cycle's start: {exc}") from exc
+
     def _step(self, rec: CycleRecord, state: State, cancel: CancelToken, work):
         cancel.check()
         self.progress = state
@@ -270,8 +288,8 @@ class CycleRunner:
                             f"{off:.3f} mm from nominal > search radius {r.part.search_radius_mm} mm")
         return part
 
-    def _verify(self, rec: CycleRecord, r, part: np.ndarray) -> None:
-        rec.verify_error_mm = float(np.hypot(*(self.camera.tool() - part)))
+    def _verify(self, rec: CycleRecord, r, part: np.ndarray, cancel: CancelToken) -> None:
+        rec.verify_error_mm = float(np.hypot(*(self.camera.tool(cancel) - part)))
         if rec.verify_error_mm > r.verify.tolerance_mm:
             raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"verified error {rec.verify_error_mm:.4f} mm "
                             f"> tolerance {r.verify.tolerance_mm} mm")

@@ -6,14 +6,22 @@ tool carries a disc of ``tool_radius_mm``, each part type one of the recipe's
 ``part.fiducial_radius_mm``; a search accepts radii within ±``radius_tolerance`` of the
 expected one. Every failure raises :class:`~cell.faults.CellFault` with the PLC fault code
 for what went wrong (no target, two targets, cut by the edge, saturated, ...).
+
+A grab runs in the ``camera-grab`` worker task, and the cycle waits for it at most
+``grab_timeout_s`` of the injected clock — or until the cycle is cancelled, which ends the
+wait at once. A grab that does not return in time is fault 301; while it still hangs,
+the next grab waits for it once more and is then refused with 301 too, so hung grabs never
+pile up.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from cell.clock import Clock, MonotonicClock
 from cell.faults import CellFault, Fault
 from cell.vision import VisionError
 from cell.vision.calibration import PlaneCalibration, locate
+from cell.worker import Job, Worker
 
 VISION_FAULTS = {
     "no_target": Fault.NO_TARGET, "multiple": Fault.MULTIPLE_TARGETS, "cut": Fault.TARGET_CUT,
@@ -26,24 +34,62 @@ class MeasuringCamera:
     """Camera + calibration. ``camera`` is any :class:`drivers.camera.base.Camera` (opened)."""
 
     def __init__(self, camera, calibration: PlaneCalibration, tool_radius_mm: float,
-                 radius_tolerance: float = 0.3):
+                 radius_tolerance: float = 0.3, grab_timeout_s: float = 2.0, clock: Clock | None = None):
         self.camera = camera
         self.calibration = calibration
         self.tool_radius_mm = float(tool_radius_mm)
         self.radius_tolerance = float(radius_tolerance)
+        self.grab_timeout_s = float(grab_timeout_s)
+        self.clock = clock or MonotonicClock()
         self.frames = 0
         self.last_error: str | None = None           #: the last grab's failure (health job)
+        self._worker = Worker(self.clock, "camera-grab")
+        self._unfinished: Job | None = None          # a grab the cycle stopped waiting for
 
-    def grab(self) -> np.ndarray:
-        """One 8-bit grey frame. Raises CellFault(CAMERA_FAILED) if the camera gives none."""
+    def grab(self, cancel=None) -> np.ndarray:
+        """One 8-bit grey frame.
+
+        :param cancel: the cycle's :class:`~cell.cycle.CancelToken`: a cancel ends the wait
+            at once (raises its ``CycleCancelled``).
+        :raises CellFault: CAMERA_FAILED if the camera gives no frame, fails, or takes longer
+            than ``grab_timeout_s``.
+        """
+        if self._unfinished is not None:             # the last grab was left hanging
+            if not self._wait(self._unfinished, cancel):
+                self.last_error = f"camera still hung in a grab after {self.grab_timeout_s} s more"
+                raise CellFault(Fault.CAMERA_FAILED, self.last_error)
+            self._unfinished = None
+        self._worker.start()
+        job = self._worker.submit(self.camera.grab)
+        if not self._wait(job, cancel):
+            self._unfinished = job
+            self.last_error = f"camera gave no frame within {self.grab_timeout_s} s (grab_timeout_s)"
+            raise CellFault(Fault.CAMERA_FAILED, self.last_error)
         try:
-            frame = self.camera.grab()
+            frame = job.outcome()
         except Exception as exc:                     # any driver failure is a camera fault
             self.last_error = str(exc)
             raise CellFault(Fault.CAMERA_FAILED, f"camera grab failed: {exc}") from exc
         self.frames += 1
         self.last_error = None
         return frame.image
+
+    def _wait(self, job: Job, cancel) -> bool:
+        """Wait for ``job`` up to the time-out; True if it finished. A cancel raises."""
+        if cancel is not None:
+            cancel.wake_on_cancel(job.finished)
+        job.finished.wait(self.grab_timeout_s)
+        if job.done:
+            return True
+        if cancel is not None:
+            if cancel.cancelled:
+                self._unfinished = job
+            cancel.check()
+        return False
+
+    def close(self) -> None:
+        """End the grab worker (a grab that hangs is left behind in its daemon task)."""
+        self._worker.stop(timeout_s=self.grab_timeout_s)
 
     def find(self, image: np.ndarray, radius_mm: float, what: str) -> np.ndarray:
         """(x_mm, y_mm) of the single fiducial of ``radius_mm`` in ``image``."""
@@ -57,6 +103,6 @@ class MeasuringCamera:
             raise CellFault(VISION_FAULTS[exc.kind], f"{what}: {exc}") from exc
         return np.array([fixes[0].x_mm, fixes[0].y_mm])
 
-    def tool(self) -> np.ndarray:
-        """Grab and locate the tool's fiducial."""
-        return self.find(self.grab(), self.tool_radius_mm, "tool fiducial")
+    def tool(self, cancel=None) -> np.ndarray:
+        """Grab and locate the tool's fiducial (``cancel`` as for :meth:`grab`)."""
+        return self.find(self.grab(cancel), self.tool_radius_mm, "tool fiducial")

@@ -103,9 +103,11 @@ class SimPlc:
         with self._cv:
             self._inputs = image
             self._heartbeat = image["plc_heartbeat"]
-            # take over what the server holds, so start-up writes nothing but the heartbeat
+            # take over what the server holds; only the command word is written at the first
+            # scan (as a PLC program initialises its outputs): the controller arms only once it
+            # has seen execute written low
             self._outputs = {n: image[n] for n in OUTPUTS}
-            self._written = dict(self._outputs)
+            self._written = {**self._outputs, "command_word": None}
         self._stop.clear()
         self._thread = self._clock.spawn(self._run, "sim-plc-scan")
 

@@ -13,18 +13,17 @@ from dataclasses import replace
 
 import pytest
 
-from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, CancelCycle, ControllerCore,
-                                  ControllerSettings, DrivesResetIn, PlcWriteIn, QuickStop,
-                                  RecipesIn, RefreshRecipes, ResetDrives, ScanInputs, StartCycle,
-                                  StationFaultIn)
+from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, CancelCycle, ClearInterrupted,
+                                  ControllerCore, ControllerSettings, DrivesResetIn, PlcWriteIn,
+                                  QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
+                                  SettleCycle, StartCycle, StationFaultIn)
 from cell.cycle import CycleOutcome
 from cell.cyclelog import CycleRecord
 from cell.faults import Fault
 from cell.statemachine import CYCLE_STEPS, State
 from drivers.plc.register_map import PLC_MAP
 
-S = ControllerSettings(scan_s=0.0625, plc_heartbeat_timeout_s=1.0, recipe_refresh_s=64.0,
-                       arm_grace_s=0.25)
+S = ControllerSettings(scan_s=0.0625, plc_heartbeat_timeout_s=1.0, recipe_refresh_s=64.0)
 T0 = 100.0
 HB_TEXT = "PLC heartbeat lost for more than 1.0 s"
 ABORT_TEXT = "abort by PLC"
@@ -141,6 +140,9 @@ def record(**kw) -> CycleRecord:
     return CycleRecord(**base)
 
 
+SETTLED_DONE = SettleCycle("s", None, "done", 0, "")
+
+
 def done(**kw) -> CycleOutcome:
     return CycleOutcome("done", record=record(**kw), log_write_s=0.25)
 
@@ -218,7 +220,7 @@ def test_no_recipe_refresh_during_a_cycle_then_at_once_when_it_ends():
     assert all(o.actions == [] for o in outs)
     out = c.scan(cycle_ended=done())
     assert c.state is State.DONE
-    assert out.actions == [RefreshRecipes()]
+    assert out.actions == [SETTLED_DONE, RefreshRecipes()]
     assert c.scan().actions == []
 
 
@@ -322,14 +324,19 @@ def test_link_comes_back_after_a_heartbeat_fault_but_the_fault_stays():
 
 
 # ------------------------------------------------------------------------------ arming
-def test_execute_low_in_the_image_arms_after_the_grace_time():
+def test_execute_low_in_the_image_never_arms_by_itself():
+    """Field probe: after a restart the PLC resumed its heartbeat first and rewrote its held
+    execute 0.5 s later; a grace time had armed the controller, and the robot moved."""
     c = Cell()
     c.select(1)                                       # link up at this scan
-    link_since = c.now
-    ready = [c.scan().status["ready"] for _ in range(6)]
-    # now - link_since = 1/16, 2/16, 3/16, 4/16 (= grace) ...
-    assert ready == [False, False, False, True, True, True]
-    assert c.now - link_since == 6 * S.scan_s          # armed at 4 scans = arm_grace_s
+    for out in c.scans(int(0.5 / S.scan_s)):          # 0.5 s of heartbeat, execute low in the image
+        assert out.status["ready"] is False
+    out = c.command(EXECUTE)                          # the PLC rewrites its held execute
+    assert out.actions == [] and out.status["execute_refused"] is True
+    assert c.state is State.IDLE
+    c.command(0)                                      # written low: armed ...
+    assert c.out.status["ready"] is True
+    assert c.command(EXECUTE).actions == [StartCycle(1, 0)]   # ... and a fresh edge starts
 
 
 def test_execute_written_low_arms_at_once():
@@ -517,7 +524,7 @@ def test_done_cycle_publishes_results_then_acknowledge_returns_to_idle():
     c = at_step(State.CAPTURE)
     out = c.scan(cycle_ended=done())
     assert c.state is State.DONE and c.core.cycle_count == 1
-    assert out.actions == []
+    assert out.actions == [SETTLED_DONE]
     assert out.status["done"] and not out.status["busy"] and not out.status["error"]
     assert {k: v for k, v in out.registers.items() if k not in BASE_REGISTERS} == dict(
         initial_error_um=42, final_error_um=19, moves=3, cycle_time_ms=2750, cycle_count=1)
@@ -550,7 +557,8 @@ def test_done_outcome_without_a_record_still_finishes():
 def test_failed_cycle_faults_with_its_code(step, status, code):
     c = at_step(step)
     out = c.scan(cycle_ended=CycleOutcome(status, int(code), "it broke", record(status=status)))
-    assert out.actions == [CancelCycle(int(code), "it broke"), QuickStop("it broke")]
+    assert out.actions == [CancelCycle(int(code), "it broke"), QuickStop("it broke"),
+                           SettleCycle("s", None, status, int(code), "")]   # the row says it already
     assert c.state is State.FAULT
     assert (c.core.fault_code, c.core.fault_text) == (int(code), "it broke")
     assert out.status["error"] and not out.status["busy"] and not out.status["done"]
@@ -844,3 +852,70 @@ def test_shutdown_when_no_cycle_runs_does_nothing(make):
     state, code = c.state, c.core.fault_code
     assert c.core.shutdown() == []
     assert c.state is state and c.core.fault_code == code
+
+
+# ------------------------------------------------------------------------------ what the PLC was told
+def test_heartbeat_lost_while_the_row_is_written_settles_the_row_as_the_fault_told():
+    """Field probe: a fault 101 during LOGGING left a row saying done; the PLC got 101."""
+    c = at_step(State.LOGGING)
+    c.lose_link()
+    assert c.state is State.STOPPING
+    out = c.scan(cycle_ended=done())                  # the runner had already written "done"
+    assert c.state is State.FAULT and not out.status["done"] and out.status["error"]
+    assert out.actions == [SettleCycle("s", None, "aborted", 101, HB_TEXT)]
+
+
+def test_abort_while_the_row_is_written_settles_the_row_as_aborted():
+    c = at_step(State.LOGGING)
+    c.command(EXECUTE | ABORT)
+    out = c.scan(cycle_ended=done())
+    assert c.state is State.ABORTED and out.status["aborted"] and not out.status["done"]
+    assert out.actions == [SettleCycle("s", None, "aborted", 0, ABORT_TEXT)]
+
+
+def test_abort_mid_cycle_settles_with_what_the_row_says():
+    c = at_step(State.LOCATE)
+    c.command(EXECUTE | ABORT)
+    out = c.scan(cycle_ended=CycleOutcome("aborted", 0, ABORT_TEXT, record(status="aborted")))
+    assert out.actions == [SettleCycle("s", None, "aborted", 0, ABORT_TEXT)]
+
+
+# ------------------------------------------------------------------------------ restart
+class _Interrupted:
+    part_id, started_at = 4242, "2026-11-23T10:00:00.000+00:00"
+
+
+def test_a_cycle_interrupted_by_a_restart_comes_up_as_fault_503_with_its_part_id():
+    core = ControllerCore(S)
+    out = core.started(T0, RecipesIn(frozenset({1}), refreshed=True), _Interrupted())
+    assert core.sm.state is State.FAULT and out.registers["fault_code"] == Fault.INTERRUPTED == 503
+    assert out.registers["part_id_echo"] == 4242 and out.status["error"] and not out.status["ready"]
+    assert "part 4242" in core.fault_text and "restart" in core.fault_text
+
+
+def test_reset_of_the_interrupted_fault_clears_it_in_the_log_and_nothing_moves_before():
+    c = Cell()
+    c.core = ControllerCore(S)
+    c.core.started(c.now, RecipesIn(c.numbers, refreshed=True), _Interrupted())
+    c.select(1)
+    c.command(0)
+    out = c.command(EXECUTE)                          # execute while the fault is latched
+    assert out.actions == [] and out.status["execute_refused"] and c.state is State.FAULT
+    assert c.command(RESET).actions == [ResetDrives("reset")]
+    out = c.scan(drives_reset=DrivesResetIn("reset", True))
+    assert out.actions == [ClearInterrupted()] and c.state is State.IDLE and c.core.fault_code == 0
+    c.command(0)
+    assert c.command(EXECUTE).actions == [StartCycle(1, 0)]
+
+
+def test_not_ready_and_execute_refused_while_drives_re_enable_after_abort():
+    c = aborted_cell()
+    c.command(ACK)                                    # execute low, acknowledge: rearm asked
+    assert c.out.actions == [ResetDrives("rearm")] and c.out.status["ready"] is False
+    out = c.command(EXECUTE)
+    assert out.actions == [] and out.status["execute_refused"]
+    out = c.scan(drives_reset=DrivesResetIn("rearm", True))
+    assert out.status["ready"] is True and out.actions == []   # execute held high starts nothing
+    assert c.scans(5)[-1].actions == [] and c.state is State.IDLE
+    c.command(0)
+    assert c.command(EXECUTE).actions == [StartCycle(1, 4711)]    # a fresh edge does

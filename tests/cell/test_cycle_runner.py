@@ -104,7 +104,7 @@ class FakeCamera:
         self.place_shift = np.array(place_shift)      #: tool offset once lowered to the place z
         self.calls: list[str] = []
 
-    def grab(self):
+    def grab(self, cancel=None):
         self.st._seen()
         self.calls.append("grab")
         return np.zeros((8, 8), np.uint8)
@@ -114,7 +114,7 @@ class FakeCamera:
         self.calls.append(f"find {what} r={radius_mm}")
         return self.part.copy()
 
-    def tool(self):
+    def tool(self, cancel=None):
         self.st._seen()
         self.calls.append("tool")
         q = self.st.pos
@@ -313,7 +313,7 @@ def test_a_quick_stop_after_the_cancel_keeps_the_tokens_reason(rig):
 def test_a_cancel_after_the_last_step_keeps_the_cycle_done(rig):
     orig = rig.cam.tool
 
-    def tool():
+    def tool(cancel=None):
         p = orig()
         if rig.runner.progress is State.VERIFY:
             rig.token.cancel(0, "abort by PLC")       # too late: nothing is checked after verify
@@ -390,7 +390,7 @@ def test_vision_fault_codes():
 
 
 def test_camera_fault_from_the_measuring_camera_keeps_its_code(rig):
-    def tool():
+    def tool(cancel=None):
         raise CellFault(Fault.TARGET_CUT, "tool fiducial: touches the image edge")
     rig.cam.tool = tool
     out = rig.run()

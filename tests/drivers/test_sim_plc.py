@@ -344,8 +344,9 @@ def test_not_ready_means_no_execute(link, clock):
             sim.run_cycle(recipe=0, part_id=1, timeout_s=0.1)
         assert abs(clock.now() - t - 0.1) <= SCAN_S + EPS      # 0.1 s, ± the read-back scan
         sim.wait_scans(2)
-        # not even a pulse of execute went out: the only write was the part id
-        assert [(e.name, e.value) for e in link.drain_writes()] == [("part_id", 1)]
+        # not even a pulse of execute went out: the part id, and execute low (the first scan's
+        # start-up write, after the data as always)
+        assert [(e.name, e.value) for e in link.drain_writes()] == [("part_id", 1), ("command_word", 0)]
         assert link.read("command_word") == 0
 
 
@@ -360,8 +361,8 @@ def test_timeout_without_controller_drops_execute(link, clock):
         assert abs(t_raised - t - 0.1) <= 2 * SCAN_S + EPS     # 0.1 s after the read-back
         sim.wait_scans(1)                                      # the next scan drops execute
         assert link.read("command_word") == 0
-        execute = [(e.t, e.value) for e in link.drain_writes() if e.name == "command_word"]
-        assert [v for _, v in execute] == [1, 0]
+        execute = [(e.t, e.value) for e in link.drain_writes() if e.name == "command_word"][1:]
+        assert [v for _, v in execute] == [1, 0]                # after the start-up execute low
         (t_up, _), (t_down, _) = execute
         assert abs(t_down - t_up - 0.1) <= SCAN_S + EPS         # held for the time-out, ± a scan
         assert t_raised <= t_down + EPS and t_down <= t_raised + SCAN_S + EPS

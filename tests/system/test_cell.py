@@ -193,7 +193,7 @@ def test_restart_comes_up_safe_with_execute_held_high(harness):
     h.sleep(0.5)
     assert h.controller.sm.state is State.IDLE and not h.status()["busy"]
     assert not h.status()["ready"]                    # execute must be seen low first
-    assert CycleLog(h.config.log.path).count() == 1
+    assert CycleLog(h.config.log.path, readonly=True).count() == 1
     h.plc.set_command(execute=False)                  # a fresh edge starts a cycle
     assert h.cycle()["done"] == 1
 

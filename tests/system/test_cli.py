@@ -109,8 +109,10 @@ def test_serve_sim_is_driven_by_an_independent_modbus_client(tmp_path):
         img = until(lambda i: i["map_version"] == PLC_MAP.version, "the server")
         c.write_single_register(PLC_MAP["recipe_select"].address, 7)
         c.write_multiple_registers(PLC_MAP["part_id"].address, [0, 4242])
-        img = until(lambda i: i["recipe_ack"] == 7 and bits(i)["ready"], "recipe 7 and ready")
         cmd = PLC_MAP["command_word"].address
+        assert not bits(regs())["ready"]                             # not armed yet after start
+        assert c.write_single_register(cmd, 0)                       # execute written low: armed
+        img = until(lambda i: i["recipe_ack"] == 7 and bits(i)["ready"], "recipe 7 and ready")
         assert c.write_single_register(cmd, 1)                       # execute
         img = until(lambda i: bits(i)["done"] or bits(i)["error"], "done")
         assert bits(img)["done"] and img["part_id_echo"] == 4242 and img["fault_code"] == 0
