@@ -85,6 +85,8 @@ class Cell:
 
     def stop(self) -> None:
         with self.clock.attach():
+            if self.controller is not None:
+                self.controller.detach_plc()            # before the link goes: rows stay unsettled
             for step in (lambda: self.jobs and self.jobs.stop(), self.plc.stop,
                          lambda: self.controller and self.controller.stop(),
                          lambda: self.measuring_camera and self.measuring_camera.close(), self.devices.stop):

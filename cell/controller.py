@@ -60,6 +60,7 @@ class CellController:
         self.log_worker = Worker(self.clock, "cell-log")        #: recipes and log updates
         self.drives_worker = Worker(self.clock, "cell-drives")  #: re-enabling drives
         self._refresh: Job | None = None
+        self._plc_detached = False        # going down: what the scan writes no longer reaches the PLC
         self._resets: deque[tuple[str, Job]] = deque()      # in the order asked
 
     # ------------------------------------------------------------------ views (jobs, tests)
@@ -106,8 +107,14 @@ class CellController:
         self._task = self.clock.spawn(self._run, "cell-scan")
         log.info("controller_started", recipes=sorted(self.recipes.active))
 
+    def detach_plc(self) -> None:
+        """The PLC link is about to stop: nothing the scan writes reaches the PLC any more, so
+        no cycle is settled as told (the next start reports a cycle in flight as interrupted)."""
+        self._plc_detached = True
+
     def stop(self) -> None:
         """Stop the scan loop; a running cycle is cancelled and the joints quick-stopped."""
+        self.detach_plc()
         self._apply(self.core.shutdown())
         self._stop.set()
         if self._task is not None:
@@ -187,7 +194,10 @@ class CellController:
                 if self._refresh is None:
                     self._refresh = self.log_worker.submit(self.recipes.refresh)
             elif isinstance(a, SettleCycle):
-                self.log_worker.submit(self._settle, a)
+                if self._plc_detached:
+                    log.warning("cycle_not_settled", reason="the PLC link is going down", cycle_id=a.cycle_id)
+                else:
+                    self.log_worker.submit(self._settle, a)
             elif isinstance(a, ClearInterrupted):
                 self.log_worker.submit(self._logged, "clear_interrupted", self.log.clear_interrupted)
 

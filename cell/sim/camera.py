@@ -324,6 +324,18 @@ class SimCamera(CameraBase):
         self.scene = scene if scene is not None else (lambda: [])
         self._seed = seed
         self._rng = np.random.default_rng(seed)
+        self._released = None                    # a clock event while hung (fault injection)
+
+    def hang(self) -> None:
+        """Fault-injection hook: from now on a grab blocks (as a camera whose driver or
+        trigger hangs) until :meth:`release`."""
+        self._released = self._clock.event()
+
+    def release(self) -> None:
+        """End :meth:`hang`: blocked grabs go on and deliver their frames."""
+        released, self._released = self._released, None
+        if released is not None:
+            released.set()
 
     def describe(self) -> str:
         w, h = self.model.size
@@ -336,6 +348,8 @@ class SimCamera(CameraBase):
         pass
 
     def _grab(self):
+        if self._released is not None:
+            self._released.wait()
         if self.frame_time_s:
             self._clock.sleep(self.frame_time_s)
         items = check_scene(self.scene())
