@@ -134,7 +134,8 @@ def main() -> int:
         audit = cyclelog.audit_rows()
         cyclelog.close()
     print(f"scan period {SCAN_S * 1e3:.0f} ms, wall clock, {args.seconds:.0f} s per phase; "
-          f"load average {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
+          f"load average (1 min) at the end {os.getloadavg()[0]:.2f}; {os.cpu_count()} CPUs; "
+          f"python {sys.version.split()[0]}")
     print()
     print("| phase | scans | period p50 ms | p99 ms | max ms | periods > 20 ms | p99 / quiet p99 |")
     print("|---|---|---|---|---|---|---|")
@@ -147,7 +148,7 @@ def main() -> int:
     print()
     print(f"edits of bracket-a activated: {edits}")
     print(f"audit: {len(audit)} rows; the big files: "
-          + "; ".join(f"{Path(a['target']).name} {a['action']}: {a['result'][-70:]}" for a in big))
+          + "; ".join(f"{a['action']}: {a['result'].replace(str(rdir) + '/', '')}" for a in big))
     print(f"PLC heartbeat faults: {int(ctl.fault_code == 101)}; controller state {ctl.sm.state.name}")
     shutil.rmtree(tmp, ignore_errors=True)
     return 0

@@ -130,7 +130,8 @@ def _b(index: int, name: str, meaning: str) -> Bit:
 
 _STATUS_BITS = (
     _b(0, "ready", "Controller accepts execute: auto, homed, no error, not busy, and execute "
-                   "seen low since the link came up. Raise execute only while ready."),
+                   "written low by the PLC since the controller started or the link came back. "
+                   "Raise execute only while ready."),
     _b(1, "busy", "Cycle running (PLCopen Busy). Set within one controller scan of the accepted "
                   "execute rising edge; done/error/aborted are cleared at the same time."),
     _b(2, "done", "Cycle finished OK (PLCopen Done). Results and part_id_echo are valid before "
@@ -143,8 +144,9 @@ _STATUS_BITS = (
     _b(7, "aborted", "Last cycle stopped by command abort (PLCopen CommandAborted). Held like done."),
     _b(8, "plc_link_ok", "Controller sees plc_heartbeat changing (its watchdog is satisfied)."),
     _b(9, "execute_refused", "The last execute rising edge was refused (not ready: busy, done or "
-                             "error not acknowledged, no recipe, or execute not seen low since the "
-                             "link came up). Cleared by the next accepted execute, acknowledge or reset."),
+                             "error not acknowledged, no recipe, or execute not written low since the "
+                             "controller started or the link came back). Cleared by the next accepted "
+                             "execute, acknowledge or reset."),
 )
 
 _COMMAND_BITS = (
@@ -216,8 +218,22 @@ Cycle handshake (PLCopen Execute/Busy/Done/Error, as Epson remote I/O and UR's M
 5. PLC reads the results, drops execute and pulses acknowledge; the controller clears
    done/aborted. An error is a latched fault: the joints are stopped and nothing moves
    until the PLC pulses reset and the cause is gone; then error and fault_code clear.
-6. Execute counts only as a rising edge seen while plc_heartbeat is alive, after execute was
-   seen low: an execute held high across a heartbeat gap or a reconnect starts nothing.
+6. Execute counts only as a rising edge the PLC writes while plc_heartbeat is alive, after
+   the PLC has WRITTEN execute low (with its heartbeat alive) since the controller started or
+   the link came back. A value merely sitting low in the registers does not arm; an execute
+   held high across a heartbeat gap, a reconnect or a controller restart - or rewritten high
+   after it - starts nothing. After any of these, write command_word with execute = 0, wait
+   for ready, then raise execute. A PLC that writes its outputs every scan does so anyway.
+7. Restart: a cycle that a controller restart (crash, power loss, service restart) cut off is
+   reported once, at the next start: error with fault_code 503 and its part id in
+   part_id_echo; its row in the cycle log says aborted, 503. Pulse reset to clear it (the
+   part's state is unknown: check it before the next cycle). Nothing moves until then.
+8. Time-outs: every device wait has one and turns into a fault - a camera grab
+   (vision.grab_timeout_s, 301), a move (cycle.move_timeout_s, 403), a drive's SDO answer
+   (stations.sdo_timeout_s, re-sent up to stations.sdo_attempts times; at start-up the
+   controller then refuses to start, naming the drive; in a reset the fault stays). An abort
+   ends the wait at once: aborted is set at the scan after the abort edge, even while a grab
+   hangs.
 
 Writes the map refuses are answered with Modbus exception 02 (unknown or reserved address,
 read-only register, half of a 32-bit pair) or 03 (value out of range) and change nothing,

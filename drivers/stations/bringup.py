@@ -57,6 +57,13 @@ class _ClockRemoteNode(canopen.RemoteNode):
         return client
 
 
+def _tries(cfg, exc: Exception) -> str:
+    """", after N requests of T s each" for an unanswered SDO, else nothing."""
+    if isinstance(exc, canopen.SdoCommunicationError) and "No SDO response" in str(exc):
+        return f" after {cfg.sdo_attempts} request(s) of {cfg.sdo_timeout_s} s each"
+    return ""
+
+
 def _remote_node(node_id: int, od_path: str, clock: Clock) -> canopen.RemoteNode:
     return _ClockRemoteNode(node_id, canopen.import_od(od_path, node_id), clock)
 
@@ -107,7 +114,8 @@ class BringUpMixin:
                 self._map_pdos(s)
                 node.nmt.state = "OPERATIONAL"
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-                raise StationStartupError(f"configuring {s.joint} (node {sc.node_id}) by SDO failed: {exc}") from exc
+                raise StationStartupError(f"configuring {s.joint} (node {sc.node_id}) by SDO failed{_tries(c, exc)}: "
+                                          f"{exc}") from exc
         # Operational only counts once each station's heartbeat says so (frames in flight
         # may still carry the old state).
         for s in self._stations:
@@ -156,7 +164,8 @@ class BringUpMixin:
                     raise StationStartupError(f"{s.joint} (node {s.cfg.node_id}) stayed in "
                                               f"{state.label!r} after the enable sequence")
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError, cia402.IllegalTransition) as exc:
-                raise StationStartupError(f"enabling {s.joint} (node {s.cfg.node_id}) failed: {exc}") from exc
+                raise StationStartupError(f"enabling {s.joint} (node {s.cfg.node_id}) failed{_tries(self.cfg, exc)}: "
+                                          f"{exc}") from exc
             s.target = None
         # return only once the TPDOs say so too, so drive_states()/actual_positions() are fresh
         if not self._await(lambda: all(s.statusword & 0x6F == 0x27 for s in self._stations),

@@ -78,6 +78,7 @@ class StationsConfig(BaseModel):
     consumer_timeout_ms: int = Field(default=150, ge=20, le=60_000)     #: stations fault after this
     tpdo_event_ms: int = Field(default=10, ge=1, le=10_000)             #: actual-position period
     sdo_timeout_s: float = Field(default=0.5, gt=0, le=10)
+    sdo_attempts: int = Field(default=3, ge=1, le=10)   #: an unanswered SDO request is sent this often
     boot_timeout_s: float = Field(default=2.0, gt=0, le=60)
     sync_lead_s: float = Field(default=0.01, ge=0, le=1)                #: set-points ahead of 1st SYNC
     #: each station's latency, bus order: from the end of its set-point frame on the wire to

@@ -139,6 +139,7 @@ class JointStations(BringUpMixin, StreamingMixin):
         for sc in c.stations:
             node = _remote_node(sc.node_id, od_path, self.clock)
             node.sdo.RESPONSE_TIMEOUT = c.sdo_timeout_s
+            node.sdo.MAX_RETRIES = c.sdo_attempts      # canopen re-sends an unanswered request
             net.add_node(node)
             st = _Station(sc, node)
             self._stations.append(st)

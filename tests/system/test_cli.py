@@ -126,3 +126,67 @@ def test_serve_sim_is_driven_by_an_independent_modbus_client(tmp_path):
         c.close()
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_kill_9_during_motion_then_restart_reports_the_cycle_and_moves_nothing(tmp_path):
+    """Field probe, as run: ``serve --sim`` killed with SIGKILL while a joint moves, started
+    again on the same log; the PLC resumes its heartbeat first and rewrites its held execute
+    later. Before: the controller came up IDLE with no fault and started a cycle (a joint
+    moved 91.9°), and the lost cycle left no row. Wall time here: another process's cell."""
+    import signal
+
+    from cell.clock import MonotonicClock
+    from cell.cyclelog import CycleLog
+    from cell.sim.plc import SimPlc
+    cfg, path = write_config(tmp_path)
+    port = free_port()
+
+    def serve():
+        return subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(path),
+                                 "--port", str(port), "--seconds", "120"], cwd=REPO,
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+    def plc_for(proc):
+        assert "serving Modbus TCP" in proc.stdout.readline()
+        plc = SimPlc("127.0.0.1", port, clock=MonotonicClock(), timeout_s=5.0)
+        plc.start()
+        return plc
+
+    first = serve()
+    try:
+        plc = plc_for(first)
+        plc.select_recipe(8)                                # slow-a: a 2 s final move
+        plc.set_part_id(31337)
+        plc.wait_until(lambda i: i["recipe_ack"] == 8 and PLC_MAP.bits("status_word", i["status_word"])["ready"],
+                       60.0, "ready")
+        plc.set_command(execute=True)
+        plc.wait_until(lambda i: i["state_code"] == 14, 60.0, "final move")   # FINAL_MOVE: joints moving
+        time.sleep(0.3)
+        first.send_signal(signal.SIGKILL)
+        first.wait()
+        plc.stop()
+    finally:
+        if first.poll() is None:
+            first.kill()
+    second = serve()
+    try:
+        plc = plc_for(second)                               # heartbeat first, execute still held
+        img = plc.wait_until(lambda i: i["fault_code"] != 0, 60.0, "the restart's fault")
+        assert img["fault_code"] == 503 and img["part_id_echo"] == 31337
+        assert img["state_code"] == 40                      # FAULT: nothing moves until reset
+        time.sleep(0.5)
+        plc.set_command(execute=False)
+        plc.wait_scans(3)
+        plc.set_command(execute=True)                        # even a fresh edge is refused
+        time.sleep(0.5)
+        img = plc.inputs()
+        assert img["state_code"] == 40 and PLC_MAP.bits("status_word", img["status_word"])["execute_refused"]
+        plc.stop()
+    finally:
+        second.terminate()
+        second.wait(timeout=30)
+    log = CycleLog(cfg.log.path, readonly=True)
+    last = log.cycles()[-1]
+    assert (last.part_id, last.status, last.fault_code) == (31337, "aborted", 503)
+    assert log.open_cycle()["stage"] == "interrupted"       # until the PLC resets it
+    log.close()
