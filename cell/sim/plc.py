@@ -336,7 +336,7 @@ class SimPlc:
                 rr = self._client.readwrite_registers(
                     read_address=0, read_count=self.map.size, write_address=self.map["plc_heartbeat"].address,
                     values=[heartbeat], device_id=self._unit)
-        except ModbusException as exc:
+        except (ModbusException, OSError) as exc:   # OSError: the server went away mid-request
             self._link_error("read", exc)
             return None
         if rr.isError():
@@ -355,7 +355,7 @@ class SimPlc:
                 rr = self._client.write_register(reg.address, words[0], device_id=self._unit)
             else:
                 rr = self._client.write_registers(reg.address, words, device_id=self._unit)
-        except ModbusException as exc:
+        except (ModbusException, OSError) as exc:   # OSError: the server went away mid-request
             self._link_error(f"write {name}", exc)
             return -1
         if rr.isError():
