@@ -46,6 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--config", help="cell config (required without --sim)")
     s.add_argument("--port", type=int, help="Modbus TCP port (default: config; 5020 with --sim)")
     s.add_argument("--seconds", type=float, help="stop after this many seconds (default: run until signalled)")
+    s.add_argument("--db", help="cycle log (default: the config's log.path; var/cell.sqlite with --sim); "
+                                "one controller per log: a second one on the same file is refused")
     s.set_defaults(func=serve)
 
 
@@ -185,7 +187,7 @@ def _print_row(r: dict) -> None:
 def serve(args: argparse.Namespace) -> int:
     from cell import log
     from cell.app import Cell
-    cfg = load_config(args.config, args.sim)
+    cfg = load_config(args.config, args.sim, args.db)
     if args.config:                            # a service logs as its config says
         log.configure(cfg.log.format, cfg.log.level)
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
