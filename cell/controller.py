@@ -95,7 +95,7 @@ class CellController:
 
         :raises LogError: the log cannot record the interrupted cycle.
         """
-        self._recipes_in = self._recipes_result(self._refresh_now())
+        self._recipes_in = self._recipes_result(self.log_worker.run_here(self.recipes.refresh))
         interrupted = self.log.recover_interrupted()
         if interrupted is not None:
             log.error("cycle_interrupted_by_restart", part_id=interrupted.part_id, cycle_id=interrupted.cycle_id)
@@ -232,16 +232,6 @@ class CellController:
             log.error("log_update_failed", update=what, error=repr(exc))
 
     # ------------------------------------------------------------------ recipes
-    def _refresh_now(self) -> Job:
-        """A refresh run on the calling task (start-up), as a finished job."""
-        job = Job(self.clock, self.recipes.refresh, ())
-        try:
-            job.result = self.recipes.refresh()
-        except Exception as exc:                   # noqa: BLE001
-            job.error = exc
-        job.done = True
-        return job
-
     def _recipes_result(self, job: Job) -> RecipesIn:
         if job.error is not None:                  # e.g. folder gone, audit failed: keep the last good set
             log.error("recipe_refresh_failed", error=str(job.error))

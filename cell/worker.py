@@ -57,6 +57,12 @@ class Worker:
             self._queue.put(job)
         return job
 
+    def run_here(self, fn: Callable[..., Any], *args: Any) -> Job:
+        """Run a job in the calling task now (e.g. at start-up, before the scan runs)."""
+        job = Job(self.clock, fn, args)
+        self._do(job)
+        return job
+
     def stop(self, timeout_s: float = 5.0) -> bool:
         """Let the queued jobs finish, then end the task; False if it did not end in time
         (a job hangs: the task is left behind, its thread is a daemon)."""
