@@ -288,12 +288,16 @@ class CycleLog:
 
     def cycles(self, limit: int | None = None, status: str | None = None) -> list[CycleRecord]:
         """Cycles in id order (the last ``limit`` if given)."""
-        sql = "SELECT * FROM cycles" + (" WHERE status = ?" if status else "") + " ORDER BY id"
+        where = " WHERE status = ?" if status else ""
         args: tuple = (status,) if status else ()
+        if limit:                                 # only the last rows are read, however long the log
+            sql = f"SELECT * FROM (SELECT * FROM cycles{where} ORDER BY id DESC LIMIT ?) ORDER BY id"
+            args += (int(limit),)
+        else:
+            sql = f"SELECT * FROM cycles{where} ORDER BY id"
         with self._lock:
             rows = self._db.execute(sql, args).fetchall()
-        recs = [self._record(r) for r in rows]
-        return recs[-limit:] if limit else recs
+        return [self._record(r) for r in rows]
 
     def count(self) -> int:
         with self._lock:

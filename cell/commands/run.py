@@ -209,11 +209,11 @@ def serve(args: argparse.Namespace) -> int:
 def _auto_feed(cell, stop: threading.Event) -> None:
     """``serve --sim``: the conveyor presents a new part of the selected recipe after every
     logged cycle (the PLC program that indexes a real conveyor is not simulated here)."""
-    part_id, seen = 1, -1
+    part_id, seen = 1, None
     while not stop.is_set():
-        n = cell.cyclelog.count()
+        ended = cell.controller.last_outcome        # a new object for every cycle that ends
         active = cell.recipes.by_number(cell.controller.recipe_number)
-        if active is not None and (n != seen or cell.devices.feeder.part is None):
+        if active is not None and (ended is not seen or cell.devices.feeder.part is None):
             cell.devices.feeder.present(part_id, active.recipe)
-            part_id, seen = part_id + 1, n
+            part_id, seen = part_id + 1, ended
         cell.clock.sleep(0.05)

@@ -62,3 +62,19 @@ def test_recipe_versions(tmp_path):
     log.remember_recipe("a", "h1", "v1")           # re-activating an old version is not a new row
     assert log.last_recipe_version("a") == ("h2", "v2")
     assert log.last_recipe_version("b") is None
+
+
+def test_the_last_cycles_are_read_without_reading_the_whole_log(tmp_path):
+    """The drift job and the offset memory read the last N done cycles every few seconds; a
+    week of production is over a million rows, so only those N may be read."""
+    log = CycleLog(tmp_path / "cell.sqlite")
+    for i in range(60):
+        log.add_cycle(record(i, status="done" if i % 3 else "aborted"))
+    statements = []
+    log._db.set_trace_callback(statements.append)
+    got = log.cycles(limit=4, status="done")
+    log._db.set_trace_callback(None)
+    assert [c.part_id for c in got] == [55, 56, 58, 59]          # the last four done, in order
+    assert [c.part_id for c in log.cycles(limit=2)] == [58, 59]
+    assert len(statements) == 1 and "LIMIT" in statements[0]
+    log.close()
