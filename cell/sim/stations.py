@@ -60,6 +60,9 @@ from drivers.stations.config import JOINT_NAMES
 from drivers.stations.driver import EDS_PATH
 
 EMCY_LIMIT, EMCY_FOLLOWING, EMCY_HEARTBEAT, EMCY_PDO_LENGTH = 0x8612, 0x8611, 0x8130, 0x8210
+#: :attr:`SimStation.applied` keeps at least this many of the latest set-points (at most
+#: twice as many): a history for tests and benches, bounded so a long run stays flat
+APPLIED_KEEP = 2048
 
 PositionHook = Callable[[int, float, float], None]
 
@@ -120,7 +123,9 @@ class SimStation:
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
         self.bus_off = False
-        self.applied: list[tuple[float, int, int]] = []  #: (t, target_inc, vel_inc_s) as applied
+        #: (t, target_inc, vel_inc_s) as applied, the latest ones (see ``APPLIED_KEEP``)
+        self.applied: list[tuple[float, int, int]] = []
+        self.applied_count = 0     #: set-points applied since creation
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -160,6 +165,9 @@ class SimStation:
         net = _DriveNetwork(VirtualCanBus(channel=channel, bitrate=bitrate, clock=self.clock),
                             self._on_tx_failure)
         net.add_node(self.node)
+        sdo = self.node.sdo                 # requests pass the drop hook first (drop_sdo_requests)
+        net.unsubscribe(sdo.rx_cobid, sdo.on_request)
+        net.subscribe(sdo.rx_cobid, self._on_sdo_request)
         connect_network(net)
         net.subscribe(0, self._on_nmt)
         net.subscribe(0x80, self._on_sync)
@@ -218,6 +226,17 @@ class SimStation:
     @property
     def nmt_state(self) -> str:
         return self.node.nmt.state if self.node else "OFF"
+
+    def drop_sdo_requests(self, n: int) -> None:
+        """Fault-injection hook: the next ``n`` SDO requests go unanswered (a drive busy
+        booting, a frame lost on a noisy bus)."""
+        self._sdo_drops = int(n)
+
+    def _on_sdo_request(self, can_id: int, data, timestamp) -> None:
+        if getattr(self, "_sdo_drops", 0) > 0:
+            self._sdo_drops -= 1
+            return
+        self.node.sdo.on_request(can_id, data, timestamp)
 
     def inject_following_error(self) -> None:
         """Fault-injection hook: the axis lagged beyond its window → EMCY 0x8611, Fault."""
@@ -401,6 +420,9 @@ class SimStation:
         self._ack = not self._ack
         self._dirty_tpdo = True
         self.applied.append((t, target, vel))
+        self.applied_count += 1
+        if len(self.applied) > 2 * APPLIED_KEEP:         # amortised O(1): trim by halves
+            del self.applied[:-APPLIED_KEEP]
 
     def _start_ramp(self, v: float) -> None:
         self._ramp_v = v

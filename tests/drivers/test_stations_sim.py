@@ -354,3 +354,33 @@ def test_emcy_heartbeat_code_is_the_one_the_driver_maps():
     # the twin's code for "controller heartbeat lost" is the one the driver turns into EMCY_HEARTBEAT
     from drivers.stations.faults import EMCY_TO_FAULT, FaultCode
     assert EMCY_TO_FAULT[EMCY_HEARTBEAT] is FaultCode.EMCY_HEARTBEAT
+
+
+def test_an_unanswered_sdo_is_sent_again_and_start_up_goes_on(vclock):
+    """Field probe: 3 of 39 start-ups under load failed with "configuring jN by SDO failed:
+    No SDO response received". A lost answer now costs one more request, not the start."""
+    cfg = _cell_cfg(sdo_attempts=3)
+    sims = SimStationSet(cfg, None, None, clock=vclock).start()
+    sims.by_joint("j2").drop_sdo_requests(2)
+    js = JointStations.from_config(cfg, clock=vclock)
+    try:
+        js.start()
+        assert set(js.drive_states().values()) == {State.OPERATION_ENABLED}
+    finally:
+        js.shutdown()
+        sims.stop()
+
+
+def test_a_drive_that_never_answers_sdo_fails_start_up_naming_it_and_the_attempts(vclock):
+    cfg = _cell_cfg(sdo_attempts=3, sdo_timeout_s=0.2)
+    sims = SimStationSet(cfg, None, None, clock=vclock).start()
+    sims.by_joint("j3").drop_sdo_requests(10 ** 6)
+    js = JointStations.from_config(cfg, clock=vclock)
+    try:
+        with pytest.raises(StationStartupError, match=r"configuring j3 \(node 3\) by SDO failed after 3 "
+                                                      r"request\(s\) of 0.2 s each: No SDO response received"):
+            js.start()
+    finally:
+        js.shutdown()
+        sims.stop()
+    assert wire_stats(cfg.channel) is None

@@ -1,0 +1,46 @@
+"""What the simulated cell keeps per cycle stays bounded however long it runs (a soak of
+``cellctl serve --sim`` must stay flat): every check here is a count on the simulated
+clock, never a wall time."""
+from __future__ import annotations
+
+import pytest
+
+import cell.sim.stations as sim_stations
+from tests.drivers.test_stations_sim import CPU, _close, _rig, _setpoint
+
+
+@pytest.fixture
+def rig(vclock):
+    r = _rig(vclock, heartbeat=False)
+    yield r
+    _close(r)
+
+
+def test_applied_set_points_keep_only_the_latest(rig, monkeypatch):
+    monkeypatch.setattr(sim_stations, "APPLIED_KEEP", 4)
+    clock, st = rig.clock, rig.st
+    sent = []
+    for k in range(1, 26):
+        target, vel = round(0.01 * k * CPU), 100_000
+        t_end = _setpoint(rig, target, vel)
+        clock.sleep_until(t_end + 1e-4)              # the frame is on the wire and applied
+        sent.append((t_end, target, vel))
+        assert len(st.applied) <= 2 * 4               # never more than twice the kept number
+    assert st.applied_count == 25
+    assert len(st.applied) >= 4
+    assert st.applied == sent[-len(st.applied):]      # the latest ones, in order, unchanged
+
+
+def test_fault_history_keeps_only_the_latest_records():
+    from drivers.stations.faults import FaultCode, FaultLatch, FaultRecord
+    latch = FaultLatch()
+    reacted = []
+    latch.on_latch(reacted.append)
+    n = FaultLatch.HISTORY_KEEP + 50
+    for k in range(n):
+        latch.latch(FaultRecord(FaultCode.QUICK_STOP, f"stop {k}"))
+        if k % 7 == 6:
+            latch.clear()                                # reset now and then: a new first fault
+    assert len(latch.history) == FaultLatch.HISTORY_KEEP
+    assert [r.detail for r in latch.history] == [f"stop {k}" for k in range(50, n)]
+    assert len(reacted) == (n + 6) // 7                  # one reaction per first fault, none lost
