@@ -23,6 +23,7 @@ No frame, however malformed, raises out of the monitor: it never crashes the not
 """
 from __future__ import annotations
 
+import collections
 import enum
 import threading
 import time
@@ -91,12 +92,15 @@ class StationFaultError(CellError, RuntimeError):
 class FaultLatch:
     """Thread-safe first-fault latch. The first :meth:`latch` wins and runs the reaction
     callbacks once (e.g. quick-stop all stations); later faults are logged and kept in
-    :attr:`history`. :meth:`clear` unlatches (only :meth:`JointStations.reset` calls it)."""
+    :attr:`history` (the latest ``HISTORY_KEEP``, so a cell that faults now and then for
+    weeks stays flat). :meth:`clear` unlatches (only :meth:`JointStations.reset` calls it)."""
+
+    HISTORY_KEEP = 256
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._record: FaultRecord | None = None
-        self.history: list[FaultRecord] = []
+        self.history: collections.deque[FaultRecord] = collections.deque(maxlen=self.HISTORY_KEEP)
         self._reactions: list[Callable[[FaultRecord], None]] = []
 
     def on_latch(self, reaction: Callable[[FaultRecord], None]) -> None:

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import pytest
 
+import cell.sim.canbus as canbus
 import cell.sim.stations as sim_stations
-from tests.drivers.test_stations_sim import CPU, _close, _rig, _setpoint
+from cell.sim.stations import SimStationSet
+from drivers.stations.driver import JointStations
+from tests.drivers.test_stations_sim import CPU, _cell_cfg, _close, _rig, _setpoint
 
 
 @pytest.fixture
@@ -44,3 +47,22 @@ def test_fault_history_keeps_only_the_latest_records():
     assert len(latch.history) == FaultLatch.HISTORY_KEEP
     assert [r.detail for r in latch.history] == [f"stop {k}" for k in range(50, n)]
     assert len(reacted) == (n + 6) // 7                  # one reaction per first fault, none lost
+
+
+def test_every_bus_of_the_stations_hands_frames_to_listeners_and_queues_none(vclock):
+    """python-can's VirtualBus keeps an unbounded receive queue per bus for ``recv``; on the
+    cell's wire every bus has listeners, so nothing may pile up there."""
+    cfg = _cell_cfg()
+    sims = SimStationSet(cfg, None, None, clock=vclock).start()
+    js = JointStations.from_config(cfg, clock=vclock)
+    try:
+        js.start()
+        frames0 = canbus.wire_stats(cfg.channel)[0]
+        vclock.sleep(2.0)                                # heartbeats, TPDOs every 20 ms
+        wire = canbus._wires[cfg.channel]
+        assert wire.frames - frames0 > 400
+        assert len(wire.buses) == 5                      # 4 drives + the controller
+        assert all(b._listeners is not None and b.queue.qsize() == 0 for b in wire.buses)
+    finally:
+        js.shutdown()
+        sims.stop()
