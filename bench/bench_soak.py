@@ -21,21 +21,32 @@ it samples, at no simulated time and without touching the garbage collector:
 
 * resident memory: ``VmRSS`` of ``/proc/self/status``, MB;
 * Python heap: ``sys.getallocatedblocks()`` (blocks the interpreter holds), in thousands;
+* C heap in use: glibc ``mallinfo2()``, bytes in allocated chunks plus malloc's own mmaps
+  (``uordblks + hblkhd``), MB. Unlike RSS it does not count freed memory malloc keeps for
+  reuse, so a leak in C code (SQLite, numpy, OpenCV, the interpreter's objects over 512 B)
+  shows here as a steady rise; "n/a" where the C library has no ``mallinfo2``;
+* SQLite's own memory: ``sqlite3_memory_used()`` of the library the ``sqlite3`` module
+  loaded, MB (page caches and statements; bounded by the connections' ``cache_size``);
 * threads: ``threading.active_count()``; open file descriptors: entries of ``/proc/self/fd``;
 * the cycle log's size on disk (log + WAL), MB: it grows by design, one row per cycle.
 
 A table row every ``--every-min`` simulated minutes (and one at the end). The summary gives
 least-squares slopes over the samples after warm-up (default: the first simulated hour, or
 the first 10 % of the run when that is shorter; ``--warmup-min`` to choose): RSS in MB per
-simulated hour and per 1000 cycles, the heap in blocks per hour, threads and fds per hour.
+simulated hour and per 1000 cycles (also over each half of those samples, to tell a slow
+plateau from a steady leak), the heap in blocks per hour, threads and fds per hour.
 A flat cell shows slopes near zero: RSS wanders by allocator noise (a few tenths of a MB
 either way), threads and fds do not move at all.
+
+At the end, after the cell has stopped, it calls ``malloc_trim(0)`` once and prints RSS
+before and after: what the trim gives back was free memory malloc had kept, not a leak.
 
 Every number is measured in this run; nothing here is a pass/fail test.
 """
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import platform
 import shlex
@@ -67,6 +78,8 @@ class Sample:
     faults: int
     rss_mb: float
     kblocks: float
+    c_heap_mb: float
+    sqlite_mb: float
     threads: int
     fds: int
     log_mb: float
@@ -78,6 +91,46 @@ def rss_mb() -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     return float("nan")
+
+
+class _Mallinfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+                 "uordblks", "fordblks", "keepcost")]
+
+
+def _libc():
+    try:
+        libc = ctypes.CDLL(None)
+        libc.mallinfo2.restype = _Mallinfo2
+        libc.malloc_trim.argtypes = [ctypes.c_size_t]
+        return libc
+    except (OSError, AttributeError):
+        return None
+
+
+def _libsqlite():
+    try:
+        import _sqlite3
+        lib = ctypes.CDLL(_sqlite3.__file__)      # resolves to the sqlite library it links
+        lib.sqlite3_memory_used.restype = ctypes.c_int64
+        return lib
+    except (OSError, AttributeError, ImportError):
+        return None
+
+
+LIBC, LIBSQLITE = _libc(), _libsqlite()
+
+
+def c_heap_mb() -> float:
+    if LIBC is None:
+        return float("nan")
+    m = LIBC.mallinfo2()
+    return (m.uordblks + m.hblkhd) / 1e6
+
+
+def sqlite_mb() -> float:
+    return LIBSQLITE.sqlite3_memory_used() / 1e6 if LIBSQLITE is not None else float("nan")
 
 
 def open_fds() -> int:
@@ -135,12 +188,14 @@ def one_cycle(cell: Cell, plc: SimPlc, active, part_id: int) -> str | None:
 
 
 def print_header() -> None:
-    print("| sim time h:mm | cycles | faults | RSS MB | heap kblocks | threads | fds | log MB | wall min |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|", flush=True)
+    print("| sim time h:mm | cycles | faults | RSS MB | C heap in use MB | SQLite MB | heap kblocks "
+          "| threads | fds | log MB | wall min |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|", flush=True)
 
 
 def print_row(s: Sample, note: str = "") -> None:
-    print(f"| {hmm(s.sim_s)}{note} | {s.cycles} | {s.faults} | {s.rss_mb:.1f} | {s.kblocks:.1f} | "
+    print(f"| {hmm(s.sim_s)}{note} | {s.cycles} | {s.faults} | {s.rss_mb:.1f} | {s.c_heap_mb:.2f} | "
+          f"{s.sqlite_mb:.2f} | {s.kblocks:.1f} | "
           f"{s.threads} | {s.fds} | {s.log_mb:.1f} | {s.wall_s / 60:.1f} |", flush=True)
 
 
@@ -167,6 +222,21 @@ def summary(samples: list[Sample], warmup_min: float | None) -> None:
     print(f"- RSS: {per_h('rss_mb'):+.3f} MB per simulated hour"
           + (f", {rss_k:+.3f} MB per 1000 cycles" if rss_k is not None else "")
           + f" ({first.rss_mb:.1f} → {last.rss_mb:.1f} MB)")
+    halves = [after[:len(after) // 2], after[len(after) // 2:]]
+
+    def per_k_halves(attr: str, unit: str = "MB") -> None:
+        ks = [slope([s.cycles / 1000.0 for s in h], [getattr(s, attr) for s in h]) for h in halves]
+        if all(k is not None for k in ks):
+            print(f"  - first half {ks[0]:+.3f}, second half {ks[1]:+.3f} {unit} per 1000 cycles "
+                  f"(a plateau shows as a second half near zero)")
+
+    per_k_halves("rss_mb")
+    for attr, what in (("c_heap_mb", "C heap in use"), ("sqlite_mb", "of it SQLite's own")):
+        k = slope(kcyc, [getattr(s, attr) for s in after])
+        if k is not None and k == k:
+            print(f"- {what}: {k:+.3f} MB per 1000 cycles "
+                  f"({getattr(first, attr):.2f} → {getattr(last, attr):.2f} MB)")
+            per_k_halves(attr)
     print(f"- Python heap: {per_h('kblocks') * 1000:+.0f} blocks per simulated hour "
           f"({first.kblocks:.1f} → {last.kblocks:.1f} kblocks)")
     print(f"- threads: {per_h('threads'):+.3f} per simulated hour ({first.threads} → {last.threads})")
@@ -225,8 +295,8 @@ def main(argv: list[str] | None = None) -> int:
 
                 def sample() -> Sample:
                     s = Sample(clock.now() - t0, time.monotonic() - wall0, cycles, faults, rss_mb(),
-                               sys.getallocatedblocks() / 1000.0, threading.active_count(), open_fds(),
-                               file_mb(db))
+                               sys.getallocatedblocks() / 1000.0, c_heap_mb(), sqlite_mb(),
+                               threading.active_count(), open_fds(), file_mb(db))
                     samples.append(s)
                     return s
 
@@ -277,6 +347,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{last.sim_s / 3600:.2f} simulated hours in {last.wall_s / 60:.1f} wall minutes "
           f"({last.sim_s / max(last.wall_s, 1e-9):.1f}x real time).")
     summary(samples, args.warmup_min)
+    if LIBC is not None:
+        before = rss_mb()
+        LIBC.malloc_trim(0)
+        print(f"- after the run, `malloc_trim(0)`: RSS {before:.1f} → {rss_mb():.1f} MB "
+              f"(memory malloc had kept free for reuse)")
     return 1 if stopped.startswith("the reset") else 0
 
 
