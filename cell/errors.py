@@ -25,3 +25,9 @@ class MeasurementError(CellError):
 class LogError(CellError):
     """The cycle log cannot be used (damaged, read-only, disk full, in use by another
     controller); the message names the file, the cause and how to recover."""
+
+
+class CalibrationError(CellError, ValueError):
+    """A robot calibration that cannot be done or trusted (target lost, too few points, a
+    singular design, a failed held-out check, a calibration file that is corrupt or belongs
+    to another robot); the message names the cause and where. Nothing is written then."""
