@@ -119,6 +119,19 @@ class Plant:
         xy = fx.simulate_points(self.robot.g, self._static_effects, q, d, None, [temp])
         return xy[0] + offset
 
+    def true_tool_pose(self, t_s: float) -> np.ndarray:
+        """True tool pose (x_mm, y_mm, phi_deg) at ``t_s``: the centre of
+        :meth:`true_tool_xy` and the orientation θ1 + θ2 + θ4 of the TRUE joint angles (the
+        joint effects act on θ1, θ2; θ4 is its drive position). What a camera on the hand
+        sees the world from. Raises TrajectoryError for a non-finite time."""
+        xy = self.true_tool_xy(t_s)
+        with self._lock:
+            q = self._drive[None, :2].copy()
+            d = self._dirs[None, :2].copy()
+            t4 = float(self._drive[3])
+        q_true = fx.true_joints(self._static_effects, q, d)[0]
+        return np.array([xy[0], xy[1], float(q_true[0] + q_true[1]) + t4])
+
     def measured_xy(self, t_s: float) -> np.ndarray:
         """What the camera measures (x, y) mm at ``t_s`` without rendering an image: the
         truth through the vision effects plus measurement noise."""
