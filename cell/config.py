@@ -81,6 +81,36 @@ class SchedulerSection(_Section):
     retention_interval_s: float = Field(default=3600.0, gt=0, le=7 * 86400)
 
 
+class CalibrationSection(_Section):
+    """Robot calibration from the hand camera (seed 004 per joint, seed 001 over a board).
+
+    ``file``: the kinematic calibration the cell loads at start and ``cellctl calibrate
+    kinematics`` writes (absent: the nominal model; corrupt or another robot's: the start
+    is refused). ``hand_camera``: the hand camera's driver config (as ``camera``; real
+    hardware only); ``hand_calibration``: its plane calibration, origin on the tool axis
+    (``cellctl calibrate-camera`` with the board centred under the tool).
+    ``board``: the board of known points (``cellctl calibrate-camera`` board format; default
+    :data:`cell.sim.handcam.DEFAULT_BOARD`, 100 mm pitch, so one point is in view at a time).
+    ``z_mm``: d3 held while calibrating. ``runs``: seed 004 runs per joint. ``poses`` /
+    ``holdout``: poses the kinematic fit uses / keeps back for the held-out check, which
+    must cut the held-out error by ``min_gain`` (relative) for the result to be written.
+    ``radius_sigma_mm``: how well the nominal links give the target's distance from a
+    joint's axis (the radius prior of seed 004's circle fit on a short arc).
+    """
+
+    file: str = "var/robot-calibration.json"
+    hand_camera: dict[str, Any] | None = None
+    hand_calibration: str = "var/hand-camera.json"
+    target_radius_mm: float = Field(default=3.0, gt=0.2, le=20)
+    board: dict[str, Any] | None = None
+    z_mm: float = 0.0
+    runs: int = Field(default=3, ge=1, le=50)
+    poses: int = Field(default=24, ge=4, le=500)
+    holdout: int = Field(default=12, ge=3, le=500)
+    min_gain: float = Field(default=0.1, ge=0, lt=1)
+    radius_sigma_mm: float = Field(default=0.5, gt=0, le=50)   #: how well l1, l2 are known (seed 004's radius prior)
+
+
 class SimSection(_Section):
     """Only for ``--sim``: the plant that stands in for the real robot and camera."""
     plant: str = "deploy/plants/default.yaml"
@@ -104,6 +134,7 @@ class CellConfig(_Section):
     controller: ControllerSection = ControllerSection()
     cycle: CycleSection = CycleSection()
     scheduler: SchedulerSection = SchedulerSection()
+    calibration: CalibrationSection = CalibrationSection()
     sim: SimSection | None = None
 
     @classmethod

@@ -48,6 +48,10 @@ class Devices(Protocol):
         """Take the devices down; never raises."""
         ...
 
+    # robot calibration (cell.calibration.service): ``hand_camera`` (opened on first use, or
+    # None without one), ``hand_calibration()`` and ``place_fixture(kind, joint)`` (a
+    # simulated cell lays it; on hardware the operator has, and this does nothing)
+
 
 class HardwareDevices:
     """The devices the config names, on wall time (or on ``clock`` if given)."""
@@ -60,6 +64,7 @@ class HardwareDevices:
         self.robot = config.robot.scara()
         self.motion = JointStations.from_config(config.stations, clock=self.clock)
         self.camera = cameras.from_config({**config.camera, "clock": self.clock})
+        self._hand_camera = None
 
     def start(self) -> None:
         self.motion.start()
@@ -74,8 +79,35 @@ class HardwareDevices:
         except json.JSONDecodeError as exc:
             raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
 
+    @property
+    def hand_camera(self):
+        """The hand camera of ``calibration.hand_camera`` (opened on first use), or None."""
+        spec = self.config.calibration.hand_camera
+        if spec is None:
+            return None
+        if self._hand_camera is None:
+            from drivers import camera as cameras
+            cam = cameras.from_config({**spec, "clock": self.clock})
+            cam.open()
+            self._hand_camera = cam
+        return self._hand_camera
+
+    def hand_calibration(self) -> PlaneCalibration:
+        path = Path(self.config.calibration.hand_calibration)
+        try:
+            return PlaneCalibration.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: hand camera calibration not found "
+                              "(calibration.hand_calibration)") from None
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+
+    def place_fixture(self, kind: str, joint: str | None = None) -> None:
+        """On hardware the operator lays the fixture; nothing to do."""
+
     def stop(self) -> None:
-        for step in (self.camera.close, self.motion.shutdown):
+        cams = [self._hand_camera.close] if self._hand_camera is not None else []
+        for step in (self.camera.close, *cams, self.motion.shutdown):
             try:
                 step()
             except Exception:                    # noqa: BLE001 -- best effort on the way down

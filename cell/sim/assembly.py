@@ -13,7 +13,10 @@ Only the devices are simulated; the controller talks to them exactly as to real 
   ``frame_time_s`` of clock time per frame;
 * calibration: at start-up a circle-grid board is rendered through that camera and
   calibrated with the same code a real cell uses (``cell.vision.calibrate``);
-* parts: :class:`PartFeeder` is the conveyor; the PLC (simulated or real) indexes it.
+* parts: :class:`PartFeeder` is the conveyor; the PLC (simulated or real) indexes it;
+* hand camera: :class:`cell.sim.handcam.SimHandRig`, the camera on the hand that robot
+  calibration uses, and the fixture in front of it (``place_fixture``, what the operator
+  does before a calibration).
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from cell.kinematics import JOINT_NAMES, Scara
 from cell.recipes import Recipe
 from cell.sim.camera import Fiducial, Optics, SimCamera
 from cell.sim.clock import VirtualClock
+from cell.sim.handcam import SimHandRig
 from cell.sim.plant import Plant
 from cell.sim.stations import SimStationSet
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration, calibrate
@@ -114,6 +118,9 @@ class SimDevices:
         self._board: CircleGridBoard | None = None
         self.camera = SimCamera(self.camera_model, self.scene, optics=CAMERA_OPTICS, seed=sim.seed,
                                 clock=self.clock, frame_time_s=CAMERA_FRAME_S)
+        self.hand = SimHandRig(self.plant, self.clock, seed=sim.seed, settle=self.sim_stations.positions,
+                               frame_time_s=CAMERA_FRAME_S)
+        self._hand_cal: PlaneCalibration | None = None
 
     def scene(self) -> list:
         """What lies on the work plane now: the part (under the tool if it is there) and the tool."""
@@ -149,8 +156,27 @@ class SimDevices:
             self._board = None
         return calibrate(views, distortion=False, u_axis_deg=0.0)
 
+    # ------------------------------------------------------------------ robot calibration
+    @property
+    def hand_camera(self) -> SimCamera:
+        """The camera on the hand (opened on first use)."""
+        from drivers.camera.base import CameraState
+        if self.hand.camera.state is not CameraState.OPEN:
+            self.hand.camera.open()
+        return self.hand.camera
+
+    def hand_calibration(self) -> PlaneCalibration:
+        """The hand camera's plane calibration (hand frame), rendered and made once."""
+        if self._hand_cal is None:
+            self._hand_cal = self.hand.calibration()
+        return self._hand_cal
+
+    def place_fixture(self, kind: str, joint: str | None = None) -> None:
+        """Lay the calibration fixture (``joint`` target for ``joint``, ``board``, ``none``)."""
+        self.hand.place(kind, joint)
+
     def stop(self) -> None:
-        for step in (self.camera.close, self.motion.shutdown, self.sim_stations.stop):
+        for step in (self.camera.close, self.hand.camera.close, self.motion.shutdown, self.sim_stations.stop):
             try:
                 step()
             except Exception:                      # noqa: BLE001 -- best effort on the way down

@@ -1,0 +1,170 @@
+"""The robot calibration file (format ``cell-robot-calibration/1``) and the calibrated robot.
+
+A kinematic calibration (seed 001, ``cellctl calibrate kinematics``) is written as one JSON
+file: the identified DH errors with their 95 % intervals, the identifiability report, the
+held-out check, the poses and measurements it came from, whom it belongs to (the cell's
+name and its nominal robot's fingerprint) and a SHA-256 of all that. Files are versioned:
+a new calibration gets the next ``version`` and the one it replaces is kept beside it as
+``<name>.v<N>.json``; the active file is replaced atomically.
+
+The cell applies the robot's own parameters (:data:`APPLIED`): the joint zeros of θ1, θ2
+and the two link lengths. The board's placement (``base.x``, ``base.y``) is the board's
+error, not the robot's, and is only reported; the board's rotation cannot be told from
+θ1's zero (they appear only as a sum) and is in ``j1.theta``.
+
+:func:`load` refuses, with :class:`~cell.errors.CalibrationError` naming the file and the
+cause, a file that is missing, not JSON, of another format, altered or cut (checksum), or
+made for another cell or another nominal robot. Nothing is applied then.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from cell.errors import CalibrationError, KinematicsError
+from cell.kinematics import Elbow, Scara
+
+FORMAT = "cell-robot-calibration/1"
+#: calibration parameter → (what the calibrated robot does with it, unit)
+APPLIED = {"j1.theta": "θ1 zero", "j2.theta": "θ2 zero", "j1.a": "link 1 length",
+           "j2.a": "link 2 length"}
+
+
+def robot_fingerprint(robot: Scara) -> str:
+    """SHA-256 (16 hex digits) of the nominal geometry: a calibration belongs to one."""
+    text = json.dumps(robot.g.model_dump(mode="json"), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _digest(doc: dict) -> str:
+    body = {k: v for k, v in doc.items() if k != "sha256"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def calibration_id(doc: dict) -> str:
+    """Short id a cycle row records: ``v<version>-<first 8 of sha256>``."""
+    return f"v{doc['version']}-{doc['sha256'][:8]}"
+
+
+class CalibratedScara(Scara):
+    """The nominal robot with the calibrated joint zeros and link lengths.
+
+    Commands stay in the nominal robot's terms (a command θ_cmd turns the joint to
+    θ_cmd + Δθ); forward kinematics, its Jacobian and the inverse use the calibrated
+    geometry, so a planned first move lands closer. Limits and command units are the
+    nominal ones. ``calibration`` is the id of the file it came from.
+    """
+
+    def __init__(self, nominal: Scara, offsets_deg, link_deltas_mm, calibration: str):
+        super().__init__(nominal.g)
+        self.offsets = np.asarray(offsets_deg, dtype=float)
+        self.calibration = calibration
+        g = nominal.g
+        self._true = Scara(g.model_copy(update={"l1_mm": g.l1_mm + float(link_deltas_mm[0]),
+                                                "l2_mm": g.l2_mm + float(link_deltas_mm[1])}))
+
+    def fk_planar(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        return self._true.fk_planar(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
+
+    def jacobian(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        return self._true.jacobian(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
+
+    def ik_planar(self, x_mm: float, y_mm: float, elbow: Elbow = "right",
+                  check_limits: bool = True) -> np.ndarray:
+        q = self._true.ik_planar(x_mm, y_mm, elbow=elbow, check_limits=False) - self.offsets
+        q[0] = (q[0] + 180.0) % 360.0 - 180.0
+        if check_limits:
+            self.check_limits(q, joints=(0, 1))
+        return q
+
+
+def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
+    """The robot a loaded calibration describes (see :data:`APPLIED`)."""
+    p = {k: float(v["value"]) for k, v in doc["parameters"].items()}
+    return CalibratedScara(nominal, (p.get("j1.theta", 0.0), p.get("j2.theta", 0.0)),
+                           (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc))
+
+
+def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: dict,
+                 created_at: str) -> dict:
+    """A calibration document (version and checksum are set by :func:`write`).
+    ``parameters``: name → {value, se, low, high, unit}; ``report``: identifiability,
+    held-out check and fit figures; ``data``: the poses and measurements."""
+    return {"format": FORMAT, "version": 0, "created_at": created_at, "cell": cell,
+            "robot": {"name": robot.g.name, "fingerprint": robot_fingerprint(robot)},
+            "applied": sorted(APPLIED), "parameters": parameters, "report": report, "data": data}
+
+
+def write(path, doc: dict) -> dict:
+    """Write ``doc`` as the active calibration at ``path`` with the next version number;
+    the file it replaces is kept as ``<stem>.v<N>.json``. Atomic (temporary file + rename)
+    and the folder is created. Returns the document as written (version, sha256)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    version = 1
+    if path.exists():
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+            version = int(old.get("version", 0)) + 1
+            os.replace(path, path.with_name(f"{path.stem}.v{int(old.get('version', 0))}.json"))
+        except (ValueError, TypeError, AttributeError, OSError):
+            bad = path.with_name(f"{path.stem}.unreadable.json")
+            os.replace(path, bad)
+    doc = {**doc, "version": version}
+    doc["sha256"] = _digest(doc)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(doc, f, indent=1)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return doc
+
+
+def load(path, robot: Scara, cell: str) -> dict:
+    """Read and check a calibration for the nominal ``robot`` of cell ``cell``.
+
+    :raises CalibrationError: missing or unreadable file, not JSON, another format, a
+        checksum that does not match (altered or cut), another cell, another nominal robot,
+        or a parameter that is not a finite number.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: robot calibration not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{path}: cannot read the robot calibration: {exc}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{path}, line {exc.lineno}: corrupt robot calibration, not valid "
+                               f"JSON: {exc.msg}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise CalibrationError(f"{path}: not a robot calibration (format {got!r}, expected {FORMAT!r})")
+    if doc.get("sha256") != _digest(doc):
+        raise CalibrationError(f"{path}: corrupt robot calibration: its checksum does not match its "
+                               "content (edited or cut); run the calibration again or restore "
+                               "the previous version")
+    if doc.get("cell") != cell:
+        raise CalibrationError(f"{path}: calibration belongs to cell {doc.get('cell')!r}, not to "
+                               f"this cell {cell!r}")
+    theirs, ours = doc.get("robot", {}).get("fingerprint"), robot_fingerprint(robot)
+    if theirs != ours:
+        raise CalibrationError(f"{path}: calibration belongs to another robot "
+                               f"({doc.get('robot', {}).get('name')!r}, fingerprint {theirs}); this "
+                               f"cell's robot is {robot.g.name!r} ({ours})")
+    try:
+        for name, v in doc["parameters"].items():
+            if not np.isfinite(float(v["value"])):
+                raise ValueError(name)
+        calibrated_robot(robot, doc)
+    except (KeyError, TypeError, ValueError, KinematicsError) as exc:
+        raise CalibrationError(f"{path}: corrupt robot calibration: bad parameter {exc}") from None
+    return doc

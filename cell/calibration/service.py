@@ -1,0 +1,269 @@
+"""Robot calibration as the cell runs it: from the command line or from the PLC.
+
+:class:`CellCalibrator` joins the pieces for one cell: its devices (hand camera, stations,
+fixture), the nominal robot, the calibration file. Both the ``cellctl calibrate`` commands
+and the controller's CALIBRATING state call it:
+
+* :meth:`CellCalibrator.joint` — seed 004 on one joint: plan, sweep, analyse;
+* :meth:`CellCalibrator.kinematics` — seed 001: candidate poses over the board, D-optimal
+  choice of the fit poses, held-out poses drawn from the rest, measure all, identify,
+  check on the held-out poses; only a passing result is written (versioned, see
+  :mod:`cell.calibration.calfile`) and applied (``on_applied``);
+* :meth:`CellCalibrator.run_safely` — the PLC's entry: never raises, returns a
+  :class:`~cell.cycle.CycleOutcome` whose ``calibration`` holds the residuals.
+
+A cancel (abort, heartbeat, station fault) ends a procedure at its next move.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+import numpy as np
+
+from cell.calibration import calfile
+from cell.calibration.dh import scara_chain
+from cell.calibration.joint import JointResult, analyse
+from cell.calibration.kinematic import HoldoutCheck, Identification, holdout_check, identify, select_poses
+from cell.calibration.procedure import (HandRig, JointPlan, board_candidates, measure_board, plan_joint,
+                                        sweep_joint)
+from cell.config import CellConfig
+from cell.cycle import CycleCancelled, CycleOutcome
+from cell.errors import CalibrationError, CellError
+from cell.faults import Fault
+from cell.kinematics import JOINT_NAMES, Scara
+from cell.log import get_logger
+from cell.vision.calibration import CircleGridBoard, board_from_dict
+
+log = get_logger("calibration")
+
+
+def board_of(config: CellConfig) -> CircleGridBoard:
+    """The board of known points (``calibration.board``, default the simulated cell's)."""
+    spec = config.calibration.board
+    if spec is None:
+        from cell.sim.handcam import DEFAULT_BOARD
+        return DEFAULT_BOARD
+    board = board_from_dict(dict(spec))
+    if not isinstance(board, CircleGridBoard):
+        raise CalibrationError("calibration.board must be a circle grid (kind: circles): its points "
+                               "are what the hand camera measures")
+    return board
+
+
+def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]:
+    """The robot the cell runs with: calibrated by ``calibration.file`` if it exists (checked:
+    :func:`calfile.load` raises CalibrationError for a corrupt or foreign file), else the
+    nominal one."""
+    path = config.calibration.file
+    try:
+        doc = calfile.load(path, nominal, config.name)
+    except CalibrationError as exc:
+        if "not found" in str(exc):
+            return nominal, None
+        raise
+    return calfile.calibrated_robot(nominal, doc), doc
+
+
+def radius_prior(nominal: Scara, joint: str, zero_centres, sigma_mm: float):
+    """(r0, sigma) mm: how far the target lies from ``joint``'s axis, from the nominal
+    geometry and where the zero images saw it. At the all-zero pose the hand frame is the
+    base frame moved to the tool axis (l1 + l2, 0), so the j1 axis lies at (−l1 − l2, 0) in
+    it and the j2 axis at (−l2, 0); r0 = |zero centre − axis|. ``sigma_mm`` is how well the
+    links (and the camera's place on the tool axis) are known. None for j4: its target
+    circles the camera axis whole, the points fix the radius themselves."""
+    g = nominal.g
+    axis = {"j1": (-(g.l1_mm + g.l2_mm), 0.0), "j2": (-g.l2_mm, 0.0)}.get(joint)
+    zc = np.asarray(zero_centres, dtype=float)
+    if axis is None or not np.all(np.isfinite(zc)):
+        return None
+    return float(np.hypot(*(zc.mean(axis=0) - np.array(axis)))), float(sigma_mm)
+
+
+@dataclass
+class KinematicOutcome:
+    """What :meth:`CellCalibrator.kinematics` did: the fit, the held-out check, the poses
+    (fit, held-out) and their measurements, and the document written (None if not)."""
+
+    identification: Identification
+    holdout: HoldoutCheck
+    q_fit: np.ndarray
+    m_fit: np.ndarray
+    q_hold: np.ndarray
+    m_hold: np.ndarray
+    points_fit: list[int]
+    points_hold: list[int]
+    document: dict | None = None
+
+    def parameters(self, nominal: Scara) -> dict:
+        ident, chain = self.identification, scara_chain(nominal.g)
+        return {n: {"value": float(v), "se": float(se), "low": float(lo), "high": float(hi),
+                    "unit": chain.unit(n)}
+                for n, v, se, (lo, hi) in zip(ident.kept, [ident.value(k) for k in ident.kept],
+                                               ident.std_err, ident.ci95)}
+
+    def report(self) -> dict:
+        ident = self.identification
+        return {"identifiability": ident.report.as_dict(), "holdout": self.holdout.as_dict(),
+                "fit": {"poses": len(self.q_fit), "rms_xy_mm": ident.rms_xy_mm,
+                        "sigma_xy_mm": ident.sigma_xy_mm, "dof": ident.dof,
+                        "iterations": ident.iterations,
+                        "condition_number": ident.condition_number},
+                "measurement": "x, y of the tool axis over one known board point per pose "
+                               "(hand camera); φ is not measured"}
+
+
+class CellCalibrator:
+    """Calibrations of one cell. ``devices``: the cell's devices (``motion``, ``clock``,
+    ``hand_camera``, ``hand_calibration()``, ``place_fixture()``); ``nominal``: the nominal
+    robot; ``on_applied(robot, doc)``: called after a kinematic calibration is written, to
+    put it to use; ``version``: the version of the calibration in use (0: nominal)."""
+
+    def __init__(self, config: CellConfig, devices, nominal: Scara, *, version: int = 0,
+                 on_applied=None, path: str | None = None):
+        self.config, self.devices, self.nominal = config, devices, nominal
+        self.version = version
+        self.on_applied = on_applied
+        self.path = path or config.calibration.file
+        self.last: JointResult | KinematicOutcome | None = None
+
+    # ------------------------------------------------------------------ pieces
+    def rig(self, cancel=None) -> HandRig:
+        cam = self.devices.hand_camera
+        if cam is None:
+            raise CalibrationError("no hand camera: set calibration.hand_camera in the cell config")
+        c = self.config
+        return HandRig(self.nominal, self.devices.motion, cam, self.devices.hand_calibration(),
+                       target_radius_mm=c.calibration.target_radius_mm, z_mm=c.calibration.z_mm,
+                       move_timeout_s=c.cycle.move_timeout_s, reach_tol_deg=c.cycle.reach_tol_deg,
+                       cancel=cancel)
+
+    def joint(self, joint: str, *, runs: int | None = None, step_deg: float | None = None,
+              range_deg: float | None = None, period_deg: float = 360.0, cancel=None,
+              progress=None) -> tuple[JointPlan, JointResult]:
+        """Seed 004 on ``joint`` (j1, j2, j4): the plan (range kept in view) and the result.
+        Raises CalibrationError (bad joint, target lost, too few points, ...)."""
+        self.devices.place_fixture("joint", joint)
+        rig = self.rig(cancel)
+        plan = plan_joint(self.nominal, joint, rig.view_radius_mm,
+                          runs=self.config.calibration.runs if runs is None else runs,
+                          step_deg=step_deg, range_deg=range_deg)
+        log.info("joint_calibration_started", joint=joint, step_deg=plan.step_deg,
+                 positions=len(plan.nominal_deg), runs=plan.runs)
+        sweep = sweep_joint(rig, plan, progress)
+        result = analyse(sweep, sense=-1, period_deg=period_deg,
+                         radius_prior=radius_prior(self.nominal, joint, sweep.zero,
+                                                   self.config.calibration.radius_sigma_mm))
+        self.last = result
+        log.info("joint_calibration_done", joint=joint, backlash_deg=result.backlash_deg.value,
+                 residual_rms_deg=result.residual_rms_deg)
+        return plan, result
+
+    def kinematics(self, *, poses: int | None = None, holdout: int | None = None, cancel=None,
+                   progress=None, write: bool = True, seed: int = 0) -> KinematicOutcome:
+        """Seed 001 over the board. Writes and applies the calibration only if ``write`` and
+        the held-out check passes (see the module doc). Raises CalibrationError (board not
+        found, a point not seen, singular design, ...); a failed held-out check is returned
+        (``holdout.passed`` False, ``document`` None), not raised."""
+        c = self.config.calibration
+        n_fit = c.poses if poses is None else poses
+        n_hold = c.holdout if holdout is None else holdout
+        board = board_of(self.config)
+        self.devices.place_fixture("board")
+        cands = board_candidates(self.nominal, board, z_mm=c.z_mm)
+        if n_fit + n_hold > len(cands):
+            raise CalibrationError(f"the board offers {len(cands)} reachable poses, fewer than the "
+                                   f"{n_fit} fit + {n_hold} held-out poses asked for")
+        chain = scara_chain(self.nominal.g)
+        cq = np.array([x.q for x in cands])
+        fit = list(select_poses(chain, cq, n_fit, position_only=True))
+        rest = np.setdiff1d(np.arange(len(cands)), fit)
+        hold = list(np.random.default_rng(seed).choice(rest, n_hold, replace=False))
+        rig = self.rig(cancel)
+        total = n_fit + n_hold
+
+        def step(done, _):
+            if progress is not None:
+                progress(done, total)
+
+        m_fit = measure_board(rig, board, [cands[i] for i in fit], step)
+        m_hold = measure_board(rig, board, [cands[i] for i in hold],
+                               (lambda d, _: step(n_fit + d, 0)))
+        rig.move(np.array([0.0, 90.0, c.z_mm, -90.0]))   # out of the way, elbow bent
+        ident = identify(chain, cq[fit], m_fit, position_only=True)
+        check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=cq[fit], measured_fit=m_fit,
+                              min_gain=c.min_gain, position_only=True)
+        out = KinematicOutcome(ident, check, cq[fit], m_fit, cq[hold], m_hold,
+                               [cands[i].point for i in fit], [cands[i].point for i in hold])
+        log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
+        if write and check.passed:
+            self._write(out)
+        self.last = out
+        return out
+
+    def _write(self, out: KinematicOutcome) -> None:
+        data = {"board": board_of(self.config).as_dict(),
+                "fit": [{"q": q.tolist(), "measured_mm": m.tolist(), "point": k}
+                        for q, m, k in zip(out.q_fit, out.m_fit, out.points_fit)],
+                "holdout": [{"q": q.tolist(), "measured_mm": m.tolist(), "point": k}
+                            for q, m, k in zip(out.q_hold, out.m_hold, out.points_hold)]}
+        doc = calfile.new_document(self.nominal, self.config.name, out.parameters(self.nominal),
+                                   _json_safe(out.report()), data,
+                                   datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        doc = calfile.write(self.path, doc)
+        out.document = doc
+        self.version = int(doc["version"])
+        log.info("robot_calibration_written", path=str(self.path), version=self.version,
+                 id=calfile.calibration_id(doc))
+        if self.on_applied is not None:
+            self.on_applied(calfile.calibrated_robot(self.nominal, doc), doc)
+
+    # ------------------------------------------------------------------ the PLC's entry
+    def run_safely(self, select: int, cancel) -> CycleOutcome:
+        """Run what ``calibration_select`` names (0 kinematics, N joint jN); never raises."""
+        try:
+            if select == 0:
+                out = self.kinematics(cancel=cancel)
+                if not out.holdout.passed:
+                    return CycleOutcome("fault", Fault.CALIBRATION_FIT,
+                                        f"held-out check failed, nothing written: {out.holdout.reason}",
+                                        calibration={"residual_um": 1000 * out.holdout.rms_xy_after_mm,
+                                                     "residual_udeg": 0})
+                return CycleOutcome("done", calibration={
+                    "residual_um": 1000 * out.holdout.rms_xy_after_mm, "residual_udeg": 0,
+                    "version": self.version})
+            if not 1 <= select <= 4 or JOINT_NAMES[select - 1] == "j3":
+                return CycleOutcome("aborted", Fault.CALIBRATION_REFUSED,
+                                    f"calibration_select {select}: no such calibration (0 kinematics, "
+                                    "1, 2, 4 joint; j3 is prismatic)")
+            _, result = self.joint(JOINT_NAMES[select - 1], cancel=cancel)
+            return CycleOutcome("done", calibration={"residual_um": 0,
+                                                     "residual_udeg": 1e6 * result.residual_rms_deg})
+        except CycleCancelled:
+            return CycleOutcome("aborted", cancel.code, cancel.text)
+        except CalibrationError as exc:
+            text = str(exc)
+            code = Fault.CALIBRATION_MEASUREMENT if "target not measured" in text or "camera" in text \
+                else Fault.CALIBRATION_REFUSED if "no hand camera" in text else Fault.CALIBRATION_FIT
+            if cancel.cancelled:
+                return CycleOutcome("aborted", cancel.code, cancel.text)
+            return CycleOutcome("fault", code, text)
+        except CellError as exc:
+            return CycleOutcome("fault", Fault.CALIBRATION_FIT, str(exc))
+        except Exception as exc:                       # noqa: BLE001 -- the PLC must hear of it
+            log.exception("calibration_failed", error=repr(exc))
+            return CycleOutcome("fault", Fault.INTERNAL, f"calibration failed: {exc!r}")
+
+
+def _json_safe(v):
+    """Plain JSON: NaN/inf → None, numpy scalars → Python."""
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    return v

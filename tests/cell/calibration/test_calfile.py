@@ -1,0 +1,90 @@
+"""The robot calibration file: versioned writes, refusals at load, the calibrated robot.
+
+Golden values: the constructed documents of this file; the nominal robots are the presets
+of cell/kinematics.py (seed 000: l1 = l2 = 500 mm; seed 002: 200 mm)."""
+import json
+
+import numpy as np
+import pytest
+
+from cell.calibration import calfile
+from cell.calibration.service import load_active
+from cell.config import CellConfig, SimSection
+from cell.errors import CalibrationError
+from cell.kinematics import Scara
+
+SEED000 = Scara.preset("seed000")
+PARAMS = {"j1.theta": {"value": 0.04, "se": 0.0002, "low": 0.0396, "high": 0.0404, "unit": "deg"},
+          "j2.theta": {"value": -0.05, "se": 0.0002, "low": -0.0504, "high": -0.0496, "unit": "deg"},
+          "j1.a": {"value": 0.3, "se": 0.002, "low": 0.296, "high": 0.304, "unit": "mm"},
+          "j2.a": {"value": -0.25, "se": 0.002, "low": -0.254, "high": -0.246, "unit": "mm"},
+          "base.x": {"value": -1.1, "se": 0.002, "low": -1.104, "high": -1.096, "unit": "mm"}}
+
+
+def doc(robot=SEED000, cell="cell-1"):
+    return calfile.new_document(robot, cell, PARAMS, {"holdout": {"passed": True}},
+                                {"fit": [{"q": [10, 20, 0, 0], "measured_mm": [1, 2]}]}, "2026-11-23T00:00:00+00:00")
+
+
+def test_write_versions_and_keeps_the_one_it_replaces(tmp_path):
+    path = tmp_path / "cal" / "robot.json"
+    first = calfile.write(path, doc())
+    second = calfile.write(path, doc())
+    assert (first["version"], second["version"]) == (1, 2)
+    assert json.loads((tmp_path / "cal" / "robot.v1.json").read_text())["sha256"] == first["sha256"]
+    loaded = calfile.load(path, SEED000, "cell-1")
+    assert loaded["version"] == 2 and calfile.calibration_id(loaded) == f"v2-{second['sha256'][:8]}"
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]      # no temp file left
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda t: t[: len(t) // 2], "corrupt robot calibration, not valid JSON"),
+    (lambda t: t.replace('"value": 0.3', '"value": 0.4'), "checksum does not match"),
+    (lambda t: t.replace(calfile.FORMAT, "cell-robot-calibration/9"), "not a robot calibration"),
+    (lambda t: "[1, 2]", "not a robot calibration"),
+])
+def test_a_damaged_file_is_refused_naming_file_and_cause(tmp_path, damage, message):
+    path = tmp_path / "robot.json"
+    calfile.write(path, doc())
+    path.write_text(damage(path.read_text()))
+    with pytest.raises(CalibrationError, match=message) as info:
+        calfile.load(path, SEED000, "cell-1")
+    assert str(path) in str(info.value)
+
+
+def test_another_robots_or_another_cells_calibration_is_refused(tmp_path):
+    path = tmp_path / "robot.json"
+    calfile.write(path, doc(robot=Scara.preset("seed002")))
+    with pytest.raises(CalibrationError, match="belongs to another robot .*'seed002'.*'seed000'"):
+        calfile.load(path, SEED000, "cell-1")
+    calfile.write(path, doc(cell="cell-7"))
+    with pytest.raises(CalibrationError, match="belongs to cell 'cell-7', not to this cell 'cell-1'"):
+        calfile.load(path, SEED000, "cell-1")
+
+
+def test_the_cell_runs_nominal_without_a_file_and_refuses_a_bad_one(tmp_path):
+    cfg = CellConfig(sim=SimSection())
+    cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"file": str(tmp_path / "c.json")})})
+    robot, d = load_active(cfg, SEED000)
+    assert robot is SEED000 and d is None
+    calfile.write(tmp_path / "c.json", doc())
+    robot, d = load_active(cfg, SEED000)
+    assert robot.calibration == calfile.calibration_id(d)
+    (tmp_path / "c.json").write_text("{")
+    with pytest.raises(CalibrationError, match="not valid JSON"):
+        load_active(cfg, SEED000)
+
+
+def test_calibrated_robot_is_the_nominal_one_with_its_zeros_and_links():
+    robot = calfile.calibrated_robot(SEED000, {**doc(), "version": 1, "sha256": "0" * 64})
+    q = np.array([30.0, 45.0])
+    true = Scara(SEED000.g.model_copy(update={"l1_mm": 500.3, "l2_mm": 499.75}))
+    assert np.allclose(robot.fk_planar(*q), true.fk_planar(30.04, 44.95), atol=1e-12)
+    back = robot.ik_planar(*robot.fk_planar(*q))
+    assert np.allclose(back, q, atol=1e-9)
+    assert robot.g == SEED000.g and robot.calibration == "v1-00000000"     # limits and units nominal
+    j = robot.jacobian(*q)
+    eps = 1e-6
+    num = np.column_stack([(robot.fk_planar(q[0] + eps, q[1]) - robot.fk_planar(q[0] - eps, q[1])) / (2 * eps),
+                           (robot.fk_planar(q[0], q[1] + eps) - robot.fk_planar(q[0], q[1] - eps)) / (2 * eps)])
+    assert np.allclose(j, num, atol=1e-6)
