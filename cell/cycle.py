@@ -75,6 +75,11 @@ class CancelToken:
             raise CycleCancelled()
 
 
+def calibration_of(robot: Scara) -> str:
+    """Id of the robot calibration ``robot`` carries ('' for the nominal model)."""
+    return getattr(robot, "calibration", "")
+
+
 @dataclass(frozen=True)
 class CycleSettings:
     move_timeout_s: float = 10.0      #: a move that takes longer is a MOTION_TIMEOUT fault
@@ -90,6 +95,8 @@ class CycleOutcome:
     fault_text: str = ""
     record: CycleRecord | None = None
     log_write_s: float = 0.0          #: time to write the row (the LOGGING step)
+    #: a calibration's end (no record): residual_um, residual_udeg, version (None: none written)
+    calibration: dict | None = None
 
 
 @dataclass
@@ -113,10 +120,14 @@ class OffsetMemory:
     @classmethod
     def from_log(cls, cyclelog: CycleLog, robot: Scara, elbow: str = "right", n: int = 10) -> "OffsetMemory":
         """Rebuild the memory from the last completed cycles in the log (each row holds the
-        target and the trace's last command), so a restart does not forget what was learned."""
+        target and the trace's last command), so a restart does not forget what was learned.
+        Only cycles that ran with ``robot``'s calibration count: offsets learned against
+        another model (the nominal one, or an older calibration) refer to it, so a new
+        calibration starts learning afresh."""
         memory = cls(n=n)
+        calibration = calibration_of(robot)
         for rec in cyclelog.cycles(limit=50 * n, status="done"):
-            if rec.target_mm is None or not rec.trace:
+            if rec.target_mm is None or not rec.trace or rec.calibration != calibration:
                 continue
             try:
                 nominal = robot.to_units(robot.ik_planar(*rec.target_mm, elbow=elbow))
@@ -209,7 +220,7 @@ class CycleRunner:
         r = active.recipe
         rec = CycleRecord(part_id=part_id, recipe=r.name, recipe_hash=active.hash, started_at=utc_now(),
                           finished_at="", status="aborted", cycle_time_s=0.0,
-                          method=r.compensation.method)
+                          method=r.compensation.method, calibration=calibration_of(self.robot))
         t_start = self.clock.now()
         spec = MotionSpec(r.motion.sync, r.motion.segment_ms / 1000.0, r.motion.time_law,
                           r.approach.joint_speed_deg_s)

@@ -35,8 +35,9 @@ from cell.errors import LogError
 from cell.faults import Fault
 from cell.logfile import LogLock
 
-SCHEMA_VERSION = 3     #: 2 added cycles.motion_json (how the cycle's moves were streamed),
-                       #: 3 the open_cycle table (the cycle in flight)
+SCHEMA_VERSION = 4     #: 2 added cycles.motion_json (how the cycle's moves were streamed),
+                       #: 3 the open_cycle table (the cycle in flight), 4 cycles.calibration
+                       #: (the robot calibration the cycle ran with; '' = the nominal model)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -60,7 +61,8 @@ CREATE TABLE IF NOT EXISTS cycles (
     fault_text TEXT NOT NULL DEFAULT '',
     temp_c REAL,
     trace_json TEXT NOT NULL DEFAULT '[]',
-    motion_json TEXT NOT NULL DEFAULT '{}'
+    motion_json TEXT NOT NULL DEFAULT '{}',
+    calibration TEXT NOT NULL DEFAULT ''
 );
 CREATE INDEX IF NOT EXISTS cycles_finished ON cycles (finished_at);
 CREATE TABLE IF NOT EXISTS audit (
@@ -121,6 +123,8 @@ class CycleRecord:
     trace: list[dict] = field(default_factory=list)
     #: how the moves were streamed: mode, moves, segments, segment_ms, time_law, delays_ms (j1..j4)
     motion: dict = field(default_factory=dict)
+    #: id of the robot calibration the cycle ran with (``v<N>-<sha8>``), '' for the nominal model
+    calibration: str = ""
     id: int | None = None
 
 
@@ -183,6 +187,8 @@ class CycleLog:
             columns = {r[1] for r in db.execute("PRAGMA table_info(cycles)")}
             if "motion_json" not in columns:       # a version 1 log: add the column, keep the rows
                 db.execute("ALTER TABLE cycles ADD COLUMN motion_json TEXT NOT NULL DEFAULT '{}'")
+            if "calibration" not in columns:       # before version 4: rows ran on the nominal model
+                db.execute("ALTER TABLE cycles ADD COLUMN calibration TEXT NOT NULL DEFAULT ''")
             db.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
         except sqlite3.Error as exc:
             db.close()
@@ -214,12 +220,12 @@ class CycleLog:
                 "INSERT INTO cycles (part_id, recipe, recipe_hash, started_at, finished_at, status,"
                 " method, target_x_mm, target_y_mm, initial_error_mm, final_error_mm, verify_error_mm,"
                 " moves, cycle_time_s, step_times_json, fault_code, fault_text, temp_c, trace_json,"
-                " motion_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                " motion_json, calibration) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (row["part_id"], row["recipe"], row["recipe_hash"], row["started_at"], row["finished_at"],
                  row["status"], row["method"], tx, ty, row["initial_error_mm"], row["final_error_mm"],
                  row["verify_error_mm"], row["moves"], row["cycle_time_s"],
                  json.dumps(row["step_times"]), row["fault_code"], row["fault_text"], row["temp_c"],
-                 json.dumps(row["trace"]), json.dumps(row["motion"])))
+                 json.dumps(row["trace"]), json.dumps(row["motion"]), row["calibration"]))
             cycle_id = int(cur.lastrowid)
             db.execute("UPDATE open_cycle SET stage = 'logged', cycle_id = ? WHERE stage = 'running'"
                        " AND started_at = ?", (cycle_id, rec.started_at))
@@ -319,7 +325,8 @@ class CycleLog:
             cycle_time_s=r["cycle_time_s"], step_times=json.loads(r["step_times_json"]),
             fault_code=r["fault_code"], fault_text=r["fault_text"], temp_c=r["temp_c"],
             trace=json.loads(r["trace_json"]),
-            motion=json.loads(r["motion_json"]) if "motion_json" in r.keys() else {})
+            motion=json.loads(r["motion_json"]) if "motion_json" in r.keys() else {},
+            calibration=r["calibration"] if "calibration" in r.keys() else "")
 
     # ------------------------------------------------------------------ audit
     def audit(self, who: str, action: str, target: str, hash_: str, result: str) -> None:
