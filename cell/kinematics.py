@@ -122,6 +122,12 @@ class Scara:
         return np.array([l1 * math.cos(a) + l2 * math.cos(a + b),
                          l1 * math.sin(a) + l2 * math.sin(a + b)])
 
+    def fk_planar_batch(self, q_deg) -> np.ndarray:
+        """Tool centres (N, 2) mm for joints (N, 2) (θ1, θ2 deg), vectorised; no checks.
+        A calibrated robot overrides it with :meth:`fk_planar`, so callers that predict
+        many commands at once must use this, not :func:`planar_xy` on the nominal links."""
+        return planar_xy(self.g.l1_mm, self.g.l2_mm, q_deg)
+
     def jacobian(self, t1_deg: float, t2_deg: float) -> np.ndarray:
         """∂(x, y)/∂(θ1, θ2) in **mm per degree** (seed 000 eq. 5, scaled by π/180)."""
         a = math.radians(_finite("theta1_deg", t1_deg))

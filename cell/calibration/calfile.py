@@ -71,6 +71,9 @@ class CalibratedScara(Scara):
     def fk_planar(self, t1_deg: float, t2_deg: float) -> np.ndarray:
         return self._true.fk_planar(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
 
+    def fk_planar_batch(self, q_deg) -> np.ndarray:
+        return self._true.fk_planar_batch(np.asarray(q_deg, dtype=float) + self.offsets)
+
     def jacobian(self, t1_deg: float, t2_deg: float) -> np.ndarray:
         return self._true.jacobian(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
 

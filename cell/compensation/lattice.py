@@ -28,7 +28,7 @@ import numpy as np
 
 from cell.compensation.base import Arm, CompensationResult, Recorder
 from cell.errors import KinematicsError
-from cell.kinematics import Scara, planar_xy
+from cell.kinematics import Scara
 
 _MAX_BOX = 12
 
@@ -50,7 +50,7 @@ def nearest_lattice(robot: Scara, q_units: np.ndarray, point: np.ndarray,
     radius = min(_MAX_BOX, int(math.ceil((d_centre + 1e-9) / smin)) + 1)
     span = range(-radius, radius + 1)
     cands = centre + np.array(list(itertools.product(span, span)), dtype=np.int64)
-    fk = planar_xy(robot.g.l1_mm, robot.g.l2_mm, cands * unit)
+    fk = robot.fk_planar_batch(cands * unit)
     dist = np.hypot(*(point + fk - base - target).T)
     # never cross the stretched/folded singularity or leave the joint limits on the way
     deg = cands * unit

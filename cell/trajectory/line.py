@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.errors import CellError, TrajectoryError
-from cell.kinematics import JOINT_NAMES, Elbow, Scara, planar_xy
+from cell.kinematics import JOINT_NAMES, Elbow, Scara
 
 __all__ = [
     "TIME_LAWS", "LinePlan", "Segment", "SimulatedPath", "station_delays", "joint_delays",
@@ -374,7 +374,7 @@ def tool_positions(robot: Scara, joints_deg) -> np.ndarray:
     """Tool centre (x_mm, y_mm, z_mm) for joints (N, 4); vectorised :meth:`Scara.fk`."""
     q = np.asarray(joints_deg, dtype=float)
     g = robot.g
-    return np.column_stack([planar_xy(g.l1_mm, g.l2_mm, q[:, :2]), g.base_z_mm + q[:, 2] + g.tool_z_mm])
+    return np.column_stack([robot.fk_planar_batch(q[:, :2]), g.base_z_mm + q[:, 2] + g.tool_z_mm])
 
 
 @dataclass(frozen=True)

@@ -88,3 +88,21 @@ def test_calibrated_robot_is_the_nominal_one_with_its_zeros_and_links():
     num = np.column_stack([(robot.fk_planar(q[0] + eps, q[1]) - robot.fk_planar(q[0] - eps, q[1])) / (2 * eps),
                            (robot.fk_planar(q[0], q[1] + eps) - robot.fk_planar(q[0], q[1] - eps)) / (2 * eps)])
     assert np.allclose(j, num, atol=1e-6)
+
+
+def test_compensation_predicts_with_the_calibrated_model():
+    """A robot whose truth is exactly its calibration lands its first move on the target,
+    and the lattice search predicts its candidates with the same model (it once mixed
+    the nominal links into a calibrated prediction and walked away from the target)."""
+    from cell.compensation.arms import PerturbedArm
+    from cell.compensation.lattice import nearest_lattice, run_lattice
+    robot = calfile.calibrated_robot(SEED000, {**doc(), "version": 1, "sha256": "0" * 64})
+    truth = PerturbedArm(SEED000, dl_mm=(0.3, -0.25), offset_deg=(0.04, -0.05))
+    target = np.array([250.0, 930.0])
+    # within the rounding to whole 0.01° command units (~0.08 mm at ~960 mm reach)
+    assert run_lattice(robot, truth, target).initial_error_mm < 0.1
+    assert run_lattice(SEED000, truth, target).initial_error_mm > 0.15
+    q = robot.to_units(robot.ik_planar(*target))
+    point = truth.move_and_measure(q)
+    best, predicted = nearest_lattice(robot, q, point, target + [0.05, -0.03])
+    assert abs(np.hypot(*(truth.move_and_measure(best) - target - [0.05, -0.03])) - predicted) < 1e-3
