@@ -94,7 +94,9 @@ class CalibrationSection(_Section):
     ``z_mm``: d3 held while calibrating. ``runs``: seed 004 runs per joint. ``poses`` /
     ``holdout``: poses the kinematic fit uses / keeps back for the held-out check, which
     must cut the held-out error by ``min_gain`` (relative) for the result to be written.
-    ``radius_sigma_mm``: how well the nominal links give the target's distance from a
+    ``anchors``: poses where the cell's fixed camera measures the tool in the base frame,
+    which separate the board's rotation from θ1's zero (0: the board alone; then they
+    merge). ``radius_sigma_mm``: how well the nominal links give the target's distance from a
     joint's axis (the radius prior of seed 004's circle fit on a short arc).
     """
 
@@ -107,6 +109,7 @@ class CalibrationSection(_Section):
     runs: int = Field(default=3, ge=1, le=50)
     poses: int = Field(default=24, ge=4, le=500)
     holdout: int = Field(default=12, ge=3, le=500)
+    anchors: int = Field(default=6, ge=0, le=9)   #: poses where the cell camera sees the tool (0: board only)
     min_gain: float = Field(default=0.1, ge=0, lt=1)
     radius_sigma_mm: float = Field(default=0.5, gt=0, le=50)   #: how well l1, l2 are known (seed 004's radius prior)
 

@@ -18,6 +18,11 @@ clipped to [w0/1000, 1000·w0]; a caller's ``phi_weight_mm_per_deg`` disables th
 neither information nor degrees of freedom (dof = 2N − K), the design and the kept set
 are those of x, y alone, and ``measured`` may be (N, 2).
 
+**Anchors.** Rows flagged ``in_base`` were measured in the robot base frame itself (the
+cell's fixed camera seeing the tool), not in the board's: the board placement
+(``base.*``) does not act on them. A few such rows separate the board's rotation from
+θ1's zero, which board rows alone see only as a sum.
+
 Every failure raises :class:`~cell.errors.CalibrationError` naming the cause.
 """
 from __future__ import annotations
@@ -48,6 +53,46 @@ def design_matrix(chain: DHChain, q, p=None, *, phi_weight_mm_per_deg: float | N
     ``phi_weight_mm_per_deg`` (default :func:`phi_weight_default`): every row in mm."""
     J = error_jacobian(chain, q, p)
     J[2::3] *= phi_weight_default(chain) if phi_weight_mm_per_deg is None else phi_weight_mm_per_deg
+    return J
+
+
+BASE_PARAMS = ("base.x", "base.y", "base.rz")
+
+
+def _base_free(chain: DHChain, p: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    out[[chain.index(n) for n in BASE_PARAMS]] = 0.0
+    return out
+
+
+def _mask(in_base, n: int) -> np.ndarray | None:
+    if in_base is None:
+        return None
+    m = np.asarray(in_base, dtype=bool)
+    if m.shape != (n,):
+        raise CalibrationError(f"in_base must flag each of the {n} poses, got shape {m.shape}")
+    return m if m.any() else None
+
+
+def residuals(chain: DHChain, q, m, p, in_base=None) -> np.ndarray:
+    """measured − model (N, 3); rows ``in_base`` without the board placement."""
+    r = chain.residuals(q, m, p)
+    mask = _mask(in_base, len(r))
+    if mask is not None:
+        r[mask] = chain.residuals(q[mask], m[mask], _base_free(chain, p))
+    return r
+
+
+def jacobian(chain: DHChain, q, p=None, *, w: float | None = None, in_base=None) -> np.ndarray:
+    """:func:`design_matrix`; rows of poses ``in_base`` at the placement-free errors and
+    with zero board-placement columns."""
+    J = design_matrix(chain, q, p, phi_weight_mm_per_deg=w)
+    mask = _mask(in_base, len(q))
+    if mask is not None:
+        p_free = _base_free(chain, np.zeros(chain.n_params) if p is None else np.asarray(p, float))
+        rows = np.repeat(mask, 3)
+        J[rows] = design_matrix(chain, q[mask], p_free, phi_weight_mm_per_deg=w)
+        J[np.ix_(rows, [chain.index(n) for n in BASE_PARAMS])] = 0.0
     return J
 
 
@@ -171,12 +216,14 @@ def _generic_poses(chain: DHChain, q: np.ndarray, n: int = 80) -> np.ndarray:
 
 
 def structural_kept(chain: DHChain, q, *, tol: float = RANK_TOL,
-                    position_only: bool = False) -> tuple[str, ...]:
+                    position_only: bool = False, anchored: bool = False) -> tuple[str, ...]:
     """The parameters the planar measurement can identify *in principle* for this chain:
     the kept set of :func:`identifiability` on a generic spread of poses at the heights
     (prismatic joint values) that ``q`` uses. The default target of :func:`identify`."""
     q = chain.check_joints(q)
-    J = design_matrix(chain, _generic_poses(chain, q), phi_weight_mm_per_deg=0.0 if position_only else None)
+    g = _generic_poses(chain, q)
+    J = jacobian(chain, g, w=0.0 if position_only else None,
+                 in_base=(np.arange(len(g)) % 4 == 0) if anchored else None)
     return identifiability(J, chain.param_names, priority=default_priority(chain), tol=tol).kept
 
 
@@ -251,13 +298,13 @@ def _weighted(r: np.ndarray, w: float) -> np.ndarray:
     return rw.reshape(-1)
 
 
-def _gauss_newton(chain, q, m, p, idx, w, max_iter, tol_mm):
+def _gauss_newton(chain, q, m, p, idx, w, max_iter, tol_mm, in_base=None):
     """Relinearise and solve until the update changes the weighted predictions by less
     than tol_mm rms; returns (p, iterations)."""
     last = math.inf
     for it in range(1, max_iter + 1):
-        J = design_matrix(chain, q, p, phi_weight_mm_per_deg=w)[:, idx]
-        rw = _weighted(chain.residuals(q, m, p), w)
+        J = jacobian(chain, q, p, w=w, in_base=in_base)[:, idx]
+        rw = _weighted(residuals(chain, q, m, p, in_base), w)
         dx, *_ = np.linalg.lstsq(J, rw, rcond=None)
         p = p.copy()
         p[idx] += dx
@@ -289,7 +336,8 @@ def _as_measured(chain: DHChain, q: np.ndarray, measured, position_only: bool, w
 
 def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None = None,
              phi_weight_mm_per_deg: float | None = None, max_iter: int = 20,
-             tol: float = 1e-6, rank_tol: float = RANK_TOL, position_only: bool = False) -> Identification:
+             tol: float = 1e-6, rank_tol: float = RANK_TOL, position_only: bool = False,
+             in_base=None) -> Identification:
     """Identify the DH errors from joints q (N, n_joints) and measured planar poses
     (N, 3) (x mm, y mm, φ deg in the board frame) by Gauss–Newton on the differential model.
 
@@ -308,25 +356,26 @@ def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None
     q = chain.check_joints(q)
     m = _as_measured(chain, q, measured, position_only)
     p = np.zeros(chain.n_params) if p0 is None else chain.check_errors(p0).copy()
-    kept = tuple(structural_kept(chain, q, tol=rank_tol, position_only=position_only)
-                 if kept is None else kept)
+    mask = _mask(in_base, q.shape[0])
+    kept = tuple(structural_kept(chain, q, tol=rank_tol, position_only=position_only,
+                                 anchored=mask is not None) if kept is None else kept)
     idx = _kept_index(chain, kept)
     w0 = phi_weight_default(chain)
     w = 0.0 if position_only else w0 if phi_weight_mm_per_deg is None else float(phi_weight_mm_per_deg)
     if not (math.isfinite(w) and (w > 0 or position_only)):
         raise CalibrationError(f"phi_weight_mm_per_deg = {w!r} must be a positive number")
     per_pose = 2 if position_only else 3
-    J0 = design_matrix(chain, q, p, phi_weight_mm_per_deg=w)
+    J0 = jacobian(chain, q, p, w=w, in_base=mask)
     report = identifiability(J0, chain.param_names, priority=default_priority(chain), tol=rank_tol)
     _check_design(J0[:, idx], kept, q.shape[0], rank_tol, per_pose)
-    p, its = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol)
+    p, its = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask)
     if phi_weight_mm_per_deg is None and not position_only:
-        s_xy, s_phi = _sigmas(chain.residuals(q, m, p), len(idx))
+        s_xy, s_phi = _sigmas(residuals(chain, q, m, p, mask), len(idx))
         w = float(np.clip(s_xy / s_phi, w0 / 1e3, w0 * 1e3)) if s_phi > 0 else w0 * 1e3
-        p, its2 = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol)
+        p, its2 = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask)
         its += its2
-    r = chain.residuals(q, m, p)
-    J = design_matrix(chain, q, p, phi_weight_mm_per_deg=w)[:, idx]
+    r = residuals(chain, q, m, p, mask)
+    J = jacobian(chain, q, p, w=w, in_base=mask)[:, idx]
     dof = per_pose * q.shape[0] - len(idx)
     s2 = float(np.sum(_weighted(r, w) ** 2)) / dof
     norms = np.linalg.norm(J, axis=0)
@@ -444,7 +493,8 @@ def _errors(chain, q, m, p):
 
 
 def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_fit,
-                  min_gain: float = 0.1, max_ratio: float = 3.0, position_only: bool = False) -> HoldoutCheck:
+                  min_gain: float = 0.1, max_ratio: float = 3.0, position_only: bool = False,
+                  in_base_fit=None) -> HoldoutCheck:
     """Check calibrated errors ``p`` on held-out poses (q_hold, measured_hold) that the fit
     did not use.
 
@@ -454,7 +504,8 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     rms improves by at least ``min_gain`` relative, gain = 1 − after/before ≥ min_gain,
     and the held-out xy rms is at most ``max_ratio`` × the calibrated model's xy rms on
     the fit data (ratio; a larger one means over-fitting or a model that does not
-    generalise). φ errors are reported but not part of the rule.
+    generalise). φ errors are reported but not part of the rule. ``in_base_fit`` flags the
+    anchor poses among the fit data (held-out poses are board poses).
     Raises CalibrationError for bad shapes or non-finite input (naming the pose).
     """
     p = chain.check_errors(p)
@@ -462,10 +513,10 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     mh = _as_measured(chain, qh, measured_hold, position_only, "measured_hold")
     qf = chain.check_joints(q_fit, "q_fit")
     mf = _as_measured(chain, qf, measured_fit, position_only, "measured_fit")
-    before = fit_base(chain, qf, mf, position_only=position_only).p
+    before = fit_base(chain, qf, mf, position_only=position_only, in_base=in_base_fit).p
     rb, mb, pb, pmb = _errors(chain, qh, mh, before)
     ra, ma, pa, pma = _errors(chain, qh, mh, p)
-    fit_rms = _errors(chain, qf, mf, p)[0]
+    fit_rms = float(np.sqrt(np.mean(np.sum(residuals(chain, qf, mf, p, in_base_fit)[:, :2] ** 2, axis=1))))
     if position_only:
         pb = pmb = pa = pma = math.nan
     gain = 1.0 - ra / rb if rb > 0 else -math.inf

@@ -8,7 +8,9 @@ origin on the tool axis, x along the tool's x axis, mm).
 * :func:`plan_joint` / :func:`sweep_joint` — seed 004 for one joint (the numerics are in
   :mod:`cell.calibration.joint`);
 * :func:`board_candidates` / :func:`measure_board` — seed 001's poses over a board of
-  known points (the numerics are in :mod:`cell.calibration.kinematic`).
+  known points (the numerics are in :mod:`cell.calibration.kinematic`);
+  :func:`anchor_candidates` / :func:`measure_anchors` — a few poses where the cell's fixed
+  camera measures the tool in the base frame, which ties the board's frame to the cell's.
 
 Every failure is a :class:`~cell.errors.CalibrationError` naming the step, the pose and
 the cause; a cancel (``cancel.check()``) ends a procedure between moves.
@@ -22,6 +24,7 @@ import numpy as np
 
 from cell.calibration.joint import JointSweep
 from cell.errors import CalibrationError, CellError
+from cell.faults import CellFault
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.motion import MotionSpec, Mover
 from cell.vision import VisionError
@@ -278,6 +281,58 @@ def measure_board(rig: HandRig, board: CircleGridBoard, poses: list[Candidate],
                        f"joints {_q(c.q)})")
         a = math.radians(phi)
         out[n] = points[c.point] - np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]) @ h
+        if progress is not None:
+            progress(n + 1, len(poses))
+    return out
+
+
+def anchor_candidates(robot: Scara, camera_cal: PlaneCalibration, n: int, *, z_mm: float = 0.0,
+                      tool_phis_deg=TOOL_PHIS_DEG) -> list[Candidate]:
+    """Up to ``n`` poses that put the tool's fiducial in the cell camera's view: a 3 × 3 grid
+    over the middle of its field (centre first), tool orientations taken in turn, right
+    elbow (left where the right one is out of limits). ``point`` is −1 (no board point).
+    Raises CalibrationError if n > 0 and none is reachable."""
+    c = camera_cal
+    u0, v0 = c.centre_px
+    centre = np.array(c.pixel_to_base(u0, v0))
+    half = 0.25 * min(c.width, c.height) * c.mm_per_px(u0, v0)
+    grid = [(0, 0), (-1, -1), (1, 1), (-1, 1), (1, -1), (0, -1), (0, 1), (-1, 0), (1, 0)]
+    out: list[Candidate] = []
+    for k, (i, j) in enumerate(grid):
+        if len(out) >= n:
+            break
+        x, y = centre + half * np.array([i, j])
+        phi = tool_phis_deg[k % len(tool_phis_deg)]
+        for elbow in ("right", "left"):
+            try:
+                t1, t2 = robot.ik_planar(x, y, elbow=elbow)
+                q = np.array([t1, t2, z_mm, (phi - t1 - t2 + 180.0) % 360.0 - 180.0])
+                robot.check_limits(q)
+                robot.check_limits(q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
+            except CellError:
+                continue
+            out.append(Candidate(-1, elbow, q))
+            break
+    if n > 0 and not out:
+        raise CalibrationError(f"no pose puts the tool in the cell camera's view (centre "
+                               f"({centre[0]:.1f}, {centre[1]:.1f}) mm) within the robot's reach and limits")
+    return out
+
+
+def measure_anchors(rig: HandRig, measuring_camera, poses: list[Candidate], progress=None) -> np.ndarray:
+    """Visit ``poses`` (approached as :func:`measure_board` does) and measure the tool's
+    fiducial with the cell's fixed camera (``measuring_camera.tool()``): tool positions
+    (N, 2) mm in the base frame the cell works in. Raises CalibrationError naming the pose
+    when the fiducial is not measured."""
+    out = np.empty((len(poses), 2))
+    for n, c in enumerate(poses):
+        rig.move(c.q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
+        rig.move(c.q)
+        try:
+            out[n] = measuring_camera.tool()
+        except (CellError, CellFault) as exc:
+            raise CalibrationError(f"anchor pose {n + 1} of {len(poses)} (joints {_q(c.q)}): target not "
+                                   f"measured: the cell camera did not measure the tool: {exc}") from exc
         if progress is not None:
             progress(n + 1, len(poses))
     return out

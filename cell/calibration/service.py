@@ -6,7 +6,9 @@ and the controller's CALIBRATING state call it:
 
 * :meth:`CellCalibrator.joint` — seed 004 on one joint: plan, sweep, analyse;
 * :meth:`CellCalibrator.kinematics` — seed 001: candidate poses over the board, D-optimal
-  choice of the fit poses, held-out poses drawn from the rest, measure all, identify,
+  choice of the fit poses, held-out poses drawn from the rest, a few anchor poses where the
+  cell's fixed camera sees the tool (they tie the board's frame, rotation included, to
+  the cell's: without them θ1's zero absorbs the board's rotation), measure all, identify,
   check on the held-out poses; only a passing result is written (versioned, see
   :mod:`cell.calibration.calfile`) and applied (``on_applied``);
 * :meth:`CellCalibrator.run_safely` — the PLC's entry: never raises, returns a
@@ -26,8 +28,8 @@ from cell.calibration import calfile
 from cell.calibration.dh import scara_chain
 from cell.calibration.joint import JointResult, analyse
 from cell.calibration.kinematic import HoldoutCheck, Identification, holdout_check, identify, select_poses
-from cell.calibration.procedure import (HandRig, JointPlan, board_candidates, measure_board, plan_joint,
-                                        sweep_joint)
+from cell.calibration.procedure import (HandRig, JointPlan, anchor_candidates, board_candidates,
+                                        measure_anchors, measure_board, plan_joint, sweep_joint)
 from cell.config import CellConfig
 from cell.cycle import CycleCancelled, CycleOutcome
 from cell.errors import CalibrationError, CellError
@@ -111,7 +113,10 @@ class KinematicOutcome:
                         "iterations": ident.iterations,
                         "condition_number": ident.condition_number},
                 "measurement": "x, y of the tool axis over one known board point per pose "
-                               "(hand camera); φ is not measured"}
+                               "(hand camera; board frame), and at the anchor poses (point -1) "
+                               "the tool's fiducial seen by the cell camera (base frame); φ is "
+                               "not measured",
+                "anchors": int(sum(1 for k in self.points_fit if k < 0))}
 
 
 class CellCalibrator:
@@ -121,8 +126,10 @@ class CellCalibrator:
     put it to use; ``version``: the version of the calibration in use (0: nominal)."""
 
     def __init__(self, config: CellConfig, devices, nominal: Scara, *, version: int = 0,
-                 on_applied=None, path: str | None = None):
+                 on_applied=None, path: str | None = None, measuring_camera=None):
         self.config, self.devices, self.nominal = config, devices, nominal
+        #: the cell's fixed camera (``tool()``, ``calibration``) for anchor poses; made on first use
+        self.measuring_camera = measuring_camera
         self.version = version
         self.on_applied = on_applied
         self.path = path or config.calibration.file
@@ -187,20 +194,38 @@ class CellCalibrator:
             if progress is not None:
                 progress(done, total)
 
+        cam = self._measuring_camera() if c.anchors else None
+        anchors = anchor_candidates(self.nominal, cam.calibration, c.anchors, z_mm=c.z_mm) if cam else []
+        total = n_fit + n_hold + len(anchors)
         m_fit = measure_board(rig, board, [cands[i] for i in fit], step)
         m_hold = measure_board(rig, board, [cands[i] for i in hold],
                                (lambda d, _: step(n_fit + d, 0)))
+        m_anchor = measure_anchors(rig, cam, anchors, (lambda d, _: step(n_fit + n_hold + d, 0))) \
+            if anchors else np.zeros((0, 2))
         rig.move(np.array([0.0, 90.0, c.z_mm, -90.0]))   # out of the way, elbow bent
-        ident = identify(chain, cq[fit], m_fit, position_only=True)
-        check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=cq[fit], measured_fit=m_fit,
-                              min_gain=c.min_gain, position_only=True)
-        out = KinematicOutcome(ident, check, cq[fit], m_fit, cq[hold], m_hold,
-                               [cands[i].point for i in fit], [cands[i].point for i in hold])
+        q_fit = np.vstack([cq[fit], *[a.q[None] for a in anchors]])
+        m_all = np.vstack([m_fit, m_anchor])
+        in_base = np.r_[np.zeros(len(fit), bool), np.ones(len(anchors), bool)]
+        ident = identify(chain, q_fit, m_all, position_only=True, in_base=in_base)
+        check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=q_fit, measured_fit=m_all,
+                              min_gain=c.min_gain, position_only=True, in_base_fit=in_base)
+        out = KinematicOutcome(ident, check, q_fit, m_all, cq[hold], m_hold,
+                               [cands[i].point for i in fit] + [-1] * len(anchors),
+                               [cands[i].point for i in hold])
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
         if write and check.passed:
             self._write(out)
         self.last = out
         return out
+
+    def _measuring_camera(self):
+        if self.measuring_camera is None:
+            from cell.measure import MeasuringCamera
+            v = self.config.vision
+            self.measuring_camera = MeasuringCamera(self.devices.camera, self.devices.calibration(),
+                                                    v.tool_radius_mm, v.radius_tolerance,
+                                                    v.grab_timeout_s, clock=self.devices.clock)
+        return self.measuring_camera
 
     def _write(self, out: KinematicOutcome) -> None:
         data = {"board": board_of(self.config).as_dict(),

@@ -172,8 +172,11 @@ class SimDevices:
         return self._hand_cal
 
     def place_fixture(self, kind: str, joint: str | None = None) -> None:
-        """Lay the calibration fixture (``joint`` target for ``joint``, ``board``, ``none``)."""
+        """Lay the calibration fixture (``joint`` target for ``joint``, ``board``, ``none``);
+        a calibration needs the work area clear, so the conveyor's part is taken away."""
         self.hand.place(kind, joint)
+        if kind != "none":
+            self.feeder.remove()
 
     def stop(self) -> None:
         for step in (self.camera.close, self.hand.camera.close, self.motion.shutdown, self.sim_stations.stop):

@@ -76,14 +76,25 @@ def test_kinematic_calibration_passes_its_held_out_check_and_is_written(cell):
     h = out.holdout
     assert h.passed and h.rms_xy_after_mm < 0.2 * h.rms_xy_before_mm
     p = out.parameters(cal.nominal)
-    # j1's zero and the board's rotation appear only as a sum: j1.theta holds both
-    assert abs(p["j1.theta"]["value"] - (0.05 - BOARD_PLACEMENT[2])) < 0.003
+    # the anchor poses (cell camera, base frame) tell the board's rotation from j1's zero
+    assert abs(p["j1.theta"]["value"] - 0.05) < 0.003 and abs(p["base.rz"]["value"] + BOARD_PLACEMENT[2]) < 0.003
     assert abs(p["j1.a"]["value"] - 0.3) < 0.02 and abs(p["j2.a"]["value"] + 0.25) < 0.02
-    merged = {f["param"]: f["merged_into"] for f in out.identification.report.fixed if f["reason"] == "merged"}
-    assert merged["base.rz"] == {"j1.theta": pytest.approx(1.0)}
+    # j2's backlash (approached from below: −b/2) acts as part of its zero
+    assert abs(p["j2.theta"]["value"] - (-0.04 - PLANT_J2_BACKLASH / 2)) < 0.003
     d = calfile.load(cfg.calibration.file, cal.nominal, cfg.name)
     assert d["version"] == cal.version == 1 and len(d["data"]["holdout"]) == 6
     assert set(d["parameters"]) == set(out.identification.kept)
+
+
+def test_without_anchors_the_boards_rotation_merges_into_j1s_zero(cell):
+    cfg, dev, _ = cell
+    board_only = CellCalibrator(cfg.model_copy(update={"calibration": cfg.calibration.model_copy(
+        update={"anchors": 0})}), dev, dev.robot)
+    out = board_only.kinematics(write=False)
+    merged = {f["param"]: f["merged_into"] for f in out.identification.report.fixed if f["reason"] == "merged"}
+    assert merged["base.rz"] == {"j1.theta": pytest.approx(1.0)}
+    assert abs(out.identification.value("j1.theta") - (0.05 - BOARD_PLACEMENT[2])) < 0.003
+    assert out.document is None
 
 
 def test_failed_held_out_check_writes_nothing_and_reports_fault_603(cell):
