@@ -1,10 +1,16 @@
 """Assembles a running cell from its config: devices (by name, :mod:`cell.devices`), cycle
-log, recipe store, cycle runner, controller and background jobs. ``cellctl serve`` and
-``cellctl run`` use :class:`Cell`; so do the system tests.
+log, robot calibration, recipe store, cycle runner, controller and background jobs.
+``cellctl serve`` and ``cellctl run`` use :class:`Cell`; so do the system tests.
+
+The robot the cycles plan with is the nominal one, or — if ``calibration.file`` exists —
+the calibrated one (:mod:`cell.calibration.calfile`; a corrupt file or another robot's
+refuses the start). A kinematic calibration the PLC starts is applied when it is written:
+the runner plans with it from the next cycle and the learned offsets start afresh.
 """
 from __future__ import annotations
 
 from cell import log as cell_log
+from cell.calibration.service import CellCalibrator, load_active
 from cell.clock import Clock
 from cell.config import CellConfig
 from cell.controller import CellController, ControllerSettings
@@ -42,7 +48,16 @@ class Cell:
             raise
         self.clock = self.devices.clock
         self._own_clock = clock is None
-        self.robot, self.motion, self.camera = self.devices.robot, self.devices.motion, self.devices.camera
+        self.motion, self.camera = self.devices.motion, self.devices.camera
+        try:
+            self.robot, caldoc = load_active(config, self.devices.robot)
+        except BaseException:
+            self.cyclelog.close()
+            raise
+        self.calibrator = CellCalibrator(config, self.devices, self.devices.robot,
+                                         version=int(caldoc["version"]) if caldoc else 0,
+                                         on_applied=self._use_calibration)
+        self.runner: CycleRunner | None = None
         self.plc = open_link(config.plc.backend, clock=self.clock)
         self.plc_port = config.plc.port if plc_port is None else plc_port
         r = config.recipes
@@ -61,11 +76,12 @@ class Cell:
             camera = MeasuringCamera(self.camera, self.devices.calibration(), v.tool_radius_mm,
                                      v.radius_tolerance, v.grab_timeout_s, clock=self.clock)
             self.measuring_camera = camera
+            self.calibrator.measuring_camera = camera
             # recipes are checked against these stations: SYNC support, and the segment time
             # against each station's delay (longest frames on the wire + measured latency)
             self.recipes.check, _ = motion_check_from_config(self.motion.cfg, self.motion.latency_s)
             c = self.config.cycle
-            runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog,
+            runner = self.runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog,
                                  CycleSettings(c.move_timeout_s, c.reach_tol_deg, c.tool_phi_deg,
                                                self.config.robot.elbow),
                                  OffsetMemory.from_log(self.cyclelog, self.robot, self.config.robot.elbow),
@@ -73,15 +89,26 @@ class Cell:
             settings = ControllerSettings(self.config.controller.scan_s, self.config.plc.heartbeat_timeout_s,
                                           self.config.controller.recipe_refresh_s)
             self.controller = CellController(self.plc, self.motion, runner, self.cyclelog, self.recipes,
-                                             settings, clock=self.clock)
+                                             settings, clock=self.clock, calibrator=self.calibrator)
             self.controller.start()
             port = self.plc.start(self.config.plc.host, self.plc_port)
             if self.with_jobs:
                 self.jobs = CellJobs(self.controller, self.config.scheduler, self.config.log.retention_days,
                                      clock=self.clock)
                 self.jobs.start()
-        log.info("cell_started", name=self.config.name, devices=type(self.devices).__name__, plc_port=port)
+        log.info("cell_started", name=self.config.name, devices=type(self.devices).__name__, plc_port=port,
+                 calibration=getattr(self.robot, "calibration", "") or "nominal")
         return port
+
+    def _use_calibration(self, robot, doc: dict) -> None:
+        """A kinematic calibration was written: plan the next cycles with it, learn afresh
+        (the offsets learned so far referred to the old model). Runs in the calibration
+        task, while no cycle can run."""
+        self.robot = robot
+        if self.runner is not None:
+            self.runner.robot = self.runner.mover.robot = robot
+            self.runner.memory = OffsetMemory(n=self.runner.memory.n)
+        log.info("robot_calibration_applied", calibration=robot.calibration)
 
     def stop(self) -> None:
         with self.clock.attach():

@@ -11,7 +11,7 @@ handshake); this shell only moves data in and out:
   fault, the running cycle's step or its outcome, the results of last scan's drive reset
   and recipe refresh;
 * out: status bits and registers; actions — start a cycle (with an atomic snapshot of
-  the recipe), cancel it (the cycle is *given* the reason), quick-stop every joint, reset
+  the recipe) or a calibration (``calibrator``, in the same task slot), cancel it (the cycle is *given* the reason), quick-stop every joint, reset
   the drives, re-read the recipes (auditing every change), record what the PLC was told.
 
 Nothing slow runs on the scan task. Re-reading recipes and log updates go to the
@@ -26,10 +26,10 @@ from collections import deque
 from cell.clock import Clock, MonotonicClock
 from cell.controller_core import (CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
-                                  ScanInputs, SettleCycle, StartCycle, StationFaultIn)
+                                  ScanInputs, SettleCycle, StartCalibration, StartCycle, StationFaultIn)
 from cell.cycle import CancelToken, CycleOutcome, CycleRunner
 from cell.cyclelog import CycleLog
-from cell.faults import station_fault
+from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.recipe_store import RecipeStore
 from cell.recipes import ActiveRecipe
@@ -45,8 +45,14 @@ class CellController:
     """Owns the core and the scan task; devices are injected."""
 
     def __init__(self, plc, motion, runner: CycleRunner, cyclelog: CycleLog, recipes: RecipeStore,
-                 settings: ControllerSettings = ControllerSettings(), clock: Clock | None = None):
+                 settings: ControllerSettings = ControllerSettings(), clock: Clock | None = None,
+                 calibrator=None):
+        """:param calibrator: runs calibrations the PLC starts (``run_safely(select, cancel)
+            -> CycleOutcome``, ``version``; :class:`cell.calibration.service.CellCalibrator`);
+            None: every calibrate edge ends in fault 601."""
         self.plc, self.motion, self.runner, self.log, self.recipes = plc, motion, runner, cyclelog, recipes
+        self.calibrator = calibrator
+        self._task_outcome = lambda: self.runner.outcome   # where the running task leaves its end
         self.settings = settings
         self.clock = clock or MonotonicClock()
         self.core = ControllerCore(settings)
@@ -99,7 +105,8 @@ class CellController:
         interrupted = self.log.recover_interrupted()
         if interrupted is not None:
             log.error("cycle_interrupted_by_restart", part_id=interrupted.part_id, cycle_id=interrupted.cycle_id)
-        out = self.core.started(self.clock.now(), self._recipes_in, interrupted)
+        out = self.core.started(self.clock.now(), self._recipes_in, interrupted,
+                                getattr(self.calibrator, "version", 0))
         self._write(out.status, out.registers)
         self._apply(out.actions)
         self.log_worker.start()
@@ -148,7 +155,7 @@ class CellController:
     def _read(self) -> ScanInputs:
         ended = None
         if self._worker is not None and self._worker.finished:
-            ended = self.runner.outcome
+            ended = self._task_outcome()
             self._worker = None
         reset = None
         if self._resets and self._resets[0][1].done:
@@ -162,6 +169,7 @@ class CellController:
             now=self.clock.now(), writes=tuple(self.plc.drain_writes()),
             last_heartbeat_change=self.plc.last_heartbeat_change,
             command_word=self.plc.read("command_word"), part_id=self.plc.read("part_id"),
+            calibration_select=self.plc.read("calibration_select"),
             station_fault=self._station_fault(),
             cycle_step=self.runner.progress if self._worker is not None else None,
             cycle_ended=ended, drives_reset=reset, recipes=recipes,
@@ -188,6 +196,8 @@ class CellController:
                 self._quick_stop(a.reason)
             elif isinstance(a, StartCycle):
                 self._start_cycle(a)
+            elif isinstance(a, StartCalibration):
+                self._start_calibration(a)
             elif isinstance(a, ResetDrives):
                 self._resets.append((a.purpose, self.drives_worker.submit(self.motion.reset)))
             elif isinstance(a, RefreshRecipes):
@@ -208,8 +218,25 @@ class CellController:
         self.runner.progress = State.APPROACH     # not the last cycle's step while this one starts
         if active is None:                       # the core saw it active: cannot happen
             cancel.cancel(0, f"recipe {a.recipe_number} vanished")
+        self._task_outcome = lambda: self.runner.outcome
         self._worker = self.clock.spawn(self.runner.run_safely, "cell-cycle", active, a.part_id, cancel)
         log.info("cycle_task_started", part_id=a.part_id, recipe=getattr(getattr(active, "recipe", None), "name", None))
+
+    def _start_calibration(self, a: StartCalibration) -> None:
+        self._cancel = CancelToken(self.clock)
+        cancel, box = self._cancel, {}
+
+        def run():
+            if self.calibrator is None:
+                box["out"] = CycleOutcome("aborted", Fault.CALIBRATION_REFUSED,
+                                          "this cell has no calibration service (no hand camera)")
+            else:
+                box["out"] = self.calibrator.run_safely(a.select, cancel)
+
+        self._task_outcome = lambda: box.get("out") or CycleOutcome("aborted", Fault.INTERNAL,
+                                                                    "calibration task ended without an outcome")
+        self._worker = self.clock.spawn(run, "cell-calibration")
+        log.info("calibration_task_started", select=a.select)
 
     def _quick_stop(self, why: str) -> None:
         try:

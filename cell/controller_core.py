@@ -23,6 +23,10 @@ Handshake (PLCopen Execute/Busy/Done/Error over the register map):
   quick stop, the fault code goes to the PLC and nothing moves again until ``reset``.
   The heartbeat fault is raised at the first scan after the time-out: no earlier than the
   time-out, no later than one scan after it.
+* ``calibrate`` starts the robot calibration ``calibration_select`` names (latched at the
+  edge, as ``part_id`` is for a cycle), under the same rules as ``execute`` (armed, ready;
+  CALIBRATING is busy; done, error or aborted at its end; abort and the watchdogs stop it).
+  Its residuals and the calibration version in use go to the calibration registers.
 * Recipe files are re-read only between cycles; an invalid edit is rejected
   (recipe_status 2), the last good version stays active.
 * When a cycle ends, :class:`SettleCycle` says what the PLC was told (done, aborted, or the
@@ -41,7 +45,7 @@ from cell.statemachine import CYCLE_STEPS, Event, State, StateMachine
 
 log = get_logger("controller")
 
-EXECUTE, RESET, ABORT, ACK = 1, 2, 4, 8        # command_word bits (drivers/plc/register_map.py)
+EXECUTE, RESET, ABORT, ACK, CALIBRATE = 1, 2, 4, 8, 16   # command_word bits (drivers/plc/register_map.py)
 RECIPE_OK, RECIPE_UNKNOWN, RECIPE_REJECTED, RECIPE_BUSY = 0, 1, 2, 3
 
 
@@ -99,6 +103,7 @@ class ScanInputs:
     last_heartbeat_change: float | None = None  #: clock time plc_heartbeat last changed
     command_word: int = 0                       #: command_word in the register image
     part_id: int = 0                            #: part_id in the register image
+    calibration_select: int = 0                 #: calibration_select in the register image
     station_fault: StationFaultIn | None = None
     cycle_step: State | None = None             #: the running cycle's current step
     cycle_ended: CycleOutcome | None = None     #: the cycle worker has ended with this
@@ -112,6 +117,11 @@ class ScanInputs:
 class StartCycle:
     recipe_number: int
     part_id: int
+
+
+@dataclass(frozen=True)
+class StartCalibration:
+    select: int                                 #: calibration_select: 0 kinematics, N joint jN
 
 
 @dataclass(frozen=True)
@@ -152,7 +162,7 @@ class ClearInterrupted:
     """The PLC has reset the fault that reported a cycle interrupted by a restart."""
 
 
-Action = Union[StartCycle, CancelCycle, QuickStop, ResetDrives, RefreshRecipes, SettleCycle,
+Action = Union[StartCycle, StartCalibration, CancelCycle, QuickStop, ResetDrives, RefreshRecipes, SettleCycle,
                ClearInterrupted]
 
 
@@ -178,6 +188,7 @@ class ControllerCore:
         self.recipe_number = 0
         self.recipe_status = RECIPE_OK
         self.last_outcome: CycleOutcome | None = None
+        self.calibration_version = 0             #: version of the robot calibration in use
         self._pending_select: int | None = None
         self._armed = False
         self._rearming = False                   # drives being re-enabled after an abort
@@ -191,13 +202,16 @@ class ControllerCore:
         self._results: dict[str, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
-    def started(self, now: float, recipes: RecipesIn, interrupted=None) -> ScanOutputs:
+    def started(self, now: float, recipes: RecipesIn, interrupted=None,
+                calibration_version: int = 0) -> ScanOutputs:
         """The controller came up (recipes read once): STARTING → IDLE, nothing moves.
 
         :param interrupted: the cycle a restart interrupted (``part_id``, ``started_at``;
             :class:`cell.cyclelog.Interrupted`), if any: STARTING → FAULT 503 instead.
+        :param calibration_version: version of the robot calibration loaded (0: nominal).
         """
         self._actions = []
+        self.calibration_version = int(calibration_version) & 0xFFFF
         self._now = now
         self._take_recipes(recipes)
         self._next_refresh = now + self.settings.recipe_refresh_s
@@ -258,16 +272,20 @@ class ControllerCore:
         # part_id as it stood at each write: an execute edge latches the value written before
         # it, not one the PLC wrote after it in the same scan
         part_id = next((w.previous for w in inp.writes if w.name == "part_id"), inp.part_id)
+        select = next((w.previous for w in inp.writes if w.name == "calibration_select"),
+                      inp.calibration_select)
         for w in inp.writes:                        # in the order the PLC wrote them
             if w.name == "part_id":
                 part_id = w.value
+            if w.name == "calibration_select":
+                select = w.value
             if w.name == "recipe_select" and w.value:   # 0 = no selection
                 self._pending_select = w.value
             if self._pending_select is not None and not self.sm.state.busy:
                 self._select_recipe(self._pending_select)
                 self._pending_select = None
             if w.name == "command_word" and link_ok:
-                self._on_command(w.value & ~w.previous, w.value, part_id)
+                self._on_command(w.value & ~w.previous, w.value, part_id, select)
         if self._pending_select is not None and not self.sm.state.busy:
             self._select_recipe(self._pending_select)   # asked while busy: applied once idle
             self._pending_select = None
@@ -296,11 +314,22 @@ class ControllerCore:
         self._actions.append(StartCycle(self.recipe_number, part_id))
         log.info("cycle_started", part_id=part_id, recipe_number=self.recipe_number)
 
+    def _start_calibration(self, select: int) -> None:
+        self.execute_refused = False
+        self.sm.fire(Event.CALIBRATE)
+        self._cycle_running = True
+        self._actions.append(StartCalibration(select))
+        log.info("calibration_started", select=select)
+
     def _cycle_ended(self, out: CycleOutcome) -> None:
         self._cycle_running = False
         self.last_outcome = out
         self._publish(out)
-        if out.status == "done" and self.sm.state in CYCLE_STEPS:
+        if out.calibration is not None:
+            self._publish_calibration(out.calibration)
+        if out.status == "done" and self.sm.state is State.CALIBRATING:
+            self.sm.fire(Event.STEP_DONE)            # CALIBRATING → DONE: written and applied
+        elif out.status == "done" and self.sm.state in CYCLE_STEPS:
             self._follow(State.LOGGING)
             self.sm.fire(Event.STEP_DONE)            # LOGGING → DONE: the row is on disk
             self.cycle_count += 1
@@ -338,8 +367,16 @@ class ControllerCore:
                              moves=rec.moves or 0,
                              cycle_time_ms=min(int((rec.cycle_time_s + out.log_write_s) * 1000), 0xFFFFFFFF))
 
+    def _publish_calibration(self, result: dict) -> None:
+        def clamp(v):
+            return min(max(int(round(v)), 0), 0xFFFFFFFF)
+        if result.get("version") is not None:
+            self.calibration_version = int(result["version"]) & 0xFFFF
+        self._results.update(calibration_residual_um=clamp(result.get("residual_um", 0)),
+                             calibration_residual_udeg=clamp(result.get("residual_udeg", 0)))
+
     # ------------------------------------------------------------------ commands
-    def _on_command(self, rising: int, value: int, part_id: int) -> None:
+    def _on_command(self, rising: int, value: int, part_id: int, select: int = 0) -> None:
         state = self.sm.state
         if rising & ABORT and state.busy and state is not State.STOPPING:
             self._actions.append(CancelCycle(0, "abort by PLC"))
@@ -354,16 +391,22 @@ class ControllerCore:
                 self._actions.append(ResetDrives("rearm"))
             self.sm.fire(Event.ACKNOWLEDGE)
             self.execute_refused = False
-        if rising & EXECUTE:
-            if self._armed and self.sm.state is State.IDLE and not self._rearming:
-                self._start_cycle(part_id)
+        if rising & (EXECUTE | CALIBRATE):
+            if rising & EXECUTE and rising & CALIBRATE:
+                self.execute_refused = True
+                log.warning("execute_refused", reason="execute and calibrate raised together")
+            elif self._armed and self.sm.state is State.IDLE and not self._rearming:
+                if rising & EXECUTE:
+                    self._start_cycle(part_id)
+                else:
+                    self._start_calibration(select)
             else:
                 self.execute_refused = True
                 why = "not armed (execute must be written low while the PLC link is alive)" \
                     if not self._armed else "drives still re-enabling after abort" \
                     if self._rearming else f"state {self.sm.state.name}"
                 log.warning("execute_refused", reason=why)
-        if not value & EXECUTE:                    # the PLC wrote execute low: armed
+        if not value & (EXECUTE | CALIBRATE):      # the PLC wrote both starts low: armed
             self._armed = True
 
     # ------------------------------------------------------------------ faults
@@ -452,5 +495,5 @@ class ControllerCore:
             plc_link_ok=self._link_ok, execute_refused=self.execute_refused)
         registers = {**self._results, "controller_heartbeat": self._heartbeat, "state_code": int(state),
                      "fault_code": self.fault_code, "recipe_ack": self.recipe_number,
-                     "recipe_status": self.recipe_status}
+                     "recipe_status": self.recipe_status, "calibration_version": self.calibration_version}
         return ScanOutputs(status, registers, self._actions)

@@ -9,6 +9,7 @@ Numbers are stable: append, never renumber. Ranges say which subsystem failed:
 3xx   camera and vision
 4xx   motion planning and accuracy
 5xx   controller internals
+6xx   robot calibration started by the PLC (nothing is written when one fails)
 ====  =====================================================================
 """
 from __future__ import annotations
@@ -37,6 +38,11 @@ class Fault(enum.IntEnum):
     LOG_WRITE_FAILED = 502        #: the cycle could not be written to the cycle log
     INTERRUPTED = 503             #: a cycle was interrupted by a controller restart (crash, power
                                   #: loss); part_id_echo holds its part id; cleared by reset
+    CALIBRATION_REFUSED = 601     #: calibration_select names no procedure this cell can run
+                                  #: (j3 is prismatic; no hand camera configured)
+    CALIBRATION_MEASUREMENT = 602 #: a calibration image failed: target lost, cut or doubled
+    CALIBRATION_FIT = 603         #: the calibration could not be trusted: too few points, a
+                                  #: singular design, or the held-out check failed
 
 
 class CellFault(Exception):

@@ -9,6 +9,11 @@ Life of a part (PLCopen Execute/Busy/Done/Error)::
     STARTING --started--> IDLE --execute--> APPROACH -> CAPTURE -> LOCATE -> COMPENSATE
         -> FINAL_MOVE -> VERIFY -> LOGGING --step_done--> DONE --acknowledge--> IDLE
 
+A robot calibration (seed 004 / seed 001, started by the PLC's ``calibrate`` bit) is one
+busy state of its own, with the same ending::
+
+    IDLE --calibrate--> CALIBRATING --step_done--> DONE --acknowledge--> IDLE
+
 From any busy state, ``fault`` leads to STOPPING (the joints are brought to a controlled
 stop) and then FAULT; ``abort`` leads to STOPPING and then ABORTED. FAULT is left only by
 ``reset`` (RESETTING -> IDLE); ABORTED and DONE are held until the PLC acknowledges.
@@ -34,11 +39,12 @@ class State(enum.IntEnum):
     ABORTED = 31
     FAULT = 40
     RESETTING = 41
+    CALIBRATING = 50
 
     @property
     def busy(self) -> bool:
-        """True while a part's cycle is running (the PLC's Busy)."""
-        return self in CYCLE_STEPS or self is State.STOPPING
+        """True while a part's cycle or a calibration is running (the PLC's Busy)."""
+        return self in CYCLE_STEPS or self is State.STOPPING or self is State.CALIBRATING
 
 
 class Event(enum.Enum):
@@ -52,6 +58,7 @@ class Event(enum.Enum):
     STOPPED_ABORT = "stopped_abort"
     RESET = "reset"
     RESET_DONE = "reset_done"
+    CALIBRATE = "calibrate"
 
 
 CYCLE_STEPS = (State.APPROACH, State.CAPTURE, State.LOCATE, State.COMPENSATE,
@@ -75,6 +82,10 @@ def _table() -> dict[tuple[State, Event], State]:
         (State.FAULT, Event.RESET): State.RESETTING,
         (State.RESETTING, Event.RESET_DONE): State.IDLE,
         (State.RESETTING, Event.FAULT): State.FAULT,
+        (State.IDLE, Event.CALIBRATE): State.CALIBRATING,
+        (State.CALIBRATING, Event.STEP_DONE): State.DONE,
+        (State.CALIBRATING, Event.FAULT): State.STOPPING,
+        (State.CALIBRATING, Event.ABORT): State.STOPPING,
     }
     for here, nxt in zip(CYCLE_STEPS, CYCLE_STEPS[1:] + (State.DONE,)):
         t[(here, Event.STEP_DONE)] = nxt

@@ -43,7 +43,7 @@ def _log():
 
 
 #: Output registers in the order a scan writes them (data before commands).
-OUTPUTS = ("recipe_select", "part_id", "command_word")
+OUTPUTS = ("recipe_select", "part_id", "calibration_select", "command_word")   #: written in this order
 #: recipe_status values with which the selected recipe is active: 0 ok, 2 a recipe edit was
 #: rejected (the last good version stays active: the PLC may log it, the run goes on)
 RUNNABLE_RECIPE_STATUS = (0, 2)
@@ -259,6 +259,35 @@ class SimPlc:
         result.update({k: int(bits(img)[k]) for k in ("done", "error", "aborted")})
         self._pulse_acknowledge(timeout_s)
         self._raise_refused(errors_before)
+        return result
+
+    def run_calibration(self, select: int, timeout_s: float = 600.0) -> dict[str, int]:
+        """One robot calibration by the same handshake: writes ``calibration_select``
+        (0 kinematics, N joint jN), waits for ready, raises ``calibrate``, waits for
+        done/error/aborted, reads the calibration registers from that scan, drops
+        ``calibrate`` and acknowledges. Returns ``calibration_version``,
+        ``calibration_residual_um``/``_udeg``, ``fault_code`` and ``done``/``error``/``aborted``.
+        Raises SimPlcError if a write is refused or a step times out (clock seconds)."""
+        errors_before = len(self.write_errors)
+        bits = lambda img: self.map.bits("status_word", img["status_word"])  # noqa: E731
+        finished = lambda img: any(bits(img)[k] for k in ("done", "error", "aborted"))  # noqa: E731
+        self._set_output("calibration_select", select)
+        self.wait_until(lambda i: i["calibration_select"] == select or self._refused_since(errors_before),
+                        5.0, "calibration_select read-back")
+        self._raise_refused(errors_before)
+        if finished(self.inputs()):
+            self._pulse_acknowledge(5.0)
+        self.wait_until(lambda i: bits(i)["ready"], 5.0, "ready")
+        self.set_command(calibrate=True)
+        try:
+            img = self.wait_until(finished, timeout_s, "calibration done, error or aborted")
+        finally:
+            self.set_command(calibrate=False)
+        result = {n: img[n] for n in ("calibration_version", "calibration_residual_um",
+                                      "calibration_residual_udeg", "fault_code")}
+        result.update({k: int(bits(img)[k]) for k in ("done", "error", "aborted")})
+        if result["done"] or result["aborted"]:
+            self._pulse_acknowledge(5.0)
         return result
 
     def _pulse_acknowledge(self, timeout_s: float) -> None:

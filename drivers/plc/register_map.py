@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from cell.errors import CellError
 
 #: Value of the ``map_version`` register; bump it whenever an address or meaning changes.
-MAP_VERSION = 1
+MAP_VERSION = 2     #: 2 added the calibration block (60..69) and command_word.calibrate
 #: Modicon reference of protocol address 0 (holding registers, 1-based "4xxxx").
 MODICON_BASE = 40001
 
@@ -155,12 +155,16 @@ _COMMAND_BITS = (
     _b(1, "reset", "Rising edge clears error and fault_code if the fault is gone."),
     _b(2, "abort", "Rising edge stops the running cycle; busy drops and aborted is set."),
     _b(3, "acknowledge", "Rising edge clears done/aborted after the PLC has read the results."),
+    _b(4, "calibrate", "Rising edge starts the robot calibration calibration_select names (the "
+                       "fixture must be in place). Accepted like execute: only while ready; busy, "
+                       "then done or error, as for a cycle. Keep it high until done, error or "
+                       "aborted is seen, then drop it. Abort and the heartbeat watchdog stop it."),
 )
 
 _U16, _U32, _BITS = RegType.U16, RegType.U32, RegType.BITFIELD
 _RO, _RW = Access.RO, Access.RW
 
-#: The one register table. Blocks start at 0, 10, 20 and 40; the gaps are reserved.
+#: The one register table. Blocks start at 0, 10, 20, 40 and 60; the gaps are reserved.
 REGISTERS: tuple[Register, ...] = (
     # -- link block 0..9
     Register(0, "map_version", _U16, _RO, meaning=f"Layout version of this map (currently {MAP_VERSION}). "
@@ -178,10 +182,10 @@ REGISTERS: tuple[Register, ...] = (
     Register(12, "state_code", _U16, _RO, meaning="Numeric code of the controller state "
              "(cell/statemachine.py State): 1 starting, 2 idle, 10-16 cycle steps (approach, capture, "
              "locate, compensate, final move, verify, logging), 20 done, 30 stopping, 31 aborted, "
-             "40 fault, 41 resetting."),
+             "40 fault, 41 resetting, 50 calibrating."),
     Register(13, "fault_code", _U16, _RO, meaning="0 = no fault, else the code of the active (or last "
              "unacknowledged) fault (cell/faults.py: 1xx PLC link, 2xx joint stations = 200 + station "
-             "code, 3xx camera/vision, 4xx motion/accuracy, 5xx internal). Valid while "
+             "code, 3xx camera/vision, 4xx motion/accuracy, 5xx internal, 6xx calibration). Valid while "
              "status_word.error is set."),
     # -- recipe and part block 20..39
     Register(20, "recipe_select", _U16, _RW, hi=999, meaning="Recipe number the PLC asks for. Applied "
@@ -202,6 +206,20 @@ REGISTERS: tuple[Register, ...] = (
     Register(44, "moves", _U32, _RO, "count", meaning="Correction moves made in the last cycle."),
     Register(46, "cycle_time_ms", _U32, _RO, "ms", meaning="Duration from execute edge to done/error."),
     Register(48, "cycle_count", _U32, _RO, "count", meaning="Cycles completed since controller start."),
+    # -- calibration block 60..69 (seed 004 / seed 001 from the hand camera)
+    Register(60, "calibration_select", _U16, _RW, hi=4, meaning="What the calibrate bit starts: 0 "
+             "kinematic calibration over the board (seed 001; the board must be in place), 1, 2 or 4 "
+             "single-joint calibration of j1, j2 or j4 (seed 004; the target under the hand camera "
+             "at the all-zero pose). 3 (j3, prismatic) is refused with fault 601."),
+    Register(61, "calibration_version", _U16, _RO, meaning="Version of the robot calibration the "
+             "cycles run with (0 = the nominal model). A kinematic calibration that passes its "
+             "held-out check is written, applied at once and raises it."),
+    Register(62, "calibration_residual_um", _U32, _RO, "um", meaning="Last kinematic calibration: RMS "
+             "position error on the held-out poses with the calibrated model. 0 after a joint "
+             "calibration."),
+    Register(64, "calibration_residual_udeg", _U32, _RO, "udeg", meaning="Last joint calibration: RMS "
+             "residual of its error model (backlash, gear ratio, cyclic), micro-degrees. 0 after a "
+             "kinematic calibration."),
 )
 
 HANDSHAKE = """\
@@ -461,4 +479,4 @@ class RegisterMap:
 
 
 #: The cell controller's register map. 60 registers: 0..59.
-PLC_MAP = RegisterMap(REGISTERS, size=60, version=MAP_VERSION)
+PLC_MAP = RegisterMap(REGISTERS, size=70, version=MAP_VERSION)

@@ -16,7 +16,7 @@ import pytest
 from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, CancelCycle, ClearInterrupted,
                                   ControllerCore, ControllerSettings, DrivesResetIn, PlcWriteIn,
                                   QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
-                                  SettleCycle, StartCycle, StationFaultIn)
+                                  SettleCycle, StartCalibration, StartCycle, StationFaultIn)
 from cell.cycle import CycleOutcome
 from cell.cyclelog import CycleRecord
 from cell.faults import Fault
@@ -28,7 +28,8 @@ T0 = 100.0
 HB_TEXT = "PLC heartbeat lost for more than 1.0 s"
 ABORT_TEXT = "abort by PLC"
 STATUS_BITS = {b.name for b in PLC_MAP["status_word"].bits}
-BASE_REGISTERS = {"controller_heartbeat", "state_code", "fault_code", "recipe_ack", "recipe_status"}
+BASE_REGISTERS = {"controller_heartbeat", "state_code", "fault_code", "recipe_ack", "recipe_status",
+                  "calibration_version"}
 
 
 def cw(value: int, previous: int) -> PlcWriteIn:
@@ -47,6 +48,7 @@ class Cell:
         self.last_hb: float | None = None
         self.command_word = command_word      #: register image
         self.part_id = 0                      #: register image
+        self.calibration_select = 0           #: register image
         self.numbers = frozenset(numbers)
         self.out = self.core.started(t0, RecipesIn(self.numbers, refreshed=True, rejected=rejected))
 
@@ -68,10 +70,13 @@ class Cell:
                 self.command_word = w.value
             elif w.name == "part_id":
                 self.part_id = w.value
+            elif w.name == "calibration_select":
+                self.calibration_select = w.value
         inputs.setdefault("recipes", RecipesIn(self.numbers))
         self.out = self.core.step(ScanInputs(
             now=self.now, writes=tuple(writes), last_heartbeat_change=self.last_hb,
-            command_word=self.command_word, part_id=self.part_id, **inputs))
+            command_word=self.command_word, part_id=self.part_id,
+            calibration_select=self.calibration_select, **inputs))
         check_map(self.out)
         return self.out
 
@@ -180,7 +185,7 @@ def test_started_goes_idle_with_nothing_moving_and_map_outputs():
                               recalibration_due=False, aborted=False, plc_link_ok=False,
                               execute_refused=False)
     assert out.registers == dict(controller_heartbeat=1, state_code=2, fault_code=0, recipe_ack=0,
-                                 recipe_status=0)
+                                 recipe_status=0, calibration_version=0)
     check_map(out)
 
 
@@ -919,3 +924,85 @@ def test_not_ready_and_execute_refused_while_drives_re_enable_after_abort():
     assert c.scans(5)[-1].actions == [] and c.state is State.IDLE
     c.command(0)
     assert c.command(EXECUTE).actions == [StartCycle(1, 4711)]    # a fresh edge does
+
+
+# ---------------------------------------------------------------------- calibration (issue 10)
+CALIBRATE = 16
+
+
+def calibrating(select: int = 2) -> Cell:
+    c = ready_cell()
+    c.scan(PlcWriteIn("calibration_select", select, 0))
+    out = c.command(CALIBRATE)
+    assert out.actions == [StartCalibration(select)]
+    assert c.state is State.CALIBRATING and out.status["busy"] and not out.status["ready"]
+    assert out.registers["state_code"] == 50
+    return c
+
+
+def test_calibrate_edge_starts_the_selected_calibration_then_done_publishes_residuals():
+    c = calibrating(2)
+    out = c.scan(cycle_ended=CycleOutcome("done", calibration={"residual_um": 0, "residual_udeg": 1234.6}))
+    assert c.state is State.DONE and out.status["done"] and not out.status["busy"]
+    assert out.registers["calibration_residual_udeg"] == 1235 and out.registers["calibration_residual_um"] == 0
+    assert c.core.cycle_count == 0                       # a calibration is not a part's cycle
+    c.command(ACK)
+    assert c.state is State.IDLE
+
+
+def test_kinematic_calibration_done_raises_the_calibration_version():
+    c = calibrating(0)
+    out = c.scan(cycle_ended=CycleOutcome("done", calibration={"residual_um": 95.9, "residual_udeg": 0,
+                                                               "version": 3}))
+    assert out.registers["calibration_version"] == 3 and out.registers["calibration_residual_um"] == 96
+    assert c.scan().registers["calibration_version"] == 3     # held
+
+
+def test_select_is_latched_at_the_edge_as_written_before_it():
+    c = ready_cell()
+    out = c.scan(PlcWriteIn("calibration_select", 1, 0), cw(CALIBRATE, 0),
+                 PlcWriteIn("calibration_select", 4, 1))
+    assert out.actions == [StartCalibration(1)]
+
+
+def test_failed_calibration_latches_its_fault_and_stops_the_joints():
+    c = calibrating(0)
+    out = c.scan(cycle_ended=CycleOutcome("fault", Fault.CALIBRATION_FIT, "held-out check failed"))
+    assert c.state is State.FAULT and out.status["error"]
+    assert out.registers["fault_code"] == 603
+    assert any(isinstance(a, QuickStop) for a in out.actions)
+
+
+def test_abort_and_heartbeat_loss_stop_a_calibration():
+    c = calibrating(1)
+    out = c.command(CALIBRATE | ABORT)
+    assert c.state is State.STOPPING and CancelCycle(0, ABORT_TEXT) in out.actions
+    c.scan(cycle_ended=CycleOutcome("aborted", 0, ABORT_TEXT))
+    assert c.state is State.ABORTED
+    c = calibrating(1)
+    out = c.lose_link()
+    assert any(isinstance(a, CancelCycle) and a.code == Fault.PLC_HEARTBEAT_LOST for a in out.actions)
+    c.scan(cycle_ended=CycleOutcome("aborted", Fault.PLC_HEARTBEAT_LOST, HB_TEXT))
+    assert c.state is State.FAULT and c.core.fault_code == Fault.PLC_HEARTBEAT_LOST
+
+
+def test_calibrate_is_refused_unless_ready_and_never_with_execute():
+    c = Cell()                                # link up but not armed: calibrate held from before
+    c.scan()
+    out = c.command(CALIBRATE)
+    assert out.actions == [] and out.status["execute_refused"] and c.state is State.IDLE
+    c = ready_cell()
+    out = c.command(EXECUTE | CALIBRATE)
+    assert out.actions == [] and out.status["execute_refused"] and c.state is State.IDLE
+    c = at_step(State.CAPTURE)                # busy with a part
+    out = c.command(EXECUTE | CALIBRATE)
+    assert not any(isinstance(a, StartCalibration) for a in out.actions) and out.status["execute_refused"]
+
+
+def test_arming_needs_calibrate_written_low_too():
+    c = Cell(command_word=CALIBRATE)
+    c.scan()
+    c.command(CALIBRATE)                       # rewritten high after a restart: not armed
+    assert not c.out.status["ready"]
+    c.command(0)
+    assert c.out.status["ready"]

@@ -139,7 +139,7 @@ def test_fc5_value_other_than_0000_or_ff00_is_illegal_value_and_coil_unchanged(l
 def test_two_requests_in_one_segment_get_two_answers_in_order(link):
     answers = transact(link.port, fc3(7) + fc3(8), answers=2)
     assert [a[:2] for a in answers] == [b"\x00\x07", b"\x00\x08"]
-    assert answers[0][7:] == b"\x03\x04\x00\x01\x00\x00"              # map_version 1, heartbeat 0
+    assert answers[0][7:] == b"\x03\x04" + PLC_MAP.version.to_bytes(2, "big") + b"\x00\x00"  # map_version, heartbeat 0
 
 
 def test_mixed_valid_and_invalid_requests_in_one_segment_keep_order(link):
@@ -162,7 +162,7 @@ def test_request_split_across_segments_is_answered_once(link):
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         for i in range(len(frame)):
             s.sendall(frame[i:i + 1])
-        assert recv_adu(s) == mbap(11, b"\x03\x06\x00\x01\x00\x00\x00\x00")
+        assert recv_adu(s) == mbap(11, b"\x03\x06" + PLC_MAP.version.to_bytes(2, "big") + b"\x00" * 4)
 
 
 @pytest.mark.parametrize("garbage", [
@@ -176,19 +176,19 @@ def test_garbage_closes_that_connection_and_the_server_still_answers(link, garba
     with socket.create_connection(("127.0.0.1", link.port), timeout=5) as s:
         s.sendall(garbage)
         assert closed_by_server(s)
-    assert transact(link.port, fc3(2, 0, 1)) == [mbap(2, b"\x03\x02\x00\x01")]
+    assert transact(link.port, fc3(2, 0, 1)) == [mbap(2, b"\x03\x02" + PLC_MAP.version.to_bytes(2, "big"))]
 
 
 def test_truncated_frame_then_disconnect_does_not_disturb_the_next_client(link):
     with socket.create_connection(("127.0.0.1", link.port), timeout=5) as s:
         s.sendall(fc3(1)[:9])
-    assert transact(link.port, fc3(2, 0, 1)) == [mbap(2, b"\x03\x02\x00\x01")]
+    assert transact(link.port, fc3(2, 0, 1)) == [mbap(2, b"\x03\x02" + PLC_MAP.version.to_bytes(2, "big"))]
 
 
 def test_valid_frame_before_garbage_is_still_answered(link):
     with socket.create_connection(("127.0.0.1", link.port), timeout=5) as s:
         s.sendall(fc3(5, 0, 1) + b"\x00\x06\x00\x07\x00\x06\x01")
-        assert recv_adu(s) == mbap(5, b"\x03\x02\x00\x01")
+        assert recv_adu(s) == mbap(5, b"\x03\x02" + PLC_MAP.version.to_bytes(2, "big"))
         assert closed_by_server(s)
 
 
@@ -203,7 +203,7 @@ def test_random_frames_never_crash_the_server(link):
             assert answer[:2] == tid.to_bytes(2, "big")
             if answer[7] & 0x80:
                 assert answer[8] in (1, 2, 3), answer.hex(" ")
-    assert transact(link.port, fc3(1, 0, 1)) == [mbap(1, b"\x03\x02\x00\x01")]
+    assert transact(link.port, fc3(1, 0, 1)) == [mbap(1, b"\x03\x02" + PLC_MAP.version.to_bytes(2, "big"))]
     assert link.read("map_version") == PLC_MAP.version
 
 

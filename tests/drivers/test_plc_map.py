@@ -22,10 +22,12 @@ REQUIRED = {
     "part_id": ("u32", "RW"), "part_id_echo": ("u32", "RO"), "fault_code": ("u16", "RO"),
     "initial_error_um": ("u32", "RO"), "final_error_um": ("u32", "RO"), "moves": ("u32", "RO"),
     "cycle_time_ms": ("u32", "RO"), "cycle_count": ("u32", "RO"),
+    "calibration_select": ("u16", "RW"), "calibration_version": ("u16", "RO"),
+    "calibration_residual_um": ("u32", "RO"), "calibration_residual_udeg": ("u32", "RO"),
 }
 STATUS_BITS = ["ready", "busy", "done", "error", "auto", "homed", "recalibration_due",
                "aborted", "plc_link_ok", "execute_refused"]
-COMMAND_BITS = ["execute", "reset", "abort", "acknowledge"]
+COMMAND_BITS = ["execute", "reset", "abort", "acknowledge", "calibrate"]
 
 
 def test_map_has_the_required_registers_with_type_and_access():
@@ -116,8 +118,8 @@ def test_value_checks_name_register_and_range():
         PLC_MAP.check("recipe_select", 1000)
     with pytest.raises(PlcMapError, match="not an integer"):
         PLC_MAP.check("recipe_select", True)
-    with pytest.raises(PlcMapError, match="command_word: value 16 outside mask 0x000F"):
-        PLC_MAP.to_words("command_word", 16)
+    with pytest.raises(PlcMapError, match="command_word: value 32 outside mask 0x001F"):
+        PLC_MAP.to_words("command_word", 32)
     with pytest.raises(PlcMapError, match="part_id: value -1"):
         PLC_MAP.to_words("part_id", -1)
     with pytest.raises(PlcMapError, match="no bit named 'go'"):
@@ -140,7 +142,7 @@ def test_bits_round_trip():
     (25, [1], IllegalDataAddress, "part_id at 25"),
     (20, [5, 7], IllegalDataAddress, "recipe_ack at 21: register is read-only"),
     (20, [1000], IllegalDataValue, "recipe_select: value 1000 outside 0..999"),
-    (11, [0x10], IllegalDataValue, "command_word: value 16"),
+    (11, [0x20], IllegalDataValue, "command_word: value 32"),
 ])
 def test_plc_write_decoding_refuses_with_the_modbus_code(address, words, exc, message):
     with pytest.raises(exc, match=message) as info:
@@ -156,7 +158,7 @@ def test_plc_write_decoding_accepts_whole_writes():
     with pytest.raises(IllegalDataAddress, match="coil 160"):
         PLC_MAP.decode_plc_bit_write(160, [True], current)          # status_word is RO
     with pytest.raises(IllegalDataValue, match="undefined bit"):
-        PLC_MAP.decode_plc_bit_write(176, [True] * 5, current)      # bit 4 undefined
+        PLC_MAP.decode_plc_bit_write(176, [True] * 6, current)      # bit 5 undefined
 
 
 def _cli(argv: list[str]) -> argparse.Namespace:
