@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "cell.commands.run",
     "cell.commands.diagnose",
     "cell.commands.calibrate",
+    "cell.commands.robotcal",
     "cell.commands.logcheck",
 )
 

@@ -1,0 +1,220 @@
+"""``cellctl calibrate joint|kinematics``: calibrate the robot from its own hand camera.
+
+* ``calibrate joint J`` — seed 004 on joint J (j1, j2, j4; or 1, 2, 4): the target lies
+  under the hand camera at the all-zero pose; the joint sweeps the range over which the
+  target stays in view, forward and back, ``--runs`` times. Prints the per-step table
+  (errors per pass, their difference, single-step errors), the backlash, gear-ratio error
+  and cyclic error with 95 % intervals, and writes a PNG of error against angle.
+* ``calibrate kinematics`` — seed 001: the board of known points (``calibration.board``)
+  lies on the work plane; the robot visits ``--poses`` poses chosen for identifiability and
+  ``--holdout`` more for the check. Prints the held-out error before/after, the identified
+  parameters with 95 % intervals and what the measurement cannot tell apart; writes the
+  versioned calibration file (``calibration.file``, or ``--out``) only if the held-out
+  check passes (exit 2 otherwise, nothing written). The cell loads it at its next start
+  (a cell running under the PLC applies a PLC-started calibration at once).
+
+``--sim`` runs on the simulated cell (``--plant FILE``: a plant with effects the
+calibration is not told); without it, on the hardware of ``--config`` (stop the cell
+service first: the drives take one master).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from cell.errors import ConfigError
+
+DEFAULT_PNG = "var/calibration/{joint}-errors.png"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="calibrate the robot from its hand camera (seed 004 joint, "
+                                         "seed 001 kinematics)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND")
+    j = kinds.add_parser("joint", help="seed 004: one joint's backlash, gear-ratio and cyclic error")
+    j.add_argument("joint", help="j1, j2 or j4 (or 1, 2, 4)")
+    j.add_argument("--runs", type=int, help="runs to average (default: calibration.runs, 3)")
+    j.add_argument("--step-deg", type=float, help="step between images, deg (default: range / 10)")
+    j.add_argument("--range-deg", type=float, help="sweep at most ±this, deg (default: as far as the "
+                                                   "target stays in view)")
+    j.add_argument("--period-deg", type=float, default=360.0,
+                   help="period of the cyclic error, joint deg (default 360; a motor-side cycle of "
+                        "a ratio-N drive is 360/N)")
+    j.add_argument("--png", help=f"error plot to write (default {DEFAULT_PNG.format(joint='<joint>')})")
+    _common(j)
+    j.set_defaults(func=run_joint)
+    k = kinds.add_parser("kinematics", help="seed 001: DH parameters from poses over the board")
+    k.add_argument("--poses", type=int, help="poses for the fit (default: calibration.poses, 24)")
+    k.add_argument("--holdout", type=int, help="held-out poses for the check (default: calibration.holdout, 12)")
+    k.add_argument("--out", help="calibration file to write (default: calibration.file)")
+    k.add_argument("--dry-run", action="store_true", help="measure and report; write nothing")
+    _common(k)
+    k.set_defaults(func=run_kinematics)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sim", action="store_true", help="the simulated cell")
+    p.add_argument("--plant", help="with --sim: plant file (default: the config's, deploy/plants/default.yaml)")
+    p.add_argument("--config", help="cell config (required without --sim)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def _config(args):
+    from cell.commands.run import load_config
+    if not args.sim and not args.config:
+        raise ConfigError("calibrate: --config is required without --sim")
+    if args.plant and not args.sim:
+        raise ConfigError("calibrate: --plant needs --sim")
+    cfg = load_config(args.config, args.sim)
+    if args.plant:
+        if not Path(args.plant).is_file():
+            raise ConfigError(f"{args.plant}: plant file not found")
+        cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"plant": args.plant})})
+    return cfg
+
+
+def _session(args, body):
+    """Bring the devices up, run ``body(calibrator)`` on their clock, take them down."""
+    from cell.calibration.service import CellCalibrator
+    from cell.devices import open_devices
+    cfg = _config(args)
+    if getattr(args, "out", None):
+        cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"file": args.out})})
+    devices = open_devices(cfg, "sim" if args.sim else "hardware")
+    try:
+        with devices.clock.attach("calibrate"):
+            try:
+                devices.start()
+                return body(CellCalibrator(cfg, devices, devices.robot))
+            finally:
+                devices.stop()
+    finally:
+        close = getattr(devices.clock, "close", None)
+        if close is not None:
+            close()
+
+
+def _progress(what: str):
+    """Progress on stderr: every 10 % (a person waiting sees the run advance)."""
+    last = [-1]
+
+    def show(done: int, total: int) -> None:
+        tenth = done * 10 // max(total, 1)
+        if tenth != last[0]:
+            last[0] = tenth
+            print(f"  {what} {done}/{total}", file=sys.stderr, flush=True)
+    return show
+
+
+def _joint_name(text: str) -> str:
+    name = text if text.startswith("j") else f"j{text}"
+    if name not in ("j1", "j2", "j3", "j4"):
+        raise ConfigError(f"calibrate joint: {text!r} is not a joint (j1, j2, j4)")
+    return name
+
+
+# ---------------------------------------------------------------------- joint
+def run_joint(args: argparse.Namespace) -> int:
+    from cell.calibration.joint import plot
+    joint = _joint_name(args.joint)
+    if args.runs is not None and args.runs < 1:
+        raise ConfigError(f"--runs {args.runs} must be ≥ 1")
+    plan, result = _session(args, lambda cal: cal.joint(
+        joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
+        period_deg=args.period_deg, progress=_progress("image")))
+    png = Path(args.png or DEFAULT_PNG.format(joint=joint))
+    png.parent.mkdir(parents=True, exist_ok=True)
+    plot(result, png)
+    if args.json:
+        print(json.dumps({"plan": plan.as_dict(), "result": result.as_dict(), "png": str(png)}, indent=2))
+        return 0
+    _print_joint(plan, result, png)
+    return 0
+
+
+def _print_joint(plan, result, png: Path) -> None:
+    print(f"{plan.joint}: {result.n_runs} run(s) × {len(plan.nominal_deg)} angles, step {plan.step_deg:g}°, "
+          f"range {plan.nominal_deg[-1]:+g}° .. {plan.nominal_deg[0]:+g}° ({plan.reason})")
+    print(f"circle: centre ({result.circle.center[0]:.3f}, {result.circle.center[1]:.3f}) mm, radius "
+          f"{result.circle.radius:.3f} mm, fit rms {result.circle.rms * 1000:.1f} µm")
+    print()
+    print(f"{'nominal °':>10} {'forward °':>10} {'return °':>10} {'fwd−ret °':>10} {'fwd step °':>11} "
+          f"{'ret step °':>11}")
+    for r in result.rows:
+        def f(v):
+            return f"{v:+.5f}" if v is not None and v == v else "-"
+        print(f"{r.nominal_deg:>+10.4f} {f(r.forward_deg):>10} {f(r.return_deg):>10} "
+              f"{f(r.difference_deg):>10} {f(r.forward_step_deg):>11} {f(r.return_step_deg):>11}")
+    print()
+
+    def est(name, e, k=1.0, unit=""):
+        print(f"{name:<22} {e.value * k:+.5g} {unit}   95 % [{e.low * k:+.5g}, {e.high * k:+.5g}]")
+    est("backlash", result.backlash_deg, 3600, "arcsec")
+    est("gear-ratio error", result.gear_ratio_error, 1e6, "ppm")
+    est("offset at the zero image", result.offset_deg, 3600, "arcsec")
+    for h in result.harmonics:
+        est(f"cyclic k={h.k} (P {h.period_deg:g}°)", h.amplitude, 3600, "arcsec amplitude")
+    for t in result.harmonic_tests:
+        if t.status != "accepted":
+            print(f"  cyclic k={t.k}: {t.status}: {t.reason}")
+    rep = f"{result.repeatability_deg * 3600:.3g} arcsec" if result.repeatability_deg is not None else "n/a"
+    print(f"model residual rms {result.residual_rms_deg * 3600:.3g} arcsec; run-to-run repeatability {rep}")
+    print(f"plot: {png}")
+
+
+# ---------------------------------------------------------------------- kinematics
+def run_kinematics(args: argparse.Namespace) -> int:
+    from cell.calibration import calfile
+    from cell.kinematics import Scara
+
+    nominal: list[Scara] = []
+
+    def body(cal):
+        nominal.append(cal.nominal)
+        return cal.kinematics(poses=args.poses, holdout=args.holdout, write=not args.dry_run,
+                              progress=_progress("pose"))
+    out = _session(args, body)
+    report = {"parameters": out.parameters(nominal[0]), **out.report(),
+              "written": None if out.document is None else
+              {"path": str(args.out or _config(args).calibration.file), "version": out.document["version"],
+               "id": calfile.calibration_id(out.document)}}
+    from cell.calibration.service import _json_safe
+    if args.json:
+        print(json.dumps(_json_safe(report), indent=2, allow_nan=False))
+    else:
+        _print_kinematics(out, report)
+    if not out.holdout.passed:
+        print(f"cellctl calibrate kinematics: error: held-out check failed, nothing written: "
+              f"{out.holdout.reason}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _print_kinematics(out, report: dict) -> None:
+    h = out.holdout
+    ident = out.identification
+    print(f"held-out poses ({h.n_hold}): rms {h.rms_xy_before_mm:.4f} → {h.rms_xy_after_mm:.4f} mm, "
+          f"max {h.max_xy_before_mm:.4f} → {h.max_xy_after_mm:.4f} mm "
+          f"(before: nominal model with the board's place fitted)")
+    print(f"fit ({len(out.q_fit)} poses): rms {ident.rms_xy_mm:.4f} mm, rank {ident.report.rank}, "
+          f"condition {ident.condition_number:.3g}")
+    print()
+    print(f"{'parameter':<10} {'value':>10} {'95 % interval':>24} unit")
+    for name, p in report["parameters"].items():
+        print(f"{name:<10} {p['value']:>+10.4f} [{p['low']:>+10.4f}, {p['high']:>+10.4f}] {p['unit']}")
+    for f in ident.report.fixed:
+        if f["reason"] == "merged":
+            into = " + ".join(f"{c:+.3g}·{k}" for k, c in f["merged_into"].items())
+            print(f"  {f['param']}: appears only together with {into}; merged there")
+    unseen = ident.report.unobservable
+    if unseen:
+        print(f"  not observable from x, y over the board (fixed at nominal): {', '.join(unseen)}")
+    print()
+    print(f"check: {h.reason}: {'PASSED' if h.passed else 'FAILED'}")
+    w = report["written"]
+    if w:
+        print(f"written: {w['path']} (version {w['version']}, id {w['id']}); the cell uses it from its next start")
+    elif h.passed:
+        print("not written (--dry-run)")
