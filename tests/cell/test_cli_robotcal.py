@@ -1,0 +1,54 @@
+"""``cellctl calibrate joint|kinematics`` on the simulated cell: what the process engineer
+runs and reads. The plant is deploy/plants/default.yaml (truths named there)."""
+import json
+
+import pytest
+
+from cell.calibration import calfile
+from cell.cli import main
+from cell.kinematics import Scara
+
+
+def test_joint_calibration_prints_json_and_writes_the_plot(tmp_path, capsys):
+    png = tmp_path / "plots" / "j2.png"
+    assert main(["calibrate", "joint", "j2", "--sim", "--runs", "1", "--png", str(png), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["plan"]["joint"] == "j2" and out["plan"]["range_reason"].startswith("target in view")
+    b = out["result"]["backlash_deg"]
+    assert b["low"] <= 0.02 <= b["high"]                      # the plant's j2 backlash
+    assert len(out["result"]["table"]) == out["plan"]["positions"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_kinematic_calibration_writes_a_file_the_cell_accepts(tmp_path, capsys):
+    out = tmp_path / "robot.json"
+    assert main(["calibrate", "kinematics", "--sim", "--poses", "8", "--holdout", "4",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "held-out poses (4): rms" in text and "PASSED" in text and f"written: {out}" in text
+    assert "base.rz" in text and "not observable" in text
+    doc = calfile.load(out, Scara.preset("seed000"), "cell-1")
+    assert doc["version"] == 1 and doc["report"]["holdout"]["passed"]
+
+
+def test_dry_run_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "robot.json"
+    assert main(["calibrate", "kinematics", "--sim", "--poses", "8", "--holdout", "4", "--out",
+                 str(out), "--dry-run", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["written"] is None and report["holdout"]["passed"] and not out.exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["calibrate", "joint", "j3", "--sim"], "j3 is prismatic"),
+    (["calibrate", "joint", "j9", "--sim"], "'j9' is not a joint"),
+    (["calibrate", "joint", "j1"], "--config is required without --sim"),
+    (["calibrate", "joint", "j1", "--sim", "--plant", "nope.yaml"], "nope.yaml: plant file not found"),
+    (["calibrate", "joint", "j1", "--plant", "nope.yaml", "--config", "x"], "--plant needs --sim"),
+    (["calibrate", "joint", "j1", "--sim", "--step-deg", "5"], "choose a smaller --step-deg"),
+    (["calibrate", "kinematics", "--sim", "--poses", "2", "--holdout", "3"], "cannot select 2 of"),
+])
+def test_bad_requests_get_a_clear_error_and_exit_2(argv, message, capsys, tmp_path):
+    assert main([*argv[:2], *argv[2:]] + (["--png", str(tmp_path / "p.png")] if argv[1] == "joint" else [])) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "p.png").exists()
