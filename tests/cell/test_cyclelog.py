@@ -78,3 +78,20 @@ def test_the_last_cycles_are_read_without_reading_the_whole_log(tmp_path):
     assert [c.part_id for c in log.cycles(limit=2)] == [58, 59]
     assert len(statements) == 1 and "LIMIT" in statements[0]
     log.close()
+
+
+def test_a_schema_3_log_gains_the_calibration_column_and_keeps_its_rows(tmp_path):
+    path = tmp_path / "cell.sqlite"
+    log = CycleLog(path)
+    log.add_cycle(record(1))
+    log.close()
+    db = sqlite3.connect(path)                 # what a schema 3 controller left behind
+    db.execute("ALTER TABLE cycles DROP COLUMN calibration")
+    db.execute("UPDATE meta SET value = '3' WHERE key = 'schema_version'")
+    db.commit()
+    db.close()
+    log = CycleLog(path)
+    log.add_cycle(record(2, calibration="v4-0123abcd"))
+    assert [(r.part_id, r.calibration) for r in log.cycles()] == [(1, ""), (2, "v4-0123abcd")]
+    assert log._db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "4"
+    log.close()
