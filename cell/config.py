@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from cell.errors import CellError
 from cell.kinematics import PRESETS, Geometry, Scara
 from cell.yamlio import load_model
 from drivers.plc import PlcConfig
@@ -112,6 +113,19 @@ class CalibrationSection(_Section):
     anchors: int = Field(default=6, ge=0, le=9)   #: poses where the cell camera sees the tool (0: board only)
     min_gain: float = Field(default=0.1, ge=0, lt=1)
     radius_sigma_mm: float = Field(default=0.5, gt=0, le=50)   #: how well l1, l2 are known (seed 004's radius prior)
+
+    @model_validator(mode="after")
+    def _board(self) -> "CalibrationSection":
+        if self.board is not None:
+            from cell.vision.calibration import board_from_dict
+            if self.board.get("kind") != "circles":
+                raise ValueError(f"calibration.board must be a circle grid (kind: circles, not "
+                                 f"{self.board.get('kind')!r}): its points are what the hand camera measures")
+            try:
+                board_from_dict(dict(self.board))
+            except (CellError, TypeError, ValueError) as exc:
+                raise ValueError(f"calibration.board: {exc}") from None
+        return self
 
 
 class SimSection(_Section):

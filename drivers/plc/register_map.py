@@ -129,10 +129,10 @@ def _b(index: int, name: str, meaning: str) -> Bit:
 
 
 _STATUS_BITS = (
-    _b(0, "ready", "Controller accepts execute: auto, homed, no error, not busy, and execute "
-                   "written low by the PLC since the controller started or the link came back. "
-                   "Raise execute only while ready."),
-    _b(1, "busy", "Cycle running (PLCopen Busy). Set within one controller scan of the accepted "
+    _b(0, "ready", "Controller accepts execute (or calibrate): auto, homed, no error, not busy, "
+                   "and execute and calibrate written low by the PLC since the controller started "
+                   "or the link came back. Raise execute or calibrate only while ready."),
+    _b(1, "busy", "Cycle or calibration running (PLCopen Busy). Set within one controller scan of the accepted "
                   "execute rising edge; done/error/aborted are cleared at the same time."),
     _b(2, "done", "Cycle finished OK (PLCopen Done). Results and part_id_echo are valid before "
                   "this bit is set. Held until acknowledge."),
@@ -140,7 +140,9 @@ _STATUS_BITS = (
                    "stopped; held until a reset edge once the cause is gone."),
     _b(4, "auto", "Controller in automatic mode: PLC commands are obeyed."),
     _b(5, "homed", "All joints referenced."),
-    _b(6, "recalibration_due", "Accuracy drift says: recalibrate soon (cycles still run)."),
+    _b(6, "recalibration_due", "Accuracy drift says: recalibrate soon (cycles still run). The "
+                               "procedure: the kinematic calibration (board in place, "
+                               "calibration_select 0, calibrate; or cellctl calibrate kinematics)."),
     _b(7, "aborted", "Last cycle stopped by command abort (PLCopen CommandAborted). Held like done."),
     _b(8, "plc_link_ok", "Controller sees plc_heartbeat changing (its watchdog is satisfied)."),
     _b(9, "execute_refused", "The last execute rising edge was refused (not ready: busy, done or "
@@ -237,8 +239,8 @@ Cycle handshake (PLCopen Execute/Busy/Done/Error, as Epson remote I/O and UR's M
    done/aborted. An error is a latched fault: the joints are stopped and nothing moves
    until the PLC pulses reset and the cause is gone; then error and fault_code clear.
 6. Execute counts only as a rising edge the PLC writes while plc_heartbeat is alive, after
-   the PLC has WRITTEN execute low (with its heartbeat alive) since the controller started or
-   the link came back. A value merely sitting low in the registers does not arm; an execute
+   the PLC has WRITTEN execute low (and calibrate low; with its heartbeat alive) since the
+   controller started or the link came back. A value merely sitting low in the registers does not arm; an execute
    held high across a heartbeat gap, a reconnect or a controller restart - or rewritten high
    after it - starts nothing. After any of these, write command_word with execute = 0, wait
    for ready, then raise execute. A PLC that writes its outputs every scan does so anyway.
@@ -246,7 +248,17 @@ Cycle handshake (PLCopen Execute/Busy/Done/Error, as Epson remote I/O and UR's M
    reported once, at the next start: error with fault_code 503 and its part id in
    part_id_echo; its row in the cycle log says aborted, 503. Pulse reset to clear it (the
    part's state is unknown: check it before the next cycle). Nothing moves until then.
-8. Time-outs: every device wait has one and turns into a fault - a camera grab
+8. Calibration: with the fixture in place and the work area clear, the PLC writes
+   calibration_select (0 kinematics over the board, 1/2/4 joint j1/j2/j4), waits for ready
+   and raises calibrate. Busy, state_code 50 (calibrating), then done, error + fault_code
+   (601 refused, 602 a target not measured, 603 the fit or its held-out check failed -
+   nothing is written) or aborted, exactly as for a cycle; acknowledge or reset as for a
+   cycle. At done: calibration_residual_um (kinematics: held-out RMS after) or
+   calibration_residual_udeg (joint: model residual RMS); a kinematic calibration also
+   raises calibration_version, and the next cycle already runs with it. Abort, the
+   heartbeat watchdog and station faults stop a calibration like a cycle. A kinematic
+   calibration takes minutes (about 40 poses): keep the heartbeat going.
+9. Time-outs: every device wait has one and turns into a fault - a camera grab
    (vision.grab_timeout_s, 301), a move (cycle.move_timeout_s, 403), a drive's SDO answer
    (stations.sdo_timeout_s, re-sent up to stations.sdo_attempts times; at start-up the
    controller then refuses to start, naming the drive; in a reset the fault stays). An abort

@@ -21,6 +21,9 @@ def test_shipped_example_is_valid():
     ("  preset: seed000 ", "  preset: puma560 ", r":{parent}: robot: .*unknown robot preset 'puma560'"),
     ("  tool_radius_mm: 3.0", "  tool_radius_mm: 3.0\n  tool_colour: red", r":{line2}: vision.tool_colour: Extra"),
     ("format: cell-config/1", "format: cell-config/9", r":{line}: format"),
+    ("    kind: circles\n", "    kind: chessboard\n", r"calibration\.board must be a circle grid"),
+    ("    cols: 7\n", "    cols: 2\n", r"calibration\.board: .*cols = 2 must be an integer in \[3, 100\]"),
+    ("  poses: 24 ", "  poses: 2 ", r":{line}: calibration.poses"),
 ])
 def test_bad_config_is_located(tmp_path, old, new, words):
     text = EXAMPLE.read_text()
