@@ -52,6 +52,10 @@ class Cell:
         try:
             self.robot, caldoc = load_active(config, self.devices.robot)
         except BaseException:
+            self.devices.stop()
+            close = getattr(self.clock, "close", None)
+            if close is not None and self._own_clock:
+                close()
             self.cyclelog.close()
             raise
         self.calibrator = CellCalibrator(config, self.devices, self.devices.robot,

@@ -106,3 +106,16 @@ def test_compensation_predicts_with_the_calibrated_model():
     point = truth.move_and_measure(q)
     best, predicted = nearest_lattice(robot, q, point, target + [0.05, -0.03])
     assert abs(np.hypot(*(truth.move_and_measure(best) - target - [0.05, -0.03])) - predicted) < 1e-3
+
+
+def test_a_cell_refuses_to_start_on_a_corrupt_calibration_and_frees_its_log(tmp_path):
+    from cell.app import Cell
+    from cell.cyclelog import CycleLog
+    cfg = CellConfig(sim=SimSection())
+    bad = tmp_path / "robot.json"
+    calfile.write(bad, doc(cell="cell-2"))
+    cfg = cfg.model_copy(update={"log": cfg.log.model_copy(update={"path": str(tmp_path / "c.sqlite")}),
+                                 "calibration": cfg.calibration.model_copy(update={"file": str(bad)})})
+    with pytest.raises(CalibrationError, match="belongs to cell 'cell-2'"):
+        Cell(cfg, devices="sim", plc_port=0, jobs=False)
+    CycleLog(tmp_path / "c.sqlite").close()          # the writer's lock was released
