@@ -247,14 +247,9 @@ def board_candidates(robot: Scara, board: CircleGridBoard, *, z_mm: float = 0.0,
     for k, (x, y) in enumerate(board.points_mm()):
         for elbow in ("right", "left"):
             for phi in tool_phis_deg:
-                try:
-                    t1, t2 = robot.ik_planar(x, y, elbow=elbow)
-                    q = np.array([t1, t2, z_mm, (phi - t1 - t2 + 180.0) % 360.0 - 180.0])
-                    robot.check_limits(q)
-                    robot.check_limits(q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
-                except CellError:
-                    continue
-                out.append(Candidate(k, elbow, q))
+                q = _pose(robot, x, y, elbow, phi, z_mm)
+                if q is not None:
+                    out.append(Candidate(k, elbow, q))
     if not out:
         raise CalibrationError(f"board not found: none of its {board.cols * board.rows} points "
                                f"(origin {board.origin_mm} mm) is within the robot's reach and limits")
@@ -304,15 +299,10 @@ def anchor_candidates(robot: Scara, camera_cal: PlaneCalibration, n: int, *, z_m
         x, y = centre + half * np.array([i, j])
         phi = tool_phis_deg[k % len(tool_phis_deg)]
         for elbow in ("right", "left"):
-            try:
-                t1, t2 = robot.ik_planar(x, y, elbow=elbow)
-                q = np.array([t1, t2, z_mm, (phi - t1 - t2 + 180.0) % 360.0 - 180.0])
-                robot.check_limits(q)
-                robot.check_limits(q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
-            except CellError:
-                continue
-            out.append(Candidate(-1, elbow, q))
-            break
+            q = _pose(robot, x, y, elbow, phi, z_mm)
+            if q is not None:
+                out.append(Candidate(-1, elbow, q))
+                break
     if n > 0 and not out:
         raise CalibrationError(f"no pose puts the tool in the cell camera's view (centre "
                                f"({centre[0]:.1f}, {centre[1]:.1f}) mm) within the robot's reach and limits")
@@ -336,6 +326,19 @@ def measure_anchors(rig: HandRig, measuring_camera, poses: list[Candidate], prog
         if progress is not None:
             progress(n + 1, len(poses))
     return out
+
+
+def _pose(robot: Scara, x: float, y: float, elbow: str, phi: float, z_mm: float) -> np.ndarray | None:
+    """Joints that put the tool axis at (x, y) with orientation ``phi``, if they and the
+    approach from below lie within limits and away from the singularities; else None."""
+    try:
+        t1, t2 = robot.ik_planar(x, y, elbow=elbow)
+        q = np.array([t1, t2, z_mm, (phi - t1 - t2 + 180.0) % 360.0 - 180.0])
+        robot.check_limits(q)
+        robot.check_limits(q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
+    except CellError:
+        return None
+    return q
 
 
 def _q(q) -> str:

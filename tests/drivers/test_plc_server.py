@@ -91,7 +91,7 @@ def test_coil_write_sets_a_command_bit_with_previous_value(link, plc):
     assert (e1.name, e1.value, e1.previous) == ("command_word", 0b1000, 0)
     assert (e2.value, e2.previous) == (0b1001, 0b1000)
     assert link.read_bits("command_word") == {"execute": True, "reset": False, "abort": False,
-                                              "acknowledge": True}
+                                              "acknowledge": True, "calibrate": False}
 
 
 def test_read_write_multiple_fc23(link, plc):
@@ -129,10 +129,10 @@ BAD_WRITES = [
     ("part_id then RO echo", lambda c: c.write_registers(24, [1, 2, 3]), 2),
     ("recipe_select 1000", lambda c: c.write_register(20, 1000), 3),
     ("recipe_select 65535 FC16", lambda c: c.write_registers(20, [65535]), 3),
-    ("undefined command bit", lambda c: c.write_register(11, 0x0010), 3),
+    ("undefined command bit", lambda c: c.write_register(11, 0x0020), 3),
     ("status bit coil (RO)", lambda c: c.write_coil(16 * 10, True), 2),
     ("coil of a u16 register", lambda c: c.write_coil(16 * 20, True), 2),
-    ("coils incl. undefined bit", lambda c: c.write_coils(16 * 11, [True, False, False, False, True]), 3),
+    ("coils incl. undefined bit", lambda c: c.write_coils(16 * 11, [True, False, False, False, False, True]), 3),
     ("FC23 write RO", lambda c: c.readwrite_registers(read_address=0, read_count=1, write_address=21,
                                                       values=[1]), 2),
 ]
