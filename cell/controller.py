@@ -2,8 +2,11 @@
 PLC and carry out what the core asked for.
 
 One task ("cell-scan") runs :meth:`CellController.scan` every ``scan_s`` of the injected
-clock; a part's cycle runs in a second task ("cell-cycle", :class:`~cell.cycle.CycleRunner`)
-so the scan keeps serving the PLC, the heartbeat watchdog and abort while joints move. All
+clock; a part's cycle (:class:`~cell.cycle.CycleRunner`) or a calibration runs as a job of
+a second, long-lived task (the "cell-cycle" :class:`~cell.worker.Worker`), so the scan keeps
+serving the PLC, the heartbeat watchdog and abort while joints move. (Long-lived on
+purpose: OpenCV keeps about 0.9 kB of thread-local state for every thread that calls it,
+which a thread per cycle leaked, about 0.9 MB per 1000 cycles; bench/bench_soak.py.) All
 decisions are in :class:`~cell.controller_core.ControllerCore` (see its module doc for the
 handshake); this shell only moves data in and out:
 
@@ -58,13 +61,14 @@ class CellController:
         self.core = ControllerCore(settings)
         self.recalibration_due = False
         self.scans = 0
-        self._worker = None
+        self._job: Job | None = None              # the running cycle or calibration
         self._cancel: CancelToken | None = None
         self._recipes_in = RecipesIn()
         self._stop = self.clock.event()
         self._task = None
         self.log_worker = Worker(self.clock, "cell-log")        #: recipes and log updates
         self.drives_worker = Worker(self.clock, "cell-drives")  #: re-enabling drives
+        self.cycle_worker = Worker(self.clock, "cell-cycle")    #: cycles and calibrations
         self._refresh: Job | None = None
         self._plc_detached = False        # going down: what the scan writes no longer reaches the PLC
         self._resets: deque[tuple[str, Job]] = deque()      # in the order asked
@@ -111,6 +115,7 @@ class CellController:
         self._apply(out.actions)
         self.log_worker.start()
         self.drives_worker.start()
+        self.cycle_worker.start()
         self._task = self.clock.spawn(self._run, "cell-scan")
         log.info("controller_started", recipes=sorted(self.recipes.active))
 
@@ -126,9 +131,9 @@ class CellController:
         self._stop.set()
         if self._task is not None:
             self._task.join(timeout=5)
-        if self._worker is not None:
-            self._worker.join(timeout=10)
-        for w in (self.log_worker, self.drives_worker):
+        if self._job is not None:
+            self._job.finished.wait(10)
+        for w in (self.cycle_worker, self.log_worker, self.drives_worker):
             if not w.stop(timeout_s=10):
                 log.error("worker_did_not_stop", worker=w.name)
 
@@ -154,9 +159,9 @@ class CellController:
 
     def _read(self) -> ScanInputs:
         ended = None
-        if self._worker is not None and self._worker.finished:
+        if self._job is not None and self._job.done:
             ended = self._task_outcome()
-            self._worker = None
+            self._job = None
         reset = None
         if self._resets and self._resets[0][1].done:
             purpose, job = self._resets.popleft()
@@ -171,7 +176,7 @@ class CellController:
             command_word=self.plc.read("command_word"), part_id=self.plc.read("part_id"),
             calibration_select=self.plc.read("calibration_select"),
             station_fault=self._station_fault(),
-            cycle_step=self.runner.progress if self._worker is not None else None,
+            cycle_step=self.runner.progress if self._job is not None else None,
             cycle_ended=ended, drives_reset=reset, recipes=recipes,
             recalibration_due=self.recalibration_due)
 
@@ -219,7 +224,7 @@ class CellController:
         if active is None:                       # the core saw it active: cannot happen
             cancel.cancel(0, f"recipe {a.recipe_number} vanished")
         self._task_outcome = lambda: self.runner.outcome
-        self._worker = self.clock.spawn(self.runner.run_safely, "cell-cycle", active, a.part_id, cancel)
+        self._job = self.cycle_worker.submit(self.runner.run_safely, active, a.part_id, cancel)
         log.info("cycle_task_started", part_id=a.part_id, recipe=getattr(getattr(active, "recipe", None), "name", None))
 
     def _start_calibration(self, a: StartCalibration) -> None:
@@ -235,7 +240,7 @@ class CellController:
 
         self._task_outcome = lambda: box.get("out") or CycleOutcome("aborted", Fault.INTERNAL,
                                                                     "calibration task ended without an outcome")
-        self._worker = self.clock.spawn(run, "cell-calibration")
+        self._job = self.cycle_worker.submit(run)
         log.info("calibration_task_started", select=a.select)
 
     def _quick_stop(self, why: str) -> None:
