@@ -156,9 +156,14 @@ def _print_joint(plan, result, png: Path) -> None:
     est("offset at the zero image", result.offset_deg, 3600, "arcsec")
     for h in result.harmonics:
         est(f"cyclic k={h.k} (P {h.period_deg:g}°)", h.amplitude, 3600, "arcsec amplitude")
+    shut = [t for t in result.harmonic_tests if t.status == "not identifiable"]
     for t in result.harmonic_tests:
-        if t.status != "accepted":
+        if t.status not in ("accepted", "not identifiable"):
             print(f"  cyclic k={t.k}: {t.status}: {t.reason}")
+    if shut:
+        print(f"  cyclic k={', '.join(str(t.k) for t in shut)} (periods {shut[0].period_deg:g}°.."
+              f"{shut[-1].period_deg:g}°): not identifiable over this range ({shut[0].reason.split(': ')[-1]} "
+              "for the first)")
     rep = f"{result.repeatability_deg * 3600:.3g} arcsec" if result.repeatability_deg is not None else "n/a"
     print(f"model residual rms {result.residual_rms_deg * 3600:.3g} arcsec; run-to-run repeatability {rep}")
     print(f"plot: {png}")
@@ -201,9 +206,10 @@ def _print_kinematics(out, report: dict) -> None:
     print(f"fit ({len(out.q_fit)} poses): rms {ident.rms_xy_mm:.4f} mm, rank {ident.report.rank}, "
           f"condition {ident.condition_number:.3g}")
     print()
-    print(f"{'parameter':<10} {'value':>10} {'95 % interval':>24} unit")
+    print(f"{'parameter':<10} {'value':>10} {'std error':>10} {'95 % interval':>24} unit")
     for name, p in report["parameters"].items():
-        print(f"{name:<10} {p['value']:>+10.4f} [{p['low']:>+10.4f}, {p['high']:>+10.4f}] {p['unit']}")
+        print(f"{name:<10} {p['value']:>+10.4f} {p['se']:>10.4f} [{p['low']:>+10.4f}, {p['high']:>+10.4f}] "
+              f"{p['unit']}")
     for f in ident.report.fixed:
         if f["reason"] == "merged":
             into = " + ".join(f"{c:+.3g}·{k}" for k, c in f["merged_into"].items())
