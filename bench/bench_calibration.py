@@ -83,7 +83,7 @@ def plant(name: str) -> dict:
         for e in eff:
             if e["effect"] in ("joint_offset", "link_length"):
                 inst = EFFECTS[e["effect"]].draw(rng, ["j1", "j2"])
-                e["params"] = dict(zip(inst.names, map(float, inst.full_vector())))
+                e["params"] = {k: float(v) for k, v in inst.params.items()}
     elif name != "default":
         raise SystemExit(f"unknown plant {name!r}")
     p["effects"] = eff

@@ -130,7 +130,8 @@ def plan_joint(robot: Scara, joint: str, view_radius_mm: float, *, runs: int = 3
 
     The hand camera turns about the joint's axis at distance R (j1: l1 + l2, j2: l2, j4: 0),
     so a target laid under it at zero moves 2R·sin(θ/2) across the image: it stays whole in
-    view while that is below ``view_radius_mm``. The range is that, cut to the joint limits
+    view while that is below ``view_radius_mm`` (the caller takes off how far from the image
+    centre the target lies at zero). The range is that, cut to the joint limits
     less one step of pre-travel, and to ``range_deg`` if given. For j4 the target lies
     ``j4_target_radius_mm`` off the axis and stays in view at every angle. The step is
     ``step_deg`` (rounded to whole command units) or the range / 10.

@@ -153,7 +153,13 @@ class CellCalibrator:
         Raises CalibrationError (bad joint, target lost, too few points, ...)."""
         self.devices.place_fixture("joint", joint)
         rig = self.rig(cancel)
-        plan = plan_joint(self.nominal, joint, rig.view_radius_mm,
+        # where the target lies at the all-zero pose: the range must keep it whole from there
+        # (a person lays it only roughly under the camera, and the joints' zeros are off)
+        home = np.array([0.0, 0.0, self.config.calibration.z_mm, 0.0])
+        rig.move(home - np.array([1.0, 1.0, 0.0, 1.0]) * 0.5)
+        rig.move(home)
+        h0 = rig.target("locating the target at the all-zero pose")
+        plan = plan_joint(self.nominal, joint, rig.view_radius_mm - float(np.hypot(*h0)),
                           runs=self.config.calibration.runs if runs is None else runs,
                           step_deg=step_deg, range_deg=range_deg)
         log.info("joint_calibration_started", joint=joint, step_deg=plan.step_deg,
