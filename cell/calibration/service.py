@@ -21,15 +21,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cell.calibration import calfile
-from cell.calibration.dh import scara_chain
-from cell.calibration.joint import JointResult, analyse
-from cell.calibration.kinematic import HoldoutCheck, Identification, holdout_check, identify, select_poses
-from cell.calibration.procedure import (HandRig, JointPlan, anchor_candidates, board_candidates,
-                                        measure_anchors, measure_board, plan_joint, sweep_joint)
 from cell.config import CellConfig
 from cell.cycle import CycleCancelled, CycleOutcome
 from cell.errors import CalibrationError, CellError
@@ -37,6 +33,11 @@ from cell.faults import Fault
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.log import get_logger
 from cell.vision.calibration import CircleGridBoard, board_from_dict
+
+if TYPE_CHECKING:       # the numerics (scipy) load when a calibration runs, not with the cell
+    from cell.calibration.joint import JointResult
+    from cell.calibration.kinematic import HoldoutCheck, Identification
+    from cell.calibration.procedure import HandRig, JointPlan
 
 log = get_logger("calibration")
 
@@ -99,6 +100,7 @@ class KinematicOutcome:
     document: dict | None = None
 
     def parameters(self, nominal: Scara) -> dict:
+        from cell.calibration.dh import scara_chain
         ident, chain = self.identification, scara_chain(nominal.g)
         return {n: {"value": float(v), "se": float(se), "low": float(lo), "high": float(hi),
                     "unit": chain.unit(n)}
@@ -137,6 +139,7 @@ class CellCalibrator:
 
     # ------------------------------------------------------------------ pieces
     def rig(self, cancel=None) -> HandRig:
+        from cell.calibration.procedure import HandRig
         cam = self.devices.hand_camera
         if cam is None:
             raise CalibrationError("no hand camera: set calibration.hand_camera in the cell config")
@@ -151,6 +154,8 @@ class CellCalibrator:
               progress=None) -> tuple[JointPlan, JointResult]:
         """Seed 004 on ``joint`` (j1, j2, j4): the plan (range kept in view) and the result.
         Raises CalibrationError (bad joint, target lost, too few points, ...)."""
+        from cell.calibration.joint import analyse
+        from cell.calibration.procedure import plan_joint, sweep_joint
         self.devices.place_fixture("joint", joint)
         rig = self.rig(cancel)
         # where the target lies at the all-zero pose: the range must keep it whole from there
@@ -179,6 +184,10 @@ class CellCalibrator:
         the held-out check passes (see the module doc). Raises CalibrationError (board not
         found, a point not seen, singular design, ...); a failed held-out check is returned
         (``holdout.passed`` False, ``document`` None), not raised."""
+        from cell.calibration.dh import scara_chain
+        from cell.calibration.kinematic import holdout_check, identify, select_poses
+        from cell.calibration.procedure import (anchor_candidates, board_candidates, measure_anchors,
+                                                measure_board)
         c = self.config.calibration
         n_fit = c.poses if poses is None else poses
         n_hold = c.holdout if holdout is None else holdout

@@ -119,3 +119,12 @@ def test_a_cell_refuses_to_start_on_a_corrupt_calibration_and_frees_its_log(tmp_
     with pytest.raises(CalibrationError, match="belongs to cell 'cell-2'"):
         Cell(cfg, devices="sim", plc_port=0, jobs=False)
     CycleLog(tmp_path / "c.sqlite").close()          # the writer's lock was released
+
+
+def test_the_cell_loads_the_calibration_numerics_only_when_a_calibration_runs():
+    import subprocess
+    import sys
+    code = ("import sys, cell.app; heavy = [m for m in ('scipy.stats', 'cell.calibration.joint', "
+            "'cell.calibration.kinematic', 'matplotlib') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
