@@ -60,7 +60,7 @@ class Cell:
             raise
         self.calibrator = CellCalibrator(config, self.devices, self.devices.robot,
                                          version=int(caldoc["version"]) if caldoc else 0,
-                                         on_applied=self._use_calibration)
+                                         on_applied=self._use_calibration, robot=self.robot)
         self.runner: CycleRunner | None = None
         self.plc = open_link(config.plc.backend, clock=self.clock)
         self.plc_port = config.plc.port if plc_port is None else plc_port

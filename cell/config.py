@@ -112,7 +112,7 @@ class CalibrationSection(_Section):
     holdout: int = Field(default=12, ge=3, le=500)
     anchors: int = Field(default=6, ge=0, le=9)   #: poses where the cell camera sees the tool (0: board only)
     min_gain: float = Field(default=0.1, ge=0, lt=1)
-    radius_sigma_mm: float = Field(default=0.5, gt=0, le=50)   #: how well l1, l2 are known (seed 004's radius prior)
+    radius_sigma_mm: float = Field(default=2.0, gt=0, le=50)   #: how well l1 + l2 are known (seed 004's radius prior)
 
     @model_validator(mode="after")
     def _board(self) -> "CalibrationSection":

@@ -69,14 +69,22 @@ def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]
     return calfile.calibrated_robot(nominal, doc), doc
 
 
-def radius_prior(nominal: Scara, joint: str, zero_centres, sigma_mm: float):
-    """(r0, sigma) mm: how far the target lies from ``joint``'s axis, from the nominal
-    geometry and where the zero images saw it. At the all-zero pose the hand frame is the
-    base frame moved to the tool axis (l1 + l2, 0), so the j1 axis lies at (−l1 − l2, 0) in
-    it and the j2 axis at (−l2, 0); r0 = |zero centre − axis|. ``sigma_mm`` is how well the
-    links (and the camera's place on the tool axis) are known. None for j4: its target
-    circles the camera axis whole, the points fix the radius themselves."""
-    g = nominal.g
+CALIBRATED_RADIUS_SIGMA_MM = 0.2   #: links of a kinematic calibration (held-out rms ~0.015 mm)
+
+
+def radius_prior(robot: Scara, joint: str, zero_centres, sigma_mm: float):
+    """(r0, sigma) mm: how far the target lies from ``joint``'s axis, from the robot's links
+    and where the zero images saw it. At the all-zero pose the hand frame is the base frame
+    moved to the tool axis (l1 + l2, 0), so the j1 axis lies at (−l1 − l2, 0) in it and the
+    j2 axis at (−l2, 0); r0 = |zero centre − axis|. The links are the calibrated ones if
+    ``robot`` carries a kinematic calibration (sigma :data:`CALIBRATED_RADIUS_SIGMA_MM`),
+    else the nominal ones (``sigma_mm``: how well they and the camera's place on the tool
+    axis are known). None for j4: its target circles the camera axis whole, the points fix
+    the radius themselves."""
+    true = getattr(robot, "_true", None)
+    g = (true or robot).g
+    if true is not None:
+        sigma_mm = CALIBRATED_RADIUS_SIGMA_MM
     axis = {"j1": (-(g.l1_mm + g.l2_mm), 0.0), "j2": (-g.l2_mm, 0.0)}.get(joint)
     zc = np.asarray(zero_centres, dtype=float)
     if axis is None or not np.all(np.isfinite(zc)):
@@ -128,8 +136,11 @@ class CellCalibrator:
     put it to use; ``version``: the version of the calibration in use (0: nominal)."""
 
     def __init__(self, config: CellConfig, devices, nominal: Scara, *, version: int = 0,
-                 on_applied=None, path: str | None = None, measuring_camera=None):
+                 on_applied=None, path: str | None = None, measuring_camera=None,
+                 robot: Scara | None = None):
         self.config, self.devices, self.nominal = config, devices, nominal
+        #: the model the cell runs with (calibrated or nominal): seed 004's radius prior
+        self.robot = robot or nominal
         #: the cell's fixed camera (``tool()``, ``calibration``) for anchor poses; made on first use
         self.measuring_camera = measuring_camera
         self.version = version
@@ -171,7 +182,7 @@ class CellCalibrator:
                  positions=len(plan.nominal_deg), runs=plan.runs)
         sweep = sweep_joint(rig, plan, progress)
         result = analyse(sweep, sense=-1, period_deg=period_deg,
-                         radius_prior=radius_prior(self.nominal, joint, sweep.zero,
+                         radius_prior=radius_prior(self.robot, joint, sweep.zero,
                                                    self.config.calibration.radius_sigma_mm))
         self.last = result
         log.info("joint_calibration_done", joint=joint, backlash_deg=result.backlash_deg.value,
@@ -256,8 +267,9 @@ class CellCalibrator:
         self.version = int(doc["version"])
         log.info("robot_calibration_written", path=str(self.path), version=self.version,
                  id=calfile.calibration_id(doc))
+        self.robot = calfile.calibrated_robot(self.nominal, doc)
         if self.on_applied is not None:
-            self.on_applied(calfile.calibrated_robot(self.nominal, doc), doc)
+            self.on_applied(self.robot, doc)
 
     # ------------------------------------------------------------------ the PLC's entry
     def run_safely(self, select: int, cancel) -> CycleOutcome:

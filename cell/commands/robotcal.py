@@ -77,7 +77,7 @@ def _config(args):
 
 def _session(args, body):
     """Bring the devices up, run ``body(calibrator)`` on their clock, take them down."""
-    from cell.calibration.service import CellCalibrator
+    from cell.calibration.service import CellCalibrator, load_active
     from cell.devices import open_devices
     cfg = _config(args)
     if getattr(args, "out", None):
@@ -86,8 +86,10 @@ def _session(args, body):
     try:
         with devices.clock.attach("calibrate"):
             try:
+                robot, caldoc = load_active(cfg, devices.robot)   # a bad calibration file refuses here
                 devices.start()
-                return body(CellCalibrator(cfg, devices, devices.robot))
+                return body(CellCalibrator(cfg, devices, devices.robot, robot=robot,
+                                           version=int(caldoc["version"]) if caldoc else 0))
             finally:
                 devices.stop()
     finally:
