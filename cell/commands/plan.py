@@ -20,8 +20,7 @@ import numpy as np
 from cell.commands import float_list
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, PRESETS, Scara
-from cell.trajectory.line import (joint_delays, max_line_deviation, plan_line, simulate_line)
-from cell.trajectory.timelaw import LAWS, TIMINGS, plan_timelaw
+from cell.trajectory.names import LAWS, TIMINGS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -72,6 +71,7 @@ def _station_order(text: str) -> tuple[str, ...]:
 
 
 def run_line(args: argparse.Namespace) -> int:
+    from cell.trajectory.line import joint_delays, max_line_deviation, plan_line, simulate_line
     robot = Scara.preset(args.robot)
     order = _station_order(args.stations)
     T = args.segment_ms / 1e3
@@ -161,6 +161,7 @@ def _plot(path: str, trajs, samples: int) -> None:
 
 
 def run_timelaw(args: argparse.Namespace) -> int:
+    from cell.trajectory.timelaw import plan_timelaw
     q = parse_waypoints(args.waypoints)
     if args.samples < 2:
         raise TrajectoryError(f"--samples {args.samples} must be at least 2")

@@ -39,12 +39,10 @@ import numpy as np
 from scipy.interpolate import BPoly, BSpline, PPoly, make_interp_spline
 
 from cell.errors import TrajectoryError
+from cell.trajectory.names import LAWS, TIMINGS
 
 __all__ = ["LAWS", "TIMINGS", "JointTrajectory", "Peaks", "knot_times", "plan_timelaw",
            "continuity_jumps"]
-
-LAWS = ("quintic-poly", "quintic-bspline", "septic-bspline")
-TIMINGS = ("uniform", "chord")
 
 
 def _waypoints(value) -> np.ndarray:

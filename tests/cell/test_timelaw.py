@@ -186,3 +186,14 @@ def test_cli_timelaw_bad_input_exits_2(capsys, argv, words):
 def test_cli_timelaw_unwritable_plot_exits_2(capsys, tmp_path):
     assert cli.main(TL + ["--plot", str(tmp_path / "missing" / "x.png")]) == 2
     assert "--plot" in capsys.readouterr().err
+
+
+def test_cellctl_parser_does_not_import_scipy():
+    """Issue 11: every cellctl call paid ~0.8 s CPU for scipy, imported only to list the
+    time laws as choices."""
+    import subprocess
+    import sys
+    code = ("import sys, cell.cli; cell.cli.build_parser(); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'cv2', 'matplotlib')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
