@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -106,26 +107,39 @@ def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: 
 def write(path, doc: dict) -> dict:
     """Write ``doc`` as the active calibration at ``path`` with the next version number;
     the file it replaces is kept as ``<stem>.v<N>.json``. Atomic (temporary file + rename)
-    and the folder is created. Returns the document as written (version, sha256)."""
+    and the folder is created. Returns the document as written (version, sha256).
+    Raises CalibrationError naming the file when it cannot be written (the active file is
+    then the one that was there)."""
     path = Path(path)
+    try:
+        return _write(path, doc)
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot write the robot calibration: {exc}") from None
+
+
+def _write(path: Path, doc: dict) -> dict:
     path.parent.mkdir(parents=True, exist_ok=True)
-    version = 1
-    if path.exists():
-        try:
-            old = json.loads(path.read_text(encoding="utf-8"))
-            version = int(old.get("version", 0)) + 1
-            os.replace(path, path.with_name(f"{path.stem}.v{int(old.get('version', 0))}.json"))
-        except (ValueError, TypeError, AttributeError, OSError):
-            bad = path.with_name(f"{path.stem}.unreadable.json")
-            os.replace(path, bad)
+    version, keep_as = 1, None
+    if path.exists():              # the one it replaces is kept beside it (a copy: the active
+        try:                       # file stays in place until the new one is complete)
+            old = int(json.loads(path.read_text(encoding="utf-8")).get("version", 0))
+            version, keep_as = old + 1, path.with_name(f"{path.stem}.v{old}.json")
+        except (ValueError, TypeError, AttributeError, UnicodeDecodeError):
+            keep_as = path.with_name(f"{path.stem}.unreadable.json")
     doc = {**doc, "version": version}
     doc["sha256"] = _digest(doc)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(doc, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
+            f.flush()
+            os.fsync(f.fileno())
+        if keep_as is not None:
+            shutil.copy2(path, keep_as)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
     return doc
 
 

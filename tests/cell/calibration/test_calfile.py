@@ -128,3 +128,17 @@ def test_the_cell_loads_the_calibration_numerics_only_when_a_calibration_runs():
             "'cell.calibration.kinematic', 'matplotlib') if m in sys.modules]; print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_an_unwritable_place_is_a_clear_error(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(CalibrationError, match="afile/robot.json: cannot write the robot calibration"):
+        calfile.write(tmp_path / "afile" / "robot.json", doc())
+
+
+def test_an_unreadable_active_file_is_kept_aside_and_replaced(tmp_path):
+    path = tmp_path / "robot.json"
+    path.write_bytes(b"\xff\xfe not json")
+    assert calfile.write(path, doc())["version"] == 1
+    assert (tmp_path / "robot.unreadable.json").read_bytes() == b"\xff\xfe not json"
+    assert calfile.load(path, SEED000, "cell-1")["version"] == 1
