@@ -14,8 +14,9 @@ handshake); this shell only moves data in and out:
   fault, the running cycle's step or its outcome, the results of last scan's drive reset
   and recipe refresh;
 * out: status bits and registers; actions — start a cycle (with an atomic snapshot of
-  the recipe) or a calibration (``calibrator``, in the same task slot), cancel it (the cycle is *given* the reason), quick-stop every joint, reset
-  the drives, re-read the recipes (auditing every change), record what the PLC was told.
+  the recipe) or a calibration (``calibrator``, in the same task slot), cancel it (the
+  cycle is *given* the reason), quick-stop every joint, reset the drives, re-read the
+  recipes (auditing every change), record what the PLC was told.
 
 Nothing slow runs on the scan task. Re-reading recipes and log updates go to the
 ``cell-log`` worker, re-enabling drives to the ``cell-drives`` worker

@@ -162,8 +162,8 @@ class ClearInterrupted:
     """The PLC has reset the fault that reported a cycle interrupted by a restart."""
 
 
-Action = Union[StartCycle, StartCalibration, CancelCycle, QuickStop, ResetDrives, RefreshRecipes, SettleCycle,
-               ClearInterrupted]
+Action = Union[StartCycle, StartCalibration, CancelCycle, QuickStop, ResetDrives, RefreshRecipes,
+               SettleCycle, ClearInterrupted]
 
 
 @dataclass
