@@ -18,7 +18,6 @@ A cancel (abort, heartbeat, station fault) ends a procedure at its next move.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING
@@ -30,6 +29,7 @@ from cell.config import CellConfig
 from cell.cycle import CycleCancelled, CycleOutcome
 from cell.errors import CalibrationError, CellError
 from cell.faults import Fault
+from cell.jsonsafe import json_safe
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.log import get_logger
 from cell.vision.calibration import CircleGridBoard, board_from_dict
@@ -260,7 +260,7 @@ class CellCalibrator:
                 "holdout": [{"q": q.tolist(), "measured_mm": m.tolist(), "point": k}
                             for q, m, k in zip(out.q_hold, out.m_hold, out.points_hold)]}
         doc = calfile.new_document(self.nominal, self.config.name, out.parameters(self.nominal),
-                                   _json_safe(out.report()), data,
+                                   json_safe(out.report()), data,
                                    datetime.now(timezone.utc).isoformat(timespec="seconds"))
         doc = calfile.write(self.path, doc)
         out.document = doc
@@ -306,16 +306,3 @@ class CellCalibrator:
         except Exception as exc:                       # noqa: BLE001 -- the PLC must hear of it
             log.exception("calibration_failed", error=repr(exc))
             return CycleOutcome("fault", Fault.INTERNAL, f"calibration failed: {exc!r}")
-
-
-def _json_safe(v):
-    """Plain JSON: NaN/inf → None, numpy scalars → Python."""
-    if isinstance(v, dict):
-        return {k: _json_safe(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_json_safe(x) for x in v]
-    if isinstance(v, (float, np.floating)):
-        return float(v) if math.isfinite(v) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    return v

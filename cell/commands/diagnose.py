@@ -25,6 +25,7 @@ from pathlib import Path
 
 from cell.commands import float_list
 from cell.errors import ConfigError
+from cell.jsonsafe import json_safe
 from cell.measurements import Campaign, CampaignFormatError, read_campaign
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -75,23 +76,10 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"HTML report written to {index}")
     if args.json:
-        print(json.dumps(clean(dg.report), indent=2, allow_nan=False))
+        print(json.dumps(json_safe(dg.report), indent=2, allow_nan=False))
     else:
         print(render_text(dg.report))
     return 0
-
-
-def clean(obj):
-    """JSON-safe copy: non-finite floats become null, tuples lists."""
-    if isinstance(obj, dict):
-        return {k: clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [clean(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
-        return clean(obj.item())
-    return obj
 
 
 # ------------------------------------------------------------------ input
@@ -157,7 +145,7 @@ def run_validate(args: argparse.Namespace) -> int:
     title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
              f"6 moves each")
     if args.json:
-        print(json.dumps(clean(validate.summarise(ts)), indent=2, allow_nan=False))
+        print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
     else:
         print(validate.markdown(ts, title))
     sys.stdout.flush()

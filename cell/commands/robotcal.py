@@ -187,9 +187,9 @@ def run_kinematics(args: argparse.Namespace) -> int:
               "written": None if out.document is None else
               {"path": str(args.out or _config(args).calibration.file), "version": out.document["version"],
                "id": calfile.calibration_id(out.document)}}
-    from cell.calibration.service import _json_safe
+    from cell.jsonsafe import json_safe
     if args.json:
-        print(json.dumps(_json_safe(report), indent=2, allow_nan=False))
+        print(json.dumps(json_safe(report), indent=2, allow_nan=False))
     else:
         _print_kinematics(out, report)
     if not out.holdout.passed:
