@@ -30,4 +30,17 @@ class LogError(CellError):
 class CalibrationError(CellError, ValueError):
     """A robot calibration that cannot be done or trusted (target lost, too few points, a
     singular design, a failed held-out check, a calibration file that is corrupt or belongs
-    to another robot); the message names the cause and where. Nothing is written then."""
+    to another robot); the message names the cause and where. Nothing is written then.
+
+    ``fault`` says which kind of failure it is (the PLC's fault code follows from it,
+    :mod:`cell.faults` 601–603): ``refused`` (the cell cannot run it: no hand camera, a field
+    too small), ``measurement`` (an image failed: target lost, cut or doubled, camera
+    failed) or ``fit`` (everything else: too few points, a singular design, ...)."""
+
+    FAULTS = ("refused", "measurement", "fit")
+
+    def __init__(self, message: str, fault: str = "fit"):
+        if fault not in self.FAULTS:
+            raise ValueError(f"CalibrationError fault {fault!r}; use one of {self.FAULTS}")
+        super().__init__(message)
+        self.fault = fault

@@ -93,13 +93,14 @@ class HandRig:
         try:
             image = self.camera.grab().image
         except Exception as exc:                          # any driver failure
-            raise CalibrationError(f"{where}: hand camera gave no frame: {exc}") from exc
+            raise CalibrationError(f"{where}: hand camera gave no frame: {exc}", "measurement") from exc
         self.images += 1
         r_px = self.target_radius_mm / self.cal.mm_per_px(self.cal.width / 2, self.cal.height / 2)
         try:
             fix = locate(image, self.cal, expected=1, min_radius_px=0.7 * r_px, max_radius_px=1.3 * r_px)[0]
         except VisionError as exc:
-            raise CalibrationError(f"{where}: target not measured ({exc.kind}): {exc}") from exc
+            raise CalibrationError(f"{where}: target not measured ({exc.kind}): {exc}",
+                                   "measurement") from exc
         return np.array([fix.x_mm, fix.y_mm])
 
 
@@ -151,7 +152,7 @@ def plan_joint(robot: Scara, joint: str, view_radius_mm: float, *, runs: int = 3
     if radius > 0:
         if view_radius_mm <= 0:
             raise CalibrationError(f"the hand camera's field ({view_radius_mm + VIEW_MARGIN_MM:.1f} mm "
-                                   "less the target) is too small to keep the target in view")
+                                   "less the target) is too small to keep the target in view", "refused")
         view = math.degrees(2.0 * math.asin(min(1.0, view_radius_mm / (2.0 * radius))))
         reason = (f"target in view while 2R·sin(θ/2) < {view_radius_mm:.1f} mm, R = {radius:.1f} mm "
                   f"from the {joint} axis")
@@ -323,7 +324,8 @@ def measure_anchors(rig: HandRig, measuring_camera, poses: list[Candidate], prog
             out[n] = measuring_camera.tool()
         except (CellError, CellFault) as exc:
             raise CalibrationError(f"anchor pose {n + 1} of {len(poses)} (joints {_q(c.q)}): target not "
-                                   f"measured: the cell camera did not measure the tool: {exc}") from exc
+                                   f"measured: the cell camera did not measure the tool: {exc}",
+                                   "measurement") from exc
         if progress is not None:
             progress(n + 1, len(poses))
     return out

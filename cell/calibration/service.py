@@ -69,6 +69,10 @@ def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]
     return calfile.calibrated_robot(nominal, doc), doc
 
 
+#: the PLC's fault code for each kind of :class:`~cell.errors.CalibrationError`
+CALIBRATION_FAULTS = {"refused": Fault.CALIBRATION_REFUSED, "measurement": Fault.CALIBRATION_MEASUREMENT,
+                      "fit": Fault.CALIBRATION_FIT}
+
 CALIBRATED_RADIUS_SIGMA_MM = 0.2   #: links of a kinematic calibration (held-out rms ~0.015 mm)
 
 
@@ -153,7 +157,8 @@ class CellCalibrator:
         from cell.calibration.procedure import HandRig
         cam = self.devices.hand_camera
         if cam is None:
-            raise CalibrationError("no hand camera: set calibration.hand_camera in the cell config")
+            raise CalibrationError("no hand camera: set calibration.hand_camera in the cell config",
+                                   "refused")
         c = self.config
         return HandRig(self.nominal, self.devices.motion, cam, self.devices.hand_calibration(),
                        target_radius_mm=c.calibration.target_radius_mm, z_mm=c.calibration.z_mm,
@@ -295,12 +300,9 @@ class CellCalibrator:
         except CycleCancelled:
             return CycleOutcome("aborted", cancel.code, cancel.text)
         except CalibrationError as exc:
-            text = str(exc)
-            code = Fault.CALIBRATION_MEASUREMENT if "target not measured" in text or "camera" in text \
-                else Fault.CALIBRATION_REFUSED if "no hand camera" in text else Fault.CALIBRATION_FIT
             if cancel.cancelled:
                 return CycleOutcome("aborted", cancel.code, cancel.text)
-            return CycleOutcome("fault", code, text)
+            return CycleOutcome("fault", CALIBRATION_FAULTS[exc.fault], str(exc))
         except CellError as exc:
             return CycleOutcome("fault", Fault.CALIBRATION_FIT, str(exc))
         except Exception as exc:                       # noqa: BLE001 -- the PLC must hear of it

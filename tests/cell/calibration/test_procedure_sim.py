@@ -5,6 +5,7 @@ Truths come from deploy/plants/default.yaml (j1/j2 zeros +0.05°/−0.04°, link
 j2 backlash 0.02°) and cell/sim/handcam.py (board placed off by BOARD_PLACEMENT); the
 calibration is told none of them. Everything runs on the simulated clock."""
 import json
+from types import SimpleNamespace
 
 import pytest
 
@@ -65,9 +66,27 @@ def test_a_lost_target_names_the_image_and_nothing_is_kept(cell):
     _, dev, cal = cell
     dev.place_fixture("none")
     rig = cal.rig()
-    with pytest.raises(CalibrationError, match=r"run 1 zero image: target not measured \(no_target\)"):
+    with pytest.raises(CalibrationError, match=r"run 1 zero image: target not measured \(no_target\)") as info:
         from cell.calibration.procedure import sweep_joint
         sweep_joint(rig, plan_joint(cal.nominal, "j1", rig.view_radius_mm, runs=1))
+    assert info.value.fault == "measurement"
+
+
+def test_the_plc_hears_which_kind_of_failure_it_was(cell):
+    """601 the cell cannot run it (no hand camera), 602 an image failed (the operator laid
+    no target). The fault codes once followed words of the message, and "no hand camera"
+    came out as 602."""
+    cfg, dev, _ = cell
+    no_camera = SimpleNamespace(hand_camera=None, place_fixture=dev.place_fixture, motion=dev.motion,
+                                clock=dev.clock)
+    out = CellCalibrator(cfg, no_camera, dev.robot).run_safely(1, CancelToken(dev.clock))
+    assert (out.fault_code, out.fault_text) == (Fault.CALIBRATION_REFUSED, "no hand camera: set "
+                                                "calibration.hand_camera in the cell config")
+    no_target = SimpleNamespace(hand_camera=dev.hand_camera, hand_calibration=dev.hand_calibration,
+                                place_fixture=lambda kind, joint=None: dev.place_fixture("none"),
+                                motion=dev.motion, clock=dev.clock)
+    out = CellCalibrator(cfg, no_target, dev.robot).run_safely(2, CancelToken(dev.clock))
+    assert out.fault_code == Fault.CALIBRATION_MEASUREMENT and "target not measured (no_target)" in out.fault_text
 
 
 def test_kinematic_calibration_passes_its_held_out_check_and_is_written(cell):
