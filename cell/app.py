@@ -53,9 +53,7 @@ class Cell:
             self.robot, caldoc = load_active(config, self.devices.robot)
         except BaseException:
             self.devices.stop()
-            close = getattr(self.clock, "close", None)
-            if close is not None and self._own_clock:
-                close()
+            self._close_own_clock()
             self.cyclelog.close()
             raise
         self.calibrator = CellCalibrator(config, self.devices, self.devices.robot,
@@ -126,6 +124,10 @@ class Cell:
                 except Exception as exc:               # noqa: BLE001 -- keep going down
                     log.error("stop_step_failed", error=repr(exc))
         self.cyclelog.close()
+        self._close_own_clock()
+
+    def _close_own_clock(self) -> None:
+        """Close the devices' clock if this cell made it (a clock handed in stays open)."""
         close = getattr(self.clock, "close", None)
         if close is not None and self._own_clock:
             close()

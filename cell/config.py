@@ -116,16 +116,23 @@ class CalibrationSection(_Section):
 
     @model_validator(mode="after")
     def _board(self) -> "CalibrationSection":
-        if self.board is not None:
-            from cell.vision.calibration import board_from_dict
-            if self.board.get("kind") != "circles":
-                raise ValueError(f"calibration.board must be a circle grid (kind: circles, not "
-                                 f"{self.board.get('kind')!r}): its points are what the hand camera measures")
-            try:
-                board_from_dict(dict(self.board))
-            except (CellError, TypeError, ValueError) as exc:
-                raise ValueError(f"calibration.board: {exc}") from None
+        self.circle_board()
         return self
+
+    def circle_board(self):
+        """``board`` as a :class:`~cell.vision.calibration.CircleGridBoard` (None if not
+        given). Raises ValueError unless it is a valid circle grid: its points are what the
+        hand camera measures."""
+        if self.board is None:
+            return None
+        from cell.vision.calibration import board_from_dict
+        if self.board.get("kind") != "circles":
+            raise ValueError(f"calibration.board must be a circle grid (kind: circles, not "
+                             f"{self.board.get('kind')!r}): its points are what the hand camera measures")
+        try:
+            return board_from_dict(dict(self.board))
+        except (CellError, TypeError, ValueError) as exc:
+            raise ValueError(f"calibration.board: {exc}") from None
 
 
 class SimSection(_Section):

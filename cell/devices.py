@@ -71,13 +71,8 @@ class HardwareDevices:
         self.camera.open()
 
     def calibration(self) -> PlaneCalibration:
-        path = Path(self.config.vision.calibration)
-        try:
-            return PlaneCalibration.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: camera calibration not found (vision.calibration)") from None
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+        return _plane_calibration(self.config.vision.calibration, "camera calibration",
+                                  "vision.calibration")
 
     @property
     def hand_camera(self):
@@ -93,14 +88,8 @@ class HardwareDevices:
         return self._hand_camera
 
     def hand_calibration(self) -> PlaneCalibration:
-        path = Path(self.config.calibration.hand_calibration)
-        try:
-            return PlaneCalibration.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: hand camera calibration not found "
-                              "(calibration.hand_calibration)") from None
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+        return _plane_calibration(self.config.calibration.hand_calibration, "hand camera calibration",
+                                  "calibration.hand_calibration")
 
     def place_fixture(self, kind: str, joint: str | None = None) -> None:
         """On hardware the operator lays the fixture; nothing to do."""
@@ -112,6 +101,17 @@ class HardwareDevices:
                 step()
             except Exception:                    # noqa: BLE001 -- best effort on the way down
                 pass
+
+
+def _plane_calibration(path, what: str, key: str) -> PlaneCalibration:
+    """A plane calibration file; ConfigError naming the file (and line) if missing or not JSON."""
+    path = Path(path)
+    try:
+        return PlaneCalibration.from_dict(json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: {what} not found ({key})") from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
 
 
 def open_devices(config: CellConfig, name: str, *, clock: Clock | None = None, pace: bool = False) -> Devices:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cell.errors import CalibrationError, KinematicsError
-from cell.kinematics import Elbow, Scara
+from cell.kinematics import Elbow, Geometry, Scara
 
 FORMAT = "cell-robot-calibration/1"
 #: calibration parameter → (what the calibrated robot does with it, unit)
@@ -71,6 +71,11 @@ class CalibratedScara(Scara):
 
     def fk_planar(self, t1_deg: float, t2_deg: float) -> np.ndarray:
         return self._true.fk_planar(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
+
+    @property
+    def calibrated_geometry(self) -> Geometry:
+        """The nominal geometry with the calibrated link lengths (zeros apart)."""
+        return self._true.g
 
     def fk_planar_batch(self, q_deg) -> np.ndarray:
         return self._true.fk_planar_batch(np.asarray(q_deg, dtype=float) + self.offsets)

@@ -31,6 +31,8 @@ from cell.vision import VisionError
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration, locate
 
 VIEW_MARGIN_MM = 2.0        #: kept between the target's edge and the image edge
+APPROACH_DEG = 0.5          #: every measured pose is approached from this far below (θ1, θ2)
+_BELOW = np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0])
 CALIBRATION_MOTION = MotionSpec(mode="corrected", segment_s=0.02, time_law="smooth", joint_speed=60.0)
 
 
@@ -85,6 +87,13 @@ class HandRig:
         self.last = q
         self.moves += 1
         self.cancel.check()
+
+    def approach(self, q) -> None:
+        """Move to joints ``q`` with θ1 and θ2 arriving from ``APPROACH_DEG`` below (as ISO
+        9283 approaches its poses): backlash then takes one side of its band at every pose."""
+        q = np.asarray(q, dtype=float)
+        self.move(q - _BELOW)
+        self.move(q)
 
     def target(self, where: str) -> np.ndarray:
         """Grab one frame; the single target's centre (x, y) mm in the hand frame.
@@ -235,7 +244,6 @@ class Candidate:
 
 
 TOOL_PHIS_DEG = (0.0, 90.0, 180.0, -90.0)   #: tool orientations tried over each point
-APPROACH_DEG = 0.5                           #: every board pose is approached from this far below
 
 
 def board_candidates(robot: Scara, board: CircleGridBoard, *, z_mm: float = 0.0,
@@ -264,15 +272,13 @@ def measure_board(rig: HandRig, board: CircleGridBoard, poses: list[Candidate],
     the board's nominal place defines it: ``m = b − R(φ)·h``, with ``b`` the known point,
     ``h`` where the hand camera sees it and ``φ`` the nominal tool orientation. (Using the
     nominal φ errs by |h|·Δφ: under 0.01 mm for the few mm a pose misses its point by.)
-    Every pose is approached the same way, θ1 and θ2 from ``APPROACH_DEG`` below (as ISO
-    9283 approaches its poses), so backlash takes one side of its band at every pose and
-    acts as a constant offset the joint zeros absorb, not as scatter between poses.
+    Every pose is approached the same way (:meth:`HandRig.approach`), so backlash acts as a
+    constant offset the joint zeros absorb, not as scatter between poses.
     Raises CalibrationError naming the pose and point when the point is not seen."""
     points = board.points_mm()
     out = np.empty((len(poses), 2))
     for n, c in enumerate(poses):
-        rig.move(c.q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
-        rig.move(c.q)
+        rig.approach(c.q)
         phi = float(rig.robot.fk(c.q)[3])
         h = rig.target(f"pose {n + 1} of {len(poses)} (board point {c.point}, {c.elbow} elbow, "
                        f"joints {_q(c.q)})")
@@ -318,8 +324,7 @@ def measure_anchors(rig: HandRig, measuring_camera, poses: list[Candidate], prog
     when the fiducial is not measured."""
     out = np.empty((len(poses), 2))
     for n, c in enumerate(poses):
-        rig.move(c.q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
-        rig.move(c.q)
+        rig.approach(c.q)
         try:
             out[n] = measuring_camera.tool()
         except (CellError, CellFault) as exc:
@@ -338,7 +343,7 @@ def _pose(robot: Scara, x: float, y: float, elbow: str, phi: float, z_mm: float)
         t1, t2 = robot.ik_planar(x, y, elbow=elbow)
         q = np.array([t1, t2, z_mm, (phi - t1 - t2 + 180.0) % 360.0 - 180.0])
         robot.check_limits(q)
-        robot.check_limits(q - np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0]))
+        robot.check_limits(q - _BELOW)
     except CellError:
         return None
     return q

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
+from pathlib import Path
+
 import numpy as np
 
 from cell.calibration import calfile
@@ -32,7 +34,7 @@ from cell.faults import Fault
 from cell.jsonsafe import json_safe
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.log import get_logger
-from cell.vision.calibration import CircleGridBoard, board_from_dict
+from cell.vision.calibration import CircleGridBoard
 
 if TYPE_CHECKING:       # the numerics (scipy) load when a calibration runs, not with the cell
     from cell.calibration.joint import JointResult
@@ -44,14 +46,13 @@ log = get_logger("calibration")
 
 def board_of(config: CellConfig) -> CircleGridBoard:
     """The board of known points (``calibration.board``, default the simulated cell's)."""
-    spec = config.calibration.board
-    if spec is None:
+    try:
+        board = config.calibration.circle_board()
+    except ValueError as exc:
+        raise CalibrationError(str(exc)) from None
+    if board is None:
         from cell.sim.handcam import DEFAULT_BOARD
         return DEFAULT_BOARD
-    board = board_from_dict(dict(spec))
-    if not isinstance(board, CircleGridBoard):
-        raise CalibrationError("calibration.board must be a circle grid (kind: circles): its points "
-                               "are what the hand camera measures")
     return board
 
 
@@ -59,13 +60,10 @@ def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]
     """The robot the cell runs with: calibrated by ``calibration.file`` if it exists (checked:
     :func:`calfile.load` raises CalibrationError for a corrupt or foreign file), else the
     nominal one."""
-    path = config.calibration.file
-    try:
-        doc = calfile.load(path, nominal, config.name)
-    except CalibrationError as exc:
-        if "not found" in str(exc):
-            return nominal, None
-        raise
+    path = Path(config.calibration.file)
+    if not path.exists():
+        return nominal, None
+    doc = calfile.load(path, nominal, config.name)
     return calfile.calibrated_robot(nominal, doc), doc
 
 
@@ -85,10 +83,11 @@ def radius_prior(robot: Scara, joint: str, zero_centres, sigma_mm: float):
     else the nominal ones (``sigma_mm``: how well they and the camera's place on the tool
     axis are known). None for j4: its target circles the camera axis whole, the points fix
     the radius themselves."""
-    true = getattr(robot, "_true", None)
-    g = (true or robot).g
-    if true is not None:
+    g = getattr(robot, "calibrated_geometry", None)
+    if g is not None:
         sigma_mm = CALIBRATED_RADIUS_SIGMA_MM
+    else:
+        g = robot.g
     axis = {"j1": (-(g.l1_mm + g.l2_mm), 0.0), "j2": (-g.l2_mm, 0.0)}.get(joint)
     zc = np.asarray(zero_centres, dtype=float)
     if axis is None or not np.all(np.isfinite(zc)):
@@ -219,7 +218,6 @@ class CellCalibrator:
         rest = np.setdiff1d(np.arange(len(cands)), fit)
         hold = list(np.random.default_rng(seed).choice(rest, n_hold, replace=False))
         rig = self.rig(cancel)
-        total = n_fit + n_hold
 
         def step(done, _):
             if progress is not None:

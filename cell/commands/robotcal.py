@@ -174,18 +174,12 @@ def _print_joint(plan, result, png: Path) -> None:
 # ---------------------------------------------------------------------- kinematics
 def run_kinematics(args: argparse.Namespace) -> int:
     from cell.calibration import calfile
-    from cell.kinematics import Scara
 
-    nominal: list[Scara] = []
-
-    def body(cal):
-        nominal.append(cal.nominal)
-        return cal.kinematics(poses=args.poses, holdout=args.holdout, write=not args.dry_run,
-                              progress=_progress("pose"))
-    out = _session(args, body)
-    report = {"parameters": out.parameters(nominal[0]), **out.report(),
+    cal, out = _session(args, lambda cal: (cal, cal.kinematics(
+        poses=args.poses, holdout=args.holdout, write=not args.dry_run, progress=_progress("pose"))))
+    report = {"parameters": out.parameters(cal.nominal), **out.report(),
               "written": None if out.document is None else
-              {"path": str(args.out or _config(args).calibration.file), "version": out.document["version"],
+              {"path": str(cal.path), "version": out.document["version"],
                "id": calfile.calibration_id(out.document)}}
     from cell.jsonsafe import json_safe
     if args.json:
