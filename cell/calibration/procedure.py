@@ -65,7 +65,6 @@ class HandRig:
         self.cancel = cancel or _Never()
         self.mover = Mover(robot, motion)
         self.last = np.asarray(motion.actual_positions(), dtype=float)
-        self.moves = self.images = 0
 
     @property
     def view_radius_mm(self) -> float:
@@ -85,7 +84,6 @@ class HandRig:
         except (CellError, TimeoutError) as exc:
             raise CalibrationError(f"move to joints {_q(q)} failed: {exc}") from exc
         self.last = q
-        self.moves += 1
         self.cancel.check()
 
     def approach(self, q) -> None:
@@ -103,7 +101,6 @@ class HandRig:
             image = self.camera.grab().image
         except Exception as exc:                          # any driver failure
             raise CalibrationError(f"{where}: hand camera gave no frame: {exc}", "measurement") from exc
-        self.images += 1
         r_px = self.target_radius_mm / self.cal.mm_per_px(self.cal.width / 2, self.cal.height / 2)
         try:
             fix = locate(image, self.cal, expected=1, min_radius_px=0.7 * r_px, max_radius_px=1.3 * r_px)[0]

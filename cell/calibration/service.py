@@ -149,7 +149,6 @@ class CellCalibrator:
         self.version = version
         self.on_applied = on_applied
         self.path = path or config.calibration.file
-        self.last: JointResult | KinematicOutcome | None = None
 
     # ------------------------------------------------------------------ pieces
     def rig(self, cancel=None) -> HandRig:
@@ -188,7 +187,6 @@ class CellCalibrator:
         result = analyse(sweep, sense=-1, period_deg=period_deg,
                          radius_prior=radius_prior(self.robot, joint, sweep.zero,
                                                    self.config.calibration.radius_sigma_mm))
-        self.last = result
         log.info("joint_calibration_done", joint=joint, backlash_deg=result.backlash_deg.value,
                  residual_rms_deg=result.residual_rms_deg)
         return plan, result
@@ -244,7 +242,6 @@ class CellCalibrator:
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
         if write and check.passed:
             self._write(out)
-        self.last = out
         return out
 
     def _measuring_camera(self):
