@@ -143,6 +143,9 @@ def test_bits_round_trip():
     (20, [5, 7], IllegalDataAddress, "recipe_ack at 21: register is read-only"),
     (20, [1000], IllegalDataValue, "recipe_select: value 1000 outside 0..999"),
     (11, [0x20], IllegalDataValue, "command_word: value 32"),
+    (60, [5], IllegalDataValue, "calibration_select: value 5 outside 0..4"),
+    (60, [1, 7], IllegalDataAddress, "calibration_version at 61: register is read-only"),
+    (62, [0, 1], IllegalDataAddress, "calibration_residual_um at 62: register is read-only"),
 ])
 def test_plc_write_decoding_refuses_with_the_modbus_code(address, words, exc, message):
     with pytest.raises(exc, match=message) as info:

@@ -133,6 +133,7 @@ BAD_WRITES = [
     ("status bit coil (RO)", lambda c: c.write_coil(16 * 10, True), 2),
     ("coil of a u16 register", lambda c: c.write_coil(16 * 20, True), 2),
     ("coils incl. undefined bit", lambda c: c.write_coils(16 * 11, [True, False, False, False, False, True]), 3),
+    ("calibration_select out of range", lambda c: c.write_register(60, 5), 3),
     ("FC23 write RO", lambda c: c.readwrite_registers(read_address=0, read_count=1, write_address=21,
                                                       values=[1]), 2),
 ]
