@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from cell.errors import CellError
 
 FORMAT = "cell-measurements/1"
+CHAIN_KINEMATICS = ("dh", "urdf")
 
 POINT_COLUMNS = {  # name: (kind, required)
     "sample": ("int", True), "time_s": ("float", True),
@@ -165,7 +166,8 @@ def _load_model(path: Path) -> ModelSpec:
         raise CampaignFormatError(path, f"{err['msg']}", line=_yaml_line(path, err["loc"]),
                                   column=loc) from None
     if model.kinematics != "scara":
-        raise CampaignFormatError(path, f"unsupported kinematics {model.kinematics!r}", column="kinematics")
+        raise CampaignFormatError(path, f"unsupported kinematics {model.kinematics!r}; known: scara, "
+                                        f"{', '.join(CHAIN_KINEMATICS)}", column="kinematics")
     return model
 
 
@@ -183,14 +185,34 @@ def _yaml_line(path: Path, loc) -> int | None:
     return None
 
 
-def read_campaign(directory: Path | str) -> Campaign:
-    """Read and validate a campaign directory; raises CampaignFormatError on any bad input."""
+def _chain_kind(path: Path) -> bool:
+    """True if ``model.yaml`` describes a serial chain (Extension v1.1: dh or urdf)."""
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError):
+        return False  # _load_model reports it with its line
+    return isinstance(raw, dict) and raw.get("kinematics") in CHAIN_KINEMATICS
+
+
+def read_campaign(directory: Path | str, model_path: Path | str | None = None):
+    """Read and validate a campaign directory; raises CampaignFormatError on any bad input.
+
+    Returns a :class:`Campaign` for ``kinematics: scara`` (v1) and a
+    :class:`cell.chain.campaign.ChainCampaign` for ``dh`` / ``urdf`` chains (Extension
+    v1.1). ``model_path`` (chains only) replaces ``directory/model.yaml``, e.g. a
+    calibrated model as the new nominal for the same points."""
     d = Path(directory)
     if not d.is_dir():
         raise CampaignFormatError(d, "not a campaign directory")
-    model_path = d / "model.yaml"
+    model_path = Path(model_path) if model_path else d / "model.yaml"
     if not model_path.is_file():
         raise CampaignFormatError(model_path, "missing: every campaign needs model.yaml")
+    if _chain_kind(model_path):
+        from cell.chain.campaign import read_chain_campaign  # lazy: only chains need it
+        return read_chain_campaign(d, model_path)
+    if model_path != d / "model.yaml":
+        raise CampaignFormatError(model_path, "a replacement nominal model is for chain campaigns "
+                                              "(kinematics dh or urdf)", column="kinematics")
     model = _load_model(model_path)
     points = paths = None
     if (d / "points.csv").is_file():

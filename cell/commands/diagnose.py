@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="campaign directory, SQLite cycle log, or 'validate'")
     p.add_argument("--json", action="store_true", help="print the report as JSON (cell-diagnosis/1)")
     p.add_argument("--html", metavar="DIR", help="write DIR/index.html with PNG plots")
+    p.add_argument("--model", metavar="MODEL.yaml",
+                   help="chain campaigns: nominal model to use instead of CAMPAIGN/model.yaml "
+                        "(e.g. the one 'cellctl calibrate kinematics CAMPAIGN' wrote)")
     p.add_argument("--noise-mm", type=float, metavar="SIGMA",
                    help="expected σ per axis of one point measurement incl. repeatability, mm "
                         "(optional; sharpens the 'unexplained' test)")
@@ -65,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
     from cell.diagnosis import diagnose, render_text
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
-    campaign, lines = load(args.campaign, args.robot, args.camera_center)
+    campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
+    if not isinstance(campaign, Campaign):
+        return run_chain(campaign, args)
     dg = diagnose(campaign, lines, args.noise_mm)
     if args.html:
         from cell.diagnosis.html import write_html
@@ -82,6 +87,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_chain(campaign, args: argparse.Namespace) -> int:
+    """A chain campaign (Extension v1.1): registration first, then the chain vocabulary."""
+    from cell.chain.report import diagnose_chain, render_chain_text
+    if args.html:
+        raise ConfigError("--html: not available for chain campaigns yet; use --json")
+    rep = diagnose_chain(campaign, args.noise_mm)
+    if args.json:
+        print(json.dumps(json_safe(rep), indent=2, allow_nan=False))
+    else:
+        print(render_chain_text(rep))
+    return 0
+
+
 # ------------------------------------------------------------------ input
 def data_lines(path: Path) -> list[int] | None:
     """1-based file line of every data row of a CSV the campaign reader accepted (the same
@@ -92,15 +110,19 @@ def data_lines(path: Path) -> list[int] | None:
     return [i for i, row in enumerate(rows, start=1) if i > 1 and row and any(c.strip() for c in row)]
 
 
-def load(target: str, robot: str = "seed000", camera_center=None) -> tuple[Campaign, dict]:
-    """(campaign, {table: row lines}) from a campaign directory or an SQLite cycle log.
+def load(target: str, robot: str = "seed000", camera_center=None, model: str | None = None
+         ) -> tuple[Campaign, dict]:
+    """(campaign, {table: row lines}) from a campaign directory or an SQLite cycle log;
+    ``model`` replaces a chain campaign's model.yaml.
 
     Raises CampaignFormatError (campaign problems, file/line/column) or ConfigError (a cycle
     log without measured moves, an unknown robot preset)."""
     p = Path(target)
     if p.is_dir():
-        c = read_campaign(p)
+        c = read_campaign(p, model)
         return c, {"points": data_lines(p / "points.csv"), "paths": data_lines(p / "paths.csv")}
+    if model:
+        raise ConfigError(f"--model {model}: only with a campaign directory")
     if not p.exists():
         raise CampaignFormatError(p, "not found: give a campaign directory or an SQLite cycle log")
     with p.open("rb") as f:

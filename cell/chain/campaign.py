@@ -1,0 +1,294 @@
+"""Chain campaigns (``cell/measurements.md``, Extension v1.1): read, validate, write.
+
+:func:`read_chain_campaign` reads ``model.yaml`` (``kinematics: dh`` or ``urdf``) and
+``points.csv`` and checks everything before returning. Bad input raises
+:class:`~cell.measurements.CampaignFormatError` naming the file, line, column or joint:
+
+* a URDF that does not parse or has no path from ``base_link`` to ``tip_link``;
+* joint columns that do not match ``joints`` (missing ``jK``, or a column past the last);
+* a reading outside its joint's limits (a prismatic value typed in degrees or metres);
+* rows of one ``sample`` that disagree on the joints or the split, a repeated marker;
+* with ``markers: unknown``, a marker seen in too few fit poses to place it.
+
+Poses are the unit of everything downstream: markers of one pose share its joints and its
+split. :func:`write_chain_campaign` writes the same layout atomically.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from cell.chain.model import Chain, dh_chain, urdf_chain
+from cell.measurements import FORMAT, CampaignFormatError, _read_table, _yaml_line
+
+MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
+LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
+
+
+class DHRow(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    type: Literal["revolute", "prismatic"] = "revolute"
+    a_mm: float
+    alpha_deg: float
+    d_mm: float
+    theta_deg: float
+    limits: tuple[float, float] | None = None
+
+
+class Coupling(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    joint: str
+    from_: str = Field(alias="from")
+    factor: float
+
+
+class ChainSpec(BaseModel):
+    """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
+    direction of gravity in the base frame, default −z; it only matters for the
+    gravity-compliance effect."""
+
+    model_config = ConfigDict(extra="forbid")
+    format: str
+    kinematics: Literal["dh", "urdf"]
+    dh_convention: Literal["standard", "modified"] = "standard"
+    joints: list[DHRow] | list[str] = Field(min_length=1)
+    coupling: list[Coupling] = []
+    tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    urdf: str | None = None
+    base_link: str | None = None
+    tip_link: str | None = None
+    measurement_frame: Literal["base", "sensor"] = "base"
+    markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
+    gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    source: str = ""
+
+
+@dataclass
+class ChainCampaign:
+    """A validated chain campaign, pose-major.
+
+    ``readings`` (P, J) joint readings (deg / mm) per pose; ``pose_ids`` their ``sample``;
+    ``split`` (P,) "fit"/"holdout" or None; ``obs_pose`` / ``obs_marker`` (M,) index of the
+    pose and marker of each measured point, ``xyz`` (M, 3) in ``measurement_frame``;
+    ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point."""
+
+    spec: ChainSpec
+    chain: Chain
+    readings: np.ndarray
+    pose_ids: np.ndarray
+    split: np.ndarray | None
+    obs_pose: np.ndarray
+    obs_marker: np.ndarray
+    xyz: np.ndarray
+    markers: list[int]
+    lines: list[int]
+    source: str = ""
+    directory: Path | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.pose_ids)
+
+    @property
+    def known_markers(self) -> np.ndarray | None:
+        """(K, 3) marker positions in the tip frame when the model gives them, else None."""
+        if self.spec.markers == "unknown":
+            return None
+        return np.array([self.spec.markers[m] for m in self.markers], float)
+
+
+def load_spec(path: Path) -> ChainSpec:
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise CampaignFormatError(path, f"not valid YAML: {getattr(exc, 'problem', exc)}",
+                                  line=mark.line + 1 if mark else None) from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        raise CampaignFormatError(path, f"unknown format {raw.get('format') if isinstance(raw, dict) else raw!r}; "
+                                        f"expected {FORMAT!r}", column="format")
+    try:
+        spec = ChainSpec.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        raise CampaignFormatError(path, err["msg"], line=_yaml_line(path, err["loc"]), column=loc) from None
+    if spec.kinematics == "dh" and not all(isinstance(j, DHRow) for j in spec.joints):
+        raise CampaignFormatError(path, "kinematics dh: every joint needs name, type, a_mm, "
+                                        "alpha_deg, d_mm, theta_deg", column="joints")
+    if spec.kinematics == "urdf":
+        if not all(isinstance(j, str) for j in spec.joints):
+            raise CampaignFormatError(path, "kinematics urdf: joints is a list of URDF joint names",
+                                      column="joints")
+        for key in ("urdf", "base_link", "tip_link"):
+            if not getattr(spec, key):
+                raise CampaignFormatError(path, f"kinematics urdf needs {key}", column=key)
+    names = [j.name if isinstance(j, DHRow) else j for j in spec.joints]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise CampaignFormatError(path, f"joint name(s) {dupes} given twice", column="joints")
+    g = np.asarray(spec.gravity, float)
+    if not np.linalg.norm(g) > 0:
+        raise CampaignFormatError(path, "gravity must be a non-zero direction", column="gravity")
+    return spec
+
+
+def build_chain(spec: ChainSpec, model_path: Path) -> Chain:
+    g = np.asarray(spec.gravity, float)
+    g = g / np.linalg.norm(g)
+    coupling = [{"joint": c.joint, "from": c.from_, "factor": c.factor} for c in spec.coupling]
+    if spec.kinematics == "dh":
+        return dh_chain(model_path, [j.model_dump() for j in spec.joints], spec.dh_convention,
+                        coupling, spec.tool_mm, g)
+    if coupling:
+        raise CampaignFormatError(model_path, "coupling is for dh models; a URDF states its own",
+                                  column="coupling")
+    return urdf_chain(model_path, model_path.parent / spec.urdf, spec.base_link, spec.tip_link,
+                      list(spec.joints), spec.tool_mm, g)
+
+
+def _columns(n_joints: int) -> dict[str, tuple[str, bool]]:
+    cols = {"sample": ("int", True), "time_s": ("float", False)}
+    cols |= {f"j{k}": ("float", True) for k in range(1, n_joints + 1)}
+    cols |= {"marker": ("int", False), "x_mm": ("float", True), "y_mm": ("float", True),
+             "z_mm": ("float", True), "split": ("split", False), "temp_c": ("float", False),
+             "payload_kg": ("float", False)}
+    return cols
+
+
+def _check_joint_columns(path: Path, chain: Chain) -> None:
+    import csv
+    with path.open(encoding="utf-8-sig") as f:
+        header = [h.strip() for h in next(csv.reader(f), [])]
+    n = chain.n_joints
+    for h in header:
+        if len(h) > 1 and h[0] == "j" and h[1:].isdigit() and int(h[1:]) > n:
+            raise CampaignFormatError(path, f"column {h!r} but the model has {n} joints "
+                                            f"({', '.join(j.name for j in chain.joints)})", line=1, column=h)
+        if h.endswith("_deg") and h[:-4] in {j.column for j in chain.joints}:
+            raise CampaignFormatError(path, f"column {h!r}: chain joint columns are j1 … j{n} "
+                                            "(unit by joint type), not the SCARA's jK_deg", line=1, column=h)
+
+
+def _check_limits(path: Path, chain: Chain, readings: np.ndarray, lines: list[int]) -> None:
+    for k, j in enumerate(chain.joints):
+        if j.lower is None or j.upper is None:
+            continue
+        slack = LIMIT_SLACK * (j.upper - j.lower)
+        bad = np.flatnonzero((readings[:, k] < j.lower - slack) | (readings[:, k] > j.upper + slack))
+        if bad.size:
+            i = int(bad[0])
+            hint = (" (prismatic readings are in mm: a value in degrees or metres?)"
+                    if j.type == "prismatic" else " (revolute readings are in degrees: radians?)")
+            raise CampaignFormatError(path, f"joint {j.column} ({j.name}, {j.type}): {readings[i, k]:g} "
+                                            f"{j.unit} is outside its limits {j.lower:g} … {j.upper:g} "
+                                            f"{j.unit}{hint}; {bad.size} row(s) like this",
+                                      line=lines[i], column=j.column)
+
+
+def read_chain_campaign(directory: Path | str, model_path: Path | str | None = None) -> ChainCampaign:
+    """Read and validate a chain campaign. ``model_path`` replaces ``directory/model.yaml``
+    (a calibrated model as the new nominal for the same points)."""
+    d = Path(directory)
+    mp = Path(model_path) if model_path else d / "model.yaml"
+    if not mp.is_file():
+        raise CampaignFormatError(mp, "missing: every campaign needs model.yaml")
+    spec = load_spec(mp)
+    chain = build_chain(spec, mp)
+    pp = d / "points.csv"
+    if not pp.is_file():
+        raise CampaignFormatError(pp, "missing: a chain campaign needs points.csv")
+    _check_joint_columns(pp, chain)
+    t, lines = _read_table(pp, _columns(chain.n_joints))
+    q = np.column_stack([t[f"j{k}"] for k in range(1, chain.n_joints + 1)])
+    marker = t.get("marker", np.zeros(len(lines), dtype=np.int64))
+    split = t.get("split")
+    ids, first, inv = np.unique(t["sample"], return_index=True, return_inverse=True)
+    order = np.argsort(first)             # poses in file order
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    pose = rank[inv]
+    readings = q[first[order]]
+    seen: set[tuple[int, int]] = set()
+    for i, (p, m) in enumerate(zip(pose.tolist(), marker.tolist())):
+        if (p, m) in seen:
+            raise CampaignFormatError(pp, f"sample {int(ids[order[p]])} has marker {m} twice",
+                                      line=lines[i], column="marker")
+        seen.add((p, m))
+        if not np.array_equal(q[i], readings[p]):
+            raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on the joints "
+                                          "(the markers of one pose share its joint readings)",
+                                      line=lines[i], column="sample")
+        if split is not None and split[i] != split[first[order[p]]]:
+            raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on the split",
+                                      line=lines[i], column="split")
+    _check_limits(pp, chain, q, lines)
+    pose_split = None if split is None else np.array([split[first[o]] for o in order], dtype=object)
+    markers = sorted(set(marker.tolist()))
+    if spec.markers != "unknown":
+        unknown = [m for m in markers if m not in spec.markers]
+        if unknown:
+            i = int(np.flatnonzero(marker == unknown[0])[0])
+            raise CampaignFormatError(pp, f"marker {unknown[0]} is not in model.yaml markers "
+                                          f"{sorted(spec.markers)}", line=lines[i], column="marker")
+    else:
+        fit_pose = np.ones(len(order), bool) if pose_split is None else (pose_split == "fit")
+        for m in markers:
+            rows = np.flatnonzero(marker == m)
+            n = len(set(pose[rows][fit_pose[pose[rows]]].tolist()))
+            if n < MIN_MARKER_POSES:
+                raise CampaignFormatError(pp, f"marker {m} is seen in {n} fit pose(s); placing an unknown "
+                                              f"marker needs at least {MIN_MARKER_POSES}",
+                                          line=lines[int(rows[0])], column="marker")
+    mi = np.searchsorted(markers, marker)
+    xyz = np.column_stack([t["x_mm"], t["y_mm"], t["z_mm"]])
+    extra = {k: t[k] for k in ("time_s", "temp_c", "payload_kg") if k in t}
+    return ChainCampaign(spec, chain, readings, ids[order], pose_split, pose, mi, xyz, markers,
+                         lines, spec.source or str(d), d, extra)
+
+
+def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpec | None = None,
+                         files: dict[str, str] | None = None) -> Path:
+    """Write ``c`` (with ``spec`` as its model, and extra ``files`` name → text such as a
+    URDF) to ``directory`` atomically."""
+    d = Path(directory)
+    d.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
+    try:
+        model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
+        (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
+        for name, text in (files or {}).items():
+            (tmp / name).write_text(text, encoding="utf-8")
+        nj = c.chain.n_joints
+        head = ["sample"] + [f"j{k}" for k in range(1, nj + 1)] + ["marker", "x_mm", "y_mm", "z_mm"]
+        head += ["split"] if c.split is not None else []
+        out = [",".join(head)]
+        for i in range(len(c.xyz)):
+            p = c.obs_pose[i]
+            row = [str(int(c.pose_ids[p]))] + [repr(float(v)) for v in c.readings[p]]
+            row += [str(c.markers[c.obs_marker[i]])] + [repr(float(v)) for v in c.xyz[i]]
+            row += [c.split[p]] if c.split is not None else []
+            out.append(",".join(row))
+        (tmp / "points.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
+        if d.exists():
+            old = d.with_name(f".{d.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.rename(d, old)
+            os.rename(tmp, d)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(tmp, d)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return d

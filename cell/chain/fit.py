@@ -1,0 +1,475 @@
+"""Registration and error-parameter fits for chain campaigns. Pure numerics; no I/O.
+
+Measurement model (one measured point ``y`` of marker m on pose p)::
+
+    y = R_s · (T_tip(q_p; e) · m_m) + t_s
+
+``R_s, t_s`` (the sensor frame, when ``measurement_frame: sensor``) and ``m_m`` (marker
+positions in the tip frame, when ``markers: unknown``) are **registration**: nuisance
+fitted first and with every candidate. ``e`` are the error parameters of the chain
+vocabulary (:func:`vocabulary`). Fits are damped Gauss–Newton with exact Jacobians
+(:mod:`cell.chain.kin`); the sensor rotation is updated multiplicatively.
+
+**Honest uncertainty.** The markers of one pose share its joint readings and often one
+tracked rigid body, so their errors are correlated: the covariance is the
+cluster-robust (sandwich) estimate with poses as clusters and Student t intervals on
+(poses − 1) degrees of freedom, and model selection uses leave-one-*pose*-out
+prediction error (:attr:`Fit.cv_rms`), never per-point counts alone.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell.chain import kin
+from cell.chain.model import Chain
+from cell.chain.stats import t_quantile
+from cell.measurements import CampaignFormatError
+
+STRUCTURAL_TOL = 1e-6     # a unit column this close to the others' span adds nothing
+MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
+EFFECTS = ("joint_offset", "link_length", "gear_ratio", "gravity_compliance")
+SUBSYSTEM = {"joint_offset": "kinematics", "link_length": "kinematics",
+             "gear_ratio": "transmission", "gravity_compliance": "transmission"}
+DEPENDS_ON = {"joint_offset": "constant", "link_length": "position", "gear_ratio": "angle",
+              "gravity_compliance": "position"}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One error parameter: ``effect`` of the chain vocabulary, 0-based ``joint``, the op it
+    adds to and its unit (deg, mm, 1, deg/m)."""
+
+    name: str
+    effect: str
+    joint: int
+    op: int
+    unit: str
+
+
+def vocabulary(chain: Chain) -> list[Param]:
+    """All error parameters the chain defines, offsets first (the identifiability priority)."""
+    out = []
+    for k, j in enumerate(chain.joints):
+        out.append(Param(f"{j.column}_offset_{j.unit}", "joint_offset", k, chain.joint_op[k], j.unit))
+    for name, op in chain.geometric.items():
+        out.append(Param(name, "link_length", int(name.split("_")[0][1:]) - 1, op, name.rsplit("_", 1)[1]))
+    for k, j in enumerate(chain.joints):
+        out.append(Param(f"{j.column}_gear_ratio_rel", "gear_ratio", k, chain.joint_op[k], "1"))
+    for k, j in enumerate(chain.joints):
+        if j.type == "revolute":
+            out.append(Param(f"{j.column}_compliance_deg_per_m", "gravity_compliance", k,
+                             chain.joint_op[k], "deg/m"))
+    return out
+
+
+@dataclass
+class Data:
+    """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
+    lever of each joint at the nominal pose; ``pose_ids`` for messages."""
+
+    chain: Chain
+    readings: np.ndarray
+    obs_pose: np.ndarray
+    obs_marker: np.ndarray
+    xyz: np.ndarray
+    n_markers: int
+    sensor: bool
+    known_markers: np.ndarray | None
+    levers: np.ndarray
+    pose_ids: np.ndarray
+
+    @classmethod
+    def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
+        """From a :class:`~cell.chain.campaign.ChainCampaign`, keeping the poses of ``pose_mask``."""
+        chain = cc.chain
+        tips, starts = kin.forward(chain, cc.readings, keep=True)
+        load = tips[:, :3, :3] @ chain.tool_mm + tips[:, :3, 3]
+        levers = kin.gravity_levers(chain, starts, load)
+        d = cls(chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
+                cc.spec.measurement_frame == "sensor", cc.known_markers, levers, cc.pose_ids)
+        return d if pose_mask is None else d.subset(pose_mask)
+
+    def subset(self, pose_mask: np.ndarray) -> "Data":
+        keep = np.flatnonzero(pose_mask)
+        new = -np.ones(len(pose_mask), dtype=np.int64)
+        new[keep] = np.arange(len(keep))
+        rows = pose_mask[self.obs_pose]
+        return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
+                    self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
+                    self.levers[keep], self.pose_ids[keep])
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.readings)
+
+
+@dataclass
+class Registration:
+    """Sensor frame (``R``, ``t``: base → sensor) and marker positions (K, 3) in the tip frame."""
+
+    R: np.ndarray
+    t: np.ndarray
+    markers: np.ndarray
+
+    def as_dict(self, sensor: bool, free: bool, marker_ids) -> dict:
+        out: dict = {}
+        if sensor:
+            rx, ry, rz = _rpy_deg(self.R)
+            out["sensor_frame"] = {"meaning": "pose of the base frame in the sensor frame: "
+                                              "y_sensor = R · x_base + t",
+                                   "t_mm": [round(float(v), 4) for v in self.t],
+                                   "rpy_deg": [round(v, 5) for v in (rx, ry, rz)]}
+        if free:
+            out["markers_mm"] = {str(m): [round(float(v), 4) for v in p]
+                                 for m, p in zip(marker_ids, self.markers)}
+        return out
+
+
+def _rpy_deg(R: np.ndarray) -> tuple[float, float, float]:
+    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
+    return (math.degrees(math.atan2(R[2, 1], R[2, 2])), math.degrees(pitch),
+            math.degrees(math.atan2(R[1, 0], R[0, 0])))
+
+
+def _skew_rows(y: np.ndarray) -> np.ndarray:
+    """(M, 3, 3): d(ω × y)/dω = −[y]× for each row of y."""
+    z = np.zeros(len(y))
+    return -np.stack([np.stack([z, -y[:, 2], y[:, 1]], -1), np.stack([y[:, 2], z, -y[:, 0]], -1),
+                      np.stack([-y[:, 1], y[:, 0], z], -1)], 1)
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(w))
+    if th < 1e-15:
+        return np.eye(3)
+    k = w / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R, t minimising |R a + t − b| (rows are points)."""
+    ca, cb = a.mean(0), b.mean(0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cb - R @ ca
+
+
+def joint_deltas(d: Data, params: list[Param], values: np.ndarray) -> tuple[dict[int, float], np.ndarray]:
+    """The geometric op offsets and the (P, J) joint-value additions of ``values``."""
+    geo: dict[int, float] = {}
+    dq = np.zeros_like(d.readings)
+    qm0 = d.chain.model_values(d.readings)
+    for p, v in zip(params, values):
+        if p.effect == "link_length":
+            geo[p.op] = geo.get(p.op, 0.0) + v
+        elif p.effect == "joint_offset":
+            dq[:, p.joint] += v
+        elif p.effect == "gear_ratio":
+            dq[:, p.joint] += v * qm0[:, p.joint]
+        else:
+            dq[:, p.joint] += v * d.levers[:, p.joint]
+    return geo, dq
+
+
+def _regressor(d: Data, p: Param) -> np.ndarray | None:
+    if p.effect == "gear_ratio":
+        return d.chain.model_values(d.readings)[:, p.joint]
+    if p.effect == "gravity_compliance":
+        return d.levers[:, p.joint]
+    return None
+
+
+def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
+          ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Predicted points (M, 3) in the measurement frame; with ``jac`` also the (3M, n)
+    Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
+    positions (3 each) if free, then ``params``."""
+    geo, dq = joint_deltas(d, params, values)
+    tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
+    local = reg.markers[d.obs_marker]
+    xb = kin.points(tips, d.obs_pose, local)
+    y = xb @ reg.R.T + reg.t
+    if not jac:
+        return y, None
+    cols = []
+    if d.sensor:
+        cols += [_skew_rows(y - reg.t), np.broadcast_to(np.eye(3), (len(y), 3, 3))]
+    if d.known_markers is None:
+        Rt = reg.R @ tips[d.obs_pose, :3, :3]                    # (M, 3, 3)
+        for m in range(d.n_markers):
+            cols.append(Rt * (d.obs_marker == m)[:, None, None])
+    blocks = [c.reshape(len(y), 3, -1) for c in cols]
+    for p in params:
+        g = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+        r = _regressor(d, p)
+        if r is not None:
+            g = g * r[d.obs_pose][:, None]
+        blocks.append(g[:, :, None])
+    J = np.concatenate(blocks, axis=2).reshape(3 * len(y), -1) if blocks else np.zeros((3 * len(y), 0))
+    return y, J
+
+
+def n_registration(d: Data) -> int:
+    return (6 if d.sensor else 0) + (3 * d.n_markers if d.known_markers is None else 0)
+
+
+def initial_registration(d: Data) -> Registration:
+    """Closed-form start: Kabsch for the sensor frame alternated with the per-marker mean
+    for free markers (markers start at the nominal tool point)."""
+    chain = d.chain
+    tips, _ = kin.forward(chain, d.readings)
+    markers = (np.tile(chain.tool_mm, (d.n_markers, 1)) if d.known_markers is None
+               else d.known_markers.copy())
+    R, t = np.eye(3), np.zeros(3)
+    for _ in range(6 if d.known_markers is None else 1):
+        xb = kin.points(tips, d.obs_pose, markers[d.obs_marker])
+        if d.sensor:
+            R, t = _kabsch(xb, d.xyz)
+        if d.known_markers is None:
+            T = tips[d.obs_pose]
+            yb = (d.xyz - t) @ R                                   # back in the base frame
+            loc = np.einsum("mji,mj->mi", T[:, :3, :3], yb - T[:, :3, 3])
+            markers = np.array([loc[d.obs_marker == m].mean(0) for m in range(d.n_markers)])
+    return Registration(R, t, markers)
+
+
+def check_registrable(d: Data, file: str) -> None:
+    """Refuse a sensor frame the fit poses cannot fix: too few non-collinear points."""
+    if not d.sensor:
+        return
+    x = d.xyz - d.xyz.mean(0)
+    s = np.linalg.svd(x, compute_uv=False) if len(x) >= 2 else np.zeros(1)
+    if len(x) < 3 or s[0] == 0 or (len(s) > 1 and s[1] < 1e-6 * s[0]):
+        raise CampaignFormatError(file, f"measurement_frame sensor: the {d.n_poses} fit pose(s) give "
+                                        f"{len(x)} point(s) that are {'collinear' if len(x) >= 3 else 'too few'}; "
+                                        "registering the sensor frame needs at least 3 non-collinear points",
+                                  column="x_mm")
+
+
+@dataclass
+class Fit:
+    """One fitted model on a :class:`Data`: ``params`` and ``values``, the registration,
+    residuals ``resid`` (M, 3) = measured − predicted, the Jacobian ``J`` at the solution,
+    the parameters' cluster-robust standard errors and 95 % intervals, and the
+    leave-one-pose-out prediction error ``cv_rms`` (mm, rms of the 3-D point error)."""
+
+    params: list[Param]
+    values: np.ndarray
+    reg: Registration
+    resid: np.ndarray
+    J: np.ndarray
+    se: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ci95: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    cv_rms: float = math.nan
+    cv_pose: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    iterations: int = 0
+
+    @property
+    def rms(self) -> float:
+        return rms3(self.resid)
+
+    @property
+    def k(self) -> int:
+        return self.J.shape[1]
+
+    def named(self) -> dict[str, float]:
+        return {p.name: float(v) for p, v in zip(self.params, self.values)}
+
+
+def rms3(r: np.ndarray) -> float:
+    """RMS of the 3-D point error (sqrt of the mean squared norm), mm."""
+    return float(math.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else math.nan
+
+
+def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=None,
+        max_iter: int = 50, tol: float = 1e-10) -> Fit:
+    """Fit registration and ``params`` on ``d`` by damped Gauss–Newton; adds the robust
+    errors and the leave-one-pose-out error."""
+    reg = reg0 or initial_registration(d)
+    reg = Registration(reg.R.copy(), reg.t.copy(), reg.markers.copy())
+    v = np.zeros(len(params)) if values0 is None else np.asarray(values0, float).copy()
+    y, J = model(d, reg, params, v, jac=True)
+    r = (d.xyz - y).ravel()
+    cost, lam, it = float(r @ r), 1e-9, 0
+    for it in range(1, max_iter + 1):
+        Js, scale = _scaled(J)
+        A = Js.T @ Js
+        step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), Js.T @ r) / scale
+        new_reg, new_v = _apply(d, reg, v, step)
+        y2, _ = model(d, new_reg, params, new_v)
+        r2 = (d.xyz - y2).ravel()
+        c2 = float(r2 @ r2)
+        if c2 <= cost:
+            reg, v, done = new_reg, new_v, cost - c2 <= tol * max(cost, 1e-30)
+            lam = max(lam / 10, 1e-12)
+            y, J = model(d, reg, params, v, jac=True)
+            r, cost = (d.xyz - y).ravel(), float(r2 @ r2)
+            if done:
+                break
+        else:
+            lam *= 10
+            if lam > 1e8:
+                break
+    f = Fit(params, v, reg, r.reshape(-1, 3), J, iterations=it)
+    _uncertainty(d, f)
+    return f
+
+
+def _apply(d: Data, reg: Registration, v: np.ndarray, step: np.ndarray) -> tuple[Registration, np.ndarray]:
+    i = 0
+    R, t, m = reg.R, reg.t, reg.markers
+    if d.sensor:
+        R, t = _exp(step[0:3]) @ reg.R, reg.t + step[3:6]
+        i = 6
+    if d.known_markers is None:
+        m = reg.markers + step[i:i + 3 * d.n_markers].reshape(-1, 3)
+        i += 3 * d.n_markers
+    return Registration(R, t, m), v + step[i:]
+
+
+def _scaled(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    return J / scale, scale
+
+
+def _by_pose(obs_pose: np.ndarray, n_poses: int) -> np.ndarray:
+    """(P, Rmax) indices of each pose's residual rows, padded with −1."""
+    rows = np.repeat(obs_pose, 3)
+    order = np.argsort(rows, kind="stable")
+    counts = np.bincount(rows, minlength=n_poses)
+    out = -np.ones((n_poses, int(counts.max()) if len(counts) else 0), dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    for g in range(n_poses):
+        out[g, :counts[g]] = order[start[g]:start[g] + counts[g]]
+    return out
+
+
+def leave_one_pose_out(J: np.ndarray, r: np.ndarray, obs_pose: np.ndarray, n_poses: int
+                       ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """Linearised leave-one-pose-out of the least-squares fit with design ``J`` and
+    residuals ``r`` (3M,) at its solution: (rms of the held-out 3-D errors, per-pose mean
+    squared 3-D error (P,), (J'J)⁻¹ of the column-scaled design, the scales). Each pose's
+    held-out residual is ``(I − H_gg)⁻¹ r_g`` (all poses at once, padded blocks)."""
+    Js, scale = _scaled(J)
+    Ainv = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
+    idx = _by_pose(obs_pose, n_poses)
+    pad = idx < 0
+    safe = np.where(pad, 0, idx)
+    Jg = np.where(pad[..., None], 0.0, Js[safe])                 # (P, R, n)
+    rg = np.where(pad, 0.0, r[safe])                             # (P, R)
+    H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
+    I = np.broadcast_to(np.eye(idx.shape[1]), H.shape)
+    try:
+        loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return math.inf, np.full(n_poses, math.inf), Ainv, scale
+    n_pts = (~pad).sum(1) / 3
+    per_pose = np.sum(loo * loo, axis=1) / np.maximum(n_pts, 1)
+    total = float(math.sqrt(np.sum(loo * loo) / max(n_pts.sum(), 1)))
+    return total, per_pose, Ainv, scale
+
+
+def _uncertainty(d: Data, f: Fit) -> None:
+    """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
+    r = f.resid.ravel()
+    f.cv_rms, f.cv_pose, Ainv, scale = leave_one_pose_out(f.J, r, d.obs_pose, d.n_poses)
+    Js = f.J / scale
+    idx = _by_pose(d.obs_pose, d.n_poses)
+    pad = idx < 0
+    safe = np.where(pad, 0, idx)
+    Jg = np.where(pad[..., None], 0.0, Js[safe])
+    S = (Jg.transpose(0, 2, 1) @ np.where(pad, 0.0, r[safe])[..., None])[..., 0]
+    G = d.n_poses
+    corr = G / (G - 1) if G > 1 else 1.0
+    cov = corr * Ainv @ (S.T @ S) @ Ainv / np.outer(scale, scale)
+    n = len(f.params)
+    se = np.sqrt(np.maximum(np.diag(cov)[len(cov) - n:], 0.0)) if n else np.zeros(0)
+    tq = _t975(max(G - 1, 1))
+    f.se = se
+    f.ci95 = np.column_stack([f.values - tq * se, f.values + tq * se]) if n else np.zeros((0, 2))
+
+
+def _t975(dof: int) -> float:
+    return t_quantile(0.975, dof)
+
+
+def predict_rms(d: Data, f: Fit) -> tuple[float, float, np.ndarray]:
+    """(rms, max) of the 3-D error of fit ``f`` on other poses ``d`` (registration kept)."""
+    y, _ = model(d, f.reg, f.params, f.values)
+    e = d.xyz - y
+    n = np.sqrt(np.sum(e * e, axis=1))
+    return rms3(e), float(n.max()) if len(n) else math.nan, e
+
+
+@dataclass
+class Identifiability:
+    """Which of a parameter pool the data can see beside registration: ``kept`` in
+    priority order; ``dropped`` name → reason; ``warnings`` for kept parameters that
+    registration (or the others) almost absorb; ``condition`` of the kept, scaled design."""
+
+    kept: list[Param]
+    dropped: dict[str, str]
+    warnings: list[str]
+    condition: float
+
+
+def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: list[Param] = ()
+                    ) -> Identifiability:
+    """Gram–Schmidt in priority order (registration, ``keep_first``, then ``pool``): a
+    parameter whose scaled column lies in the span of those before it (to
+    :data:`STRUCTURAL_TOL`) is dropped, naming what absorbs it."""
+    allp = list(keep_first) + [p for p in pool if p not in keep_first]
+    _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
+    nr = n_registration(d)
+    Q = np.zeros((J.shape[0], 0))
+    if nr:
+        Qr, Rr = np.linalg.qr(J[:, :nr] / np.maximum(np.linalg.norm(J[:, :nr], axis=0), 1e-300))
+        Q = Qr[:, np.abs(np.diag(Rr)) > STRUCTURAL_TOL]
+    Qreg = Q
+    kept: list[Param] = []
+    kept_cols: list[np.ndarray] = []
+    dropped: dict[str, str] = {}
+    warnings: list[str] = []
+    for i, p in enumerate(allp):
+        c = J[:, nr + i]
+        norm = np.linalg.norm(c)
+        if norm == 0:
+            dropped[p.name] = "has no effect on the measured points"
+            continue
+        v = c / norm
+        perp = v - Q @ (Q.T @ v)
+        left = float(np.linalg.norm(perp))
+        if left < STRUCTURAL_TOL:
+            reg_left = float(np.linalg.norm(v - Qreg @ (Qreg.T @ v)))
+            if reg_left < STRUCTURAL_TOL:
+                dropped[p.name] = "absorbed by the registration (sensor frame / marker positions)"
+            else:
+                dropped[p.name] = "seen only as a sum with " + ", ".join(_partners(v, kept, kept_cols))
+            continue
+        if 1.0 / left ** 2 > MAX_VIF:
+            warnings.append(f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like the "
+                            "registration or other parameters; they are hard to tell apart")
+        kept.append(p)
+        kept_cols.append(v)
+        Q = np.column_stack([Q, perp / left])
+    Jk = np.column_stack(kept_cols) if kept_cols else np.zeros((J.shape[0], 0))
+    full = np.column_stack([J[:, :nr] / np.maximum(np.linalg.norm(J[:, :nr], axis=0), 1e-300), Jk]) \
+        if nr else Jk
+    sv = np.linalg.svd(full, compute_uv=False) if full.size else np.ones(1)
+    return Identifiability(kept, dropped, warnings,
+                           float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf)
+
+
+def _partners(v: np.ndarray, kept: list[Param], cols: list[np.ndarray]) -> list[str]:
+    if not cols:
+        return ["the registration"]
+    A = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(A, v, rcond=None)
+    names = [kept[i].name for i in np.argsort(-np.abs(coef)) if abs(coef[i]) > 0.05]
+    return names[:4] or ["the registration"]

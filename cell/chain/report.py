@@ -1,0 +1,226 @@
+"""``cellctl diagnose`` for a chain campaign: the ``cell-diagnosis/1`` report with the
+chain additions of ``cell/measurements.md`` (Extension v1.1): ``registration`` (sensor
+frame, marker positions, what they absorb), the gap after registration alone, the cause
+named by :mod:`cell.chain.rank`, and the holdout on poses the fit never saw.
+
+Split: the campaign's ``split`` column when present; otherwise 30 % of the poses, drawn
+with the fixed seed :data:`SPLIT_SEED` (the v1 diagnosis's), whole poses at a time.
+Noise: ``--noise-mm``, else the scatter of revisited poses (same joint readings), else
+unknown (and the report says the gap could not be compared with it).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cell.chain import fit as F
+from cell.chain import rank
+from cell.chain.campaign import ChainCampaign
+from cell.measurements import CampaignFormatError
+
+FORMAT = "cell-diagnosis/1"
+SPLIT_SEED = 20260501
+HOLDOUT_SHARE = 0.3
+_VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angles",
+             "position": "varies with the arm's pose"}
+
+
+def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
+    """(P,) True for fit poses, and where the split came from."""
+    if cc.split is not None:
+        fit = cc.split == "fit"
+        if not fit.any() or fit.all():
+            raise CampaignFormatError(cc.directory / "points.csv", "split has no "
+                                      + ("fit" if not fit.any() else "holdout") + " poses", column="split")
+        return fit, "campaign"
+    P = cc.n_poses
+    n_hold = int(round(HOLDOUT_SHARE * P))
+    if P - n_hold < 3 or n_hold < 1:
+        raise CampaignFormatError(cc.directory / "points.csv", f"{P} poses: too few to hold any out "
+                                  "(need at least 5)", column="sample")
+    rng = np.random.default_rng(SPLIT_SEED)
+    fit = np.ones(P, bool)
+    fit[rng.choice(P, n_hold, replace=False)] = False
+    return fit, f"generated ({100 * HOLDOUT_SHARE:.0f} % of poses, seed {SPLIT_SEED})"
+
+
+def repeat_noise_mm(cc: ChainCampaign) -> tuple[float | None, int]:
+    """σ per axis from poses revisited with identical readings (pooled over markers), and
+    the number of repeat groups; (None, 0) without repeats."""
+    key = {}
+    for p, q in enumerate(np.round(cc.readings, 6)):
+        key.setdefault(q.tobytes(), []).append(p)
+    groups = [g for g in key.values() if len(g) > 1]
+    ss, dof = 0.0, 0
+    for g in groups:
+        for m in range(len(cc.markers)):
+            rows = np.flatnonzero(np.isin(cc.obs_pose, g) & (cc.obs_marker == m))
+            if len(rows) > 1:
+                x = cc.xyz[rows]
+                ss += float(np.sum((x - x.mean(0)) ** 2))
+                dof += 3 * (len(rows) - 1)
+    return (math.sqrt(ss / dof), len(groups)) if dof else (None, 0)
+
+
+def _r(v, nd: int = 6):
+    return None if v is None or not math.isfinite(v) else round(float(v), nd)
+
+
+def _params(c: rank.Candidate) -> tuple[dict, dict]:
+    f = c.fit
+    return ({p.name: _r(v, 9) for p, v in zip(f.params, f.values)},
+            {p.name: [_r(lo, 9), _r(hi, 9)] for p, (lo, hi) in zip(f.params, f.ci95)})
+
+
+def _components(c: rank.Candidate) -> list[dict]:
+    """Per effect of a candidate: its parameters' rms displacement of the points, mm."""
+    f = c.fit
+    nr = f.J.shape[1] - len(f.params)
+    out = []
+    for e in c.effects:
+        idx = [nr + i for i, p in enumerate(f.params) if p.effect == e]
+        disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, 3)
+        out.append({"effect": e, "joints": sorted({f"j{p.joint + 1}" for p in f.params if p.effect == e},
+                                                   key=lambda s: int(s[1:])),
+                    "rms_mm": _r(F.rms3(disp))})
+    return sorted(out, key=lambda x: -(x["rms_mm"] or 0))
+
+
+def _entry(c: rank.Candidate) -> dict:
+    params, ci = _params(c)
+    return {"label": c.label, "effects": list(c.effects), "joints": c.joints, "k": len(c.fit.params),
+            "params": params, "ci95": ci, "score": _r(c.fit.cv_rms), "cv_rms_mm": _r(c.fit.cv_rms),
+            "fit_rms_mm": _r(c.fit.rms), "holdout_rms_mm": _r(c.hold_rms), "identifiable": True}
+
+
+def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
+    """The report (a JSON-ready dict) for chain campaign ``cc``; ``noise_mm`` is σ per axis
+    of one point measurement if known. Raises CampaignFormatError for data that cannot be
+    diagnosed (too few poses, a sensor frame the fit poses cannot fix)."""
+    fit_mask, split_src = split_poses(cc)
+    d_all = F.Data.of(cc)
+    fit_d, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
+    F.check_registrable(fit_d, str(cc.directory / "points.csv"))
+    noise_src = "given"
+    if noise_mm is None:
+        noise_mm, groups = repeat_noise_mm(cc)
+        noise_src = f"repeats ({groups} revisited poses)" if noise_mm is not None else "unknown"
+    s = rank.search(fit_d, hold_d)
+    dec = rank.decide(s, noise_mm)
+    f0 = s.nominal.fit
+    reg_ident = F.identifiability(fit_d, F.vocabulary(cc.chain), f0.reg)
+    absorbed = {n: why for n, why in reg_ident.dropped.items() if "registration" in why}
+    not_ident = {n: why for e in s.idents.values() for n, why in e.dropped.items()}
+    warnings = sorted({w for c in s.ranking[:1] if c.ident for w in c.ident.warnings})
+    before, after = s.nominal.hold_rms, (dec.chosen.hold_rms if dec.chosen else s.nominal.hold_rms)
+    shrink = 1 - after / before if before > 0 else 0.0
+    if dec.chosen is not None:
+        comps = _components(dec.chosen)
+        main = comps[0]["effect"]
+        params, ci = _params(dec.chosen)
+        joints = comps[0]["joints"]
+        cause = {"effect": main, "joints": joints, "params": params, "ci95": ci,
+                 "subsystem": F.SUBSYSTEM[main], "components": comps}
+        subsystem, depends = F.SUBSYSTEM[main], F.DEPENDS_ON[main]
+    else:
+        cause = {"effect": "none", "joints": [], "params": {}, "ci95": {}, "subsystem": "none",
+                 "components": []}
+        subsystem, depends, joints = "none", "position", []
+    cause["test"] = {"p_value": _r(dec.p_value, 8), "alpha": rank.ALPHA,
+                     "method": "one-sided Wilcoxon signed-rank over fit poses of the "
+                               "leave-one-pose-out error, vs registration alone",
+                     "runner_up": dec.runner_up.label if dec.runner_up else None,
+                     "runner_up_p_value": _r(dec.runner_up_p, 8)}
+    chain = cc.chain
+    summary = (f"After registration the gap is {f0.rms:.3f} mm rms over {len(fit_d.xyz)} points "
+               f"({fit_d.n_poses} poses)")
+    if cause["effect"] == "none":
+        summary += "; no effect of the chain vocabulary is supported"
+    else:
+        summary += (f"; it {_VAR_TEXT[depends]} and the best-supported cause is {cause['effect']} "
+                    f"on {', '.join(joints)}")
+    summary += (", but most of it is left unexplained." if dec.unexplained else ".")
+    n_reg = F.n_registration(fit_d)
+    return {
+        "format": FORMAT,
+        "source": cc.source,
+        "chain": {"kinematics": chain.kind, "convention": chain.convention or None,
+                  "joints": {j.column: {"name": j.name, "type": j.type, "unit": j.unit}
+                             for j in chain.joints},
+                  "markers": cc.markers, "measurement_frame": cc.spec.measurement_frame},
+        "registration": f0.reg.as_dict(fit_d.sensor, fit_d.known_markers is None, cc.markers)
+        | {"parameters": n_reg, "rms_mm": _r(f0.rms), "absorbs": absorbed,
+           "warnings": warnings,
+           "note": "registration is nuisance, fitted first and with every candidate; "
+                   "gap.rms_mm is the residual after registration alone"},
+        "gap": {"rms_mm": _r(f0.rms), "max_mm": _r(float(np.sqrt((f0.resid ** 2).sum(1)).max())),
+                "n": len(fit_d.xyz), "poses": fit_d.n_poses,
+                "where": {"subsystem": subsystem, "joints": joints, "depends_on": depends,
+                          "summary": summary}},
+        "ranking": [_entry(c) for c in s.ranking],
+        "cause": cause,
+        "holdout": {"n": len(hold_d.xyz), "poses": hold_d.n_poses, "rms_before_mm": _r(before),
+                    "rms_after_mm": _r(after), "shrink": _r(shrink, 4),
+                    "max_before_mm": _r(s.nominal.hold_max),
+                    "max_after_mm": _r(dec.chosen.hold_max if dec.chosen else s.nominal.hold_max)},
+        "unexplained": dec.unexplained,
+        "remainder": {"reasons": dec.reasons, "notes": dec.notes},
+        "not_identifiable": not_ident,
+        "noise": {"sigma_mm": _r(noise_mm, 7), "source": noise_src,
+                  "fit_rms_mm": _r((dec.chosen or s.nominal).fit.rms),
+                  "cv_rms_mm": _r((dec.chosen or s.nominal).fit.cv_rms),
+                  "registration_cv_rms_mm": _r(f0.cv_rms)},
+        "split": {"source": split_src, "fit_poses": fit_d.n_poses, "holdout_poses": hold_d.n_poses,
+                  "fit_rows": len(fit_d.xyz), "holdout_rows": len(hold_d.xyz)},
+    }
+
+
+def render_chain_text(rep: dict) -> str:
+    """The chain report as readable lines."""
+    g, c, h, reg = rep["gap"], rep["cause"], rep["holdout"], rep["registration"]
+    ch = rep["chain"]
+    out = [f"Sim-to-real diagnosis of {rep.get('source', '')}",
+           f"chain: {ch['kinematics']}, {len(ch['joints'])} joints, markers {ch['markers']}, "
+           f"measured in the {ch['measurement_frame']} frame"]
+    if "sensor_frame" in reg:
+        sf = reg["sensor_frame"]
+        out.append(f"registration: sensor frame t = {sf['t_mm']} mm, rpy = {sf['rpy_deg']} deg")
+    for m, p in reg.get("markers_mm", {}).items():
+        out.append(f"  marker {m} in the tip frame: {p} mm")
+    for n, why in reg["absorbs"].items():
+        out.append(f"  {n}: {why}")
+    for w in reg["warnings"]:
+        out.append(f"  warning: {w}")
+    out.append(f"gap after registration: rms {g['rms_mm']:.4f} mm, max {g['max_mm']:.4f} mm over "
+               f"{g['n']} points ({g['poses']} fit poses)")
+    out.append(f"where: {g['where']['summary']}")
+    out += ["", "| rank | candidate | k | leave-one-pose-out rms mm | fit rms mm | holdout rms mm |",
+            "|---:|---|---:|---:|---:|---:|",
+            f"| – | registration only | 0 | {rep['noise']['registration_cv_rms_mm']:.4f} | "
+            f"{g['rms_mm']:.4f} | {h['rms_before_mm']:.4f} |"]
+    for i, r in enumerate(rep["ranking"], 1):
+        out.append(f"| {i} | {r['label']} ({', '.join(r['joints'])}) | {r['k']} | {r['cv_rms_mm']:.4f} | "
+                   f"{r['fit_rms_mm']:.4f} | {r['holdout_rms_mm']:.4f} |")
+    out.append("")
+    if c["effect"] == "none":
+        out.append(f"cause: none (best candidate not supported: p = {c['test']['p_value']:.3g})")
+    else:
+        out.append(f"cause: {c['effect']} on {', '.join(c['joints'])} ({c['subsystem']}), "
+                   f"p = {c['test']['p_value']:.3g}")
+        for n, v in c["params"].items():
+            lo, hi = c["ci95"][n]
+            out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")
+    out.append(f"holdout ({h['poses']} poses, {h['n']} points): rms {h['rms_before_mm']:.4f} -> "
+               f"{h['rms_after_mm']:.4f} mm, shrink {h['shrink']:.3f}")
+    nz = rep["noise"]
+    out.append("noise: " + (f"σ {nz['sigma_mm']:.4f} mm per axis ({nz['source']})"
+                            if nz["sigma_mm"] is not None else "unknown (no repeated poses, no --noise-mm)"))
+    if rep["unexplained"]:
+        out.append("UNEXPLAINED: " + "; ".join(rep["remainder"]["reasons"]))
+    for note in rep["remainder"]["notes"]:
+        out.append(f"note: {note}")
+    if rep["not_identifiable"]:
+        out.append("not identifiable from this campaign: " + "; ".join(
+            f"{k} ({v})" for k, v in rep["not_identifiable"].items()))
+    return "\n".join(out)
