@@ -5,7 +5,8 @@
    registration; the rest is reported (absorbed by registration, or seen only as a sum).
 3. **Linearised screening**: per effect, forward selection of its parameters on the
    registration-only Jacobian, adding the one that most lowers the leave-one-pose-out
-   prediction error while it still lowers it. Cheap: one linear solve per try.
+   prediction error while that gain is significant over poses. Cheap: one linear solve
+   per try.
 4. **Full non-linear fits** of each effect's selection, and of the best two effects
    together (their pools screened jointly).
 5. **Decision**: the candidate with the lowest leave-one-pose-out error is named only if
@@ -25,6 +26,7 @@ from cell.chain import fit as F
 from cell.chain.stats import wilcoxon_greater
 
 ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out poses better
+STEP_ALPHA = 0.05     # the same test for one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
 
@@ -54,7 +56,9 @@ class Search:
 
 def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ()) -> list[F.Param]:
     """Forward selection on the linearised model at the registration-only solution ``f0``:
-    returns the chosen parameters (``start`` first)."""
+    add the parameter that most lowers the leave-one-pose-out error, while the per-pose
+    improvement it brings is significant (one-sided Wilcoxon over poses, :data:`STEP_ALPHA`).
+    Returns the chosen parameters (``start`` first)."""
     chosen = list(start)
     _, Jp = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
     nr = F.n_registration(d)
@@ -62,24 +66,26 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ())
     base = Jp[:, :nr]
     r0 = f0.resid.ravel()
 
-    def cv(params: list[F.Param]) -> float:
+    def cv(params: list[F.Param]) -> tuple[float, np.ndarray]:
         J = np.column_stack([base] + [cols[p.name] for p in params]) if params else base
         if J.shape[1] == 0:
-            return F.rms3(f0.resid)
-        Js, scale = F._scaled(J)
+            per = np.bincount(d.obs_pose, np.sum(f0.resid ** 2, 1), d.n_poses)
+            return F.rms3(f0.resid), per / np.maximum(np.bincount(d.obs_pose, minlength=d.n_poses), 1)
+        Js, _ = F._scaled(J)
         beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-        return F.leave_one_pose_out(J, r0 - Js @ beta, d.obs_pose, d.n_poses)[0]
+        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, d.obs_pose, d.n_poses)
+        return total, per
 
-    best = cv(chosen)
+    best, best_pose = cv(chosen)
     while True:
         tries = [(cv(chosen + [p]), p) for p in pool if p not in chosen]
         if not tries:
             return chosen
-        score, p = min(tries, key=lambda t: t[0])
-        if not score < best:
+        (score, per), p = min(tries, key=lambda t: t[0][0])
+        if not score < best or wilcoxon_greater(best_pose - per) >= STEP_ALPHA:
             return chosen
         chosen.append(p)
-        best = score
+        best, best_pose = score, per
 
 
 def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None) -> Candidate:
@@ -98,7 +104,10 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
         pool = [p for p in voc if p.effect == e]
         if not pool:
             continue
-        idents[e] = F.identifiability(fit_d, pool, f0.reg)
+        # a geometric parameter that only repeats a joint offset is the offset, not a link
+        first = [p for p in voc if p.effect == "joint_offset"] if e == "link_length" else []
+        idents[e] = F.identifiability(fit_d, pool, f0.reg, keep_first=first)
+        idents[e].kept = [p for p in idents[e].kept if p.effect == e]
         picks[e] = screen(fit_d, f0, idents[e].kept)
         if picks[e]:
             ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e]))

@@ -45,10 +45,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     j.add_argument("--png", help=f"error plot to write (default {DEFAULT_PNG.format(joint='<joint>')})")
     _common(j)
     j.set_defaults(func=run_joint)
-    k = kinds.add_parser("kinematics", help="seed 001: DH parameters from poses over the board")
+    k = kinds.add_parser("kinematics", help="seed 001: DH parameters from poses over the board, "
+                                            "or of any chain from a campaign")
+    k.add_argument("campaign", nargs="?", metavar="CAMPAIGN",
+                   help="a chain campaign (kinematics dh or urdf): fit it offline instead of "
+                        "measuring; --out DIR gets the calibrated model (default CAMPAIGN-calibrated)")
     k.add_argument("--poses", type=int, help="poses for the fit (default: calibration.poses, 24)")
     k.add_argument("--holdout", type=int, help="held-out poses for the check (default: calibration.holdout, 12)")
-    k.add_argument("--out", help="calibration file to write (default: calibration.file)")
+    k.add_argument("--out", help="calibration file to write (default: calibration.file); with "
+                                 "CAMPAIGN, the directory of the calibrated model")
     k.add_argument("--dry-run", action="store_true", help="measure and report; write nothing")
     _common(k)
     k.set_defaults(func=run_kinematics)
@@ -173,6 +178,8 @@ def _print_joint(plan, result, png: Path) -> None:
 
 # ---------------------------------------------------------------------- kinematics
 def run_kinematics(args: argparse.Namespace) -> int:
+    if args.campaign:
+        return run_chain(args)
     from cell.calibration import calfile
 
     cal, out = _session(args, lambda cal: (cal, cal.kinematics(
@@ -191,6 +198,69 @@ def run_kinematics(args: argparse.Namespace) -> int:
               f"{out.holdout.reason}", file=sys.stderr)
         return 2
     return 0
+
+
+def run_chain(args: argparse.Namespace) -> int:
+    """Seed 001 on a chain campaign (:mod:`cell.chain.calibrate`): no cell, no devices."""
+    given = [f"--{n}" for n in ("poses", "holdout", "plant", "config") if getattr(args, n) is not None]
+    given += ["--sim"] if args.sim else []
+    if given:
+        raise ConfigError(f"{', '.join(given)}: not with a CAMPAIGN (the campaign holds the poses)")
+    from cell.chain.calibrate import calibrate_chain, write_calibrated
+    from cell.jsonsafe import json_safe
+    from cell.measurements import Campaign, read_campaign
+    c = read_campaign(args.campaign)
+    if isinstance(c, Campaign):
+        raise ConfigError(f"{args.campaign}: a SCARA campaign; CAMPAIGN must be a chain (kinematics dh "
+                          "or urdf). The SCARA is calibrated from its hand camera: omit CAMPAIGN")
+    cal = calibrate_chain(c)
+    report = cal.report()
+    out = Path(args.out) if args.out else Path(str(Path(args.campaign)).rstrip("/") + "-calibrated")
+    if out.resolve() == Path(args.campaign).resolve():
+        raise ConfigError(f"--out {out}: would overwrite the campaign itself")
+    written = None
+    if cal.passed and not args.dry_run:
+        try:
+            written = write_calibrated(cal, out)
+        except OSError as exc:
+            raise ConfigError(f"--out {out}: cannot write: {exc}") from None
+    report["written"] = written
+    if args.json:
+        print(json.dumps(json_safe(report), indent=2, allow_nan=False))
+    else:
+        _print_chain(report)
+    if not cal.passed:
+        print(f"cellctl calibrate kinematics: error: held-out check failed, nothing written: "
+              f"{report['check']['reason']}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _print_chain(r: dict) -> None:
+    h, f, s = r["holdout"], r["fit"], r["split"]
+    print(f"held-out poses ({s['holdout_poses']}): rms {h['rms_before_mm']:.4f} → {h['rms_after_mm']:.4f} mm "
+          f"(shrink {h['shrink']:.3f}), max {h['max_before_mm']:.4f} → {h['max_after_mm']:.4f} mm "
+          f"(before: nominal model, registration fitted)")
+    print(f"fit ({s['fit_poses']} poses): rms {f['rms_before_mm']:.4f} → {f['rms_after_mm']:.4f} mm; "
+          f"leave-one-pose-out {f['cv_rms_before_mm']:.4f} → {f['cv_rms_after_mm']:.4f} mm")
+    print()
+    print(f"{'parameter':<26} {'value':>10} {'std error':>10} {'95 % interval':>24} unit")
+    for name, p in r["parameters"].items():
+        print(f"{name:<26} {p['value']:>+10.4f} {p['se']:>10.4f} [{p['low']:>+10.4f}, {p['high']:>+10.4f}] "
+              f"{p['unit']}")
+    if r["not_selected"]:
+        print(f"  identifiable but not improving left-out poses (kept nominal): {', '.join(r['not_selected'])}")
+    absorbed = [n for n, why in r["not_identifiable"].items() if "registration" in why]
+    if absorbed:
+        print(f"  absorbed by the registration (kept nominal): {', '.join(absorbed)}")
+    for n, why in r["not_identifiable"].items():
+        if "registration" not in why:
+            print(f"  {n}: {why} (kept nominal)")
+    print()
+    print(f"check: {r['check']['reason']}: {'PASSED' if r['check']['passed'] else 'FAILED'}")
+    if r["written"]:
+        print(f"written: {r['written']['model']}; diagnose on it with "
+              f"'cellctl diagnose {r['written']['dir']}'")
 
 
 def _print_kinematics(out, report: dict) -> None:

@@ -1,0 +1,117 @@
+"""An independent forward model of a DH arm measured by an external sensor, for blind
+checks of the chain diagnosis. Written plainly, per pose, from the DH definitions; it
+shares no code with :mod:`cell.chain.model` / :mod:`cell.chain.kin` / :mod:`cell.chain.fit`,
+so a sign, unit or composition mistake there cannot cancel out here (the agreement test
+in ``tests/cell/chain/test_chain_truth.py`` compares the two on every vocabulary effect).
+
+Effects it can put into a campaign (``effects`` maps a name to its size):
+
+* vocabulary: ``offset`` {joint: deg}, ``a``/``d``/``alpha`` {joint: mm or deg} (DH
+  parameter errors), ``ratio`` {joint: relative}, ``sag`` {joint: deg per m of the
+  gravity lever of a unit load at the tool point};
+* outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
+  ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
+  the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+DEG = math.pi / 180.0
+
+
+def dh_matrix(theta_deg: float, d: float, a: float, alpha_deg: float, modified: bool) -> np.ndarray:
+    """One DH row as a 4×4 (standard: Rz·Tz·Tx·Rx; modified: Rx·Tx·Rz·Tz)."""
+    ct, st = math.cos(theta_deg * DEG), math.sin(theta_deg * DEG)
+    ca, sa = math.cos(alpha_deg * DEG), math.sin(alpha_deg * DEG)
+    if not modified:
+        return np.array([[ct, -st * ca, st * sa, a * ct],
+                         [st, ct * ca, -ct * sa, a * st],
+                         [0.0, sa, ca, d],
+                         [0.0, 0.0, 0.0, 1.0]])
+    return np.array([[ct, -st, 0.0, a],
+                     [st * ca, ct * ca, -sa, -sa * d],
+                     [st * sa, ct * sa, ca, ca * d],
+                     [0.0, 0.0, 0.0, 1.0]])
+
+
+def _chain(rows, q, modified, eff, pose_index, n_poses):
+    """(list of 4×4 joint frames, tip 4×4) for one pose with the effects applied."""
+    T = np.eye(4)
+    frames = []
+    for k, r in enumerate(rows):
+        name = r["name"]
+        qk = q[k]
+        if eff.get("couple") and k == 2:
+            qk = qk + eff["couple"] * q[1]
+        qk = qk * (1.0 + eff.get("ratio", {}).get(name, 0.0)) + eff.get("offset", {}).get(name, 0.0)
+        if pose_index >= n_poses // 2:
+            qk += eff.get("bump", {}).get(name, 0.0)
+        qk += eff.get("_sag_dq", {}).get(name, 0.0)
+        th = r["theta_deg"] + (qk if r["type"] == "revolute" else 0.0)
+        d = r["d_mm"] + eff.get("d", {}).get(name, 0.0) + (qk if r["type"] == "prismatic" else 0.0)
+        a = r["a_mm"] + eff.get("a", {}).get(name, 0.0)
+        al = r["alpha_deg"] + eff.get("alpha", {}).get(name, 0.0)
+        if modified:
+            frames.append(T @ dh_matrix(0.0, 0.0, a, al, True))   # joint axis: z after Rx·Tx
+            T = T @ dh_matrix(th, d, a, al, True)
+        else:
+            frames.append(T.copy())                                 # joint axis: z before the row
+            T = T @ dh_matrix(th, d, a, al, False)
+    return frames, T
+
+
+def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, gravity=(0, 0, -1)):
+    """Base-frame positions (K, 3) of ``markers`` (K, 3, tip frame) on one pose."""
+    eff = dict(eff)
+    if eff.get("sag"):
+        frames, T = _chain(rows, q, modified, eff, pose_index, n_poses)
+        load = T[:3, :3] @ np.asarray(tool_mm, float) + T[:3, 3]
+        g = np.asarray(gravity, float)
+        dq = {}
+        for k, r in enumerate(rows):
+            if r["type"] != "revolute" or r["name"] not in eff["sag"]:
+                continue
+            z, o = frames[k][:3, 2], frames[k][:3, 3]
+            lever_m = float(z @ np.cross(load - o, g)) / 1000.0
+            dq[r["name"]] = eff["sag"][r["name"]] * lever_m
+        eff["_sag_dq"] = dq
+    _, T = _chain(rows, q, modified, eff, pose_index, n_poses)
+    out = np.array([T[:3, :3] @ np.asarray(m, float) + T[:3, 3] for m in markers])
+    if eff.get("reach_sag"):
+        reach_m = np.hypot(out[:, 0], out[:, 1]) / 1000.0
+        out[:, 2] -= eff["reach_sag"] * reach_m ** 2
+    return out
+
+
+def sensor_view(points_b: np.ndarray, R: np.ndarray, t: np.ndarray, lens: float = 0.0) -> np.ndarray:
+    """Points as the sensor reports them: ``R x + t``, then a radial scale (1 + lens·r)
+    about the sensor origin (r in m) for the out-of-vocabulary lens effect."""
+    y = points_b @ R.T + t
+    if lens:
+        r = np.linalg.norm(y, axis=1, keepdims=True) / 1000.0
+        y = y * (1.0 + lens * r)
+    return y
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def campaign_rows(rows, modified, readings, markers, eff, R, t, noise_mm, rng, tool_mm=(0, 0, 0),
+                  lens: float = 0.0) -> list[list]:
+    """points.csv rows ``[sample, j1..jN, marker, x, y, z]`` for every pose and marker."""
+    out = []
+    P = len(readings)
+    for p, q in enumerate(readings):
+        pts = sensor_view(tool_points(rows, q, modified, tool_mm, markers, eff, p, P), R, t, lens)
+        pts = pts + rng.normal(0.0, noise_mm, pts.shape)
+        for m, x in enumerate(pts):
+            out.append([p, *q, m + 1, *x])
+    return out
