@@ -4,9 +4,9 @@
 2. **Identifiability** per effect: its per-joint parameters the data can see beside the
    registration; the rest is reported (absorbed by registration, or seen only as a sum).
 3. **Linearised screening**: per effect, forward selection of its parameters on the
-   registration-only Jacobian, adding the one that most lowers the leave-one-pose-out
-   prediction error while that gain is significant over poses. Cheap: one linear solve
-   per try.
+   registration-only Jacobian (forward while the leave-one-pose-out prediction error
+   drops, then backward while a removal costs nothing significant over poses). Cheap:
+   one linear solve per try.
 4. **Full non-linear fits** of each effect's selection, and of the best two effects
    together (their pools screened jointly).
 5. **Decision**: the candidate with the lowest leave-one-pose-out error is named only if
@@ -26,7 +26,7 @@ from cell.chain import fit as F
 from cell.chain.stats import wilcoxon_greater
 
 ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out poses better
-STEP_ALPHA = 0.05     # the same test for one more parameter during screening
+STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
 
@@ -55,10 +55,12 @@ class Search:
 
 
 def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ()) -> list[F.Param]:
-    """Forward selection on the linearised model at the registration-only solution ``f0``:
-    add the parameter that most lowers the leave-one-pose-out error, while the per-pose
-    improvement it brings is significant (one-sided Wilcoxon over poses, :data:`STEP_ALPHA`).
-    Returns the chosen parameters (``start`` first)."""
+    """Stepwise selection on the linearised model at the registration-only solution
+    ``f0``. Forward: add the parameter that most lowers the leave-one-pose-out error while
+    it drops (parameters needed only together, like offsets of parallel axes, get in).
+    Backward: drop the parameter whose removal costs least while that cost is not
+    significant over poses (one-sided Wilcoxon, :data:`STEP_ALPHA`). Returns the chosen
+    parameters (``start`` first)."""
     chosen = list(start)
     _, Jp = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
     nr = F.n_registration(d)
@@ -77,15 +79,23 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ())
         return total, per
 
     best, best_pose = cv(chosen)
-    while True:
+    while True:                        # forward: while the left-out error still drops
         tries = [(cv(chosen + [p]), p) for p in pool if p not in chosen]
         if not tries:
-            return chosen
+            break
         (score, per), p = min(tries, key=lambda t: t[0][0])
-        if not score < best or wilcoxon_greater(best_pose - per) >= STEP_ALPHA:
-            return chosen
+        if not score < best:
+            break
         chosen.append(p)
         best, best_pose = score, per
+    while len(chosen) > len(start):    # backward: drop what the poses do not need
+        drops = [(cv([c for c in chosen if c is not p]), p) for p in chosen[len(start):]]
+        (score, per), p = min(drops, key=lambda t: t[0][0])
+        if wilcoxon_greater(per - best_pose) < STEP_ALPHA:
+            break
+        chosen.remove(p)
+        best, best_pose = score, per
+    return chosen
 
 
 def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None) -> Candidate:

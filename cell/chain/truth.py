@@ -8,7 +8,7 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
 
 * vocabulary: ``offset`` {joint: deg}, ``a``/``d``/``alpha`` {joint: mm or deg} (DH
   parameter errors), ``ratio`` {joint: relative}, ``sag`` {joint: deg per m of the
-  gravity lever of a unit load at the tool point};
+  gravity lever of a unit load at the tool point, taken on the nominal arm};
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
   the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading).
@@ -67,7 +67,9 @@ def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, g
     """Base-frame positions (K, 3) of ``markers`` (K, 3, tip frame) on one pose."""
     eff = dict(eff)
     if eff.get("sag"):
-        frames, T = _chain(rows, q, modified, eff, pose_index, n_poses)
+        # the lever is taken on the nominal arm (the effect's definition; the deflected
+        # pose would change it by a second-order amount)
+        frames, T = _chain(rows, q, modified, {}, pose_index, n_poses)
         load = T[:3, :3] @ np.asarray(tool_mm, float) + T[:3, 3]
         g = np.asarray(gravity, float)
         dq = {}

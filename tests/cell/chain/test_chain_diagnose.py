@@ -1,0 +1,110 @@
+"""The chain diagnosis and calibration on campaigns of the independent forward model
+(cell.chain.truth) and on the real TIAGo set."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cell.chain.calibrate import calibrate_chain, write_calibrated
+from cell.chain.report import diagnose_chain
+from cell.measurements import read_campaign
+from tests.cell.chain import chainsim
+
+TIAGO = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "tiago-mocap-train"
+NOISE = 0.05
+
+
+@pytest.mark.parametrize("effects, effect, joints, truth", [
+    ({"offset": {"j2": 0.05, "j3": -0.08}}, "joint_offset", ["j2", "j3"],
+     {"j2_offset_deg": 0.05, "j3_offset_deg": -0.08}),
+    ({"ratio": {"j2": 0.002}}, "gear_ratio", ["j2"], {"j2_gear_ratio_rel": 0.002}),
+    ({"a": {"j3": 0.8}}, "link_length", ["j3"], {"j3_a_mm": 0.8}),
+    ({"sag": {"j2": 0.3, "j3": 0.2}}, "gravity_compliance", ["j2", "j3"],
+     {"j2_compliance_deg_per_m": 0.3, "j3_compliance_deg_per_m": 0.2}),
+])
+def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, effects, effect, joints, truth):
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", effects, seed=3)), NOISE)
+    assert rep["cause"]["effect"] == effect
+    assert rep["cause"]["joints"] == joints
+    assert not rep["unexplained"]
+    assert rep["holdout"]["shrink"] > 0.6
+    for name, v in truth.items():
+        lo, hi = rep["cause"]["ci95"][name]
+        assert lo < v < hi, name
+    # registration is reported, and gap.rms_mm is the residual after it alone
+    assert set(rep["registration"]["markers_mm"]) == {"1", "2", "3"}
+    assert rep["gap"]["rms_mm"] == rep["registration"]["rms_mm"]
+
+
+def test_no_effect_is_none_and_registration_absorbs_the_base_offset(tmp_path):
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {}, seed=4)), NOISE)
+    assert rep["cause"]["effect"] == "none"
+    assert not rep["unexplained"]
+    # a first vertical axis under a fitted sensor frame, the last one under free markers
+    assert "registration" in rep["not_identifiable"]["j1_offset_deg"]
+    assert "registration" in rep["not_identifiable"]["j6_offset_deg"]
+
+
+@pytest.mark.parametrize("effects, lens", [({"reach_sag": 2.0}, 0.0), ({"bump": {"j3": 0.15}}, 0.0),
+                                            ({}, 2e-3)])
+def test_effects_outside_the_vocabulary_are_not_a_confident_cause(tmp_path, effects, lens):
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", effects, seed=5, lens=lens)), NOISE)
+    assert rep["unexplained"] or rep["cause"]["effect"] == "none", rep["cause"]
+
+
+def test_a_campaign_split_is_used_and_holdout_rows_are_not_fitted(tmp_path):
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {"offset": {"j3": 0.1}}, split=True)),
+                         NOISE)
+    assert rep["split"]["source"] == "campaign"
+    assert rep["split"]["holdout_poses"] == 20 and rep["split"]["fit_poses"] == 40
+
+
+def test_calibrated_dh_model_is_the_new_nominal(tmp_path):
+    c = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.2}, "a": {"j3": 1.0}}, seed=6)
+    cal = calibrate_chain(read_campaign(c))
+    assert cal.passed
+    v = cal.fit.named()
+    assert abs(v["j2_offset_deg"] - 0.2) < 0.01 and abs(v["j3_a_mm"] - 1.0) < 0.05
+    out = write_calibrated(cal, tmp_path / "cal")
+    again = read_campaign(tmp_path / "c", out["model"])
+    rep = diagnose_chain(again, NOISE)
+    assert rep["gap"]["rms_mm"] == pytest.approx(cal.fit.rms, abs=2e-6)  # report rounds to 1 µm
+    assert rep["cause"]["effect"] == "none"
+
+
+def _cellctl(*args):
+    return subprocess.run([sys.executable, "-m", "cell.cli", *args], capture_output=True, text=True,
+                          timeout=120)
+
+
+@pytest.mark.skipif(not TIAGO.is_dir(), reason="real data not present")
+def test_tiago_diagnose_and_calibrate_from_the_command_line(tmp_path):
+    r = _cellctl("diagnose", str(TIAGO), "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert rep["format"] == "cell-diagnosis/1"
+    assert rep["registration"]["sensor_frame"] and len(rep["registration"]["markers_mm"]) == 4
+    # published: joint offsets take a held-out session from 4.87 to 4.23 mm (shrink 0.131)
+    assert rep["holdout"]["shrink"] >= 1 - 4.23 / 4.87
+    assert rep["cause"]["effect"] in ("joint_offset", "link_length")
+    # upstream judges the 3-4 mm left after calibration non-geometric: it must be flagged
+    assert rep["unexplained"] is True
+    out = tmp_path / "tiago-cal"
+    r = _cellctl("calibrate", "kinematics", str(TIAGO), "--json", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    cal = json.loads(r.stdout)
+    assert cal["check"]["passed"] and cal["holdout"]["shrink"] >= 1 - 4.23 / 4.87
+    assert (out / "model.yaml").is_file() and (out / "tiago_arm_chain_calibrated.urdf").is_file()
+    r = _cellctl("diagnose", str(TIAGO), "--model", str(out / "model.yaml"), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["gap"]["rms_mm"] == pytest.approx(cal["fit"]["rms_after_mm"], rel=1e-5)
+
+
+def test_calibrate_refuses_a_campaign_with_cell_options(tmp_path):
+    c = chainsim.make(tmp_path / "c", {}, poses=20)
+    r = _cellctl("calibrate", "kinematics", str(c), "--sim")
+    assert r.returncode == 2 and "--sim: not with a CAMPAIGN" in r.stderr

@@ -1,0 +1,114 @@
+"""Chain models: forward kinematics against closed forms and the independent per-pose
+model, exact Jacobians against finite differences, identifiability."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cell.chain import fit as F
+from cell.chain import kin, truth
+from cell.chain.model import dh_chain, matrix_rpy, rpy_matrix
+from cell.measurements import read_campaign
+from tests.cell.chain import chainsim
+
+TIAGO = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "tiago-mocap-train"
+
+
+def _planar(convention):
+    # seed 000 eq. 4: x = l1 cos q1 + l2 cos(q1 + q2), l1 = 325, l2 = 275 mm
+    if convention == "standard":
+        rows = [{"name": "j1", "type": "revolute", "a_mm": 325.0, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0},
+                {"name": "j2", "type": "revolute", "a_mm": 275.0, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0}]
+        tool = (0.0, 0.0, 0.0)
+    else:
+        rows = [{"name": "j1", "type": "revolute", "a_mm": 0.0, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0},
+                {"name": "j2", "type": "revolute", "a_mm": 325.0, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0}]
+        tool = (275.0, 0.0, 0.0)
+    return dh_chain(Path("m.yaml"), rows, convention, [], tool, (0, 0, -1)), tool
+
+
+@pytest.mark.parametrize("convention", ["standard", "modified"])
+def test_planar_dh_chain_matches_the_scara_closed_form(convention):
+    chain, tool = _planar(convention)
+    q = np.array([[10.0, 20.0], [-75.0, 130.0], [0.0, 0.0]])
+    tips, _ = kin.forward(chain, q)
+    x = kin.points(tips, np.arange(3), np.tile(tool, (3, 1)))
+    a, b = np.radians(q[:, 0]), np.radians(q[:, 0] + q[:, 1])
+    assert np.allclose(x[:, 0], 325 * np.cos(a) + 275 * np.cos(b), atol=1e-9)
+    assert np.allclose(x[:, 1], 325 * np.sin(a) + 275 * np.sin(b), atol=1e-9)
+
+
+@pytest.mark.parametrize("modified", [False, True])
+def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modified):
+    eff = {"offset": {"j2": 0.3, "j5": -0.2}, "a": {"j3": 1.5}, "d": {"j4": -0.7},
+           "alpha": {"j2": 0.05}, "ratio": {"j3": 0.002}, "sag": {"j2": 0.4, "j3": 0.2}}
+    rows = chainsim.UR5
+    d = chainsim.make(tmp_path / "c", None, poses=8, noise_mm=0.0, sensor=False, modified=modified)
+    cc = read_campaign(d)
+    voc = {p.name: p for p in F.vocabulary(cc.chain)}
+    names = {"offset": "{j}_offset_deg", "a": "{j}_a_mm", "d": "{j}_d_mm", "alpha": "{j}_alpha_deg",
+             "ratio": "{j}_gear_ratio_rel", "sag": "{j}_compliance_deg_per_m"}
+    params, values = [], []
+    for kind, per in eff.items():
+        for j, v in per.items():
+            params.append(voc[names[kind].format(j=j)])
+            values.append(v)
+    data = F.Data.of(cc)
+    reg = F.Registration(np.eye(3), np.zeros(3), np.array(chainsim.MARKERS))
+    got, _ = F.model(data, reg, params, np.array(values))
+    want = np.vstack([truth.tool_points(rows, q, modified, (0, 0, 0), chainsim.MARKERS, eff, p, 8)
+                      for p, q in enumerate(cc.readings)])
+    assert np.max(np.abs(got - want)) < 1e-9
+
+
+def test_every_jacobian_column_matches_finite_differences(tmp_path):
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True)
+    cc = read_campaign(d)
+    data = F.Data.of(cc)
+    params = F.vocabulary(cc.chain)
+    v0 = np.linspace(-0.01, 0.01, len(params))
+    reg = F.initial_registration(data)
+    y0, J = F.model(data, reg, params, v0, jac=True)
+    nr = F.n_registration(data)
+    h = 1e-6
+    for i in range(len(params)):
+        v = v0.copy()
+        v[i] += h
+        y1, _ = F.model(data, reg, params, v)
+        assert np.allclose((y1 - y0).ravel() / h, J[:, nr + i], atol=1e-4, rtol=1e-4), params[i].name
+    # registration columns: translation and markers exactly, the rotation as a left twist
+    for i in range(nr):
+        step = np.zeros(nr + len(params))
+        step[i] = h
+        r2, _ = F._apply(data, reg, v0, step)
+        y1, _ = F.model(data, r2, params, v0)
+        assert np.allclose((y1 - y0).ravel() / h, J[:, i], atol=1e-3, rtol=1e-4), i
+
+
+def test_urdf_rpy_round_trips():
+    T = rpy_matrix([1.0, -2.0, 3.0], [0.3, -1.2, 2.9])
+    xyz, rpy = matrix_rpy(T)
+    assert np.allclose(rpy_matrix(xyz, rpy), T, atol=1e-12)
+
+
+@pytest.mark.skipif(not TIAGO.is_dir(), reason="real data not present")
+def test_tiago_registration_and_offsets_match_the_data_readme():
+    # shared/data/real/tiago-mocap-train/README.md: registration only, all 4 points 4.09 mm;
+    # with constant offsets of arm_2 … arm_6 3.23 mm; torso, arm_1, arm_7 not visible
+    cc = read_campaign(TIAGO)
+    d = F.Data.of(cc)
+    f0 = F.fit(d, [])
+    assert f0.rms == pytest.approx(4.09, abs=0.005)
+    offs = [p for p in F.vocabulary(cc.chain) if p.effect == "joint_offset"]
+    idf = F.identifiability(d, offs, f0.reg)
+    assert [p.name for p in idf.kept] == [f"j{k}_offset_deg" for k in range(3, 8)]
+    assert set(idf.dropped) == {"j1_offset_mm", "j2_offset_deg", "j8_offset_deg"}
+    assert all("registration" in why for why in idf.dropped.values())
+    f1 = F.fit(d, idf.kept, f0.reg)
+    assert f1.rms == pytest.approx(3.23, abs=0.005)
+    # FIGAROH's arm_5 offset on this set: -49.8 mrad = -2.85 deg (point 1 only)
+    lo, hi = f1.ci95[[p.name for p in idf.kept].index("j6_offset_deg")]
+    assert lo < math.degrees(-0.0498) < hi
