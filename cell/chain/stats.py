@@ -4,7 +4,7 @@
 
 * :func:`t_quantile`: Student t quantile; closed forms for 1 and 2 degrees of freedom,
   the Cornish–Fisher expansion (Abramowitz & Stegun 26.7.5) beyond, which is within
-  4·10⁻³ of the exact value from 3 degrees of freedom on (10⁻⁴ from 5).
+  4·10⁻³ of the exact value from 3 degrees of freedom on (3·10⁻⁴ from 5).
 * :func:`wilcoxon_greater`: one-sided Wilcoxon signed-rank p-value that paired
   differences are shifted above zero; exact (by counting) up to 30 pairs without ties,
   normal approximation with tie and continuity corrections beyond.
