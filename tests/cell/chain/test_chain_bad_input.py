@@ -11,7 +11,7 @@ from cell.chain.report import diagnose_chain
 from cell.measurements import CampaignFormatError, read_campaign
 from tests.cell.chain import chainsim
 
-TIAGO = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "tiago-mocap-train"
+TIAGO = Path(__file__).resolve().parents[2] / "data" / "real" / "tiago-mocap-train"  # copy of shared/data/real
 needs_tiago = pytest.mark.skipif(not TIAGO.is_dir(), reason="real data not present")
 
 

@@ -14,7 +14,7 @@ from cell.chain.model import dh_chain, matrix_rpy, rpy_matrix
 from cell.measurements import read_campaign
 from tests.cell.chain import chainsim
 
-TIAGO = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "tiago-mocap-train"
+TIAGO = Path(__file__).resolve().parents[2] / "data" / "real" / "tiago-mocap-train"  # copy of shared/data/real
 
 
 def _planar(convention):
