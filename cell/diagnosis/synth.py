@@ -76,7 +76,7 @@ def _ik(l1, l2, xy, elbow):
     return np.degrees(np.column_stack([np.unwrap(t1), t2]))
 
 
-def _move(rng, design: Design, l1, l2, limits) -> tuple[np.ndarray, np.ndarray]:
+def straight_move(rng, design: Design, l1, l2, limits) -> tuple[np.ndarray, np.ndarray]:
     """(time (M,), commanded joints (M,2)) of one straight move that stays clear of limits
     and of the stretched/folded arm."""
     n = int(round(design.move_s / design.path_dt_s))
@@ -142,7 +142,7 @@ def make_campaign(effects: Sequence[fx.EffectInstance], seed: int, design: Desig
                                                  "x_mm", "y_mm", "split")}
         start = float(t[-1]) + 60.0
         for m in range(design.n_moves):
-            tm, qm = _move(rng, design, g.l1_mm, g.l2_mm, g.limits)
+            tm, qm = straight_move(rng, design, g.l1_mm, g.l2_mm, g.limits)
             d0 = first_step_dirs(qm)
             xym = plant.campaign_path(qm, tm, start_s=start + 10.0 * m, dirs0=d0)
             if distortion is not None:
