@@ -4,12 +4,17 @@ shrinks on withheld rows (report format in ``cell/measurements.md``).
     cellctl diagnose CAMPAIGN [--json] [--html DIR]
     cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]
     cellctl diagnose validate [--trials 200] [--seed S] [--combos] [--points 300] [--json]
+                              [--out-of-vocabulary SHARE] [--oov-kinds K1,K2]
 
 CAMPAIGN is a campaign directory in the exchange format, or the cell's own SQLite cycle
 log (exported on the fly with :func:`cell.export.cycles_to_campaign`; the nominal link
 lengths come from ``--robot``). ``validate`` (a special first positional; write
-``./validate`` for a directory of that name) draws campaigns from the plant with a hidden
-effect and prints the scores as Markdown tables (:mod:`cell.diagnosis.validate`).
+``./validate`` for a directory of that name) draws campaigns with a hidden effect from the
+independent forward model (:mod:`cell.truth`) and prints the scores as Markdown tables
+(:mod:`cell.diagnosis.validate`). ``--out-of-vocabulary SHARE`` gives that share of the
+trials (0–1, default 0) an effect from outside the vocabulary instead (``--oov-kinds``:
+radial_distortion, reach_sag, offset_bump, joint_coupling; default all), which should come
+back unexplained or as none, never as a confident cause.
 
 Bad input exits with status 2 and a message naming file, line and column
 (:class:`~cell.measurements.CampaignFormatError`, raised before anything is diagnosed).
@@ -55,6 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--combos", action="store_true",
                    help="validate: a main effect plus a smaller second one")
     v.add_argument("--points", type=int, help="validate: static poses per campaign (default 300)")
+    v.add_argument("--out-of-vocabulary", type=float, metavar="SHARE", dest="oov_share",
+                   help="validate: share of trials (0-1, default 0) whose truth is an effect "
+                        "outside the vocabulary")
+    v.add_argument("--oov-kinds", metavar="K1,K2", dest="oov_kinds",
+                   help="validate: which effects outside the vocabulary (default all of "
+                        "radial_distortion, reach_sag, offset_bump, joint_coupling)")
     p.set_defaults(func=run)
 
 
@@ -63,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
         return run_validate(args)
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
+    given += ["--out-of-vocabulary"] if args.oov_share is not None else []
+    given += ["--oov-kinds"] if args.oov_kinds is not None else []
     if given:
         raise ConfigError(f"{', '.join(given)}: only with 'cellctl diagnose validate'")
     from cell.diagnosis import diagnose, render_text
@@ -162,10 +175,23 @@ def run_validate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--seed {seed} must be ≥ 0")
     if args.html:
         raise ConfigError("--html: not with 'validate' (it prints Markdown tables)")
-    ts = validate.run(trials, seed, args.combos, points)
+    share = 0.0 if args.oov_share is None else args.oov_share
+    if not 0.0 <= share <= 1.0:
+        raise ConfigError(f"--out-of-vocabulary {args.oov_share} must be a share from 0 to 1")
+    kinds = validate.OUTSIDE if args.oov_kinds is None else \
+        tuple(k.strip() for k in args.oov_kinds.split(",") if k.strip())
+    bad = [k for k in kinds if k not in validate.OUTSIDE]
+    if bad or not kinds:
+        raise ConfigError(f"--oov-kinds {args.oov_kinds!r}: unknown {', '.join(bad) or 'empty'}; "
+                          f"choose from {', '.join(validate.OUTSIDE)}")
+    if args.oov_kinds is not None and share == 0.0:
+        raise ConfigError("--oov-kinds: give --out-of-vocabulary SHARE > 0 as well")
+    ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds)
     kind = "main effect + smaller second" if args.combos else "single effect"
     title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
              f"6 moves each")
+    if share:
+        title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
     if args.json:
         print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
     else:

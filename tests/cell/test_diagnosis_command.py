@@ -205,3 +205,36 @@ def test_validate_runs_a_few_trials(capsys):
     assert "| 3 |" in out                                       # the trials column
     assert cellctl(["diagnose", "validate", "--trials", "0"]) == 2
     assert "--trials 0 must be ≥ 1" in capsys.readouterr().err
+
+
+def test_validate_outside_the_vocabulary_option(capsys):
+    assert cellctl(["diagnose", "validate", "--trials", "2", "--seed", "3", "--points", "60",
+                    "--out-of-vocabulary", "1", "--oov-kinds", "joint_coupling"]) == 0
+    out = capsys.readouterr().out
+    assert "outside the vocabulary (joint_coupling)" in out
+    assert "| joint coupling (outside) |" in out and "outside vocab. named as cause" in out
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--out-of-vocabulary", "1.5"], "--out-of-vocabulary 1.5 must be a share from 0 to 1"),
+    (["--out-of-vocabulary", "nan"], "--out-of-vocabulary nan must be a share from 0 to 1"),
+    (["--out-of-vocabulary", "0.5", "--oov-kinds", "lens,reach_sag"],
+     "--oov-kinds 'lens,reach_sag': unknown lens; choose from radial_distortion, reach_sag"),
+    (["--out-of-vocabulary", "0.5", "--oov-kinds", ","], "unknown empty"),
+    (["--oov-kinds", "reach_sag"], "--oov-kinds: give --out-of-vocabulary SHARE > 0 as well"),
+])
+def test_validate_bad_outside_options(argv, message, capsys):
+    assert cellctl(["diagnose", "validate", "--trials", "1"] + argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_validate_share_that_is_not_a_number(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cellctl(["diagnose", "validate", "--out-of-vocabulary", "half"])
+    assert exc.value.code == 2
+    assert "--out-of-vocabulary: invalid float value: 'half'" in capsys.readouterr().err
+
+
+def test_outside_options_only_with_validate(campaign_dir, capsys):
+    assert cellctl(["diagnose", str(campaign_dir), "--out-of-vocabulary", "0.2"]) == 2
+    assert "--out-of-vocabulary: only with 'cellctl diagnose validate'" in capsys.readouterr().err

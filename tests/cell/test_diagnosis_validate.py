@@ -1,0 +1,99 @@
+"""``cellctl diagnose validate`` on the independent truth: campaigns come from cell/truth (not
+cell/effects), effects outside the vocabulary get no confident cause, the tables add up.
+Small seeded runs (120 poses, 6 moves) to keep the suite fast."""
+import re
+
+import numpy as np
+import pytest
+
+from cell import effects as fx
+from cell.diagnosis import validate
+from cell.diagnosis.synth import Design
+from cell.truth import campaign, parts
+
+
+def test_campaigns_do_not_go_through_effects_py(monkeypatch):
+    def boom(*a, **k):
+        raise AssertionError("the truth must not call cell.effects")
+    for name in ("simulate_points", "simulate_path", "true_joints", "camera_view"):
+        monkeypatch.setattr(fx, name, boom)
+    c = campaign.make_campaign([parts.draw(np.random.default_rng(0), "backlash", 2)], 3,
+                               Design(n_points=30, n_moves=2))
+    assert len(c.points["x_mm"]) == 30 and len(set(c.paths["move"].tolist())) == 2
+
+
+def test_outside_trials_come_from_their_own_stream():
+    draws = [validate.draw_outside(s, 0.5, validate.OUTSIDE) for s in range(200)]
+    assert 60 < sum(d is not None for d in draws) < 140
+    assert all(validate.draw_outside(s, 0.0, validate.OUTSIDE) is None for s in range(50))
+    assert all(validate.draw_outside(s, 1.0, ("reach_sag",)).kind == "reach_sag"
+               for s in range(50))
+    assert validate.draw_outside(7, 0.5, validate.OUTSIDE) == \
+        validate.draw_outside(7, 0.5, validate.OUTSIDE)
+
+
+def test_expected_answer_is_a_valid_vocabulary_instance():
+    rng = np.random.default_rng(4)
+    for k in parts.VOCABULARY:
+        e = validate.expected(parts.draw(rng, k))
+        assert e.effect == k and set(e.params) == set(e.param_names)
+    with pytest.raises(ValueError, match="outside the vocabulary"):
+        validate.expected(parts.draw(rng, "reach_sag"))
+
+
+def test_combos_second_effect_is_smaller():
+    d = Design(n_points=60, n_moves=2)
+    for s in range(4):
+        rows = campaign.draw_rows(s, d)
+        main, second = validate.draw_truth(np.random.default_rng(s), True, rows, d)
+        assert main.kind != second.kind
+        assert campaign.rms_displacement([second], rows, d) <= \
+            0.4 * campaign.rms_displacement([main], rows, d) + 1e-12
+
+
+@pytest.fixture(scope="module")
+def outside_run():
+    """Two trials of each effect outside the vocabulary, plus a few vocabulary ones."""
+    ts = []
+    for k, kind in enumerate(validate.OUTSIDE):
+        ts += validate.run(2, 30 + k, points=120, outside_share=1.0, outside_kinds=(kind,))
+    return ts + validate.run(3, 5, points=120)
+
+
+def test_outside_effects_get_no_confident_cause(outside_run):
+    odd = [t for t in outside_run if t.outside]
+    assert sorted({t.true_effect for t in odd}) == sorted(validate.OUTSIDE)
+    named = [(t.true_effect, t.named) for t in odd if t.confident_cause]
+    assert not named, named
+    s = validate.summarise(outside_run)
+    assert s["outside_trials"] == len(odd) == 8 and s["trials"] == 11
+    assert s["outside_named_as_cause"] + s["outside_unexplained"] + s["outside_none"] == 8
+
+
+def test_confusion_matrix_counts_add_up(outside_run):
+    md = validate.markdown(outside_run, "t")
+    lines = md.splitlines()
+    start = lines.index("| true \\ named | " + " | ".join(
+        c.replace("_", " ") for c in list(validate.TRUTHS) + ["unexplained"]) + " |")
+    table = lines[lines.index("| true effect | trials | named right | right joint | median shrink "
+                              "| CI coverage | median s |") + 2:start]
+    per_effect = {m.group(1): int(m.group(2)) for m in
+                  (re.match(r"\| (\w+(?: \(outside\))?) \| (\d+) \|", ln) for ln in table) if m}
+    rows = {}
+    for ln in lines[start + 2:]:
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        rows[cells[0]] = sum(int(c) for c in cells[1:] if c != "·")
+    assert sum(rows.values()) == len(outside_run) == sum(per_effect.values())
+    for name, n in per_effect.items():
+        assert rows[name.replace("_", " ")] == n
+    for kind in validate.OUTSIDE:
+        assert rows[kind.replace("_", " ") + " (outside)"] == 2
+    summary = lines[4].strip("|").split("|")
+    assert summary[0].strip() == "11" and summary[-1].strip().endswith("/8")
+
+
+def test_run_refuses_bad_outside_settings():
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        validate.run(1, 0, outside_share=1.5)
+    with pytest.raises(ValueError, match="unknown kinds"):
+        validate.run(1, 0, outside_share=0.5, outside_kinds=("lens",))
