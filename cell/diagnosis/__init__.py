@@ -8,8 +8,8 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.rank`       search over singles and pairs, none / pair / unexplained decisions
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
 * :mod:`.report`     :func:`diagnose`, the JSON report and its text
-* :mod:`.synth`      validation campaigns drawn from the plant
-* :mod:`.validate`   validation trials and their scores
+* :mod:`.synth`      the validation campaign design; campaigns drawn from the plant (tests)
+* :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
 """
 from cell.diagnosis.report import FORMAT, Diagnosis, diagnose, render_text

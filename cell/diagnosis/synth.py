@@ -1,7 +1,9 @@
 """Validation campaigns drawn from the plant (:class:`cell.sim.plant.Plant`). Pure numerics.
 
 :func:`make_campaign` measures one campaign in the exchange format on a plant carrying the
-given effects. The design (:class:`Design`, defaults below) is meant to be what a careful
+given effects (the tests use it; ``cellctl diagnose validate`` measures the same design on
+the independent forward model instead, :mod:`cell.truth.campaign`, since the plant computes
+its truth with :mod:`cell.effects`, the functions the diagnosis fits with). The design (:class:`Design`, defaults below) is meant to be what a careful
 engineer would record on the seed 000 robot (l1 = l2 = 500 mm, command unit 0.01°):
 
 * **points**: ``n_points`` static poses, joints uniform over θ1 ∈ [−150°, 150°] and
