@@ -20,11 +20,12 @@ a stream of its own, so the other trials keep their truths) carries instead one 
 ``outside_kinds`` (:data:`cell.truth.parts.OUTSIDE`: radial lens distortion, reach-dependent
 sag, a joint-offset bump halfway through, joint 2 coupled to joint 1), alone, also with
 ``combos``. The right answer is ``unexplained`` or ``none``: a vocabulary cause reported
-without ``unexplained`` is a confident wrong cause.
+without ``unexplained`` (and not marked ``confidence: low``) is a confident wrong cause.
 
 Scores (:func:`summarise`): confusion matrix (true effect × named effect, ``unexplained``
 as its own column since the report then names no supported cause; rows for the effects
-outside the vocabulary too), effect / joint / subsystem accuracy, how often the ``where``
+outside the vocabulary too), effect / joint / subsystem accuracy (a cyclic error's joint
+is right only with its true number of cycles per revolution), how often the ``where``
 analysis's ``depends_on`` matches the true effect's, median holdout shrink (effect trials),
 coverage of the true parameters by the 95 % intervals (trials named right, fitted
 parameters only; cyclic phase compared modulo 360°), and the run time per campaign. These
@@ -72,6 +73,8 @@ class Trial:
     n_params: int
     seconds: float
     truth_params: dict = field(default_factory=dict)
+    confidence: str | None = None   # the report's cause.confidence, if it gives one
+    order_ok: bool = True           # a cyclic error named with the true cycles per revolution
 
     @property
     def outside(self) -> bool:
@@ -80,8 +83,9 @@ class Trial:
 
     @property
     def confident_cause(self) -> bool:
-        """The report names a vocabulary cause and does not call it unexplained."""
-        return not self.unexplained and self.named != "none"
+        """The report names a vocabulary cause, does not call it unexplained and does not
+        mark it low confidence."""
+        return not self.unexplained and self.named != "none" and self.confidence != "low"
 
     @property
     def named_or_unexplained(self) -> str:
@@ -93,7 +97,9 @@ class Trial:
 
     @property
     def joint_ok(self) -> bool:
-        return self.effect_ok and tuple(self.named_joints) == tuple(self.true_joints)
+        """Right effect on the right joints (a cyclic error: with the right order too)."""
+        return self.effect_ok and tuple(self.named_joints) == tuple(self.true_joints) \
+            and self.order_ok
 
 
 def _subsystem(name: str) -> str:
@@ -155,6 +161,16 @@ def _covered(truth: fx.EffectInstance, ci95: dict) -> tuple[int, int]:
     return hit, n
 
 
+def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
+    """For a cyclic error: the report's period for each true joint is the true one (a
+    report without ``jK_cyclic_period_deg`` fitted the vocabulary's default, 360°)."""
+    if truth.effect != "cyclic_error":
+        return True
+    default = fx.EFFECTS["cyclic_error"].spec_of("j1_cyclic_period_deg").default
+    return all(abs(float(named.get(f"{j}_cyclic_period_deg", default))
+                   - truth.params[f"{j}_cyclic_period_deg"]) < 1e-6 for j in truth.joints)
+
+
 def _through_the_format(camp) -> object:
     """``camp`` written to a temporary campaign directory and read back (the format path)."""
     with tempfile.TemporaryDirectory(prefix="cell-validate-") as tmp:
@@ -176,20 +192,23 @@ def run_trial(i: int, seed: int, combos: bool = False, design: Design = Design()
     rep = dg.report
     c = rep["cause"]
     hit = n = 0
+    order_ok = True
     if odd is not None:
         true_name, true_joints = odd.kind, ((f"j{odd.joint}",) if odd.joint else ())
         params = dict(odd.values)
     elif truth:
         main = expected(truth[0])
         true_name, true_joints, params = main.effect, main.joints, dict(main.params)
-        if c["effect"] == true_name and tuple(c["joints"]) == main.joints:
+        order_ok = _same_order(main, c["params"])
+        if c["effect"] == true_name and tuple(c["joints"]) == main.joints and order_ok:
             hit, n = _covered(main, c["ci95"])
     else:
         true_name, true_joints, params = "none", (), {}
     return Trial(i, true_name, true_joints,
                  truth[1].kind if len(truth) > 1 else None, c["effect"], tuple(c["joints"]),
                  bool(rep["unexplained"]), float(rep["holdout"]["shrink"]),
-                 rep["gap"]["where"]["depends_on"], hit, n, secs, params)
+                 rep["gap"]["where"]["depends_on"], hit, n, secs, params,
+                 c.get("confidence"), order_ok)
 
 
 def run(trials: int, seed: int, combos: bool = False, points: int = 300,

@@ -97,3 +97,27 @@ def test_run_refuses_bad_outside_settings():
         validate.run(1, 0, outside_share=1.5)
     with pytest.raises(ValueError, match="unknown kinds"):
         validate.run(1, 0, outside_share=0.5, outside_kinds=("lens",))
+
+
+def test_cyclic_error_counts_as_right_only_with_its_order():
+    p = parts.Part("cyclic_error", 2, {"cycles": 3, "cos_deg": 0.02, "sin_deg": 0.01})
+    truth = validate.expected(p)
+    assert not validate._same_order(truth, {"j2_cyclic_amp_deg": 0.02})    # 360° by default
+    assert validate._same_order(truth, {"j2_cyclic_period_deg": 120.0})
+    assert not validate._same_order(truth, {"j2_cyclic_period_deg": 90.0})
+    assert validate._same_order(validate.expected(parts.Part("backlash", 1, {"play_deg": 0.05})),
+                                {})
+    t = validate.Trial(0, "cyclic_error", ("j2",), None, "cyclic_error", ("j2",), False, 0.9,
+                       "angle", 0, 0, 0.1, order_ok=False)
+    assert t.effect_ok and not t.joint_ok
+
+
+def test_a_low_confidence_cause_is_not_a_confident_one():
+    def trial(named, unexplained, confidence):
+        return validate.Trial(0, "reach_sag", (), None, named, (), unexplained, 0.3, "position",
+                              0, 0, 0.1, confidence=confidence)
+    assert trial("camera_scale", False, "high").confident_cause
+    assert trial("camera_scale", False, None).confident_cause
+    assert not trial("camera_scale", False, "low").confident_cause
+    assert not trial("camera_scale", True, "high").confident_cause
+    assert not trial("none", False, None).confident_cause
