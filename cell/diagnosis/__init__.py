@@ -4,8 +4,12 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.replay`     campaign -> arrays, nominal replay, residuals
 * :mod:`.where`      what the gap varies with (effect sizes)
 * :mod:`.candidates` which effects the data can identify at all
+* :mod:`.jacobian`   the replay with its exact Jacobian (what fits and screening evaluate)
+* :mod:`.screen`     linearised screening of every candidate (harmonic orders included)
 * :mod:`.fit`        one candidate fitted on the fit rows (least_squares, BIC, 95 % CI)
 * :mod:`.rank`       search over singles and pairs, none / pair / unexplained decisions
+* :mod:`.robust`     outliers set aside, and how many places the fit rows cover
+* :mod:`.noise`      the point noise: given, from revisited poses or from the remainder
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
 * :mod:`.report`     :func:`diagnose`, the JSON report and its text
 * :mod:`.synth`      the validation campaign design; campaigns drawn from the plant (tests)

@@ -2,10 +2,11 @@
 
 Each joint's lag λ_j (ms) is fitted on its own: the joint is taken to follow its commanded
 trajectory shifted by λ_j (linear interpolation, held at the first command before it,
-exactly as the comm_delay stage does — the vocabulary function is reused with the joint's
-lag in place of σ·k_j), the static part of the diagnosed cause stays in the model (only
+exactly as the comm_delay stage does, with the joint's own lag in place of σ·k_j), the
+static part of the diagnosed cause stays in the model (only
 when the cause explains the gap; otherwise the nominal model is used), and
-``least_squares`` fits (λ_1, λ_2) on the fit moves. Intervals come from the Jacobian as in
+``least_squares`` fits (λ_1, λ_2) on the fit moves (exact Jacobian, :mod:`.jacobian`;
+path samples flagged as outliers left out). Intervals come from the Jacobian as in
 :mod:`.fit`.
 
 Seed 002's pattern is λ_j = σ·k_j with k_j the joint's 1-based position in the CAN station
@@ -18,6 +19,7 @@ differences that do not matter). With no lag detected, ``proportional`` is None.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -26,28 +28,14 @@ from scipy.stats import chi2
 
 from cell import effects as fx
 from cell.diagnosis.fit import Z95, subset
+from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 
 LAG_BOUNDS_MS = (-20.0, 200.0)
 
 
-def _sim(d: DiagData, static: Sequence[fx.EffectInstance], lags_ms, path_temp_c) -> np.ndarray:
-    acts, dirs = [], []
-    for m in d.moves:
-        a = fx.comm_delay(np.array([1.0]), np.asarray(lags_ms, float), m.t, m.cmd)
-        acts.append(a)
-        dirs.append(fx.path_directions(a, m.dirs0))
-    thermal = next((e for e in static if e.effect == "thermal_drift"), None)
-    t_ref = thermal.params["thermal_ref_temp_c"] if thermal else 20.0
-    a = np.concatenate(acts)
-    temp = np.full(len(a), t_ref if path_temp_c is None else path_temp_c)
-    return fx.simulate_points(d.geometry, [e for e in static if e.spec.stage != "comms"], a,
-                              np.concatenate(dirs), None, temp,
-                              d.center if d.center is not None else (0.0, 0.0))
-
-
 def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
-                 path_temp_c: float | None = None) -> dict | None:
+                 path_temp_c: float | None = None, keep=None) -> dict | None:
     """Per-joint lags and the proportionality check, as a JSON-ready dict::
 
         {"lags_ms": {"j1": .., "j2": ..}, "ci95_ms": {"j1": [lo, hi], ..},
@@ -55,17 +43,25 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
          "sigma_ms": σ̂, "detected": bool, "proportional": bool | None,
          "p_value": .., "max_deviation_ms": .., "moves": n}
 
-    None when the campaign has no moves with motion in the fit rows.
+    None when the campaign has no moves with motion in the fit rows. ``keep`` (fit path
+    samples,) bool marks the samples to fit on (outliers left out; default all).
     """
     fd = subset(d, "fit")
     if not fd.moves or not any(np.ptp(m.cmd, axis=0).max() > 0 for m in fd.moves):
         return None
-    meas = fd.path_cat("xy").ravel()
+    m = np.ones(fd.n_path, bool) if keep is None else np.asarray(keep, bool)
+    rows = rows_of(replace(fd, points=None, cache={}))
+    meas = rows.meas[m].ravel()
+    static = [e for e in static if e.spec.stage != "comms"]
 
     def fun(x):
-        return meas - _sim(fd, static, x, path_temp_c).ravel()
+        return meas - evaluate(rows, static, path_temp_c, lags_ms=x)[0][m].ravel()
 
-    res = least_squares(fun, np.array([0.5, 0.5]), bounds=LAG_BOUNDS_MS, method="trf",
+    def jac(x):
+        J = evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)[1]
+        return -J[m][:, :, -2:].reshape(-1, 2)
+
+    res = least_squares(fun, np.array([0.5, 0.5]), jac=jac, bounds=LAG_BOUNDS_MS, method="trf",
                         x_scale="jac", max_nfev=200)
     J = res.jac
     s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - 2, 1)

@@ -2,21 +2,24 @@
 
 A candidate is a tuple of components ``(effect name, joints)``. :func:`fit_candidate` adds
 it to the simulation and fits its parameters with ``scipy.optimize.least_squares`` (trf,
-the vocabulary's bounds) on the fit rows only, starting from ``Effect.guess()`` (cyclic
-error: amplitude and phase from a linear projection of the residual, so a start in
-anti-phase cannot stall on the amplitude's zero bound).
+the vocabulary's bounds, the exact Jacobian of :mod:`.jacobian`; finite differences on
+request) on the fit rows only (rows flagged as outliers left out, :mod:`.robust`). It
+starts from the linearised fit of :mod:`.screen` (so a cyclic error in anti-phase with any
+fixed guess cannot stall on the amplitude's zero bound). A cyclic error is fitted at a given
+harmonic order k (period 360°/k, a constant of the vocabulary's ``cyclic_period_deg``); the
+screening picks k.
 
 Noise model: every table (points, path samples) has its own Gaussian σ per axis, unknown.
-The fit is iteratively reweighted: round 1 weighs every scalar residual alike, round 2
-weighs each table by 1/its round-1 rms (the maximum-likelihood weights). ``rounds=1``
-stops after round 1; ``start=`` continues a round-1 result with round 2 (the search does
-round 1 for every candidate and round 2 for the best few only). The score is the
-profile log-likelihood ``−2 ln L = Σ_t n_t·ln(RSS_t/n_t)`` (n_t scalar residuals of table
-t), and ``BIC = −2 ln L + k·ln n`` (k fitted parameters). 95 % intervals: ±1.96·SE from
-the weighted Jacobian at the solution, ``cov = s²·(JᵀJ)⁻¹`` with s² the weighted residual
-variance. Identifiability: a parameter without sensitivity, a column-scaled Jacobian with
-condition number above :data:`MAX_COND` or a parameter correlation beyond
-:data:`MAX_CORR` makes the candidate not identifiable.
+The fit is iteratively reweighted: each round weighs each table by 1/its rms of the round
+before (the maximum-likelihood weights; the first round takes the screening's weights or
+weighs every scalar residual alike). The score is the profile log-likelihood
+``−2 ln L = Σ_t n_t·ln(RSS_t/n_t)`` (n_t scalar residuals of table t), and
+``BIC = −2 ln L + k·ln n + 2·ln(4)·(cyclic joints)`` (k fitted parameters; the last term is
+the cost of having chosen one of four harmonic orders, :mod:`.screen`). 95 % intervals:
+±1.96·SE from the weighted Jacobian at the solution, ``cov = s²·(JᵀJ)⁻¹`` with s² the
+weighted residual variance. Identifiability: a parameter without sensitivity, a
+column-scaled Jacobian with condition number above :data:`MAX_COND` or a parameter
+correlation beyond :data:`MAX_CORR` makes the candidate not identifiable.
 
 Path temperature: paths.csv has no temperature, so a candidate with thermal_drift fits the
 temperature the moves were made at (``path_temp_c``, °C) as a nuisance parameter.
@@ -29,10 +32,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from cell import effects as fx
+from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
-from cell.diagnosis.replay import residuals as resid
+from cell.diagnosis.screen import ORDER_COST
 
 MAX_CORR = 0.995
+JACOBIANS = ("analytic", "2-point")
 MAX_COND = 1e4
 Z95 = 1.959963984540054
 
@@ -118,6 +123,8 @@ class FitResult:
     path_temp_c: float | None = None     # nuisance; extras["path_temp_c"] = (value, ci95)
     success: bool = True
     extras: dict = field(default_factory=dict)
+    orders: dict = field(default_factory=dict)   # cyclic error: {joint: cycles per revolution}
+    approx: bool = False      # True: only the linearised screening (:mod:`.screen`) fitted it
 
     @property
     def label(self) -> str:
@@ -128,114 +135,157 @@ class FitResult:
         return combined(self.hold_points, self.hold_paths)
 
 
-def nominal_result(fit_d: DiagData, hold_d: DiagData) -> FitResult:
-    """The nominal model (no effect) scored like a candidate (k = 0)."""
-    fp, fq = resid(fit_d, [], None)
-    hp, hq = resid(hold_d, [], None)
+def hold_residuals(d: DiagData, effects, path_temp_c=None) -> tuple[np.ndarray, np.ndarray]:
+    """measured − simulated (points, path samples) of ``d`` under ``effects`` (all rows)."""
+    rows = rows_of(d)
+    r = rows.meas - evaluate(rows, effects, path_temp_c)[0]
+    return r[:rows.n_points], r[rows.n_points:]
+
+
+def nominal_result(fit_d: DiagData, hold_d: DiagData, keep=None) -> FitResult:
+    """The nominal model (no effect) scored like a candidate (k = 0); ``keep`` as in
+    :func:`fit_candidate`."""
+    fp, fq = hold_residuals(fit_d, [])
+    if keep is not None:
+        kp = np.asarray(keep, bool)
+        fp, fq = fp[kp[:len(fp)]], fq[kp[len(fp):]]
+    hp, hq = hold_residuals(hold_d, [])
     n2 = neg2_loglik(fp, fq)
     return FitResult((), [], {}, {}, 0, n2, n2, TableStats.of(fp), TableStats.of(fq),
                      TableStats.of(hp), TableStats.of(hq))
 
 
-def _templates(c: Candidate) -> list[fx.EffectInstance]:
-    return [fx.EFFECTS[name].guess(joints) for name, joints in c]
-
-
-def _cyclic_start(d: DiagData, tmpl: list[fx.EffectInstance], rp, rq) -> list[fx.EffectInstance]:
-    """Replace cyclic_error starts by a linear projection of the nominal residual onto the
-    sin/cos responses of each joint (the effect functions evaluated at amplitude 1e-3)."""
-    out = list(tmpl)
-    r = np.concatenate([rp.ravel(), rq.ravel()])
-    base = np.concatenate([x.ravel() for x in predict(d, [])])
-    for i, e in enumerate(tmpl):
-        if e.effect != "cyclic_error":
-            continue
-        params = dict(e.params)
-        for j in e.joints:
-            cols = []
-            for ph in (0.0, 90.0):
-                probe = dict(e.params)
-                for jj in e.joints:
-                    probe[f"{jj}_cyclic_amp_deg"] = 0.0
-                probe[f"{j}_cyclic_amp_deg"], probe[f"{j}_cyclic_phase_deg"] = 1e-3, ph
-                sim = predict(d, [fx.make_effect("cyclic_error", e.joints, probe)])
-                cols.append((np.concatenate([x.ravel() for x in sim]) - base) / 1e-3)
-            coef, *_ = np.linalg.lstsq(np.column_stack(cols), r, rcond=None)
-            spec = e.spec.spec_of(f"{j}_cyclic_amp_deg")
-            params[f"{j}_cyclic_amp_deg"] = float(np.clip(math.hypot(*coef), spec.typical[0],
-                                                          0.9 * spec.bounds[1]))
-            params[f"{j}_cyclic_phase_deg"] = math.degrees(math.atan2(coef[1], coef[0]))
-        out[i] = fx.make_effect(e.effect, e.joints, params)
+def _templates(c: Candidate, orders: dict | None = None) -> list[fx.EffectInstance]:
+    out = []
+    for name, joints in c:
+        e = fx.EFFECTS[name].guess(joints)
+        if name == "cyclic_error" and orders:
+            params = dict(e.params)
+            for j in joints:
+                params[f"{j}_cyclic_period_deg"] = 360.0 / orders.get(j, 1)
+            e = fx.make_effect(name, joints, params)
+        out.append(e)
     return out
 
 
+def _linear_start(c: Candidate, fit_d: DiagData, hold_d: DiagData, keep, orders):
+    """Start (instances, path temperature, orders) from the linearised fit of ``c`` alone
+    (:mod:`.screen`); with ``orders`` given, that harmonic variant."""
+    from cell.diagnosis import screen
+    B = screen.basis(fit_d, hold_d, [c], keep, None)
+    if orders:
+        keys = [k for k in screen.keys_of(c)
+                if all(kk[2] == orders.get(kk[1]) for kk in k if kk[0] == "cyclic_error")][0]
+        sc = screen.fit_variant(B, c, keys)
+    else:
+        sc = screen.screen(B, c)
+    insts, tp = screen.start_params(B, sc)
+    return insts, tp, sc.orders
+
+
 def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
-                  rounds: int = 2, start: FitResult | None = None) -> FitResult:
+                  rounds: int = 2, start: FitResult | None = None, orders: dict | None = None,
+                  x0=None, jac: str = "analytic", keep=None, weights=None) -> FitResult:
     """Fit candidate ``c`` on ``fit_d`` (see module docstring), score it on ``hold_d``.
 
     ``n_total`` is the number of scalar fit residuals (for BIC's ln n); ``start`` a previous
-    result of the same candidate to continue from (fewer iterations). Never raises for a
-    poor fit: a failed solve gives ``success=False`` and ``identifiable=False``.
+    result of the same candidate to continue from; ``x0`` a starting point
+    ``(instances, path_temp_c)`` (e.g. from :mod:`.screen`), else the linearised fit of
+    ``c`` alone; ``orders`` {joint: cycles per revolution} of a cyclic error (default: the
+    screened best, or 1 with ``start``); ``jac`` ``"analytic"`` (:mod:`.jacobian`) or
+    ``"2-point"`` (finite differences, as before the analytic Jacobians); ``keep`` a (rows,)
+    bool mask of the fit rows that count (outliers out); ``weights`` per-table weights to
+    begin with. Never raises for a poor fit: a failed solve gives ``success=False`` and
+    ``identifiable=False``; raises ValueError for an unknown ``jac``.
     """
-    tmpl = _templates(c)
-    nominal_rp, nominal_rq = resid(fit_d, [], None)
-    if start is None and any(e.effect == "cyclic_error" for e in tmpl):
-        tmpl = _cyclic_start(fit_d, tmpl, nominal_rp, nominal_rq)
-    x0, names = fx.stack_vectors(tmpl if start is None else start.effects)
+    if jac not in JACOBIANS:
+        raise ValueError(f"jac {jac!r}: choose from {', '.join(JACOBIANS)}")
+    rows = rows_of(fit_d)
+    kp = np.ones(rows.n, bool) if keep is None else np.asarray(keep, bool)
+    sel_p = np.flatnonzero(kp[:rows.n_points])
+    sel_q = rows.n_points + np.flatnonzero(kp[rows.n_points:])
+    n_p, n_q = 2 * len(sel_p), 2 * len(sel_q)
+    tp0 = None
+    if start is not None:
+        tmpl, tp0, orders = list(start.effects), start.path_temp_c, dict(start.orders)
+    elif x0 is not None:
+        tmpl, tp0 = list(x0[0]), x0[1]
+        orders = {j: round(360.0 / e.params[f"{j}_cyclic_period_deg"])
+                  for e in tmpl if e.effect == "cyclic_error" for j in e.joints}
+    elif any(name == "cyclic_error" for name, _ in c) or orders:
+        tmpl, tp0, orders = _linear_start(c, fit_d, hold_d, keep, orders)
+    else:
+        tmpl = _templates(c, orders)
+    orders = dict(orders or {})
+    x_eff, names = fx.stack_vectors(tmpl)
     lo = np.concatenate([e.bounds()[0] for e in tmpl]) if tmpl else np.zeros(0)
     hi = np.concatenate([e.bounds()[1] for e in tmpl]) if tmpl else np.zeros(0)
     has_tp = any(e.effect == "thermal_drift" for e in tmpl) and bool(fit_d.moves)
+    x0v = x_eff
     if has_tp:
-        t0 = start.path_temp_c if start is not None and start.path_temp_c is not None else \
+        t0 = tp0 if tp0 is not None else \
             (float(np.mean(fit_d.points.temp)) if fit_d.points is not None
              and fit_d.points.temp is not None else 20.0)
-        x0, lo, hi = np.append(x0, t0), np.append(lo, -50.0), np.append(hi, 150.0)
+        x0v, lo, hi = np.append(x0v, t0), np.append(lo, -50.0), np.append(hi, 150.0)
         names = names + ["path_temp_c"]
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-    x0 = np.clip(x0, lo + 1e-9 * span, hi - 1e-9 * span)   # strictly inside: trf needs it
-    n_eff = len(x0) - int(has_tp)
+    x0v = np.clip(x0v, lo + 1e-9 * span, hi - 1e-9 * span)   # strictly inside: trf needs it
+    n_eff = len(x0v) - int(has_tp)
+    meas = rows.meas
 
     def unpack(x):
         effs = fx.split_vector(tmpl, x[:n_eff])
         return effs, (float(x[n_eff]) if has_tp else None)
 
-    w = np.array([1.0, 1.0])
-    if start is not None:
-        w = 1.0 / np.maximum([start.fit_points.rms, start.fit_paths.rms], 1e-6)
-
-    def fun(x):
+    def resid_of(x, want_jac=False):
         effs, tp = unpack(x)
-        rp, rq = resid(fit_d, effs, tp)
-        return np.concatenate([w[0] * rp.ravel(), w[1] * rq.ravel()])
+        pred, J = evaluate(rows, effs, tp, jac=want_jac, with_path_temp=has_tp)
+        r = meas - pred
+        return r, J
+
+    w = np.array([1.0, 1.0]) if weights is None else np.asarray(weights, float)
+    if start is not None:
+        w = 1.0 / np.maximum([start.fit_points.rms or 1.0, start.fit_paths.rms or 1.0], 1e-6)
+    def fun(x):
+        r, _ = resid_of(x)
+        return np.concatenate([w[0] * r[sel_p].ravel(), w[1] * r[sel_q].ravel()])
+
+    def jacf(x):
+        _, J = resid_of(x, True)
+        return -np.concatenate([w[0] * J[sel_p].reshape(-1, J.shape[2]),
+                                w[1] * J[sel_q].reshape(-1, J.shape[2])])
 
     res, ok = None, True
     for rnd in range(rounds):
         try:
-            res = least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                                max_nfev=200)
+            res = least_squares(fun, x0v, jac=jacf if jac == "analytic" else "2-point",
+                                bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=200)
         except (ValueError, np.linalg.LinAlgError, fx.ConfigError):
             ok = False
             break
-        x0 = res.x
-        effs, tp = unpack(res.x)
-        rp, rq = resid(fit_d, effs, tp)
-        w = 1.0 / np.maximum([TableStats.of(rp).rms or 1.0, TableStats.of(rq).rms or 1.0], 1e-6)
+        x0v = res.x
+        r, _ = resid_of(res.x)
+        w = 1.0 / np.maximum([TableStats.of(r[sel_p]).rms or 1.0,
+                              TableStats.of(r[sel_q]).rms or 1.0], 1e-6)
     if res is None or not ok:
-        n2 = neg2_loglik(nominal_rp, nominal_rq)
+        r0 = meas - evaluate(rows, [])[0]
+        n2 = neg2_loglik(r0[sel_p], r0[sel_q])
         z = TableStats(0, math.inf, math.inf)
-        return FitResult(c, tmpl, {}, {}, len(x0), n2, math.inf, z, z, z, z, False,
-                         "the solver failed", success=False)
+        return FitResult(c, tmpl, {}, {}, len(x0v), n2, math.inf, z, z, z, z, False,
+                         "the solver failed", success=False, orders=orders)
     effs, tp = unpack(res.x)
-    rp, rq = resid(fit_d, effs, tp)
+    r, _ = resid_of(res.x)
+    rp, rq = r[sel_p], r[sel_q]
     n2 = neg2_loglik(rp, rq)
     k = len(res.x)
-    bic = n2 + k * math.log(max(n_total, 2))
-    hp, hq = resid(hold_d, effs, tp)
+    n_cyc = sum(len(e.joints) for e in effs if e.effect == "cyclic_error")
+    bic = n2 + k * math.log(max(n_total, 2)) + ORDER_COST * n_cyc
+    hp, hq = hold_residuals(hold_d, effs, tp)
     out = FitResult(c, effs, {}, {}, k, n2, bic, TableStats.of(rp), TableStats.of(rq),
                     TableStats.of(hp), TableStats.of(hq), path_temp_c=tp,
-                    success=bool(res.status > 0))
+                    success=bool(res.status > 0), orders=orders)
     # weighted Jacobian of the last round -> covariance, intervals, identifiability
-    J = res.jac
+    J = jacf(res.x) if jac == "analytic" else res.jac
     s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - k, 1)
     raw = np.linalg.norm(J, axis=0)
     norms = np.where(raw > 1e-12 * max(raw.max(), 1e-300), raw, 1.0)  # scale; 0 columns stay 0

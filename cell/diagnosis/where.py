@@ -9,7 +9,7 @@ B = [J_1, J_2, u_1, u_2, e_x, e_y] the six small rigid-body/kinematic displaceme
 label           regressors                                    columns
 ==============  ============================================  ============
 constant        J_j                    (one joint off by a constant angle)   1
-angle           J_j·[1, θ_j/100, sin θ_j, cos θ_j]                           4
+angle           J_j·[1, θ_j/100, sin kθ_j, cos kθ_j], k ≤ 4   4 (best k)
 direction       J_j·[1, dir_j]                                               2
 position        B  (a fixed kinematic/rigid error)                           6
 position        B + a cubic field in (x, y) per axis (any smooth map)       24
@@ -34,10 +34,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 
 from cell import effects as fx
 from cell.diagnosis.replay import DiagData
 
+ANGLE_ORDERS = (1, 2, 3, 4)     # the harmonic orders the cyclic error is screened at
 SPEC_DEPENDS = ("constant", "angle", "direction", "time", "temperature", "position", "speed")
 
 
@@ -86,11 +88,29 @@ def _scaled(x: np.ndarray) -> np.ndarray:
     return (x - float(np.mean(x))) / (s if s > 0 else 1.0)
 
 
+def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least-squares b of y ≈ X·b for a tall X of a few dozen columns (minimum-norm when
+    the columns are dependent): the normal equations of the column-scaled X, formed with
+    einsum and solved through the eigen-decomposition of the small Gram matrix, directions
+    below 1e-12 of the largest eigenvalue left out. (numpy's lstsq hands such a matrix to a
+    threaded BLAS whose idle threads then spin, as does numpy's eigh from 26 columns on:
+    twice the CPU time for nothing at these sizes.)"""
+    s = np.sqrt(np.einsum("ij,ij->j", X, X))
+    s = np.where(s > 0, s, 1.0)
+    Xs = X / s
+    lam, V = scipy.linalg.eigh(np.einsum("ij,ik->jk", Xs, Xs))   # MRRR: no threaded dgemm
+    keep = lam > 1e-12 * max(lam[-1], 1e-300)
+    g = V.T @ np.einsum("ij,i->j", Xs, y)
+    b = V[:, keep] @ (g[keep] / lam[keep])
+    return b / s
+
+
 def _fit(X: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """(RSS, R²) of the least-squares fit y ≈ X·b."""
     tot = float(y @ y)
-    b, *_ = np.linalg.lstsq(X, y, rcond=None)
-    rss = float(np.sum((y - X @ b) ** 2))
+    b = lstsq(X, y)
+    e = y - np.einsum("ij,j->i", X, b)
+    rss = float(e @ e)
     return rss, (1.0 - rss / tot) if tot > 0 else 0.0
 
 
@@ -114,9 +134,17 @@ def static_view(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray):
     return cmd, dirs, d.path_cat("xy") - r_paths, d.path_cat("t"), None, None, r_paths
 
 
-def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray) -> Where:
-    """Effect sizes and ``depends_on`` of the residual (module docstring); all rows."""
+def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray, keep=None) -> Where:
+    """Effect sizes and ``depends_on`` of the residual (module docstring); all rows, or
+    those ``keep`` = (points mask, path samples mask) marks (outliers left out)."""
     cmd, dirs, xy, t, temp, payload, r = static_view(d, r_points, r_paths)
+    kq = None
+    if keep is not None:
+        kp, kq = (np.asarray(k, bool) for k in keep)
+        m = kp if d.points is not None else kq
+        cmd, dirs, xy, t, r = cmd[m], dirs[m], xy[m], t[m], r[m]
+        temp = None if temp is None else np.asarray(temp)[m]
+        payload = None if payload is None else np.asarray(payload)[m]
     y = r.ravel()
     n2 = y.size
     ms = float(np.mean(np.sum(r ** 2, axis=1))) if len(r) else 0.0
@@ -126,8 +154,10 @@ def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray) -> Where:
         ji = 0 if jn == "j1" else 1
         th = cmd[:, ji]
         models.append(("constant", jn, _stack(J)))
-        models.append(("angle", jn, _stack(J, np.column_stack(
-            [np.ones(len(th)), th / 100.0, np.sin(np.radians(th)), np.cos(np.radians(th))]))))
+        for k in ANGLE_ORDERS:            # a harmonic of k cycles per revolution
+            models.append(("angle", jn, _stack(J, np.column_stack(
+                [np.ones(len(th)), th / 100.0, np.sin(k * np.radians(th)),
+                 np.cos(k * np.radians(th))]))))
         if set(np.unique(dirs[:, ji])) >= {-1.0, 1.0}:
             models.append(("direction", jn, _stack(J, np.column_stack([np.ones(len(th)),
                                                                       dirs[:, ji]]))))
@@ -143,7 +173,7 @@ def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray) -> Where:
     scalar_model("time", t, (1, 2))
     scalar_model("payload", payload, (1,))
     if d.points is None and d.moves:   # paths-only: speed competes on the same rows
-        vel = _velocities(d)
+        vel = _velocities(d) if kq is None else _velocities(d)[kq]
         models.append(("speed", None, np.column_stack([B, _stack(j1 * vel[:, :1]),
                                                        _stack(j2 * vel[:, 1:])])))
     sizes: dict[str, dict] = {}
@@ -159,7 +189,7 @@ def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray) -> Where:
         if name in SPEC_DEPENDS and (best is None or bic < best[0]):
             best = (bic, name, jn, r2 * ms)
     depends, joint = (best[1], best[2]) if best else ("constant", None)
-    sp = speed_effect(d, r_paths) if d.points is not None else None
+    sp = speed_effect(d, r_paths, kq) if d.points is not None else None
     if sp is not None:
         sizes["speed"] = sp
         if best is None or sp["explained_ms"] > best[3]:
@@ -167,14 +197,17 @@ def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray) -> Where:
     return Where(depends, joint, sizes, per_joint_rms(d, cmd, r), math.sqrt(ms))
 
 
-def speed_effect(d: DiagData, r_paths: np.ndarray) -> dict | None:
-    """R² of the path residual explained by J_j·θ̇_j beyond a smooth static field."""
-    if not d.moves or len(r_paths) < 30:
+def speed_effect(d: DiagData, r_paths: np.ndarray, keep=None) -> dict | None:
+    """R² of the path residual explained by J_j·θ̇_j beyond a smooth static field (on the
+    samples ``keep`` marks, all by default)."""
+    m = np.ones(len(r_paths), bool) if keep is None else np.asarray(keep, bool)
+    if not d.moves or int(m.sum()) < 30:
         return None
-    cmd = d.path_cat("cmd")
-    vel = _velocities(d)
+    cmd = d.path_cat("cmd")[m]
+    vel = _velocities(d)[m]
     B, (j1, j2) = _base(d, cmd)
-    xy = d.path_cat("xy") - r_paths
+    r_paths = r_paths[m]
+    xy = d.path_cat("xy")[m] - r_paths
     X0 = np.column_stack([B, _poly3(xy)])
     X1 = np.column_stack([X0, _stack(j1 * vel[:, :1]), _stack(j2 * vel[:, 1:])])
     y = r_paths.ravel()

@@ -145,7 +145,9 @@ def test_gap_that_is_not_smooth_needs_a_noise_level_to_be_called_unexplained():
         del c.points[k]
     rep = diagnose(c).report
     assert rep["cause"]["effect"] == "none" and rep["unexplained"] is False
-    assert "noise level unknown" in rep["remainder"]["notes"][0]
+    # the noise is estimated from the remainder, which takes the random ±b/2 for noise
+    assert rep["noise"]["source"] == "residual" and rep["noise"]["sigma_mm"] > 0.0112 * 1.5
+    assert "cannot be told from noise" in rep["remainder"]["notes"][0]
     rep = diagnose(c, noise_mm=0.0112).report                    # the plant's point noise
     assert rep["unexplained"] is True
     assert "× the given noise" in rep["remainder"]["reasons"][0]

@@ -1,0 +1,335 @@
+"""The replay of :mod:`.replay` with its exact Jacobian: what the fitter and the linear
+screening evaluate. Pure numerics.
+
+:func:`evaluate` gives the simulated measurements of a campaign's rows (points, then path
+samples) under a list of vocabulary effects and, on request, their derivatives with respect
+to the fitted parameters, in :func:`cell.effects.stack_vectors` order, plus the path
+temperature nuisance last when asked for (see :mod:`.fit`). Values come from the
+vocabulary's own functions (:mod:`cell.effects`), so they are those of
+:func:`.replay.predict`; the derivatives are the chain rule through the composition order
+of :mod:`cell.effects`:
+
+    comms (λ_j = σ·k_j delay of the commanded path) → joint stage θ = a + Σ Δθ(a, dir)
+    → link stage L = l + Σ Δl(T) → FK (seed 000 eq. 4) → camera similarity about c
+
+with, per effect, ∂Δθ/∂x and ∂Δθ/∂a (:data:`JOINT_DERIVS`), ∂Δl/∂x (:data:`LINK_DERIVS`)
+and the camera maps' derivatives. Backlash directions along a path follow the delayed
+command; they are piecewise constant in σ (derivative 0, as finite differences see it away
+from a reversal). The delayed command is the linear interpolation of the commanded samples,
+so ∂a/∂σ = −k_j·10⁻³·(slope of the segment that t − λ_j falls in), 0 where the command is
+held before the first sample; at λ = 0 exactly the one-sided derivative for λ → 0⁺ (the
+segment ending at t) is used. ``tests/cell/test_diagnosis_jacobian.py`` holds every
+derivative to finite differences.
+
+Bad input is not checked here (the rows come from a validated campaign and the effects from
+:func:`cell.effects.make_effect`); an effect without a derivative raises KeyError.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from cell import effects as fx
+from cell.diagnosis.replay import DiagData
+
+DEG = math.pi / 180.0
+
+
+@dataclass
+class Rows:
+    """The rows one evaluation covers, as flat arrays: the ``n_points`` points first, then
+    the path samples. ``cmd`` (n,2) deg commanded, ``dirs`` (n,2) the nominal directions (a
+    path's follow its undelayed command), ``temp`` (n_points,) °C or None, ``meas`` (n,2)
+    mm measured; ``moves`` (start row, t, cmd, dirs0) per move; ``order`` (2,) station
+    positions, ``links`` (2,) nominal mm, ``center`` (2,) mm."""
+
+    n_points: int
+    cmd: np.ndarray
+    dirs: np.ndarray
+    temp: np.ndarray | None
+    meas: np.ndarray
+    moves: list
+    order: np.ndarray
+    links: np.ndarray
+    center: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.cmd)
+
+    @property
+    def n_path(self) -> int:
+        return self.n - self.n_points
+
+
+def rows_of(d: DiagData) -> Rows:
+    """The :class:`Rows` of ``d`` (cached in ``d.cache``)."""
+    r = d.cache.get("rows")
+    if r is not None:
+        return r
+    cmd, dirs, meas = [], [], []
+    if d.points is not None:
+        cmd.append(d.points.cmd)
+        dirs.append(d.points.dirs)
+        meas.append(d.points.xy)
+    moves, k = [], d.n_points
+    for m in d.moves:
+        cmd.append(m.cmd)
+        dirs.append(fx.path_directions(m.cmd, m.dirs0))
+        meas.append(m.xy)
+        moves.append((k, m.t, m.cmd, m.dirs0))
+        k += len(m.t)
+    cat = (lambda a: np.concatenate(a)) if cmd else (lambda a: np.zeros((0, 2)))
+    temp = None if d.points is None or d.points.temp is None else np.asarray(d.points.temp, float)
+    r = Rows(d.n_points, cat(cmd), cat(dirs), temp, cat(meas), moves, np.asarray(d.order, float),
+             np.array([d.geometry.l1_mm, d.geometry.l2_mm], float),
+             np.zeros(2) if d.center is None else np.asarray(d.center, float))
+    d.cache["rows"] = r
+    return r
+
+
+# ------------------------------------------------------------------ per-effect derivatives
+# joint stage: f(x_full, jidx, a (n,2), dirs (n,2)) -> ([∂Δθ/∂x_i (n,2) per fitted param],
+#                                                      ∂ΣΔθ/∂a (n,2) diagonal, or None)
+def _d_offset(x, jidx, a, dirs):
+    cols = []
+    for j in jidx:
+        c = np.zeros_like(a)
+        c[:, j] = 1.0
+        cols.append(c)
+    return cols, None
+
+
+def _d_gear(x, jidx, a, dirs):
+    cols, dda = [], np.zeros_like(a)
+    for i, j in enumerate(jidx):
+        c = np.zeros_like(a)
+        c[:, j] = a[:, j]
+        cols.append(c)
+        dda[:, j] = x[i]
+    return cols, dda
+
+
+def _d_backlash(x, jidx, a, dirs):
+    cols = []
+    for j in jidx:
+        c = np.zeros_like(a)
+        c[:, j] = -0.5 * dirs[:, j]
+        cols.append(c)
+    return cols, None
+
+
+def _d_cyclic(x, jidx, a, dirs):
+    g = np.asarray(x, float).reshape(len(jidx), 3)
+    cols, dda = [], np.zeros_like(a)
+    for i, j in enumerate(jidx):
+        amp, ph, per = g[i]
+        arg = 2 * np.pi * a[:, j] / per + math.radians(ph)
+        s, c = np.sin(arg), np.cos(arg)
+        ca, cp = np.zeros_like(a), np.zeros_like(a)
+        ca[:, j] = s
+        cp[:, j] = amp * c * DEG
+        cols += [ca, cp]
+        dda[:, j] = amp * c * 2 * np.pi / per
+    return cols, dda
+
+
+JOINT_DERIVS = {"joint_offset": _d_offset, "gear_ratio": _d_gear, "backlash": _d_backlash,
+                "cyclic_error": _d_cyclic}
+
+
+# link stage: f(x_full, jidx, links (2,), temp (n,)) -> ([∂Δl/∂x_i (n,2)], ∂ΣΔl/∂T (n,2) or None)
+def _d_link(x, jidx, links, temp):
+    cols = []
+    for j in jidx:
+        c = np.zeros((len(temp), 2))
+        c[:, j] = 1.0
+        cols.append(c)
+    return cols, None
+
+
+def _d_thermal(x, jidx, links, temp):
+    alpha, t_ref = np.asarray(x, float)
+    return [(temp - t_ref)[:, None] * links[None, :]], np.tile(alpha * links, (len(temp), 1))
+
+
+LINK_DERIVS = {"link_length": _d_link, "thermal_drift": _d_thermal}
+VISION = ("camera_scale", "camera_rotation")
+COMMS = ("comm_delay",)
+
+
+def _rot(a_rad: float) -> np.ndarray:
+    return np.array([[math.cos(a_rad), -math.sin(a_rad)], [math.sin(a_rad), math.cos(a_rad)]])
+
+
+def _vision_map(e: fx.EffectInstance) -> tuple[np.ndarray, np.ndarray]:
+    """(M, ∂M/∂x) of one camera effect: m = c + M·(p − c)."""
+    v = float(e.full_vector()[0])
+    if e.effect == "camera_scale":
+        return (1.0 + v) * np.eye(2), np.eye(2)
+    a = math.radians(v)
+    return _rot(a), DEG * np.array([[-math.sin(a), -math.cos(a)], [math.cos(a), -math.sin(a)]])
+
+
+def _delay(r: Rows, lam_ms, want: bool):
+    """Path commands delayed by ``lam_ms`` (2,) ms per joint (n_path,2), their directions
+    and ∂a_j/∂λ_j in deg/ms (n_path,2) (None if not ``want``)."""
+    lam = np.asarray(lam_ms, float) * 1e-3
+    if not r.moves:
+        z = np.zeros((0, 2))
+        return z, z, (z if want else None)
+    npt = r.n_points
+    if not lam.any():
+        a, dirs = r.cmd[npt:], r.dirs[npt:]
+    else:
+        acts, dl = [], []
+        for _, t, cmd, d0 in r.moves:
+            a = np.array(cmd, float)
+            for j in range(2):
+                if lam[j]:
+                    a[:, j] = np.interp(t - lam[j], t, cmd[:, j])
+            acts.append(a)
+            dl.append(fx.path_directions(a, d0))
+        a, dirs = np.concatenate(acts), np.concatenate(dl)
+    if not want:
+        return a, dirs, None
+    der = []
+    for _, t, cmd, d0 in r.moves:
+        da = np.zeros((len(t), 2))
+        if len(t) > 1:
+            for j in range(2):
+                q = t - lam[j]
+                seg = np.searchsorted(t, q, side="left") - 1   # q in (t[seg], t[seg+1]]
+                ok = (seg >= 0) & (seg < len(t) - 1)
+                s = np.clip(seg, 0, len(t) - 2)
+                slope = (cmd[s + 1, j] - cmd[s, j]) / (t[s + 1] - t[s])
+                da[:, j] = np.where(ok, -slope * 1e-3, 0.0)
+        der.append(da)
+    return a, dirs, np.concatenate(der)
+
+
+def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float | None = None,
+             jac: bool = False, with_path_temp: bool = False, lags_ms=None):
+    """Simulated measurements (n,2) mm of rows ``r`` under ``effects`` and, with ``jac``,
+    ∂/∂(fitted parameters) as (n, 2, m) (m = fitted parameters, +1 for ``path_temp_c``
+    when ``with_path_temp``, +2 for ``lags_ms``, in that order, last). ``path_temp_c`` as
+    in :func:`.replay.predict`. ``lags_ms`` (2,): instead of a comm_delay effect, joint j
+    runs its path command λ_j ms late (the per-station lags of :mod:`.delay`)."""
+    effects = list(effects)
+    n, npt = r.n, r.n_points
+    m = sum(len(e.fit_names) for e in effects) + int(with_path_temp) + 2 * (lags_ms is not None)
+    # stage 1: comms (path rows only)
+    a, dirs = r.cmd, r.dirs
+    comms = [e for e in effects if e.spec.stage == "comms"]
+    da_dlam = None
+    if (comms or lags_ms is not None) and r.n_path:
+        if len(comms) + (lags_ms is not None) > 1:
+            raise ValueError("at most one comms effect (or lags)")
+        lam = (np.asarray(lags_ms, float) if lags_ms is not None
+               else float(comms[0].full_vector()[0]) * r.order)
+        ap, dp, dd = _delay(r, lam, jac)
+        a = np.vstack([r.cmd[:npt], ap])
+        dirs = np.vstack([r.dirs[:npt], dp])
+        if jac:
+            da_dlam = np.vstack([np.zeros((npt, 2)), dd])
+    # stage 2: joints
+    theta = np.array(a, float)
+    dth_da = np.ones((n, 2)) if jac else None
+    col: dict[int, tuple[str, np.ndarray]] = {}     # param index -> (stage, array)
+    k = 0
+    starts = []
+    for e in effects:
+        starts.append(k)
+        k += len(e.fit_names)
+    for e, k0 in zip(effects, starts):
+        if e.spec.stage != "joint":
+            continue
+        x = e.full_vector()
+        theta += e.spec.fn(x, e.jidx, a, dirs)
+        if jac:
+            cols, dda = JOINT_DERIVS[e.effect](x, e.jidx, a, dirs)
+            for i, c in enumerate(cols):
+                col[k0 + i] = ("theta", c)
+            if dda is not None:
+                dth_da += dda
+    # stage 3: links
+    thermal = next((e for e in effects if e.effect == "thermal_drift"), None)
+    t_ref = thermal.params["thermal_ref_temp_c"] if thermal else 20.0
+    temp = np.empty(n)
+    temp[:npt] = r.temp if r.temp is not None else t_ref
+    temp[npt:] = t_ref if path_temp_c is None else path_temp_c
+    L = np.tile(r.links, (n, 1))
+    dL_dT = np.zeros((n, 2)) if jac else None
+    for e, k0 in zip(effects, starts):
+        if e.spec.stage != "link":
+            continue
+        x = e.full_vector()
+        L += e.spec.fn(x, e.jidx, r.links, temp)
+        if jac:
+            cols, dT = LINK_DERIVS[e.effect](x, e.jidx, r.links, temp)
+            for i, c in enumerate(cols):
+                col[k0 + i] = ("link", c)
+            if dT is not None:
+                dL_dT += dT
+    # stage 4: FK
+    t1 = np.radians(theta[:, 0])
+    t12 = t1 + np.radians(theta[:, 1])
+    c1, s1, c12, s12 = np.cos(t1), np.sin(t1), np.cos(t12), np.sin(t12)
+    p = np.column_stack([L[:, 0] * c1 + L[:, 1] * c12, L[:, 0] * s1 + L[:, 1] * s12])
+    # stage 5: camera
+    vis = [(e, k0) for e, k0 in zip(effects, starts) if e.spec.stage == "vision"]
+    M = np.eye(2)
+    vis_cols: dict[int, np.ndarray] = {}
+    out = p
+    for e, k0 in vis:
+        Mi, dMi = _vision_map(e)
+        rel = out - r.center
+        if jac:
+            for kk in vis_cols:                      # earlier camera columns pass through Mi
+                vis_cols[kk] = vis_cols[kk] @ Mi.T
+            vis_cols[k0] = rel @ dMi.T
+        out = r.center + rel @ Mi.T
+        M = Mi @ M
+    if not jac:
+        return out, None
+    J = np.zeros((n, 2, m))
+    # FK partials, then through the camera map M
+    dp_dt1 = DEG * np.column_stack([-L[:, 0] * s1 - L[:, 1] * s12, L[:, 0] * c1 + L[:, 1] * c12])
+    dp_dt2 = DEG * np.column_stack([-L[:, 1] * s12, L[:, 1] * c12])
+    dp_dl1 = np.column_stack([c1, s1])
+    dp_dl2 = np.column_stack([c12, s12])
+
+    def through_theta(dth):
+        return (dp_dt1 * dth[:, :1] + dp_dt2 * dth[:, 1:]) @ M.T
+
+    def through_links(dl):
+        return (dp_dl1 * dl[:, :1] + dp_dl2 * dl[:, 1:]) @ M.T
+
+    for i, (stage, c) in col.items():
+        J[:, :, i] = through_theta(c) if stage == "theta" else through_links(c)
+    for i, c in vis_cols.items():
+        J[:, :, i] = c
+    for e, k0 in zip(effects, starts):
+        if e.spec.stage == "comms" and da_dlam is not None:
+            J[:, :, k0] = through_theta(dth_da * da_dlam * r.order)
+    nxt = k
+    if with_path_temp:
+        dT = np.zeros((n, 2))
+        dT[npt:] = dL_dT[npt:]
+        J[:, :, nxt] = through_links(dT)
+        nxt += 1
+    if lags_ms is not None and da_dlam is not None:
+        for j in range(2):
+            dl = np.zeros((n, 2))
+            dl[:, j] = dth_da[:, j] * da_dlam[:, j]
+            J[:, :, nxt + j] = through_theta(dl)
+    return out, J
+
+
+def coverage_check() -> list[str]:
+    """Vocabulary effects without a derivative here (a test keeps this empty)."""
+    have = set(JOINT_DERIVS) | set(LINK_DERIVS) | set(VISION) | set(COMMS)
+    return [n for n in fx.EFFECTS if n not in have]

@@ -1,0 +1,182 @@
+"""The noise of a static point measurement (repeatability and camera together), from the
+data when nobody gives it. Pure numerics.
+
+The unexplained test (:mod:`.rank`) compares what the chosen model leaves on the holdout
+points with the point noise σ (per axis). Sources, in the order they are tried:
+
+* ``given``: ``--noise-mm``.
+* ``repeats``: poses revisited with the same commanded joints (and, with direction
+  columns, the same approach directions): the pooled within-group scatter of the remainder,
+  2·(n_g − 1) degrees of freedom per group of n_g visits.
+* ``residual``: the remainder's own structure. Two model-free difference estimators, each
+  robust (1.4826 × median absolute deviation) and each at most inflated by structure it does
+  not cancel, so the smaller is taken:
+
+  - *joint-space neighbours*: every point's remainder predicted by a local plane through its
+    :data:`NEIGHBOURS` nearest neighbours in (θ1, θ2) (leave-one-out); the prediction error
+    over √(1 + Σw²) (w the plane's weights) has σ per axis when the remainder is noise plus
+    anything smooth in joint space;
+  - *time order*: differences of consecutive points in time over √2 (cancels what drifts
+    slowly: a knock or warm-up between poses).
+
+  A remainder that varies from pose to pose without pattern in joints or time (backlash
+  without direction columns, repeatability) counts as noise here: this source can only say
+  "the remainder is at least this systematic".
+* ``paths``: the path samples' noise (second differences along each move, :mod:`.replay`)
+  when the points cannot give one; it lacks the repeatability, so the test allows 5× it
+  instead of 3× (see :mod:`.rank`).
+
+Every estimate also carries a 95 % upper bound, σ·√(dof/χ²_dof(0.05)) (effective dof of
+the median-based estimators: 37 % of the values), which the test uses, so a noise estimated
+from few values does not make a gap look systematic.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import chi2
+
+NEIGHBOURS = 8
+MIN_POINTS = 20
+MIN_SIN_THETA2 = 0.15      # nearer the stretched arm the remainder's joint-space image is unusable
+MAD_EFFICIENCY = 0.37
+
+
+@dataclass
+class Noise:
+    """σ per axis (mm) of a point measurement, its ``source`` (given, repeats, residual,
+    paths), ``method`` in words, degrees of freedom ``dof`` and 95 % upper bound."""
+
+    sigma_mm: float
+    source: str
+    method: str
+    dof: float
+    upper95_mm: float
+
+    def as_dict(self) -> dict:
+        return {"sigma_mm": round(self.sigma_mm, 7), "source": self.source,
+                "method": self.method, "dof": round(float(self.dof), 1),
+                "upper95_mm": round(self.upper95_mm, 7)}
+
+
+def _upper(sigma: float, dof: float) -> float:
+    if not math.isfinite(dof) or dof <= 0:
+        return math.inf
+    return sigma * math.sqrt(dof / float(chi2.ppf(0.05, dof)))
+
+
+def _mad(v: np.ndarray) -> float:
+    v = np.asarray(v, float).ravel()
+    return 1.4826 * float(np.median(np.abs(v - np.median(v))))
+
+
+def given(sigma_mm: float) -> Noise:
+    return Noise(float(sigma_mm), "given", "--noise-mm", math.inf, float(sigma_mm))
+
+
+def from_paths(sigma_mm: float | None, n: int) -> Noise | None:
+    if sigma_mm is None:
+        return None
+    dof = MAD_EFFICIENCY * 2 * n
+    return Noise(float(sigma_mm), "paths", "second differences along the moves (camera only)",
+                 dof, _upper(float(sigma_mm), dof))
+
+
+def repeats(cmd: np.ndarray, dirs: np.ndarray | None, r: np.ndarray) -> Noise | None:
+    """Pooled within-group σ of remainder ``r`` (n,2) over poses with equal ``cmd`` (and
+    ``dirs``); None without a revisited pose."""
+    key = np.round(cmd, 6) if dirs is None else np.column_stack([np.round(cmd, 6), dirs])
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    rep = counts[inv] > 1
+    if not rep.any():
+        return None
+    groups = inv[rep]
+    rr = r[rep]
+    ss = 0.0
+    for g in np.unique(groups):
+        x = rr[groups == g]
+        ss += float(np.sum((x - x.mean(axis=0)) ** 2))
+    n_groups = len(np.unique(groups))
+    dof = 2 * (int(rep.sum()) - n_groups)
+    sigma = math.sqrt(ss / dof)
+    return Noise(sigma, "repeats", f"scatter of {n_groups} revisited poses", dof,
+                 _upper(sigma, dof))
+
+
+def plane_weights(coords: np.ndarray, nb: np.ndarray) -> np.ndarray:
+    """Weights W (n,k) with which the least-squares plane through each point's neighbours
+    ``nb`` (n,k) at ``coords`` (n,d) predicts the value at the point: v̂_i = Σ W_ik·v_nb[i,k]
+    (normal equations, batched; a tiny ridge on the slopes keeps coincident neighbours
+    solvable, the prediction then being their mean)."""
+    n, k = nb.shape
+    X = np.concatenate([np.ones((n, k, 1)), coords[nb] - coords[:, None, :]], axis=2)
+    G = np.einsum("nki,nkj->nij", X, X)
+    m = G.shape[1]
+    ridge = 1e-9 * np.einsum("nii->n", G)[:, None, None] * np.diag([0.0] + [1.0] * (m - 1))
+    e0 = np.zeros((n, m, 1))
+    e0[:, 0, 0] = 1.0
+    a = np.linalg.solve(G + ridge, e0)[:, :, 0]             # (XᵀX)⁻¹ e₀, symmetric
+    return np.einsum("nkj,nj->nk", X, a)
+
+
+def local_plane(coords: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-out local planes: for each of n points at ``coords`` (n,d), its ``k``
+    nearest other points ``nb`` (n,k) and their weights ``W`` (n,k) (:func:`plane_weights`).
+    For independent noise of σ, v_i − v̂_i has σ²·(1 + Σ_k W_ik²)."""
+    _, nb = cKDTree(coords).query(coords, k=k + 1)
+    nb = nb[:, 1:]
+    return nb, plane_weights(coords, nb)
+
+
+def _whitened_mad(e: np.ndarray, cov: np.ndarray) -> float:
+    """Robust σ of differences ``e`` (n,2) whose noise covariance is σ²·``cov`` (n,2,2)."""
+    L = np.linalg.cholesky(cov)
+    z = np.linalg.solve(L, e[:, :, None])[:, :, 0]
+    return _mad(z)
+
+
+def residual(cmd: np.ndarray, time_s: np.ndarray, r: np.ndarray, links=(1.0, 1.0)
+             ) -> Noise | None:
+    """σ from the structure of remainder ``r`` (n,2) mm at joints ``cmd`` (n,2) deg,
+    measured at ``time_s`` (n,), arm of link lengths ``links`` mm (module docstring); None
+    with fewer than :data:`MIN_POINTS` usable points."""
+    from cell.diagnosis.where import jacobian_cols
+    ok = np.abs(np.sin(np.radians(cmd[:, 1]))) > MIN_SIN_THETA2
+    cmd, time_s, r = cmd[ok], time_s[ok], r[ok]
+    n = len(r)
+    if n < MIN_POINTS:
+        return None
+    j1, j2, _, _ = jacobian_cols(float(links[0]), float(links[1]), cmd)
+    Jinv = np.linalg.inv(np.stack([j1, j2], axis=2))           # (n,2,2) deg/mm
+    dq = np.einsum("nij,nj->ni", Jinv, r)                     # the remainder in joint space
+    C = Jinv @ np.swapaxes(Jinv, 1, 2)                         # its noise covariance / σ²
+    k = min(NEIGHBOURS, n - 1)
+    nb, W = local_plane(cmd, k)
+    e = dq - np.einsum("nk,nkc->nc", W, dq[nb])
+    cov = C + np.einsum("nk,nkij->nij", W ** 2, C[nb])
+    s_joint = _whitened_mad(e, cov)
+    o = np.argsort(time_s, kind="stable")
+    s_time = _whitened_mad(dq[o][1:] - dq[o][:-1], C[o][1:] + C[o][:-1])
+    dof = MAD_EFFICIENCY * 2 * n
+    if s_time < s_joint:
+        return Noise(s_time, "residual", "differences of consecutive points in time, in "
+                     "joint space", dof, _upper(s_time, dof))
+    return Noise(s_joint, "residual", f"local planes through {k} joint-space neighbours, in "
+                 "joint space", dof, _upper(s_joint, dof))
+
+
+def best(*estimates: Noise | None) -> Noise | None:
+    """``given`` if present, else the estimate with the smallest 95 % upper bound among
+    the point estimates, else the path one."""
+    ok = [e for e in estimates if e is not None]
+    for e in ok:
+        if e.source == "given":
+            return e
+    pts = [e for e in ok if e.source in ("repeats", "residual")]
+    if pts:
+        return min(pts, key=lambda e: e.upper95_mm)
+    return next((e for e in ok if e.source == "paths"), None)

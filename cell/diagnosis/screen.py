@@ -1,0 +1,469 @@
+"""Linearised screening of candidates: one Gauss–Newton step from the nominal model for
+every candidate, ranked by approximate BIC, before the full non-linear fits of the few the
+decision needs (:mod:`.rank`). Pure numerics.
+
+Every parameter of every single candidate gets a response column: its exact derivative
+(:mod:`.jacobian`) at the nominal model, on the fit and holdout rows. A candidate's
+linearised fit is the weighted linear least squares of the nominal residual on its columns,
+computed from per-table Gram matrices (AᵀA, Aᵀr, rᵀr of the points and of the path
+samples), so a candidate costs a k×k solve whatever the number of rows. The weights follow
+the profile likelihood of :mod:`.fit` (each table its own σ; three reweighting rounds).
+
+Two reparametrisations make the linearisation exact in the parameters:
+
+* cyclic error a·sin(2π·k·θ/360 + φ) = c·sin(kθ) + s·cos(kθ): two linear columns per
+  harmonic order k of :data:`ORDERS`; a = √(c² + s²), φ = atan2(s, c);
+* thermal drift with moves: α·l·(T − T_ref) on the points and β·l on the path samples
+  (β = α·(T_path − T_ref), the path temperature being a nuisance).
+
+Bounds (backlash width and comm delay ≥ 0, the thermal expansion's range) are kept by
+holding a parameter that leaves its bound at the bound and solving for the others.
+
+Harmonic order of a cyclic error: every order of :data:`ORDERS` is screened per joint (all
+combinations when a candidate carries the error on both joints) and the best kept; the
+others' Δ(−2 ln L) is its evidence (:func:`order_evidence`). Choosing among the orders
+costs ``2·ln(len(ORDERS))`` in BIC per joint (a uniform prior over the orders).
+:func:`order_separation` says from the layout alone (the angles of the fit rows) whether
+two orders can be told apart at all: the largest canonical correlation between their
+response columns, against :data:`cell.diagnosis.fit.MAX_CORR`.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell import effects as fx
+from cell.diagnosis.jacobian import evaluate, rows_of
+from cell.diagnosis.replay import DiagData
+
+ORDERS = (1, 2, 3, 4)
+ORDER_COST = 2.0 * math.log(len(ORDERS))
+ROUNDS = 3
+
+Key = tuple   # (effect, joint | None, order | None)
+
+
+@dataclass
+class Table:
+    """Gram pieces of one table on one row set: ``G`` = AᵀA, ``b`` = Aᵀr, ``c`` = rᵀr,
+    ``n`` scalar residuals (2 per row)."""
+
+    G: np.ndarray
+    b: np.ndarray
+    c: float
+    n: int
+
+    @staticmethod
+    def of(A: np.ndarray, r: np.ndarray) -> "Table":
+        # einsum, not BLAS: at these sizes a threaded GEMM only burns CPU on idle threads
+        return Table(np.einsum("ij,ik->jk", A, A), np.einsum("ij,i->j", A, r),
+                     float(np.einsum("i,i->", r, r)), len(r))
+
+
+@dataclass
+class Basis:
+    """Response columns of every single candidate's parameters at the nominal model:
+    ``cols`` key -> column indices; ``fit`` / ``hold`` (points, paths) Tables; ``lo`` /
+    ``hi`` bounds per column; ``nuisance`` columns left out of the identifiability
+    check."""
+
+    cols: dict
+    fit: tuple[Table, Table]
+    hold: tuple[Table, Table]
+    lo: np.ndarray
+    hi: np.ndarray
+    nuisance: set = field(default_factory=set)
+    n_total: int = 0
+    t_ref: float = 20.0
+    point_temp_mean: float | None = None
+    has_paths: bool = False
+
+
+def _instances(name: str, joint: str | None, order: int | None):
+    """Linearisation points (zero effect) whose first fitted column is the response."""
+    eff = fx.EFFECTS[name]
+    joints = (joint,) if joint else ()
+    if name == "cyclic_error":
+        out = []
+        for ph in (0.0, 90.0):       # ∂/∂amp at amp 0: J·sin(kθ), then J·cos(kθ)
+            out.append(fx.make_effect(name, joints, {f"{joint}_cyclic_amp_deg": 0.0,
+                                                     f"{joint}_cyclic_phase_deg": ph,
+                                                     f"{joint}_cyclic_period_deg": 360.0 / order}))
+        return out
+    return [eff.zero(joints)]
+
+
+def keys_of(c) -> list[list[Key]]:
+    """The column keys of candidate ``c`` per harmonic variant: a list (one per combination
+    of orders) of key lists."""
+    fixed: list[Key] = []
+    cyc: list[str] = []
+    for name, joints in c:
+        if name == "cyclic_error":
+            cyc += list(joints)
+        elif joints:
+            fixed += [(name, j, None) for j in joints]
+        else:
+            fixed.append((name, None, None))
+    out = []
+    for ks in itertools.product(ORDERS, repeat=len(cyc)):
+        out.append(fixed + [("cyclic_error", j, k) for j, k in zip(cyc, ks)])
+    return out
+
+
+def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=None) -> Basis:
+    """The :class:`Basis` of candidates ``cands`` on the fit and holdout rows; ``keep_*``
+    (n_rows,) bool masks of the rows that count (None = all). All columns come from one
+    evaluation per row set: every linearisation point (all at zero effect) in one list."""
+    keys: list[Key] = []
+    for c in cands:
+        for var in keys_of(c):
+            for k in var:
+                if k not in keys:
+                    keys.append(k)
+    rf, rh = rows_of(fit_d), rows_of(hold_d)
+    has_paths = rf.n_path > 0
+    insts, where_col = [], []          # where_col: (key, position of the response column)
+    pos, t_ref = 0, 20.0
+    for key in keys:
+        for inst in _instances(*key):
+            insts.append(inst)
+            where_col.append((key, pos))
+            pos += len(inst.fit_names)
+            if key[0] == "thermal_drift":
+                t_ref = inst.params["thermal_ref_temp_c"]
+    tp = t_ref + 1.0      # a path temperature 1 K above the reference: β's column
+    _, Jf = evaluate(rf, insts, tp, jac=True)
+    _, Jh = evaluate(rh, insts, tp, jac=True)
+    cols: dict = {}
+    lo, hi, take_f, take_h, nuis = [], [], [], [], set()
+    for key, p in where_col:
+        name = key[0]
+        spec = fx.EFFECTS[name].params[0]
+        parts = [None]
+        if name == "thermal_drift":
+            parts = ["points", "paths"] if has_paths else ["points"]
+        for part in parts:
+            f, h = Jf[:, :, p], Jh[:, :, p]
+            if part == "points":
+                f, h = f.copy(), h.copy()
+                f[rf.n_points:], h[rh.n_points:] = 0.0, 0.0
+            elif part == "paths":
+                f, h = f.copy(), h.copy()
+                f[:rf.n_points], h[:rh.n_points] = 0.0, 0.0
+                nuis.add(len(lo))
+            cols.setdefault(key, []).append(len(lo))
+            take_f.append(f)
+            take_h.append(h)
+            b = (-math.inf, math.inf) if name == "cyclic_error" or part == "paths" else spec.bounds
+            lo.append(b[0])
+            hi.append(b[1])
+    Af = np.stack(take_f, axis=2) if take_f else np.zeros((rf.n, 2, 0))
+    Ah = np.stack(take_h, axis=2) if take_h else np.zeros((rh.n, 2, 0))
+    r0f = rf.meas - evaluate(rf, [])[0]
+    r0h = rh.meas - evaluate(rh, [])[0]
+
+    def tables(A, r0, rows, keep):
+        kp = np.ones(rows.n, bool) if keep is None else np.asarray(keep, bool)
+        out = []
+        for sl in (slice(0, rows.n_points), slice(rows.n_points, rows.n)):
+            m = kp[sl]
+            a = A[sl][m].reshape(-1, A.shape[2])
+            out.append(Table.of(a, r0[sl][m].ravel()))
+        return tuple(out)
+
+    tf = tables(Af, r0f, rf, keep_fit)
+    th = tables(Ah, r0h, rh, keep_hold)
+    pt = fit_d.points.temp if fit_d.points is not None and fit_d.points.temp is not None else None
+    return Basis(cols, tf, th, np.array(lo, float), np.array(hi, float), nuis,
+                 tf[0].n + tf[1].n, t_ref, None if pt is None else float(np.mean(pt)), has_paths)
+
+
+@dataclass
+class Screened:
+    """One candidate variant's linearised fit: ``keys`` its column keys and ``S`` their
+    indices, ``x`` coefficients, ``rss`` / ``hold_rss`` (points, paths) in mm², ``neg2ll``,
+    ``bic`` (with the order cost), ``k``, identifiability (``identifiable``, ``reason``,
+    ``cond``, ``max_corr``), ``orders`` {joint: k}, ``order_dev`` {joint: {k: Δ(−2 ln L)}}
+    and the final table ``weights``."""
+
+    candidate: tuple
+    keys: list
+    x: np.ndarray
+    rss: tuple[float, float]
+    hold_rss: tuple[float, float]
+    neg2ll: float
+    bic: float
+    k: int
+    identifiable: bool = True
+    reason: str = ""
+    cond: float = 1.0
+    max_corr: float = 0.0
+    orders: dict = field(default_factory=dict)
+    order_dev: dict = field(default_factory=dict)
+    weights: tuple[float, float] = (1.0, 1.0)
+    S: list = field(default_factory=list)
+
+
+def _identifiability(G: np.ndarray, ke: list[int]) -> tuple[bool, str, float, float]:
+    """(identifiable, reason, condition number, largest correlation) of weighted Gram
+    ``G`` judged on parameters ``ke`` (the nuisance left out), as :mod:`.fit` judges the
+    Jacobian."""
+    from cell.diagnosis.fit import MAX_COND, MAX_CORR
+    d = np.sqrt(np.maximum(np.diag(G), 0.0))
+    if np.any(d[ke] <= 1e-12 * max(d.max(), 1e-300)):
+        return False, "a parameter has no effect on the data", math.inf, 0.0
+    Gn = G / np.outer(d, d)
+    ev = np.linalg.eigvalsh(Gn[np.ix_(ke, ke)])
+    cond = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
+    mc = 0.0
+    if len(ke) > 1:
+        cov = np.linalg.pinv(Gn)
+        sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+        corr = (cov / np.outer(sd, sd))[np.ix_(ke, ke)]
+        np.fill_diagonal(corr, 0.0)
+        mc = float(np.max(np.abs(corr)))
+    if cond > MAX_COND:
+        return False, f"Jacobian condition number {cond:.3g}", cond, mc
+    if mc > MAX_CORR:
+        return False, f"parameter correlation {mc:.4f} (near ±1)", cond, mc
+    return True, "", cond, mc
+
+
+def _bsolve(Gp, Gq, bp, bq, w, lo, hi) -> np.ndarray:
+    """Weighted least squares of V column sets at once: (V,k,k) Grams and (V,k) right-hand
+    sides of the two tables, (V,2) weights, (V,k) bounds. A coefficient that leaves its
+    bound is held there and the others solved again (one per round, at most k rounds)."""
+    G = w[:, 0, None, None] ** 2 * Gp + w[:, 1, None, None] ** 2 * Gq
+    b = w[:, :1] ** 2 * bp + w[:, 1:] ** 2 * bq
+    V, k = b.shape
+    ridge = 1e-12 * np.max(np.abs(np.diagonal(G, axis1=1, axis2=2)), axis=1) + 1e-300
+    G = G + ridge[:, None, None] * np.eye(k)
+    fixed = np.zeros((V, k), bool)
+    xf = np.zeros((V, k))
+    eye = np.eye(k)
+    x = np.zeros((V, k))
+    for _ in range(k + 1):
+        if fixed.any():
+            bm = b - np.einsum("vij,vj->vi", G, np.where(fixed, xf, 0.0))
+            keep = ~fixed
+            Gm = G * keep[:, :, None] * keep[:, None, :] + eye * fixed[:, :, None]
+            bm = np.where(fixed, xf, bm)
+        else:
+            Gm, bm = G, b
+        x = np.linalg.solve(Gm, bm[:, :, None])[:, :, 0]
+        viol = ~fixed & ((x < lo) | (x > hi))
+        if not viol.any():
+            break
+        rows = np.flatnonzero(viol.any(axis=1))
+        first = np.argmax(viol[rows], axis=1)
+        fixed[rows, first] = True
+        xf[rows, first] = np.clip(x[rows, first], lo[rows, first], hi[rows, first])
+    return x
+
+
+def _brss(Gp, bp, c, x) -> np.ndarray:
+    return np.maximum(c - 2.0 * np.einsum("vi,vi->v", x, bp)
+                      + np.einsum("vi,vij,vj->v", x, Gp, x), 0.0)
+
+
+def _batch(B: Basis, items: list[tuple]) -> list[Screened]:
+    """Linearised fits of variants ``items`` = [(candidate, keys)] (all with the same
+    number of columns), batched."""
+    S = np.array([[i for k in keys for i in B.cols[k]] for _, keys in items], int)
+    (tp, tq), n = B.fit, (B.fit[0].n, B.fit[1].n)
+    ix = (S[:, :, None], S[:, None, :])
+    Gp, Gq, bp, bq = tp.G[ix], tq.G[ix], tp.b[S], tq.b[S]
+    lo, hi = B.lo[S], B.hi[S]
+    w = np.ones((len(items), 2))
+    for _ in range(ROUNDS):
+        x = _bsolve(Gp, Gq, bp, bq, w, lo, hi)
+        rss = np.column_stack([_brss(Gp, bp, tp.c, x), _brss(Gq, bq, tq.c, x)])
+        w = np.column_stack([1.0 / np.maximum(np.sqrt(rss[:, t] / n[t]), 1e-9) if n[t]
+                             else np.ones(len(items)) for t in range(2)])
+    n2 = sum(n[t] * np.log(np.maximum(rss[:, t] / n[t], 1e-30)) for t in range(2) if n[t])
+    n2 = np.broadcast_to(np.asarray(n2, float), (len(items),))
+    out = []
+    lnn = math.log(max(B.n_total, 2))
+    for v, (c, keys) in enumerate(items):
+        n_cyc = sum(1 for k in keys if k[0] == "cyclic_error")
+        k = S.shape[1]
+        out.append(Screened(c, keys, x[v], (float(rss[v, 0]), float(rss[v, 1])), (0.0, 0.0),
+                            float(n2[v]), float(n2[v]) + k * lnn + ORDER_COST * n_cyc, k,
+                            orders={kk[1]: kk[2] for kk in keys if kk[0] == "cyclic_error"},
+                            weights=(float(w[v, 0]), float(w[v, 1])), S=list(S[v])))
+    return out
+
+
+def _bfinish(B: Basis, group: list[Screened]) -> None:
+    """Holdout RSS and identifiability (as :func:`_identifiability`; batched where no
+    nuisance column is among the variant's) of screened variants with the same number of
+    columns."""
+    from cell.diagnosis.fit import MAX_COND, MAX_CORR
+    S = np.array([s.S for s in group], int)
+    ix = (S[:, :, None], S[:, None, :])
+    x = np.array([s.x for s in group])
+    hp = _brss(B.hold[0].G[ix], B.hold[0].b[S], B.hold[0].c, x)
+    hq = _brss(B.hold[1].G[ix], B.hold[1].b[S], B.hold[1].c, x)
+    w = np.array([s.weights for s in group])
+    G = w[:, 0, None, None] ** 2 * B.fit[0].G[ix] + w[:, 1, None, None] ** 2 * B.fit[1].G[ix]
+    for v, s in enumerate(group):
+        s.hold_rss = (float(hp[v]), float(hq[v]))
+    plain = np.array([not any(col in B.nuisance for col in s.S) for s in group])
+    for v in np.flatnonzero(~plain):
+        s = group[v]
+        ke = [i for i, col in enumerate(s.S) if col not in B.nuisance]
+        s.identifiable, s.reason, s.cond, s.max_corr = _identifiability(G[v], ke)
+    if not plain.any():
+        return
+    Gp = G[plain]
+    d = np.sqrt(np.maximum(np.diagonal(Gp, axis1=1, axis2=2), 0.0))
+    dead = np.any(d <= 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300), axis=1)
+    dn = np.where(d > 0, d, 1.0)
+    Gn = Gp / (dn[:, :, None] * dn[:, None, :])
+    ev = np.linalg.eigvalsh(Gn)
+    cond = np.where(ev[:, 0] > 0, np.sqrt(ev[:, -1] / np.where(ev[:, 0] > 0, ev[:, 0], 1.0)),
+                    np.inf)
+    mc = np.zeros(len(Gp))
+    if S.shape[1] > 1:
+        cov = np.linalg.pinv(Gn)
+        sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 1e-300))
+        corr = np.abs(cov / (sd[:, :, None] * sd[:, None, :]))
+        corr[:, np.arange(S.shape[1]), np.arange(S.shape[1])] = 0.0
+        mc = corr.max(axis=(1, 2))
+    for i, v in enumerate(np.flatnonzero(plain)):
+        s = group[v]
+        if dead[i]:
+            s.identifiable, s.reason, s.cond, s.max_corr = \
+                False, "a parameter has no effect on the data", math.inf, 0.0
+            continue
+        s.cond, s.max_corr = float(cond[i]), float(mc[i])
+        if s.cond > MAX_COND:
+            s.identifiable, s.reason = False, f"Jacobian condition number {s.cond:.3g}"
+        elif s.max_corr > MAX_CORR:
+            s.identifiable, s.reason = False, f"parameter correlation {s.max_corr:.4f} (near ±1)"
+
+
+def screen_all(B: Basis, cands) -> dict:
+    """{candidate: its best harmonic variant (by −2 ln L)} with the evidence for its orders
+    in ``order_dev``, holdout RSS and identifiability; every variant fitted in batches."""
+    items = [(c, keys) for c in cands for keys in keys_of(c)]
+    by_k: dict[int, list] = {}
+    for it in items:
+        by_k.setdefault(sum(len(B.cols[k]) for k in it[1]), []).append(it)
+    fitted: dict = {}
+    for group in by_k.values():
+        for sc in _batch(B, group):
+            fitted.setdefault(sc.candidate, []).append(sc)
+    out = {}
+    for c in cands:
+        variants = fitted[c]
+        best = min(variants, key=lambda v: v.neg2ll)
+        for j in best.orders:
+            best.order_dev[j] = {v.orders[j]: v.neg2ll - best.neg2ll for v in variants
+                                 if all(v.orders[jj] == best.orders[jj]
+                                        for jj in best.orders if jj != j)}
+        out[c] = best
+    by_k2: dict[int, list] = {}
+    for sc in out.values():
+        by_k2.setdefault(len(sc.S), []).append(sc)
+    for group in by_k2.values():
+        _bfinish(B, group)
+    return out
+
+
+def screen(B: Basis, c) -> Screened:
+    """:func:`screen_all` of one candidate."""
+    return screen_all(B, [c])[c]
+
+
+def fit_variant(B: Basis, c, keys: list[Key]) -> Screened:
+    """The linearised fit of candidate ``c`` on columns ``keys`` (one harmonic variant),
+    with its holdout RSS and identifiability."""
+    sc = _batch(B, [(c, keys)])[0]
+    _bfinish(B, [sc])
+    return sc
+
+
+def params_of(B: Basis, s: Screened) -> tuple[list[tuple[str, tuple, dict]], float | None]:
+    """The screened solution in the vocabulary's parameters: per component (effect, joints,
+    {full name: value}) (constants included), and the path temperature (None without)."""
+    coef: dict = {}
+    pos = 0
+    for key in s.keys:
+        n = len(B.cols[key])
+        coef[key] = s.x[pos:pos + n]
+        pos += n
+    comps, tp = [], None
+    for name, joints in s.candidate:
+        eff = fx.EFFECTS[name]
+        params: dict[str, float] = {}
+        if name == "cyclic_error":
+            for j in joints:
+                k = s.orders[j]
+                cs, cc = coef[(name, j, k)]
+                params[f"{j}_cyclic_amp_deg"] = math.hypot(cs, cc)
+                params[f"{j}_cyclic_phase_deg"] = math.degrees(math.atan2(cc, cs)) % 360.0
+                params[f"{j}_cyclic_period_deg"] = 360.0 / k
+        elif name == "thermal_drift":
+            v = coef[(name, None, None)]
+            alpha = float(v[0])
+            params["thermal_expansion_per_k"] = alpha
+            params["thermal_ref_temp_c"] = B.t_ref
+            if len(v) > 1:
+                t0 = B.point_temp_mean if B.point_temp_mean is not None else B.t_ref
+                tp = B.t_ref + float(v[1]) / alpha if abs(alpha) > 1e-9 else t0
+        elif joints:
+            for j in joints:
+                params[eff.param_names((j,))[0]] = float(coef[(name, j, None)][0])
+        else:
+            params[eff.param_names(())[0]] = float(coef[(name, None, None)][0])
+        comps.append((name, tuple(joints), params))
+    return comps, tp
+
+
+def start_params(B: Basis, s: Screened) -> tuple[list[fx.EffectInstance], float | None]:
+    """Effect instances (strictly inside their bounds; a cyclic amplitude at least the low
+    end of its typical range, so its phase has a gradient) and the path temperature from a
+    screened solution: the full fit's starting point."""
+    comps, tp = params_of(B, s)
+    insts = []
+    for name, joints, params in comps:
+        eff = fx.EFFECTS[name]
+        for pn in list(params):
+            ps = eff.spec_of(pn)
+            if not ps.fitted:
+                continue
+            lo, hi = ps.bounds
+            if pn.endswith("cyclic_amp_deg"):
+                lo, hi = ps.typical[0], 0.9 * hi
+            span = (hi - lo) if math.isfinite(hi - lo) else 1.0
+            params[pn] = float(np.clip(params[pn], lo + 1e-6 * span, hi - 1e-6 * span))
+        insts.append(fx.make_effect(name, joints, params))
+    if tp is not None:
+        tp = float(np.clip(tp, -49.0, 149.0))
+    return insts, tp
+
+
+def order_separation(B: Basis, joint: str) -> tuple[float, tuple[int, int]]:
+    """The largest canonical correlation between the response columns of two harmonic
+    orders of a cyclic error on ``joint`` over the fit rows, and that pair of orders."""
+    tp, tq = B.fit
+    G = tp.G + tq.G
+    worst, pair = 0.0, (0, 0)
+    ks = [k for k in ORDERS if ("cyclic_error", joint, k) in B.cols]
+    for a, b in itertools.combinations(ks, 2):
+        ia, ib = B.cols[("cyclic_error", joint, a)], B.cols[("cyclic_error", joint, b)]
+        try:
+            La = np.linalg.cholesky(G[np.ix_(ia, ia)])
+            Lb = np.linalg.cholesky(G[np.ix_(ib, ib)])
+        except np.linalg.LinAlgError:
+            return 1.0, (a, b)
+        C = np.linalg.solve(La, G[np.ix_(ia, ib)]) @ np.linalg.inv(Lb).T
+        rho = float(np.linalg.svd(C, compute_uv=False)[0])
+        if rho > worst:
+            worst, pair = rho, (a, b)
+    return worst, pair
