@@ -62,13 +62,15 @@ class Noise:
                 "upper95_mm": round(self.upper95_mm, 7)}
 
 
-def _upper(sigma: float, dof: float) -> float:
+def upper95(sigma: float, dof: float) -> float:
+    """95 % upper confidence bound of a σ estimated with ``dof`` degrees of freedom."""
     if not math.isfinite(dof) or dof <= 0:
         return math.inf
     return sigma * math.sqrt(dof / float(chi2.ppf(0.05, dof)))
 
 
-def _mad(v: np.ndarray) -> float:
+def mad(v: np.ndarray) -> float:
+    """1.4826 × median absolute deviation of all values of ``v``: a robust σ."""
     v = np.asarray(v, float).ravel()
     return 1.4826 * float(np.median(np.abs(v - np.median(v))))
 
@@ -82,7 +84,7 @@ def from_paths(sigma_mm: float | None, n: int) -> Noise | None:
         return None
     dof = MAD_EFFICIENCY * 2 * n
     return Noise(float(sigma_mm), "paths", "second differences along the moves (camera only)",
-                 dof, _upper(float(sigma_mm), dof))
+                 dof, upper95(float(sigma_mm), dof))
 
 
 def repeats(cmd: np.ndarray, dirs: np.ndarray | None, r: np.ndarray) -> Noise | None:
@@ -104,7 +106,7 @@ def repeats(cmd: np.ndarray, dirs: np.ndarray | None, r: np.ndarray) -> Noise | 
     dof = 2 * (int(rep.sum()) - n_groups)
     sigma = math.sqrt(ss / dof)
     return Noise(sigma, "repeats", f"scatter of {n_groups} revisited poses", dof,
-                 _upper(sigma, dof))
+                 upper95(sigma, dof))
 
 
 def plane_weights(coords: np.ndarray, nb: np.ndarray) -> np.ndarray:
@@ -136,7 +138,7 @@ def _whitened_mad(e: np.ndarray, cov: np.ndarray) -> float:
     """Robust σ of differences ``e`` (n,2) whose noise covariance is σ²·``cov`` (n,2,2)."""
     L = np.linalg.cholesky(cov)
     z = np.linalg.solve(L, e[:, :, None])[:, :, 0]
-    return _mad(z)
+    return mad(z)
 
 
 def residual(cmd: np.ndarray, time_s: np.ndarray, r: np.ndarray, links=(1.0, 1.0)
@@ -164,9 +166,9 @@ def residual(cmd: np.ndarray, time_s: np.ndarray, r: np.ndarray, links=(1.0, 1.0
     dof = MAD_EFFICIENCY * 2 * n
     if s_time < s_joint:
         return Noise(s_time, "residual", "differences of consecutive points in time, in "
-                     "joint space", dof, _upper(s_time, dof))
+                     "joint space", dof, upper95(s_time, dof))
     return Noise(s_joint, "residual", f"local planes through {k} joint-space neighbours, in "
-                 "joint space", dof, _upper(s_joint, dof))
+                 "joint space", dof, upper95(s_joint, dof))
 
 
 def best(*estimates: Noise | None) -> Noise | None:

@@ -5,11 +5,18 @@ are off by far more than the noise. They are found on the remainder of a model (
 decision's cause, else the best identifiable single, else the nominal model), per table
 (points, path samples), at a threshold the data set:
 
-* scale: σ per axis = 1.4826 × the median absolute deviation of the fit rows' remainder
-  (both axes pooled; unaffected by up to half the rows being outliers);
-* threshold: a row is an outlier when |r − median|²/σ² exceeds the χ²₂ quantile at
-  :data:`ALPHA` / (rows in the table), i.e. over the whole table a Gaussian row is flagged
-  with probability ≤ :data:`ALPHA` (about 4.5 σ for 300 rows);
+* what is compared: each row's remainder minus the leave-one-out local plane through its
+  :data:`NEIGHBOURS` nearest neighbours (points: in joint space; path samples: in time
+  along their move), scaled by √(1 + ΣW²) to the noise's σ. A misdetection stands out
+  from its neighbours; a remainder that varies smoothly (an effect the model lacks) does
+  not, and is left to the unexplained test. A flagged row is left out of the others'
+  planes and the flags computed again (at most :data:`PASSES` times);
+* scale: σ per axis = 1.4826 × the median absolute deviation of those values (both axes,
+  fit and holdout rows pooled; unaffected by up to half the rows being outliers), taken at
+  its 95 % upper bound (:func:`.noise.upper95`) so that few rows do not make a tight scale;
+* threshold: a row is an outlier when its squared distance from the median exceeds
+  σ² × the χ²₂ quantile at :data:`ALPHA` / (rows in the table), i.e. over the whole table
+  a Gaussian row is flagged with probability ≤ :data:`ALPHA` (about 4.5 σ for 300 rows);
 * outliers must be a minority: when more than :data:`MAX_SHARE` of a table's fit rows lie
   beyond the threshold, the remainder is heavy-tailed or systematic (an effect the model
   lacks), not a few misdetections, and nothing in that table is set aside (a note says so).
@@ -53,13 +60,16 @@ PASSES = 4
 class Outliers:
     """Flags of one model's remainder: ``fit`` / ``hold`` (rows,) bool (True = outlier), in
     the row order of :func:`.jacobian.rows_of` (points, then path samples); per table
-    (points, paths): robust ``sigma`` per axis mm, ``threshold`` in σ, ``set_aside``
+    (points, paths): robust ``sigma`` per axis mm, ``threshold`` in σ, ``cut_mm`` the
+    distance from the local plane beyond which a row is flagged (threshold × σ's 95 %
+    upper bound), ``set_aside``
     (False when the table's share exceeded :data:`MAX_SHARE`); ``notes``."""
 
     fit: np.ndarray
     hold: np.ndarray
     sigma: tuple = (None, None)
     threshold: tuple = (None, None)
+    cut_mm: tuple = (None, None)
     set_aside: tuple = (True, True)
     notes: list = field(default_factory=list)
 
@@ -105,7 +115,7 @@ def flag(fit_d: DiagData, hold_d: DiagData, effects, path_temp_c=None) -> Outlie
     ef = rf.meas - evaluate(rf, effects, path_temp_c)[0]
     eh = rh.meas - evaluate(rh, effects, path_temp_c)[0]
     out = none_flagged(fit_d, hold_d)
-    sig, thr, aside = [None, None], [None, None], [True, True]
+    sig, thr, cut, aside = [None, None], [None, None], [None, None], [True, True]
     coords = ((np.vstack([rf.cmd[:rf.n_points], rh.cmd[:rh.n_points]]),
                np.vstack([_path_coords(fit_d), _path_coords(hold_d) + 1e9])))
     for t, (sf, sh, name) in enumerate(((slice(0, rf.n_points), slice(0, rh.n_points), "points"),
@@ -119,18 +129,20 @@ def flag(fit_d: DiagData, hold_d: DiagData, effects, path_temp_c=None) -> Outlie
         far = np.zeros(len(r), bool)
         for _ in range(PASSES):   # a spike spoils its neighbours' planes: leave it out of them
             z = _local_residual(coords[t], r, ~far)
-            za = z[:len(a)][~far[:len(a)]]
-            s = 1.4826 * float(np.median(np.abs(za - np.median(za, axis=0))))
+            zk = z[~far]
+            med = np.median(zk, axis=0)
+            s = noise_mod.mad(zk)
             if not s > 0:
                 break
-            new = np.sum((z - np.median(za, axis=0)) ** 2, axis=1) > (q * s) ** 2
+            su = noise_mod.upper95(s, noise_mod.MAD_EFFICIENCY * zk.size)
+            new = np.sum((z - med) ** 2, axis=1) > (q * su) ** 2
             if np.array_equal(new, far):
                 break
             far = new
         if not s > 0:
             continue
         fa, fb = far[:len(a)], far[len(a):]
-        sig[t], thr[t] = s, q
+        sig[t], thr[t], cut[t] = s, q, q * su
         if fa.mean() > MAX_SHARE:
             aside[t] = False
             out.notes.append(f"{100 * fa.mean():.0f} % of the fit {name} lie beyond {q:.1f} σ "
@@ -140,12 +152,13 @@ def flag(fit_d: DiagData, hold_d: DiagData, effects, path_temp_c=None) -> Outlie
         out.fit[sf] = fa
         out.hold[sh] = fb
     out.sigma, out.threshold, out.set_aside = tuple(sig), tuple(thr), tuple(aside)
+    out.cut_mm = tuple(cut)
     return out
 
 
 def describe(o: Outliers, fit_d: DiagData, hold_d: DiagData) -> dict:
     """JSON-ready summary: counts, the sample ids of outlying points, (move, time_s) of
-    outlying path samples, the scale and threshold per table."""
+    outlying path samples, the scale, threshold and cut per table."""
     pts, path = [], []
     for d, mask in ((fit_d, o.fit), (hold_d, o.hold)):
         rows = rows_of(d)
@@ -159,9 +172,11 @@ def describe(o: Outliers, fit_d: DiagData, hold_d: DiagData) -> dict:
     return {"n": len(pts) + len(path),
             "points": {"n": len(pts), "samples": sorted(pts),
                        "sigma_mm": _r(o.sigma[0]), "threshold_sigma": _r(o.threshold[0], 3),
+                       "cut_mm": _r(o.cut_mm[0]),
                        "set_aside": o.set_aside[0]},
             "paths": {"n": len(path), "samples": sorted(path),
                       "sigma_mm": _r(o.sigma[1]), "threshold_sigma": _r(o.threshold[1], 3),
+                      "cut_mm": _r(o.cut_mm[1]),
                       "set_aside": o.set_aside[1]},
             "alpha": ALPHA, "max_share": MAX_SHARE, "notes": list(o.notes)}
 
