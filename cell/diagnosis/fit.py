@@ -34,7 +34,7 @@ from scipy.optimize import least_squares
 from cell import effects as fx
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
-from cell.diagnosis.screen import ORDER_COST
+from cell.diagnosis.screen import ORDER_COST, ORDERS
 
 MAX_CORR = 0.995
 JACOBIANS = ("analytic", "2-point")
@@ -196,10 +196,16 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
     ``"2-point"`` (finite differences, as before the analytic Jacobians); ``keep`` a (rows,)
     bool mask of the fit rows that count (outliers out); ``weights`` per-table weights to
     begin with. Never raises for a poor fit: a failed solve gives ``success=False`` and
-    ``identifiable=False``; raises ValueError for an unknown ``jac``.
+    ``identifiable=False``; raises ValueError for an unknown ``jac`` or ``orders`` that are
+    not cycles per revolution of :data:`.screen.ORDERS` on the candidate's cyclic joints.
     """
     if jac not in JACOBIANS:
         raise ValueError(f"jac {jac!r}: choose from {', '.join(JACOBIANS)}")
+    cyc = [j for name, joints in c if name == "cyclic_error" for j in joints]
+    bad = {j: k for j, k in (orders or {}).items() if j not in cyc or k not in ORDERS}
+    if bad:
+        raise ValueError(f"orders {bad}: give cycles per revolution from {list(ORDERS)} for "
+                         f"the joints of the candidate's cyclic error {cyc}")
     rows = rows_of(fit_d)
     kp = np.ones(rows.n, bool) if keep is None else np.asarray(keep, bool)
     sel_p = np.flatnonzero(kp[:rows.n_points])

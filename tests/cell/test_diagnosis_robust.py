@@ -251,3 +251,7 @@ def test_unknown_search_method_and_jacobian_are_refused():
     fd, hd = subset(d, "fit"), subset(d, "holdout")
     with pytest.raises(ValueError, match="jac 'central'"):
         fit_candidate((("joint_offset", ("j1",)),), fd, hd, 2 * fd.n_points, jac="central")
+    with pytest.raises(ValueError, match=r"orders \{'j1': 5\}"):
+        fit_candidate((("cyclic_error", ("j1",)),), fd, hd, 2 * fd.n_points, orders={"j1": 5})
+    with pytest.raises(ValueError, match=r"orders \{'j2': 2\}.*\['j1'\]"):
+        fit_candidate((("cyclic_error", ("j1",)),), fd, hd, 2 * fd.n_points, orders={"j2": 2})
