@@ -14,6 +14,7 @@ import math
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -248,15 +249,25 @@ def _write_table(path: Path, table: dict[str, np.ndarray], columns: dict) -> Non
 def write_campaign(campaign: Campaign, directory: Path | str) -> Path:
     """Write ``campaign`` to ``directory`` atomically (replacing an existing campaign there)."""
     d = Path(directory)
-    d.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
-    try:
+    with staged_dir(d) as tmp:
         model = campaign.model.model_dump(exclude_none=True, mode="json")
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         if campaign.points is not None:
             _write_table(tmp / "points.csv", campaign.points, POINT_COLUMNS)
         if campaign.paths is not None:
             _write_table(tmp / "paths.csv", campaign.paths, PATH_COLUMNS)
+    return d
+
+
+@contextmanager
+def staged_dir(d: Path):
+    """Yield a fresh temporary directory beside ``d``; when the block ends without an
+    exception it replaces ``d`` (renamed into place, so a reader never sees a half-written
+    directory), otherwise it is removed and ``d`` stays as it was."""
+    d.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
+    try:
+        yield tmp
         if d.exists():
             old = d.with_name(f".{d.name}.old")
             shutil.rmtree(old, ignore_errors=True)
@@ -268,4 +279,3 @@ def write_campaign(campaign: Campaign, directory: Path | str) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return d

@@ -15,9 +15,6 @@ split. :func:`write_chain_campaign` writes the same layout atomically.
 """
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -27,7 +24,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.chain.model import Chain, dh_chain, urdf_chain
-from cell.measurements import FORMAT, CampaignFormatError, _read_table, _yaml_line
+from cell.measurements import FORMAT, CampaignFormatError, _read_table, _yaml_line, staged_dir
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
@@ -262,9 +259,7 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
     """Write ``c`` (with ``spec`` as its model, and extra ``files`` name → text such as a
     URDF) to ``directory`` atomically."""
     d = Path(directory)
-    d.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
-    try:
+    with staged_dir(d) as tmp:
         model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         for name, text in (files or {}).items():
@@ -280,15 +275,4 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
             row += [c.split[p]] if c.split is not None else []
             out.append(",".join(row))
         (tmp / "points.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
-        if d.exists():
-            old = d.with_name(f".{d.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.rename(d, old)
-            os.rename(tmp, d)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, d)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return d
