@@ -1,5 +1,5 @@
 """Chain campaigns for the tests, drawn from the independent forward model
-(:mod:`cell.chain.truth`). The arm is a UR5 in standard DH (Universal Robots' published
+(:mod:`cell.truth.chain`). The arm is a UR5 in standard DH (Universal Robots' published
 parameters: d1 89.159, a2 −425, a3 −392.25, d4 109.15, d5 94.65, d6 82.3 mm,
 α = 90, 0, 0, 90, −90, 0°), measured by a tracker whose pose is unknown."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cell.chain import truth
+from cell.truth import chain as truth
 
 UR5 = [
     {"name": "j1", "type": "revolute", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 89.159, "theta_deg": 0.0},
@@ -25,7 +25,7 @@ MARKERS = [[40.0, 0.0, 30.0], [-20.0, 35.0, 30.0], [-20.0, -35.0, 50.0]]
 def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise_mm: float = 0.05,
          seed: int = 0, sensor: bool = True, markers=MARKERS, rows=UR5, modified: bool = False,
          split: bool = False, model_extra: dict | None = None, lens: float = 0.0) -> Path:
-    """Write a campaign with ``effects`` (see :mod:`cell.chain.truth`) to ``directory``."""
+    """Write a campaign with ``effects`` (see :mod:`cell.truth.chain`) to ``directory``."""
     rng = np.random.default_rng(seed)
     q = rng.uniform(-150, 150, (poses, len(rows)))
     q[:, 1] = rng.uniform(-160, -20, poses)          # keep the arm above its base
@@ -36,7 +36,7 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     model = {"format": "cell-measurements/1", "kinematics": "dh",
              "dh_convention": "modified" if modified else "standard", "joints": rows,
              "measurement_frame": "sensor" if sensor else "base", "markers": "unknown",
-             "source": "tests: UR5 DH drawn by cell.chain.truth"} | (model_extra or {})
+             "source": "tests: UR5 DH drawn by cell.truth.chain"} | (model_extra or {})
     (directory / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False))
     head = ["sample"] + [f"j{k + 1}" for k in range(len(rows))] + ["marker", "x_mm", "y_mm", "z_mm"]
     head += ["split"] if split else []

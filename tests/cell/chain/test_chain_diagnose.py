@@ -1,5 +1,5 @@
 """The chain diagnosis and calibration on campaigns of the independent forward model
-(cell.chain.truth) and on the real TIAGo set."""
+(cell.truth.chain) and on the real TIAGo set."""
 from __future__ import annotations
 
 import json

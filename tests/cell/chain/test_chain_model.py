@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from cell.chain import fit as F
-from cell.chain import kin, truth
+from cell.chain import kin
 from cell.chain.model import dh_chain, matrix_rpy, rpy_matrix
 from cell.measurements import read_campaign
+from cell.truth import chain as truth
 from tests.cell.chain import chainsim
 
 TIAGO = Path(__file__).resolve().parents[2] / "data" / "real" / "tiago-mocap-train"  # copy of shared/data/real

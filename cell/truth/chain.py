@@ -2,7 +2,7 @@
 checks of the chain diagnosis. Written plainly, per pose, from the DH definitions; it
 shares no code with :mod:`cell.chain.model` / :mod:`cell.chain.kin` / :mod:`cell.chain.fit`,
 so a sign, unit or composition mistake there cannot cancel out here (the agreement test
-in ``tests/cell/chain/test_chain_truth.py`` compares the two on every vocabulary effect).
+in ``tests/cell/chain/test_chain_model.py`` compares the two on every vocabulary effect).
 
 Effects it can put into a campaign (``effects`` maps a name to its size):
 
