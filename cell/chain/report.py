@@ -109,9 +109,10 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
     s = rank.search(fit_d, hold_d)
     dec = rank.decide(s, noise_mm)
     f0 = s.nominal.fit
-    reg_ident = F.identifiability(fit_d, F.vocabulary(cc.chain), f0.reg)
-    absorbed = {n: why for n, why in reg_ident.dropped.items() if "registration" in why}
+    # every parameter is in one effect's pool, so the pools' drops cover the vocabulary;
+    # "absorbed by the registration" does not depend on which pool a parameter was in
     not_ident = {n: why for e in s.idents.values() for n, why in e.dropped.items()}
+    absorbed = {n: why for n, why in not_ident.items() if "registration" in why}
     warnings = sorted({w for c in s.ranking[:1] if c.ident for w in c.ident.warnings})
     before, after = s.nominal.hold_rms, (dec.chosen.hold_rms if dec.chosen else s.nominal.hold_rms)
     shrink = 1 - after / before if before > 0 else 0.0
