@@ -23,7 +23,7 @@ import numpy as np
 from cell.chain import fit as F
 from cell.chain import rank
 from cell.chain.campaign import ChainCampaign, ChainSpec, write_chain_campaign
-from cell.chain.model import AXES, matrix_rpy, rot, rpy_matrix, trans
+from cell.chain.model import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.chain.report import split_poses
 
 FORMAT = "cell-chain-calibration/1"
@@ -103,10 +103,8 @@ def _dh_rows(spec: ChainSpec, values: dict[str, float]) -> list[dict]:
 
 
 def _urdf_text(cc: ChainCampaign, values: dict[str, float]) -> str:
-    from urdf_parser_py.urdf import URDF
-    from cell.chain.model import _quiet_parse
     path = cc.directory / cc.spec.urdf
-    robot = _quiet_parse(URDF, path.read_text(encoding="utf-8"))
+    robot = parse_urdf(path.read_text(encoding="utf-8"))
     for j in cc.chain.joints:
         col = f"{j.column}_"
         js = robot.joint_map[j.name]

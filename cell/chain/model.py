@@ -192,14 +192,13 @@ def urdf_chain(file: Path, urdf_path: Path, base: str, tip: str, names: list[str
     parser). ``names`` are the moving joints in CSV order; they must be exactly the moving
     joints on the path. Geometric parameters per moving joint: its origin's
     ``jK_{x,y,z}_mm`` and ``jK_{roll,pitch,yaw}_deg``."""
-    from urdf_parser_py.urdf import URDF  # lazy: only chain campaigns need it
     where = str(urdf_path)
     try:
         text = urdf_path.read_text(encoding="utf-8")
     except OSError as exc:
         raise CampaignFormatError(file, f"urdf {where}: cannot read: {exc.strerror}", column="urdf") from None
     try:
-        robot = _quiet_parse(URDF, text)
+        robot = parse_urdf(text)
     except Exception as exc:  # lxml's XMLSyntaxError, or the parser's own on a bad element
         raise CampaignFormatError(urdf_path, f"not a valid URDF: {exc}") from None
     links = {lk.name for lk in robot.links}
@@ -282,9 +281,11 @@ def _joint_ops(ops: list[Op], n: int) -> list[int]:
     return out
 
 
-def _quiet_parse(URDF, text: str):
-    """urdf_parser_py prints unknown-element notes to stderr; keep them off the report."""
+def parse_urdf(text: str):
+    """The URDF ``text`` as urdf_parser_py's Robot (the parser prints unknown-element notes
+    to stderr; they are kept off the report). Raises what the parser raises."""
     import contextlib
     import io
+    from urdf_parser_py.urdf import URDF  # lazy: only chain campaigns need it
     with contextlib.redirect_stderr(io.StringIO()):
         return URDF.from_xml_string(text.encode("utf-8"))

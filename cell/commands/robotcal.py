@@ -213,11 +213,11 @@ def run_chain(args: argparse.Namespace) -> int:
     if isinstance(c, Campaign):
         raise ConfigError(f"{args.campaign}: a SCARA campaign; CAMPAIGN must be a chain (kinematics dh "
                           "or urdf). The SCARA is calibrated from its hand camera: omit CAMPAIGN")
-    cal = calibrate_chain(c)
-    report = cal.report()
     out = Path(args.out) if args.out else Path(str(Path(args.campaign)).rstrip("/") + "-calibrated")
     if out.resolve() == Path(args.campaign).resolve():
         raise ConfigError(f"--out {out}: would overwrite the campaign itself")
+    cal = calibrate_chain(c)
+    report = cal.report()
     written = None
     if cal.passed and not args.dry_run:
         try:

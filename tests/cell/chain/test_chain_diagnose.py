@@ -108,3 +108,25 @@ def test_calibrate_refuses_a_campaign_with_cell_options(tmp_path):
     c = chainsim.make(tmp_path / "c", {}, poses=20)
     r = _cellctl("calibrate", "kinematics", str(c), "--sim")
     assert r.returncode == 2 and "--sim: not with a CAMPAIGN" in r.stderr
+
+
+def test_chain_command_options_refused_where_they_do_not_apply(tmp_path):
+    c = chainsim.make(tmp_path / "c", {}, poses=20)
+    log = tmp_path / "cell.sqlite"
+    log.write_bytes(b"SQLite format 3\x00" + bytes(100))
+    r = _cellctl("diagnose", str(log), "--model", str(c / "model.yaml"))
+    assert r.returncode == 2 and "--model" in r.stderr and "only with a campaign directory" in r.stderr
+    before = sorted(p.name for p in c.iterdir())
+    r = _cellctl("calibrate", "kinematics", str(c), "--out", str(c))
+    assert r.returncode == 2 and "would overwrite the campaign itself" in r.stderr
+    assert sorted(p.name for p in c.iterdir()) == before
+
+
+def test_calibrate_refuses_a_scara_campaign(tmp_path):
+    d = tmp_path / "scara"
+    d.mkdir()
+    (d / "model.yaml").write_text("format: cell-measurements/1\nkinematics: scara\nl1_mm: 325\nl2_mm: 275\n")
+    (d / "points.csv").write_text("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,10,20,400,200\n")
+    r = _cellctl("calibrate", "kinematics", str(d))
+    assert r.returncode == 2 and "a SCARA campaign; CAMPAIGN must be a chain" in r.stderr
+    assert not (tmp_path / "scara-calibrated").exists()
