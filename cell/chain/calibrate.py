@@ -83,8 +83,8 @@ def calibrate_chain(cc: ChainCampaign) -> ChainCalibration:
     ident = F.identifiability(fit_d, pool, f0.reg)
     chosen = rank.screen(fit_d, f0, ident.kept)
     f = F.fit(fit_d, chosen, f0.reg)
-    before = F.predict_rms(hold_d, f0)[:2]
-    after = F.predict_rms(hold_d, f)[:2]
+    before = F.predict_rms(hold_d, f0)
+    after = F.predict_rms(hold_d, f)
     return ChainCalibration(cc, f0, f, ident.dropped, [p.name for p in ident.kept if p not in chosen],
                             before, after, fit_d.n_poses, hold_d.n_poses, src)
 

@@ -68,7 +68,7 @@ def vocabulary(chain: Chain) -> list[Param]:
 @dataclass
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
-    lever of each joint at the nominal pose; ``pose_ids`` for messages."""
+    lever of each joint at the nominal pose."""
 
     chain: Chain
     readings: np.ndarray
@@ -79,7 +79,6 @@ class Data:
     sensor: bool
     known_markers: np.ndarray | None
     levers: np.ndarray
-    pose_ids: np.ndarray
 
     @classmethod
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
@@ -89,7 +88,7 @@ class Data:
         load = tips[:, :3, :3] @ chain.tool_mm + tips[:, :3, 3]
         levers = kin.gravity_levers(chain, starts, load)
         d = cls(chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
-                cc.spec.measurement_frame == "sensor", cc.known_markers, levers, cc.pose_ids)
+                cc.spec.measurement_frame == "sensor", cc.known_markers, levers)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
@@ -99,7 +98,7 @@ class Data:
         rows = pose_mask[self.obs_pose]
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[keep], self.pose_ids[keep])
+                    self.levers[keep])
 
     @property
     def n_poses(self) -> int:
@@ -267,15 +266,10 @@ class Fit:
     ci95: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     cv_rms: float = math.nan
     cv_pose: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    iterations: int = 0
 
     @property
     def rms(self) -> float:
         return rms3(self.resid)
-
-    @property
-    def k(self) -> int:
-        return self.J.shape[1]
 
     def named(self) -> dict[str, float]:
         return {p.name: float(v) for p, v in zip(self.params, self.values)}
@@ -295,8 +289,8 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
     v = np.zeros(len(params)) if values0 is None else np.asarray(values0, float).copy()
     y, J = model(d, reg, params, v, jac=True)
     r = (d.xyz - y).ravel()
-    cost, lam, it = float(r @ r), 1e-9, 0
-    for it in range(1, max_iter + 1):
+    cost, lam = float(r @ r), 1e-9
+    for _ in range(max_iter):
         Js, scale = _scaled(J)
         A = Js.T @ Js
         step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), Js.T @ r) / scale
@@ -315,7 +309,7 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
             lam *= 10
             if lam > 1e8:
                 break
-    f = Fit(params, v, reg, r.reshape(-1, 3), J, iterations=it)
+    f = Fit(params, v, reg, r.reshape(-1, 3), J)
     _uncertainty(d, f)
     return f
 
@@ -399,12 +393,12 @@ def _t975(dof: int) -> float:
     return t_quantile(0.975, dof)
 
 
-def predict_rms(d: Data, f: Fit) -> tuple[float, float, np.ndarray]:
+def predict_rms(d: Data, f: Fit) -> tuple[float, float]:
     """(rms, max) of the 3-D error of fit ``f`` on other poses ``d`` (registration kept)."""
     y, _ = model(d, f.reg, f.params, f.values)
     e = d.xyz - y
     n = np.sqrt(np.sum(e * e, axis=1))
-    return rms3(e), float(n.max()) if len(n) else math.nan, e
+    return rms3(e), float(n.max()) if len(n) else math.nan
 
 
 @dataclass

@@ -100,13 +100,13 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ())
 
 def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None) -> Candidate:
     f = F.fit(fit_d, params, f0.reg)
-    rms, mx, _ = F.predict_rms(hold_d, f)
+    rms, mx = F.predict_rms(hold_d, f)
     return Candidate(label, effects, f, rms, mx, ident)
 
 
 def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
     f0 = F.fit(fit_d, [])
-    rms, mx, _ = F.predict_rms(hold_d, f0)
+    rms, mx = F.predict_rms(hold_d, f0)
     nominal = Candidate("registration only", (), f0, rms, mx)
     voc = F.vocabulary(fit_d.chain)
     idents, picks, ranking = {}, {}, []
