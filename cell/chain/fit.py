@@ -274,6 +274,23 @@ class Fit:
     def named(self) -> dict[str, float]:
         return {p.name: float(v) for p, v in zip(self.params, self.values)}
 
+    def conditioning(self) -> tuple[int, int, float]:
+        """(numerical rank, columns, condition number) of the column-scaled Jacobian at
+        the solution, registration and parameters together: rank < columns means some
+        combination of them is not identifiable from these poses; a large condition
+        number means some are told apart only weakly."""
+        return conditioning(self.J)
+
+
+def conditioning(J: np.ndarray) -> tuple[int, int, float]:
+    """(rank to :data:`STRUCTURAL_TOL`, columns, largest / smallest singular value) of
+    ``J`` with unit-norm columns (so units and lever lengths do not count)."""
+    if J.size == 0:
+        return 0, J.shape[1] if J.ndim == 2 else 0, 1.0
+    sv = np.linalg.svd(_scaled(J)[0], compute_uv=False)
+    rank = int(np.sum(sv > sv[0] * STRUCTURAL_TOL))
+    return rank, J.shape[1], float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+
 
 def rms3(r: np.ndarray) -> float:
     """RMS of the 3-D point error (sqrt of the mean squared norm), mm."""
@@ -405,12 +422,11 @@ def predict_rms(d: Data, f: Fit) -> tuple[float, float]:
 class Identifiability:
     """Which of a parameter pool the data can see beside registration: ``kept`` in
     priority order; ``dropped`` name → reason; ``warnings`` for kept parameters that
-    registration (or the others) almost absorb; ``condition`` of the kept, scaled design."""
+    registration (or the others) almost absorb."""
 
     kept: list[Param]
     dropped: dict[str, str]
     warnings: list[str]
-    condition: float
 
 
 def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: list[Param] = ()
@@ -452,12 +468,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
         kept.append(p)
         kept_cols.append(v)
         Q = np.column_stack([Q, perp / left])
-    Jk = np.column_stack(kept_cols) if kept_cols else np.zeros((J.shape[0], 0))
-    full = np.column_stack([J[:, :nr] / np.maximum(np.linalg.norm(J[:, :nr], axis=0), 1e-300), Jk]) \
-        if nr else Jk
-    sv = np.linalg.svd(full, compute_uv=False) if full.size else np.ones(1)
-    return Identifiability(kept, dropped, warnings,
-                           float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf)
+    return Identifiability(kept, dropped, warnings)
 
 
 def _partners(v: np.ndarray, kept: list[Param], cols: list[np.ndarray]) -> list[str]:

@@ -89,9 +89,11 @@ def _components(c: rank.Candidate) -> list[dict]:
 
 def _entry(c: rank.Candidate) -> dict:
     params, ci = _params(c)
+    rk, cols, cond = c.fit.conditioning()
     return {"label": c.label, "effects": list(c.effects), "joints": c.joints, "k": len(c.fit.params),
             "params": params, "ci95": ci, "score": _r(c.fit.cv_rms), "cv_rms_mm": _r(c.fit.cv_rms),
-            "fit_rms_mm": _r(c.fit.rms), "holdout_rms_mm": _r(c.hold_rms), "identifiable": True}
+            "fit_rms_mm": _r(c.fit.rms), "holdout_rms_mm": _r(c.hold_rms), "identifiable": rk == cols,
+            "rank": rk, "columns": cols, "condition": _r(cond, 1)}
 
 
 def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
@@ -151,7 +153,8 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
                              for j in chain.joints},
                   "markers": cc.markers, "measurement_frame": cc.spec.measurement_frame},
         "registration": f0.reg.as_dict(fit_d.sensor, fit_d.known_markers is None, cc.markers)
-        | {"parameters": n_reg, "rms_mm": _r(f0.rms), "absorbs": absorbed,
+        | {"parameters": n_reg, "condition": _r(f0.conditioning()[2], 1), "rms_mm": _r(f0.rms),
+           "absorbs": absorbed,
            "warnings": warnings,
            "note": "registration is nuisance, fitted first and with every candidate; "
                    "gap.rms_mm is the residual after registration alone"},
@@ -196,13 +199,14 @@ def render_chain_text(rep: dict) -> str:
     out.append(f"gap after registration: rms {g['rms_mm']:.4f} mm, max {g['max_mm']:.4f} mm over "
                f"{g['n']} points ({g['poses']} fit poses)")
     out.append(f"where: {g['where']['summary']}")
-    out += ["", "| rank | candidate | k | leave-one-pose-out rms mm | fit rms mm | holdout rms mm |",
-            "|---:|---|---:|---:|---:|---:|",
+    out += ["", "| rank | candidate | k | leave-one-pose-out rms mm | fit rms mm | holdout rms mm "
+            "| condition |", "|---:|---|---:|---:|---:|---:|---:|",
             f"| – | registration only | 0 | {rep['noise']['registration_cv_rms_mm']:.4f} | "
-            f"{g['rms_mm']:.4f} | {h['rms_before_mm']:.4f} |"]
+            f"{g['rms_mm']:.4f} | {h['rms_before_mm']:.4f} | {reg['condition']:.3g} |"]
     for i, r in enumerate(rep["ranking"], 1):
+        rank_note = "" if r["identifiable"] else f", rank {r['rank']} of {r['columns']}"
         out.append(f"| {i} | {r['label']} ({', '.join(r['joints'])}) | {r['k']} | {r['cv_rms_mm']:.4f} | "
-                   f"{r['fit_rms_mm']:.4f} | {r['holdout_rms_mm']:.4f} |")
+                   f"{r['fit_rms_mm']:.4f} | {r['holdout_rms_mm']:.4f} | {r['condition']:.3g}{rank_note} |")
     out.append("")
     if c["effect"] == "none":
         out.append(f"cause: none (best candidate not supported: p = {c['test']['p_value']:.3g})")

@@ -38,6 +38,23 @@ def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, e
     # registration is reported, and gap.rms_mm is the residual after it alone
     assert set(rep["registration"]["markers_mm"]) == {"1", "2", "3"}
     assert rep["gap"]["rms_mm"] == rep["registration"]["rms_mm"]
+    # every candidate fit is full rank beside the registration, and says how well conditioned
+    for entry in rep["ranking"]:
+        assert entry["identifiable"] and entry["rank"] == entry["columns"] \
+            == rep["registration"]["parameters"] + entry["k"]
+        assert 1.0 <= entry["condition"] < 1e4, entry["label"]
+
+
+def test_conditioning_sees_a_combination_the_data_cannot_separate():
+    import numpy as np
+
+    from cell.chain.fit import conditioning
+    J = np.random.default_rng(0).normal(size=(30, 4))
+    rank, cols, cond = conditioning(J)
+    assert (rank, cols) == (4, 4) and cond < 10
+    J[:, 3] = 2.0 * J[:, 0] - J[:, 1]          # a fourth parameter seen only as a sum
+    rank, cols, cond = conditioning(J)
+    assert (rank, cols) == (3, 4) and cond > 1e6
 
 
 def test_no_effect_is_none_and_registration_absorbs_the_base_offset(tmp_path):
