@@ -2,8 +2,11 @@
 
 Each sub-command lives in its own module under ``cell.commands`` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules are
-imported only when listed here, so a command's heavy imports (OpenCV, pymodbus, ...) cost
-nothing to the others.
+imported when the parser is built, so they import only the standard library and
+:mod:`cell.errors` at module level: numpy, pydantic, structlog, OpenCV, pymodbus, scipy …
+are imported inside the functions that run a command. ``cellctl --help`` and every
+``cellctl COMMAND --help`` then cost little more than Python itself
+(``tests/cell/test_cli_startup.py`` holds them to that).
 """
 from __future__ import annotations
 
@@ -11,7 +14,7 @@ import argparse
 import importlib
 import sys
 
-from cell import __version__, log
+from cell import __version__
 from cell.errors import CellError
 
 COMMAND_MODULES = (
@@ -43,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from cell import log          # structlog: only once a command runs, not for --help
     log.configure(args.log_format, args.log_level)
     try:
         return int(args.func(args) or 0)

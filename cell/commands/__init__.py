@@ -15,3 +15,13 @@ def float_list(n: int | None = None):
             raise argparse.ArgumentTypeError(f"{text!r}: expected {n} comma-separated numbers, got {len(values)}")
         return values
     return parse
+
+
+def preset_name(text: str) -> str:
+    """argparse type: the name of a robot preset of :data:`cell.kinematics.PRESETS`. Imported
+    only when a value is parsed, so ``--help`` does not load the kinematics (numpy, pydantic)."""
+    from cell.kinematics import PRESETS
+    if text not in PRESETS:
+        raise argparse.ArgumentTypeError(f"unknown robot preset {text!r}; known: "
+                                         f"{', '.join(sorted(PRESETS))}")
+    return text

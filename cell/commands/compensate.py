@@ -5,11 +5,7 @@ import argparse
 import json
 
 from cell.commands import float_list
-from cell.compensation.arms import NominalArm
-from cell.compensation.lattice import run_lattice
-from cell.compensation.paper import run_paper
 from cell.errors import KinematicsError
-from cell.kinematics import Geometry, Scara
 
 METHODS = ("lattice", "paper")
 
@@ -32,6 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from cell.compensation.arms import NominalArm
+    from cell.compensation.lattice import run_lattice
+    from cell.compensation.paper import run_paper
+    from cell.kinematics import Geometry, Scara
     if not args.unit_deg > 0:
         raise KinematicsError(f"--unit-deg {args.unit_deg} must be > 0")
     try:

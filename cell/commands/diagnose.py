@@ -27,11 +27,14 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cell.commands import float_list
 from cell.errors import ConfigError
 from cell.jsonsafe import json_safe
-from cell.measurements import Campaign, CampaignFormatError, read_campaign
+
+if TYPE_CHECKING:
+    from cell.measurements import Campaign
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
 VALIDATE = "validate"
@@ -79,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     if given:
         raise ConfigError(f"{', '.join(given)}: only with 'cellctl diagnose validate'")
     from cell.diagnosis import diagnose, render_text
+    from cell.measurements import Campaign
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
     campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
@@ -130,6 +134,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
 
     Raises CampaignFormatError (campaign problems, file/line/column) or ConfigError (a cycle
     log without measured moves, an unknown robot preset)."""
+    from cell.measurements import CampaignFormatError, read_campaign
     p = Path(target)
     if p.is_dir():
         c = read_campaign(p, model)

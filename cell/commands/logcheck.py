@@ -8,7 +8,6 @@ Exit status 0 when the log is sound, 1 when damage was found, 2 when there is no
 from __future__ import annotations
 
 import argparse
-import sqlite3
 from pathlib import Path
 
 from cell.errors import ConfigError, LogError
@@ -25,6 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_check(args: argparse.Namespace) -> int:
+    import sqlite3
     from cell.cyclelog import CycleLog
     from cell.logfile import LogLock
     path = Path(args.db)

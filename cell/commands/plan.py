@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from cell.commands import float_list
+from cell.commands import float_list, preset_name
 from cell.errors import CellError, TrajectoryError
-from cell.kinematics import JOINT_NAMES, PRESETS, Scara
 from cell.trajectory.names import LAWS, TIMINGS
+
+if TYPE_CHECKING:
+    import numpy as np
+
+DEFAULT_STATIONS = "j1,j2,j3,j4"   # the kinematic order, cell.kinematics.JOINT_NAMES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                          description="Split a straight move into equal steps, print each segment's "
                                      "joint targets and velocities (uncorrected Δθ/T and corrected "
                                      "Δθ/(T−λ)), and the simulated deviation from the line.")
-    ln.add_argument("--robot", choices=sorted(PRESETS), default="seed002", help="robot preset (default seed002)")
+    ln.add_argument("--robot", type=preset_name, default="seed002", metavar="PRESET",
+                    help="robot preset, e.g. seed000, seed002 (default seed002)")
     ln.add_argument("--from", dest="start", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
                     help="start pose: mm, mm, mm, deg")
     ln.add_argument("--to", dest="end", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
@@ -41,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ln.add_argument("--points", type=int, default=20, help="number of interpolation segments n (default 20)")
     ln.add_argument("--segment-ms", type=float, default=10.0, help="segment time T, ms (default 10)")
     ln.add_argument("--sigma-ms", type=float, default=1.0, help="per-frame bus delay σ, ms (default 1)")
-    ln.add_argument("--stations", default=",".join(JOINT_NAMES), metavar="J,J,J,J",
+    ln.add_argument("--stations", default=DEFAULT_STATIONS, metavar="J,J,J,J",
                     help="bus order of the joint stations (default j1,j2,j3,j4)")
     ln.add_argument("--elbow", choices=("right", "left"), default="right", help="elbow (default right)")
     ln.add_argument("--json", action="store_true", help="print the plan as JSON")
@@ -64,6 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 # --------------------------------------------------------------------------- line
 def _station_order(text: str) -> tuple[str, ...]:
+    from cell.kinematics import JOINT_NAMES
     order = tuple(s.strip() for s in text.split(",") if s.strip())
     if sorted(order) != sorted(JOINT_NAMES):
         raise TrajectoryError(f"--stations {text!r} must name each of {', '.join(JOINT_NAMES)} exactly once")
@@ -71,6 +76,7 @@ def _station_order(text: str) -> tuple[str, ...]:
 
 
 def run_line(args: argparse.Namespace) -> int:
+    from cell.kinematics import JOINT_NAMES, Scara
     from cell.trajectory.line import joint_delays, max_line_deviation, plan_line, simulate_line
     robot = Scara.preset(args.robot)
     order = _station_order(args.stations)
@@ -117,6 +123,7 @@ def run_line(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- time laws
 def parse_waypoints(text: str) -> np.ndarray:
     """``"0,0;10,5;30,20"`` → array (m, J). Raises TrajectoryError naming the bad row."""
+    import numpy as np
     rows = [r.strip() for r in text.strip().strip(";").split(";")]
     out: list[list[float]] = []
     for i, row in enumerate(rows):

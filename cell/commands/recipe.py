@@ -14,7 +14,6 @@ import json
 from pathlib import Path
 
 from cell.errors import ConfigError
-from cell.recipes import content_hash, parse_recipe, recipe_schema
 
 DEFAULT_DIR = "recipes"
 DEFAULT_DB = "var/cell.sqlite"
@@ -42,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _check(path: Path, cell_check=None) -> tuple[str, str | None]:
     """(hash, error or None) for one recipe file."""
+    from cell.recipes import content_hash, parse_recipe
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -56,6 +56,7 @@ def _check(path: Path, cell_check=None) -> tuple[str, str | None]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from cell.recipes import parse_recipe, recipe_schema
     rdir = Path(args.dir)
     if args.recipe_cmd == "schema":
         text = json.dumps(recipe_schema(), indent=2) + "\n"

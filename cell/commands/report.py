@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from cell.errors import ConfigError
 
 DEFAULT_DB = "var/cell.sqlite"
@@ -38,6 +36,7 @@ def _open(db: str):
 
 
 def run_report(args: argparse.Namespace) -> int:
+    import numpy as np
     if args.block < 1:
         raise ConfigError(f"--block {args.block} must be ≥ 1")
     cycles = [c for c in _open(args.db).cycles() if not args.recipe or c.recipe == args.recipe]

@@ -22,8 +22,12 @@ import threading
 import time
 from pathlib import Path
 
-from cell.config import CellConfig, SimSection
+from typing import TYPE_CHECKING
+
 from cell.errors import ConfigError
+
+if TYPE_CHECKING:
+    from cell.config import CellConfig
 
 DEFAULT_SIM_DB = "var/cell.sqlite"      #: where cellctl report/export/diagnose look by default
 
@@ -52,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | None = None) -> CellConfig:
+    from cell.config import CellConfig, SimSection
     if path:
         cfg = CellConfig.load(path)
     elif sim:
