@@ -60,6 +60,8 @@ class ChainCalibration:
                            for p, v, se, (lo, hi) in zip(f.params, f.values, f.se, f.ci95)},
             "not_identifiable": self.dropped,
             "not_selected": self.not_selected,
+            "identifiability": dict(zip(("rank", "columns", "condition"), f.conditioning()))
+            | {"note": "of the column-scaled Jacobian at the solution, registration included"},
             "fit": {"rms_before_mm": round(self.nominal.rms, 6), "rms_after_mm": round(f.rms, 6),
                     "cv_rms_before_mm": round(self.nominal.cv_rms, 6), "cv_rms_after_mm": round(f.cv_rms, 6)},
             "holdout": {"rms_before_mm": round(b, 6), "rms_after_mm": round(a, 6),

@@ -243,6 +243,9 @@ def _print_chain(r: dict) -> None:
           f"(before: nominal model, registration fitted)")
     print(f"fit ({s['fit_poses']} poses): rms {f['rms_before_mm']:.4f} → {f['rms_after_mm']:.4f} mm; "
           f"leave-one-pose-out {f['cv_rms_before_mm']:.4f} → {f['cv_rms_after_mm']:.4f} mm")
+    idn = r["identifiability"]
+    print(f"identifiability: rank {idn['rank']} of {idn['columns']} (registration included), "
+          f"condition number {idn['condition']:.3g}")
     print()
     print(f"{'parameter':<26} {'value':>10} {'std error':>10} {'95 % interval':>24} unit")
     for name, p in r["parameters"].items():

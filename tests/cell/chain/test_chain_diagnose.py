@@ -86,6 +86,8 @@ def test_calibrated_dh_model_is_the_new_nominal(tmp_path):
     assert cal.passed
     v = cal.fit.named()
     assert abs(v["j2_offset_deg"] - 0.2) < 0.01 and abs(v["j3_a_mm"] - 1.0) < 0.05
+    idn = cal.report()["identifiability"]
+    assert idn["rank"] == idn["columns"] == cal.fit.J.shape[1] and idn["condition"] > 1.0
     out = write_calibrated(cal, tmp_path / "cal")
     again = read_campaign(tmp_path / "c", out["model"])
     rep = diagnose_chain(again, NOISE)
