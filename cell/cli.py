@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "cell.commands.calibrate",
     "cell.commands.robotcal",
     "cell.commands.logcheck",
+    "cell.commands.audit",
 )
 
 

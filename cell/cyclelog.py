@@ -355,12 +355,35 @@ class CycleLog:
 
     def verify_audit(self) -> int | None:
         """Id of the first audit row whose chain is broken, or None if the chain holds."""
-        prev = "0" * 64
+        broken = self.audit_break()
+        return None if broken is None else broken[0]
+
+    def audit_break(self) -> tuple[int, str] | None:
+        """(id, what is wrong) of the first audit row that breaks the chain, or None.
+
+        A row is broken when its ``prev_hash`` is not the previous row's ``row_hash`` (a row
+        was deleted or inserted before it), when its ``row_hash`` does not match its own
+        content (it was edited), when ids skip, or when SQLite's id sequence says rows
+        after the last one were written (the end of the trail was cut off). Someone who
+        rewrites the whole chain and the sequence is not caught here: that needs a copy of
+        the last row hash kept elsewhere (the plant historian)."""
+        prev, last_id = "0" * 64, 0
         for r in self.audit_rows():
+            rid = int(r["id"])
             want = _chain(prev, r["at"], r["who"], r["action"], r["target"], r["hash"], r["result"])
-            if r["prev_hash"] != prev or r["row_hash"] != want:
-                return int(r["id"])
-            prev = r["row_hash"]
+            if r["prev_hash"] != prev:
+                return rid, ("its prev_hash is not the row_hash of the row before it: a row "
+                             "before it was removed, inserted or edited")
+            if r["row_hash"] != want:
+                return rid, "its content does not match its row_hash: the row was edited"
+            if rid != last_id + 1:
+                return rid, f"ids jump from {last_id} to {rid}: rows were removed"
+            prev, last_id = r["row_hash"], rid
+        with self._lock:
+            seq = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'audit'").fetchone()
+        if seq is not None and int(seq[0]) > last_id:
+            return last_id + 1, (f"rows {last_id + 1}..{int(seq[0])} were written and are gone: "
+                                 "the end of the trail was removed")
         return None
 
     # ------------------------------------------------------------------ recipe versions

@@ -47,8 +47,9 @@ def run_check(args: argparse.Namespace) -> int:
         damaged |= bool(problems)
         try:
             print(f"cycles: {log.count()}; audit rows: {len(log.audit_rows())}")
-            broken = log.verify_audit()
-            print("audit chain: " + ("ok" if broken is None else f"broken at audit row {broken}"))
+            broken = log.audit_break()
+            print("audit chain: " + ("ok" if broken is None
+                                     else f"broken at audit row {broken[0]}: {broken[1]}"))
             damaged |= broken is not None
             flight = log.open_cycle()
         except sqlite3.Error as exc:
