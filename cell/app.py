@@ -110,6 +110,9 @@ class Cell:
         if self.runner is not None:
             self.runner.robot = self.runner.mover.robot = robot
             self.runner.memory = OffsetMemory(n=self.runner.memory.n)
+        # the tamper-evident trail: which calibration the cell moves with from now on
+        self.cyclelog.audit("plc", "calibration_write", str(self.calibrator.path),
+                            str(doc.get("sha256", "")), f"applied {robot.calibration}")
         log.info("robot_calibration_applied", calibration=robot.calibration)
 
     def stop(self) -> None:

@@ -28,9 +28,15 @@ def test_kinematic_calibration_from_the_plc_is_written_applied_and_recorded(harn
     log = CycleLog(h.config.log.path, readonly=True)
     try:
         rows = log.cycles()
+        audit = [r for r in log.audit_rows() if r["action"] == "calibration_write"]
+        assert log.verify_audit() is None
     finally:
         log.close()
     assert [r.calibration for r in rows] == ["", h.cell.runner.robot.calibration]
+    # the write is in the hash-chained audit trail, with the file and the document's hash
+    assert len(audit) == 1 and audit[0]["target"] == h.cell.calibrator.path
+    assert audit[0]["result"] == f"applied {h.cell.runner.robot.calibration}"
+    assert h.cell.runner.robot.calibration.split("-")[1] == audit[0]["hash"][:8]
 
 
 def test_joint_calibration_from_the_plc_reports_its_residual(harness):
