@@ -81,13 +81,13 @@ def run(args: argparse.Namespace) -> int:
     given += ["--oov-kinds"] if args.oov_kinds is not None else []
     if given:
         raise ConfigError(f"{', '.join(given)}: only with 'cellctl diagnose validate'")
-    from cell.diagnosis import diagnose, render_text
     from cell.measurements import Campaign
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
     campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
     if not isinstance(campaign, Campaign):
         return run_chain(campaign, args)
+    from cell.diagnosis import diagnose, render_text   # the planar diagnosis (scipy): only now
     dg = diagnose(campaign, lines, args.noise_mm)
     if args.html:
         from cell.diagnosis.html import write_html

@@ -1,0 +1,76 @@
+"""Chain campaigns drawn from the independent forward model (:mod:`cell.truth.chain`),
+written in the exchange format (Extension v1.1): for the blind validation, the speed bench
+and the tests. Nothing here imports the fitter (:mod:`cell.chain`).
+
+The default arm is a UR5 in standard DH (Universal Robots' published parameters: d1 89.159,
+a2 −425, a3 −392.25, d4 109.15, d5 94.65, d6 82.3 mm, α = 90, 0, 0, 90, −90, 0°), measured
+by a tracker whose pose is unknown. :func:`arm` gives 1–8 joints: the UR5's six, then two
+more wrist rows (:data:`EXTRA`) for a 7- or 8-joint chain.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from cell.truth import chain as truth
+
+UR5 = [
+    {"name": "j1", "type": "revolute", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 89.159, "theta_deg": 0.0},
+    {"name": "j2", "type": "revolute", "a_mm": -425.0, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0},
+    {"name": "j3", "type": "revolute", "a_mm": -392.25, "alpha_deg": 0.0, "d_mm": 0.0, "theta_deg": 0.0},
+    {"name": "j4", "type": "revolute", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 109.15, "theta_deg": 0.0},
+    {"name": "j5", "type": "revolute", "a_mm": 0.0, "alpha_deg": -90.0, "d_mm": 94.65, "theta_deg": 0.0},
+    {"name": "j6", "type": "revolute", "a_mm": 0.0, "alpha_deg": 0.0, "d_mm": 82.3, "theta_deg": 0.0},
+]
+MARKERS = [[40.0, 0.0, 30.0], [-20.0, 35.0, 30.0], [-20.0, -35.0, 50.0]]
+EXTRA = [
+    {"name": "j7", "type": "revolute", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 60.0, "theta_deg": 0.0},
+    {"name": "j8", "type": "revolute", "a_mm": 0.0, "alpha_deg": -90.0, "d_mm": 45.0, "theta_deg": 0.0},
+]
+MARKER4 = [10.0, 50.0, 20.0]
+
+
+def arm(joints: int) -> list[dict]:
+    """The first ``joints`` DH rows of the UR5 followed by :data:`EXTRA` (1 to 8)."""
+    rows = UR5 + EXTRA
+    if not 1 <= joints <= len(rows):
+        raise ValueError(f"joints {joints}: 1 to {len(rows)}")
+    return [dict(r) for r in rows[:joints]]
+
+
+def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise_mm: float = 0.05,
+         seed: int = 0, sensor: bool = True, markers=MARKERS, rows=UR5, modified: bool = False,
+         split: bool = False, model_extra: dict | None = None, lens: float = 0.0,
+         repeats: int = 0) -> Path:
+    """Write a campaign with ``effects`` (see :mod:`cell.truth.chain`) to ``directory``:
+    ``poses`` poses with readings uniform over ±150° (joint 2 in −160…−20°, the arm above
+    its base), the last ``repeats`` of them revisiting earlier ones (same readings, new
+    noise: what lets a diagnosis estimate the noise); the sensor at a random pose."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-150, 150, (poses, len(rows)))
+    q[:, 1] = rng.uniform(-160, -20, poses)          # keep the arm above its base
+    if repeats:
+        if not 0 < repeats < poses:
+            raise ValueError(f"repeats {repeats}: 1 to poses − 1")
+        q[poses - repeats:] = q[rng.choice(poses - repeats, repeats, replace=False)]
+    R = truth.random_rotation(rng) if sensor else np.eye(3)
+    t = rng.uniform(-800, 800, 3) if sensor else np.zeros(3)
+    data = truth.campaign_rows(rows, modified, q, markers, effects or {}, R, t, noise_mm, rng, lens=lens)
+    directory.mkdir(parents=True, exist_ok=True)
+    model = {"format": "cell-measurements/1", "kinematics": "dh",
+             "dh_convention": "modified" if modified else "standard", "joints": rows,
+             "measurement_frame": "sensor" if sensor else "base", "markers": "unknown",
+             "source": "cell.truth.chain_campaign: DH arm drawn by cell.truth.chain"} | (model_extra or {})
+    (directory / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False))
+    head = ["sample"] + [f"j{k + 1}" for k in range(len(rows))] + ["marker", "x_mm", "y_mm", "z_mm"]
+    head += ["split"] if split else []
+    lines = [",".join(head)]
+    for r in data:
+        cells = [str(r[0])] + [repr(float(v)) for v in r[1:1 + len(rows)]] + [str(r[1 + len(rows)])]
+        cells += [repr(float(v)) for v in r[2 + len(rows):]]
+        cells += (["holdout" if r[0] % 3 == 0 else "fit"] if split else [])
+        lines.append(",".join(cells))
+    (directory / "points.csv").write_text("\n".join(lines) + "\n")
+    return directory
