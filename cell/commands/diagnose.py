@@ -5,6 +5,8 @@ shrinks on withheld rows (report format in ``cell/measurements.md``).
     cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]
     cellctl diagnose validate [--trials 200] [--seed S] [--combos] [--points 300] [--json]
                               [--out-of-vocabulary SHARE] [--oov-kinds K1,K2]
+    cellctl diagnose validate --chain [--trials 100] [--seed S] [--points 60] [--json]
+                              [--out-of-vocabulary SHARE] [--oov-kinds lens,reach_sag,bump,couple]
 
 CAMPAIGN is a campaign directory in the exchange format, or the cell's own SQLite cycle
 log (exported on the fly with :func:`cell.export.cycles_to_campaign`; the nominal link
@@ -14,7 +16,9 @@ independent forward model (:mod:`cell.truth`) and prints the scores as Markdown 
 (:mod:`cell.diagnosis.validate`). ``--out-of-vocabulary SHARE`` gives that share of the
 trials (0–1, default 0) an effect from outside the vocabulary instead (``--oov-kinds``:
 radial_distortion, reach_sag, offset_bump, joint_coupling; default all), which should come
-back unexplained or as none, never as a confident cause.
+back unexplained or as none, never as a confident cause. ``--chain`` validates the chain
+diagnosis instead (:mod:`cell.chain.validate`: a UR5 measured by a tracker, drawn from
+:mod:`cell.truth.chain`; ``--points`` is then the poses per campaign).
 
 Bad input exits with status 2 and a message naming file, line and column
 (:class:`~cell.measurements.CampaignFormatError`, raised before anything is diagnosed).
@@ -60,6 +64,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     v = p.add_argument_group("validate")
     v.add_argument("--trials", type=int, help="validate: number of campaigns (default 200)")
     v.add_argument("--seed", type=int, help="validate: seed of the run (default 0)")
+    v.add_argument("--chain", action="store_true",
+                   help="validate: chain campaigns (a 6-joint arm and a tracker) instead of SCARA ones")
     v.add_argument("--combos", action="store_true",
                    help="validate: a main effect plus a smaller second one")
     v.add_argument("--points", type=int, help="validate: static poses per campaign (default 300)")
@@ -77,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return run_validate(args)
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
+    given += ["--chain"] if args.chain else []
     given += ["--out-of-vocabulary"] if args.oov_share is not None else []
     given += ["--oov-kinds"] if args.oov_kinds is not None else []
     if given:
@@ -168,6 +175,8 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
 
 # ------------------------------------------------------------------ validate
 def run_validate(args: argparse.Namespace) -> int:
+    if args.chain:
+        return run_validate_chain(args)
     from cell.diagnosis import validate
     trials = 200 if args.trials is None else args.trials
     seed = 0 if args.seed is None else args.seed
@@ -195,6 +204,45 @@ def run_validate(args: argparse.Namespace) -> int:
     kind = "main effect + smaller second" if args.combos else "single effect"
     title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
              f"6 moves each")
+    if share:
+        title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
+    if args.json:
+        print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
+    else:
+        print(validate.markdown(ts, title))
+    sys.stdout.flush()
+    return 0
+
+
+def run_validate_chain(args: argparse.Namespace) -> int:
+    from cell.chain import validate
+    trials = 100 if args.trials is None else args.trials
+    seed = 0 if args.seed is None else args.seed
+    poses = 60 if args.points is None else args.points
+    if trials < 1:
+        raise ConfigError(f"--trials {trials} must be ≥ 1")
+    if poses < 20:
+        raise ConfigError(f"--points {poses} must be ≥ 20 (poses per chain campaign)")
+    if seed < 0:
+        raise ConfigError(f"--seed {seed} must be ≥ 0")
+    if args.html:
+        raise ConfigError("--html: not with 'validate' (it prints Markdown tables)")
+    if args.combos:
+        raise ConfigError("--combos: not available with --chain yet (single effects only)")
+    share = 0.0 if args.oov_share is None else args.oov_share
+    if not 0.0 <= share <= 1.0:
+        raise ConfigError(f"--out-of-vocabulary {args.oov_share} must be a share from 0 to 1")
+    kinds = validate.OUTSIDE if args.oov_kinds is None else \
+        tuple(k.strip() for k in args.oov_kinds.split(",") if k.strip())
+    bad = [k for k in kinds if k not in validate.OUTSIDE]
+    if bad or not kinds:
+        raise ConfigError(f"--oov-kinds {args.oov_kinds!r}: unknown {', '.join(bad) or 'empty'}; "
+                          f"with --chain choose from {', '.join(validate.OUTSIDE)}")
+    if args.oov_kinds is not None and share == 0.0:
+        raise ConfigError("--oov-kinds: give --out-of-vocabulary SHARE > 0 as well")
+    ts = validate.run(trials, seed, poses, share, kinds)
+    title = (f"Chain diagnosis validation: {trials} campaigns, seed {seed}, {poses} poses × 3 "
+             "markers each (UR5, tracker at an unknown pose)")
     if share:
         title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
     if args.json:

@@ -1,0 +1,80 @@
+"""Blind validation of the chain diagnosis (``cellctl diagnose validate --chain``): truths
+drawn from the independent forward model, through the exchange format, scored."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cell.chain import validate
+from cell.cli import main
+
+
+def test_vocabulary_truths_are_named_with_their_joints_and_covered():
+    ts = validate.run(6, seed=0)
+    assert {t.truth.kind for t in ts} >= {"gravity_compliance", "link_length", "gear_ratio"}
+    assert all(t.joint_ok for t in ts), [(t.truth.kind, t.answer, t.named_joints) for t in ts]
+    s = validate.summarise(ts)
+    assert s["effect_accuracy"] == 1.0 and s["trials"] == 6
+    assert s["coverage_n"] >= 6 and s["coverage"] >= 0.5
+    # each campaign went through the format and the noise came from its revisited poses
+    assert all(t.seconds > 0 for t in ts)
+
+
+@pytest.mark.parametrize("kind", validate.OUTSIDE)
+def test_effects_outside_the_vocabulary_are_not_a_confident_cause(kind):
+    # the first trial of seed 0 whose outside draw is this kind
+    i = next(i for i in range(40) if _outside_kind(0, i) == kind)
+    t = validate.run_trial(i, 0, outside_share=1.0)
+    assert t.truth.kind == kind and t.outside
+    assert not t.confident_cause, (kind, t.answer, t.named_joints)
+
+
+def _outside_kind(seed: int, i: int) -> str:
+    odd = np.random.default_rng([seed * 100_003 + i, 7])
+    odd.random()
+    return str(odd.choice(list(validate.OUTSIDE)))
+
+
+def test_draws_cover_every_kind_and_refuse_an_unknown_one():
+    rng = np.random.default_rng(1)
+    for kind in validate.VOCABULARY + validate.OUTSIDE:
+        t = validate.draw(rng, kind)
+        assert t.kind == kind and (kind == "none") == (not t.params)
+    with pytest.raises(ValueError, match="unknown kind 'backlash'"):
+        validate.draw(rng, "backlash")
+
+
+def test_summary_counts_answers_and_outside_trials():
+    truth = validate.Truth("joint_offset", ("j2",), {}, 0.0, {"j2_offset_deg": 0.1})
+    odd = validate.Truth("lens", (), {}, 2e-3, {"lens_per_m": 2e-3})
+    none = validate.Truth("none", (), {}, 0.0, {})
+    ts = [validate.Trial(0, truth, "joint_offset", ("j2",), False, 0.9, 1, 1, 0.1),
+          validate.Trial(1, truth, "joint_offset", ("j3",), False, 0.2, 0, 0, 0.1),
+          validate.Trial(2, none, "gear_ratio", ("j2",), False, 0.1, 0, 0, 0.1),
+          validate.Trial(3, odd, "link_length", ("j2",), False, 0.7, 0, 0, 0.1),
+          validate.Trial(4, odd, "link_length", ("j2",), True, 0.7, 0, 0, 0.1)]
+    s = validate.summarise(ts)
+    assert s["effect_accuracy"] == pytest.approx(2 / 3) and s["joint_accuracy_effects"] == 0.5
+    assert s["none_named_as_effect"] == 1 and s["outside_trials"] == 2
+    assert s["outside_named_as_cause"] == 1 and s["outside_unexplained"] == 1
+    md = validate.markdown(ts, "t")
+    assert "| lens (outside) | 2 | 1 | – |" in md
+
+
+def test_the_command_prints_json_scores(capsys):
+    assert main(["diagnose", "validate", "--chain", "--trials", "2", "--points", "30", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["trials"] == 2 and 0.0 <= s["effect_accuracy"] <= 1.0
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--oov-kinds", "lens"], "give --out-of-vocabulary SHARE > 0"),
+    (["--out-of-vocabulary", "0.5", "--oov-kinds", "offset_bump"], "with --chain choose from lens"),
+    (["--points", "10"], "--points 10 must be ≥ 20"),
+    (["--combos"], "--combos: not available with --chain"),
+])
+def test_the_command_refuses_bad_options_by_name(capsys, argv, words):
+    assert main(["diagnose", "validate", "--chain", "--trials", "1", *argv]) == 2
+    assert words in capsys.readouterr().err
