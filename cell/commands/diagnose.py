@@ -244,7 +244,7 @@ def run_validate_chain(args: argparse.Namespace) -> int:
     title = (f"Chain diagnosis validation: {trials} campaigns, seed {seed}, {poses} poses × 3 "
              "markers each (UR5, tracker at an unknown pose)")
     if share:
-        title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
+        title += f", share {share:g} of them outside the vocabulary ({', '.join(kinds)})"
     if args.json:
         print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
     else:
