@@ -25,3 +25,15 @@ def preset_name(text: str) -> str:
         raise argparse.ArgumentTypeError(f"unknown robot preset {text!r}; known: "
                                          f"{', '.join(sorted(PRESETS))}")
     return text
+
+
+def open_log_readonly(db: str):
+    """The cycle log at ``db`` opened read-only (never changes the file; works beside a
+    running controller). Raises ConfigError when there is no log there."""
+    from pathlib import Path
+
+    from cell.cyclelog import CycleLog
+    from cell.errors import ConfigError
+    if not Path(db).is_file():
+        raise ConfigError(f"{db}: no cycle log here (run the cell first, or pass --db)")
+    return CycleLog(db, readonly=True)

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
+from cell.commands import open_log_readonly
 from cell.errors import ConfigError
 
 DEFAULT_DB = "var/cell.sqlite"
@@ -32,15 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ls.set_defaults(func=run_list)
 
 
-def _open(db: str):
-    from cell.cyclelog import CycleLog
-    if not Path(db).is_file():
-        raise ConfigError(f"{db}: no cycle log here (pass --db)")
-    return CycleLog(db, readonly=True)
-
-
 def run_verify(args: argparse.Namespace) -> int:
-    log = _open(args.db)
+    log = open_log_readonly(args.db)
     try:
         rows = log.audit_rows()
         broken = log.audit_break()
@@ -61,7 +54,7 @@ def run_verify(args: argparse.Namespace) -> int:
 def run_list(args: argparse.Namespace) -> int:
     if args.last is not None and args.last < 1:
         raise ConfigError(f"--last {args.last} must be ≥ 1")
-    log = _open(args.db)
+    log = open_log_readonly(args.db)
     try:
         rows = log.audit_rows()
     finally:

@@ -174,17 +174,17 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
 
 
 # ------------------------------------------------------------------ validate
-def run_validate(args: argparse.Namespace) -> int:
-    if args.chain:
-        return run_validate_chain(args)
-    from cell.diagnosis import validate
-    trials = 200 if args.trials is None else args.trials
+def _validate_options(args: argparse.Namespace, outside: tuple[str, ...], trials: int, points: int,
+                      points_are: str, chain: bool = False) -> tuple[int, int, int, float, tuple]:
+    """(trials, seed, points, outside share, outside kinds) of a validate call, defaults
+    filled in. Raises ConfigError naming the option for anything out of range."""
+    trials = trials if args.trials is None else args.trials
     seed = 0 if args.seed is None else args.seed
-    points = 300 if args.points is None else args.points
+    points = points if args.points is None else args.points
     if trials < 1:
         raise ConfigError(f"--trials {trials} must be ≥ 1")
     if points < 20:
-        raise ConfigError(f"--points {points} must be ≥ 20")
+        raise ConfigError(f"--points {points} must be ≥ 20 ({points_are})")
     if seed < 0:
         raise ConfigError(f"--seed {seed} must be ≥ 0")
     if args.html:
@@ -192,62 +192,50 @@ def run_validate(args: argparse.Namespace) -> int:
     share = 0.0 if args.oov_share is None else args.oov_share
     if not 0.0 <= share <= 1.0:
         raise ConfigError(f"--out-of-vocabulary {args.oov_share} must be a share from 0 to 1")
-    kinds = validate.OUTSIDE if args.oov_kinds is None else \
+    kinds = outside if args.oov_kinds is None else \
         tuple(k.strip() for k in args.oov_kinds.split(",") if k.strip())
-    bad = [k for k in kinds if k not in validate.OUTSIDE]
+    bad = [k for k in kinds if k not in outside]
     if bad or not kinds:
         raise ConfigError(f"--oov-kinds {args.oov_kinds!r}: unknown {', '.join(bad) or 'empty'}; "
-                          f"choose from {', '.join(validate.OUTSIDE)}")
+                          f"{'with --chain ' if chain else ''}choose from {', '.join(outside)}")
     if args.oov_kinds is not None and share == 0.0:
         raise ConfigError("--oov-kinds: give --out-of-vocabulary SHARE > 0 as well")
+    return trials, seed, points, share, kinds
+
+
+def _print_scores(args: argparse.Namespace, module, ts: list, title: str) -> int:
+    if args.json:
+        print(json.dumps(json_safe(module.summarise(ts)), indent=2, allow_nan=False))
+    else:
+        print(module.markdown(ts, title))
+    sys.stdout.flush()
+    return 0
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    if args.chain:
+        return run_validate_chain(args)
+    from cell.diagnosis import validate
+    trials, seed, points, share, kinds = _validate_options(args, validate.OUTSIDE, 200, 300,
+                                                           "static poses per campaign")
     ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds)
     kind = "main effect + smaller second" if args.combos else "single effect"
     title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
              f"6 moves each")
     if share:
         title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
-    if args.json:
-        print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
-    else:
-        print(validate.markdown(ts, title))
-    sys.stdout.flush()
-    return 0
+    return _print_scores(args, validate, ts, title)
 
 
 def run_validate_chain(args: argparse.Namespace) -> int:
     from cell.chain import validate
-    trials = 100 if args.trials is None else args.trials
-    seed = 0 if args.seed is None else args.seed
-    poses = 60 if args.points is None else args.points
-    if trials < 1:
-        raise ConfigError(f"--trials {trials} must be ≥ 1")
-    if poses < 20:
-        raise ConfigError(f"--points {poses} must be ≥ 20 (poses per chain campaign)")
-    if seed < 0:
-        raise ConfigError(f"--seed {seed} must be ≥ 0")
-    if args.html:
-        raise ConfigError("--html: not with 'validate' (it prints Markdown tables)")
     if args.combos:
         raise ConfigError("--combos: not available with --chain yet (single effects only)")
-    share = 0.0 if args.oov_share is None else args.oov_share
-    if not 0.0 <= share <= 1.0:
-        raise ConfigError(f"--out-of-vocabulary {args.oov_share} must be a share from 0 to 1")
-    kinds = validate.OUTSIDE if args.oov_kinds is None else \
-        tuple(k.strip() for k in args.oov_kinds.split(",") if k.strip())
-    bad = [k for k in kinds if k not in validate.OUTSIDE]
-    if bad or not kinds:
-        raise ConfigError(f"--oov-kinds {args.oov_kinds!r}: unknown {', '.join(bad) or 'empty'}; "
-                          f"with --chain choose from {', '.join(validate.OUTSIDE)}")
-    if args.oov_kinds is not None and share == 0.0:
-        raise ConfigError("--oov-kinds: give --out-of-vocabulary SHARE > 0 as well")
+    trials, seed, poses, share, kinds = _validate_options(args, validate.OUTSIDE, 100, 60,
+                                                          "poses per chain campaign", chain=True)
     ts = validate.run(trials, seed, poses, share, kinds)
     title = (f"Chain diagnosis validation: {trials} campaigns, seed {seed}, {poses} poses × 3 "
              "markers each (UR5, tracker at an unknown pose)")
     if share:
         title += f", share {share:g} of them outside the vocabulary ({', '.join(kinds)})"
-    if args.json:
-        print(json.dumps(json_safe(validate.summarise(ts)), indent=2, allow_nan=False))
-    else:
-        print(validate.markdown(ts, title))
-    sys.stdout.flush()
-    return 0
+    return _print_scores(args, validate, ts, title)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cell.commands import open_log_readonly
 from cell.errors import ConfigError
 
 DEFAULT_DB = "var/cell.sqlite"
@@ -28,18 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.set_defaults(func=run_export)
 
 
-def _open(db: str):
-    from cell.cyclelog import CycleLog
-    if not Path(db).is_file():
-        raise ConfigError(f"{db}: no cycle log here (run the cell first, or pass --db)")
-    return CycleLog(db, readonly=True)
-
-
 def run_report(args: argparse.Namespace) -> int:
     import numpy as np
     if args.block < 1:
         raise ConfigError(f"--block {args.block} must be ≥ 1")
-    cycles = [c for c in _open(args.db).cycles() if not args.recipe or c.recipe == args.recipe]
+    cycles = [c for c in open_log_readonly(args.db).cycles() if not args.recipe or c.recipe == args.recipe]
     if not cycles:
         print("no cycles logged" + (f" for recipe {args.recipe}" if args.recipe else ""))
         return 0
@@ -97,7 +91,7 @@ def run_export(args: argparse.Namespace) -> int:
     from cell.measurements import write_campaign
     robot = Scara.preset(args.robot)
     try:
-        campaign = cycles_to_campaign(_open(args.db).cycles(status="done"), robot.g.l1_mm, robot.g.l2_mm,
+        campaign = cycles_to_campaign(open_log_readonly(args.db).cycles(status="done"), robot.g.l1_mm, robot.g.l2_mm,
                                       command_unit_deg=robot.g.unit[0])
     except ValueError as exc:
         raise ConfigError(f"{args.db}: {exc}") from None
