@@ -17,8 +17,8 @@ Opening (:mod:`cell.logfile`): the controller's log is locked against a second c
 and checked (``quick_check``) before use; readers open it read-only.
 
 The ``audit`` table is hash-chained (each row stores the SHA-256 of the previous row's hash
-and its own content), the first brick of the tamper-evident audit trail to come;
-:meth:`CycleLog.verify_audit` checks the chain.
+and its own content): recipe activations and refusals, applied calibrations;
+:meth:`CycleLog.audit_break` checks the chain (``cellctl audit verify``).
 """
 from __future__ import annotations
 
