@@ -5,8 +5,11 @@ named by :mod:`cell.chain.rank`, and the holdout on poses the fit never saw.
 
 Split: the campaign's ``split`` column when present; otherwise 30 % of the poses, drawn
 with the fixed seed :data:`SPLIT_SEED` (the v1 diagnosis's), whole poses at a time.
-Noise: ``--noise-mm``, else the scatter of revisited poses (same joint readings), else
-unknown (and the report says the gap could not be compared with it).
+Noise: ``--noise-mm``, else the scatter of revisited poses (same joint readings) when it
+agrees with the sensor noise seen within each pose's rigid marker constellation, else that
+sensor noise, else unknown (:func:`_noise`, :mod:`cell.chain.noise`). Revisits that
+disagree beyond the sensor noise make the gap unexplained: every vocabulary effect is a
+function of the readings, so they should agree.
 """
 from __future__ import annotations
 
@@ -16,6 +19,8 @@ import numpy as np
 
 from cell.chain import fit as F
 from cell.chain import rank
+from cell.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
+                              rigid_noise_mm)
 from cell.chain.campaign import ChainCampaign
 from cell.measurements import CampaignFormatError
 
@@ -45,22 +50,34 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
     return fit, f"generated ({100 * HOLDOUT_SHARE:.0f} % of poses, seed {SPLIT_SEED})"
 
 
-def repeat_noise_mm(cc: ChainCampaign) -> tuple[float | None, int]:
-    """σ per axis from poses revisited with identical readings (pooled over markers), and
-    the number of repeat groups; (None, 0) without repeats."""
-    key = {}
-    for p, q in enumerate(np.round(cc.readings, 6)):
-        key.setdefault(q.tobytes(), []).append(p)
-    groups = [g for g in key.values() if len(g) > 1]
-    ss, dof = 0.0, 0
-    for g in groups:
-        for m in range(len(cc.markers)):
-            rows = np.flatnonzero(np.isin(cc.obs_pose, g) & (cc.obs_marker == m))
-            if len(rows) > 1:
-                x = cc.xyz[rows]
-                ss += float(np.sum((x - x.mean(0)) ** 2))
-                dof += 3 * (len(rows) - 1)
-    return (math.sqrt(ss / dof), len(groups)) if dof else (None, 0)
+def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None
+           ) -> tuple[float | None, str, str | None]:
+    """(σ per axis for the decision, where it came from, the reason to call the gap
+    unexplained when revisited poses disagree beyond the sensor noise, or None).
+
+    Given σ first. Else the revisits' scatter when it agrees with the sensor noise of the
+    rigid constellation (it then also holds the arm's repeatability); the rigid estimate
+    when the revisits disagree (the disagreement is not noise: it is the reason) or when
+    there are none; unknown without either (:mod:`cell.chain.noise`)."""
+    rep, groups, rep_dof = repeat_noise_mm(cc)
+    rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
+                                  fit_d.known_markers is None)
+    drift = None
+    if rep is not None and rig is not None:
+        p = revisits_disagree(rep, rep_dof, rig, rig_dof)
+        if p < DRIFT_ALPHA:
+            drift = (f"revisited poses disagree by {rep:.3f} mm per axis, {rep / rig:.1f}× the "
+                     f"sensor noise ({rig:.3f} mm, from the markers' rigid constellation; "
+                     f"p = {p:.2g}): the arm did not come back to where it was (poor "
+                     "repeatability, drift or a step during the campaign), which no effect "
+                     "of the chain vocabulary explains")
+    if given is not None:
+        return given, "given", drift
+    if rep is not None and drift is None:
+        return rep, f"repeats ({groups} revisited poses)", None
+    if rig is not None:
+        return rig, f"markers (rigid constellation within each pose, {rig_dof} dof)", drift
+    return None, "unknown", None
 
 
 def _r(v, nd: int = 6):
@@ -104,13 +121,13 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
     d_all = F.Data.of(cc)
     fit_d, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
     F.check_registrable(fit_d, str(cc.directory / "points.csv"))
-    noise_src = "given"
-    if noise_mm is None:
-        noise_mm, groups = repeat_noise_mm(cc)
-        noise_src = f"repeats ({groups} revisited poses)" if noise_mm is not None else "unknown"
     s = rank.search(fit_d, hold_d)
-    dec = rank.decide(s, noise_mm)
     f0 = s.nominal.fit
+    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm)
+    dec = rank.decide(s, noise_mm)
+    if drift:
+        dec.reasons.append(drift)
+        dec.unexplained = True
     # every parameter is in one effect's pool, so the pools' drops cover the vocabulary;
     # "absorbed by the registration" does not depend on which pool a parameter was in
     not_ident = {n: why for e in s.idents.values() for n, why in e.dropped.items()}

@@ -1,0 +1,87 @@
+"""How large the measurement noise of a chain campaign is, from the data alone. Pure numerics.
+
+Two estimates of σ per axis (mm) of one measured point:
+
+* **Rigid constellation** (:func:`rigid_noise_mm`): the markers of one pose sit at fixed
+  places on the hand, so within a pose they must form the marker constellation (the
+  registration's marker positions) moved rigidly. A rigid fit per pose (Kabsch) leaves
+  3·n − 6 degrees of freedom of pure sensor noise for a pose with n ≥ 3 markers, whatever
+  the arm does: no kinematic error, drift or bump can show here.
+* **Revisited poses** (:func:`repeat_noise_mm`): poses measured again with identical joint
+  readings. Their scatter holds the sensor noise *and* the arm's repeatability, the floor
+  no kinematic model can go below, but also anything that changed between the visits.
+
+Every effect of the chain vocabulary is a function of the joint readings, so two visits
+with the same readings must agree. :func:`revisits_disagree` tests whether their scatter
+exceeds the sensor noise by more than chance (one-sided F test of the two variances): then the
+arm did not come back to where it was (poor repeatability, drift, a step during the
+campaign), which the vocabulary cannot explain.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cell.chain.campaign import ChainCampaign
+
+DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
+
+
+def repeat_noise_mm(cc: ChainCampaign) -> tuple[float | None, int, int]:
+    """σ per axis from poses revisited with identical readings (pooled over markers), the
+    number of repeat groups and the degrees of freedom; (None, 0, 0) without repeats."""
+    key: dict[bytes, list[int]] = {}
+    for p, q in enumerate(np.round(cc.readings, 6)):
+        key.setdefault(q.tobytes(), []).append(p)
+    groups = [g for g in key.values() if len(g) > 1]
+    ss, dof = 0.0, 0
+    for g in groups:
+        for m in range(len(cc.markers)):
+            rows = np.flatnonzero(np.isin(cc.obs_pose, g) & (cc.obs_marker == m))
+            if len(rows) > 1:
+                x = cc.xyz[rows]
+                ss += float(np.sum((x - x.mean(0)) ** 2))
+                dof += 3 * (len(rows) - 1)
+    return (math.sqrt(ss / dof), len(groups), dof) if dof else (None, 0, 0)
+
+
+def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
+                   markers_tip: np.ndarray, free_markers: bool) -> tuple[float | None, int]:
+    """σ per axis from each pose's markers against the constellation ``markers_tip`` (K, 3)
+    moved rigidly, and the degrees of freedom; (None, 0) without a pose of ≥ 3 markers.
+    ``free_markers``: the constellation was fitted to these data (its 3K − 6 shape
+    parameters are taken off the degrees of freedom)."""
+    ss, dof = 0.0, 0
+    order = np.argsort(obs_pose, kind="stable")
+    bounds = np.flatnonzero(np.diff(obs_pose[order])) + 1
+    for rows in np.split(order, bounds):
+        if len(rows) < 3:
+            continue
+        a = markers_tip[obs_marker[rows]]
+        b = xyz[rows]
+        a0, b0 = a - a.mean(0), b - b.mean(0)
+        u, _, vt = np.linalg.svd(a0.T @ b0)
+        s = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+        rot = (u @ s @ vt).T                          # b0 ≈ a0 @ rot.T
+        ss += float(np.sum((b0 - a0 @ rot.T) ** 2))
+        dof += 3 * len(rows) - 6
+    if free_markers:
+        dof -= 3 * len(markers_tip) - 6
+    return (math.sqrt(ss / dof), dof) if dof > 0 and ss > 0 else (None, 0)
+
+
+def revisits_disagree(repeat_sigma: float, repeat_dof: int, sensor_sigma: float,
+                      sensor_dof: int) -> float:
+    """One-sided p that revisits scatter by ``repeat_sigma`` (``repeat_dof`` degrees of
+    freedom) or more if only the sensor noise estimated as ``sensor_sigma`` (``sensor_dof``)
+    were at work: the F test of the two variances, with Paulson's normal approximation of
+    the F distribution (good to a few per cent of p for these degrees of freedom). Small p:
+    the arm did not come back."""
+    if repeat_dof <= 0 or sensor_dof <= 0 or sensor_sigma <= 0:
+        return 1.0
+    f = (repeat_sigma / sensor_sigma) ** 2
+    a, b = 2.0 / (9.0 * repeat_dof), 2.0 / (9.0 * sensor_dof)
+    c = f ** (1.0 / 3.0)
+    z = ((1.0 - b) * c - (1.0 - a)) / math.sqrt(a + c * c * b)
+    return 0.5 * math.erfc(z / math.sqrt(2.0))
