@@ -60,7 +60,8 @@ class Cell:
                                          version=int(caldoc["version"]) if caldoc else 0,
                                          on_applied=self._use_calibration, robot=self.robot)
         self.runner: CycleRunner | None = None
-        self.plc = open_link(config.plc.backend, clock=self.clock)
+        self.plc = open_link(config.plc.backend, clock=self.clock, access=config.plc.access_policy(),
+                             heartbeat_timeout_s=config.plc.heartbeat_timeout_s)
         self.plc_port = config.plc.port if plc_port is None else plc_port
         r = config.recipes
         self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,

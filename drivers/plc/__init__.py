@@ -17,7 +17,7 @@ import importlib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Protocol
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from cell.errors import ConfigError
 
@@ -57,9 +57,45 @@ class PlcConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     backend: str = "modbus_tcp"
-    host: str = "0.0.0.0"
+    host: str = "127.0.0.1"
     port: int = Field(502, ge=0, le=65535)
     heartbeat_timeout_s: float = Field(1.0, gt=0, le=60)
+    #: addresses or networks a client may connect from (``10.0.0.5``, ``10.0.0.0/24``)
+    allow: list[str] = Field(default_factory=list)
+    #: listen on every interface with no allow-list: must be said, never a default
+    allow_any: bool = False
+    max_connections: int = Field(8, ge=1, le=1000)
+    idle_timeout_s: float = Field(60.0, gt=0, le=3600)
+    frame_timeout_s: float = Field(5.0, gt=0, le=600)
+
+    @field_validator("allow")
+    @classmethod
+    def _allow_parses(cls, v: list[str]) -> list[str]:
+        from drivers.plc.access import parse_allow
+        parse_allow(v, "allow")          # ValueError names allow[i] and the entry
+        return v
+
+    @model_validator(mode="after")
+    def _wildcard_needs_a_list(self) -> "PlcConfig":
+        if self.host in ("0.0.0.0", "::", "") and not self.allow and not self.allow_any:
+            raise ValueError(f"host {self.host!r} listens on every interface and allow is empty: "
+                             "any host that reaches the port could drive the robot. List the "
+                             "PLC's address in allow (e.g. allow: [10.0.0.5]), or write "
+                             "allow_any: true to mean it")
+        return self
+
+    def access_policy(self):
+        """The :class:`~drivers.plc.access.AccessPolicy` of this section: the allow-list
+        (none for a loopback listener or with ``allow_any``), the cap and the time-outs."""
+        import ipaddress
+
+        from drivers.plc.access import AccessPolicy, parse_allow
+        try:
+            loopback = ipaddress.ip_address(self.host).is_loopback
+        except ValueError:
+            loopback = self.host == "localhost"
+        allow = None if (self.allow_any or (loopback and not self.allow)) else parse_allow(self.allow)
+        return AccessPolicy(allow, self.max_connections, self.idle_timeout_s, self.frame_timeout_s)
 
 
 def open_link(backend: str = "modbus_tcp", **kwargs) -> PlcPort:

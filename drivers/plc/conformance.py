@@ -42,6 +42,7 @@ from pymodbus.server.requesthandler import ServerRequestHandler
 
 from cell.errors import CellError
 from cell.log import get_logger
+from drivers.plc.access import CURRENT_PEER, ConnectionGuard, Peer
 
 
 def _log():
@@ -188,23 +189,52 @@ class ConformantRequestHandler(ServerRequestHandler):
         self._stream = MbapStream()
         self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
         self._worker: asyncio.Task | None = None
+        self.guard: ConnectionGuard | None = getattr(owner, "guard", None)
+        self.peer: Peer | None = None
+
+    def callback_connected(self) -> None:
+        super().callback_connected()
+        if self.guard is None:
+            return
+        info = self.transport.get_extra_info("peername") if self.transport else None
+        host, port = (str(info[0]), int(info[1])) if info else ("?", 0)
+        self.peer = self.guard.connect(host, port, self.close)
+        if self.peer is None:
+            self.close()
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        if self._stream.broken is not None:
-            return len(data)   # closing: ignore whatever still arrives
+        if self._stream.broken is not None or (self.guard is not None and self.peer is None):
+            return len(data)   # closing (or refused at connect): ignore whatever still arrives
         for frame in self._stream.feed(data):
             self._queue.put_nowait(frame)
+        if self.peer is not None:
+            self.guard.activity(self.peer, self._stream.pending)
         if self._queue.qsize() > MAX_PENDING and self._stream.broken is None:
             # a client that sends without reading answers: the guide's NumberMaxOfServerTransaction
             self._stream.broken = FramingError(f"more than {MAX_PENDING} requests pending")
         if self._stream.broken is not None:
-            _log().warning("modbus_framing_error", error=str(self._stream.broken))
+            _warn("modbus_framing_error", self.guard, error=str(self._stream.broken),
+                  client=str(self.peer or ""))
             self._queue.put_nowait(None)   # answer the frames before it, then close
         if self._worker is None:
             self._worker = asyncio.get_running_loop().create_task(self._serve())
         return len(data)
 
+    def close(self, reconnect: bool = False) -> None:
+        """Close this connection (shed, timed out, refused or out of step): its worker task
+        goes with it. pymodbus calls no ``callback_disconnected`` for a close it did not see
+        coming from the peer, so without this the worker would wait on its queue forever,
+        one task per closed connection."""
+        worker, self._worker = self._worker, None
+        if worker is not None and worker is not asyncio.current_task():
+            worker.cancel()
+        if self.guard is not None and self.peer is not None:
+            self.guard.drop(self.peer)
+        super().close(reconnect)
+
     def callback_disconnected(self, exc: Exception | None) -> None:
+        if self.guard is not None and self.peer is not None:
+            self.guard.drop(self.peer)
         if self._worker is not None:
             self._worker.cancel()
             self._worker = None
@@ -221,7 +251,8 @@ class ConformantRequestHandler(ServerRequestHandler):
             except asyncio.CancelledError:
                 raise
             except Exception as exc:  # one bad request must never kill the connection's worker
-                _log().error("modbus_request_failed", error=repr(exc), tid=frame.tid)
+                _warn("modbus_request_failed", self.guard, error=repr(exc), tid=frame.tid,
+                      client=str(self.peer or ""))
                 self._send_raw(exception_adu(frame, SERVER_DEVICE_FAILURE))
 
     async def _answer(self, frame: Frame) -> None:
@@ -235,6 +266,7 @@ class ConformantRequestHandler(ServerRequestHandler):
             return
         pdu.dev_id, pdu.transaction_id = frame.unit, frame.tid
         self.last_pdu, self.last_addr = pdu, None
+        CURRENT_PEER.set(self.peer)   # the datastore's action decides writes by who sent them
         await self.handle_request()   # pymodbus: datastore_update + send, exceptions -> 04
 
     def _send_raw(self, adu: bytes) -> None:
@@ -242,11 +274,25 @@ class ConformantRequestHandler(ServerRequestHandler):
             self.send(adu)
 
 
+def _warn(kind: str, guard: ConnectionGuard | None, **fields) -> None:
+    """A warning about the network side, rate-limited when the server has a guard."""
+    if guard is not None:
+        guard.warn.warning(kind, **fields)
+    else:
+        _log().warning(kind, **fields)
+
+
 class ConformantTcpServer(ModbusTcpServer):
     """``ModbusTcpServer`` whose connections use :class:`ConformantRequestHandler`.
 
-    Same constructor as ``ModbusTcpServer``; start with ``await serve_forever(background=True)``.
+    Same constructor as ``ModbusTcpServer`` plus ``guard``: a
+    :class:`~drivers.plc.access.ConnectionGuard` (allow-list, cap, time-outs), or None for
+    none (the comparisons in the tests). Start with ``await serve_forever(background=True)``.
     """
+
+    def __init__(self, *args, guard: ConnectionGuard | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.guard = guard
 
     def callback_new_connection(self):
         return ConformantRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
@@ -313,6 +359,9 @@ class ServerThread:
             ready.set_exception(exc)
             return
         self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
+        guard = getattr(server, "guard", None)
+        if guard is not None:
+            asyncio.get_running_loop().create_task(guard.sweep_forever(), name="plc-connection-sweep")
         ready.set_result(server.transport.sockets[0].getsockname()[1])  # type: ignore[union-attr]
         await self._stop.wait()
         await server.shutdown()

@@ -30,6 +30,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
+from drivers.plc.access import CURRENT_PEER, AccessPolicy, ConnectionGuard, Peer
 from drivers.plc.conformance import ConformantTcpServer, ServerStartError, ServerThread
 from drivers.plc.register_map import PLC_MAP, PlcWriteRejected, RegisterMap, RegType
 
@@ -48,12 +49,14 @@ class PlcLinkError(CellError):
 
 @dataclass(frozen=True)
 class PlcWrite:
-    """One register the PLC wrote: clock time ``t`` (s), register name, new and previous value."""
+    """One register the PLC wrote: clock time ``t`` (s), register name, new and previous
+    value, and the client that wrote it (``host:port``; empty for a link without guard)."""
 
     t: float
     name: str
     value: int
     previous: int
+    peer: str = ""
 
 
 def build_datastore(register_map: RegisterMap, action) -> SimDevice:
@@ -87,10 +90,22 @@ class PlcLink:
 
     The controller side may write any named register (RO ones are its outputs); the PLC
     may write only RW registers, in range, 32-bit registers whole.
+
+    **One writer.** ``access`` (:class:`~drivers.plc.access.AccessPolicy`: allow-list,
+    connection cap, time-outs) guards the connections. Of the allowed clients, only the one
+    that owns the link may write any register; the others may read. The owner is the first
+    client to write ``plc_heartbeat`` while the link has no owner, and stays owner until
+    its heartbeat has not changed for ``heartbeat_timeout_s`` on ``clock`` (the controller's
+    watchdog time-out). If its connection closes, a new connection from the same host may
+    take over at once (the PLC reconnecting); any other client only after the time-out.
+    Another client's write is refused with exception 01 and changes nothing, so a rogue
+    cannot keep the link alive with its own heartbeat. (A map without ``plc_heartbeat``
+    has no link time-out: any allowed client may write.)
     """
 
     def __init__(self, register_map: RegisterMap = PLC_MAP, clock: Clock | None = None,
-                 quiet: Iterable[str] | None = None, max_events: int = 1024):
+                 quiet: Iterable[str] | None = None, max_events: int = 1024,
+                 access: AccessPolicy | None = None, heartbeat_timeout_s: float = 1.0):
         self.map = register_map
         self._clock = clock or MonotonicClock()
         if quiet is None:
@@ -107,8 +122,12 @@ class PlcLink:
         self._dropped = 0
         self._rejected = 0
         self._hb_change: float | None = None
+        self._hb_timeout = float(heartbeat_timeout_s)
+        self._owner: Peer | None = None
+        self.guard = ConnectionGuard(access or AccessPolicy(), is_owner=self._is_owner)
         self._server = ServerThread(
-            lambda address: ConformantTcpServer(build_datastore(self.map, self._action), address=address),
+            lambda address: ConformantTcpServer(build_datastore(self.map, self._action), address=address,
+                                                guard=self.guard),
             name="plc-modbus-server")
 
     # ------------------------------------------------------------------ lifecycle
@@ -217,6 +236,12 @@ class PlcLink:
             return self._hb_change
 
     @property
+    def owner(self) -> str | None:
+        """``host:port`` of the client that owns the link now, or None."""
+        with self._lock:
+            return str(self._owner) if self._owner is not None and not self._expired() else None
+
+    @property
     def rejected_writes(self) -> int:
         """PLC write requests refused with an exception since start."""
         with self._lock:
@@ -239,6 +264,8 @@ class PlcLink:
         """pymodbus ``SimDevice`` action: runs for every request pymodbus accepted so far."""
         events: list[PlcWrite] = []
         rejected: PlcWriteRejected | None = None
+        peer = CURRENT_PEER.get()
+        not_owner: str | None = None
         with self._lock:
             if values is not None:
                 try:
@@ -252,12 +279,21 @@ class PlcLink:
                     self._rejected += 1
                     rejected = exc
                 else:
-                    self._apply_plc_write(new, events)
+                    not_owner = self._refuse_writer(peer, new)
+                    if not_owner is None:
+                        self._apply_plc_write(new, events, peer)
+                    else:
+                        self._rejected += 1
             # pymodbus answers from ``registers``: give it the whole current image
             registers[:len(self._image)] = self._image
+        if not_owner is not None:
+            self.guard.warn.warning("plc_write_not_owner", client=str(peer), owner=not_owner,
+                                    fc=func_code, address=address)
+            return ExcCodes(1)
         if rejected is not None:
-            _log().warning("plc_write_rejected", fc=func_code, address=address,
-                           code=rejected.modbus_code, reason=str(rejected))
+            self.guard.warn.warning("plc_write_rejected", fc=func_code, address=address,
+                                    code=rejected.modbus_code, reason=str(rejected),
+                                    client=str(peer or ""))
             return ExcCodes(rejected.modbus_code)
         if events:
             with self._events_cv:
@@ -267,16 +303,41 @@ class PlcLink:
                 self._events_cv.notify_all()
         return None
 
-    def _apply_plc_write(self, new: dict[str, int], events: list[PlcWrite]) -> None:
+    def _expired(self) -> bool:
+        """The owner's heartbeat has not changed for the time-out (lock held)."""
+        return self._hb_change is None or self._clock.now() - self._hb_change > self._hb_timeout
+
+    def _is_owner(self, peer: Peer) -> bool:
+        with self._lock:
+            return peer is self._owner and not self._expired()
+
+    def _refuse_writer(self, peer: Peer | None, new: dict[str, int]) -> str | None:
+        """None if ``peer`` may write ``new`` (taking ownership if it may), else a text
+        naming the owner (lock held). No peer: a request from outside the guard (none)."""
+        if peer is None or peer is self._owner and not self._expired():
+            return None
+        owner_gone = self._owner is None or self._owner.id not in self.guard.peers
+        may_claim = self._owner is None or self._expired() or (
+            owner_gone and self._owner.host == peer.host)
+        if may_claim and ("plc_heartbeat" in new or "plc_heartbeat" not in self.map):
+            previous = self._owner
+            self._owner = peer      # the link is ok only once its heartbeat changes
+            _log().info("plc_link_owner", client=str(peer),
+                        previous=str(previous) if previous is not None else None)
+            return None
+        return str(self._owner) if self._owner is not None else "none (write plc_heartbeat first)"
+
+    def _apply_plc_write(self, new: dict[str, int], events: list[PlcWrite], peer: Peer | None = None) -> None:
         """Apply map-validated PLC values to the image (lock held); collect their events."""
         now = self._clock.now()
+        who = str(peer) if peer is not None else ""
         for name, value in new.items():
             previous = self._read_unlocked(name)
             self._put(name, value)
             if name == "plc_heartbeat" and value != previous:
                 self._hb_change = now
             if name not in self._quiet:
-                events.append(PlcWrite(now, name, value, previous))
+                events.append(PlcWrite(now, name, value, previous, who))
 
     def _read_unlocked(self, name: str) -> int:
         reg = self.map[name]

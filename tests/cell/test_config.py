@@ -24,6 +24,9 @@ def test_shipped_example_is_valid():
     ("    kind: circles\n", "    kind: chessboard\n", r"calibration\.board must be a circle grid"),
     ("    cols: 7\n", "    cols: 2\n", r"calibration\.board: .*cols = 2 must be an integer in \[3, 100\]"),
     ("  poses: 24 ", "  poses: 2 ", r":{line}: calibration.poses"),
+    ("  allow: [192.168.10.20] ", "  allow: [192.168.10.300] ",
+     r":{line}: plc.allow: .*allow\[0\]: '192.168.10.300' is not an address or network"),
+    ("  allow: [192.168.10.20] ", "  allow: [] ", r"plc: .*listens on every interface and allow is empty"),
 ])
 def test_bad_config_is_located(tmp_path, old, new, words):
     text = EXAMPLE.read_text()

@@ -4,6 +4,7 @@ import time
 
 import pytest
 
+from cell.clock import ManualClock
 from drivers.plc.server import PlcLink
 
 PLC_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
@@ -19,8 +20,10 @@ def no_leaked_plc_threads():
 
 @pytest.fixture
 def link():
-    """A started PlcLink on a free loopback port (test files may define their own variant)."""
-    link = PlcLink()
+    """A started PlcLink on a free loopback port (test files may define their own variant),
+    on a ManualClock: the owning client's link never times out unless a test advances it,
+    however slowly the machine runs."""
+    link = PlcLink(clock=ManualClock(0.0))
     link.start()
     yield link
     link.stop()

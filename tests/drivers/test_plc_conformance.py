@@ -132,7 +132,8 @@ def test_fc5_value_other_than_0000_or_ff00_is_illegal_value_and_coil_unchanged(l
     assert transact(link.port, mbap(4, struct.pack(">BHH", 5, CMD_COIL, 0x1234))) == [mbap(4, b"\x85\x03")]
     assert link.read("command_word") == 0 and link.drain_writes() == []
     ok = struct.pack(">BHH", 5, CMD_COIL, 0xFF00)
-    assert transact(link.port, mbap(5, ok)) == [mbap(5, ok)]          # spec: echo of the request
+    hb = struct.pack(">BHH", 6, 1, 1)                                  # heartbeat first: owner
+    assert transact(link.port, mbap(6, hb) + mbap(5, ok), answers=2) == [mbap(6, hb), mbap(5, ok)]
     assert link.read_bits("command_word")["execute"]
 
 
@@ -143,8 +144,9 @@ def test_two_requests_in_one_segment_get_two_answers_in_order(link):
 
 
 def test_mixed_valid_and_invalid_requests_in_one_segment_keep_order(link):
-    raw = fc3(1) + mbap(2, b"\x41") + mbap(3, struct.pack(">BHH", 6, 20, 12)) + fc3(4, 20, 1)
-    answers = transact(link.port, raw, answers=4)
+    hb = mbap(9, struct.pack(">BHH", 6, 1, 1))                          # heartbeat first: owner
+    raw = hb + fc3(1) + mbap(2, b"\x41") + mbap(3, struct.pack(">BHH", 6, 20, 12)) + fc3(4, 20, 1)
+    answers = transact(link.port, raw, answers=5)[1:]
     assert [a[:2] for a in answers] == [b"\x00\x01", b"\x00\x02", b"\x00\x03", b"\x00\x04"]
     assert answers[1] == mbap(2, b"\xc1\x01")
     assert answers[3][7:] == b"\x03\x02\x00\x0c"                     # sees the FC6 before it

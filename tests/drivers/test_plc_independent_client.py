@@ -37,6 +37,7 @@ def test_pymodbustcp_reads_the_map(link, client):
 
 
 def test_pymodbustcp_writes_a_command_and_a_part_id(link, client):
+    assert client.write_single_register(1, 1)                          # heartbeat: owner
     assert client.write_multiple_registers(24, [0x0001, 0x86A0])       # part_id 100000
     assert client.write_single_register(11, 0b0001)                    # execute
     assert client.write_single_coil(16 * 11 + 3, True)                 # acknowledge

@@ -74,6 +74,7 @@ def test_status_bits_are_discrete_inputs_and_coils_at_16r_plus_n(link, plc):
 
 # ---------------------------------------------------------------- PLC writes -> events
 def test_plc_writes_land_in_the_image_and_as_events(link, plc):
+    assert not plc.write_register(1, 1).isError()      # the heartbeat makes this client the owner
     assert not plc.write_register(20, 42).isError()
     assert not plc.write_registers(24, [0x0001, 0x0002]).isError()
     assert not plc.write_register(11, 0b0001).isError()
@@ -85,6 +86,7 @@ def test_plc_writes_land_in_the_image_and_as_events(link, plc):
 
 
 def test_coil_write_sets_a_command_bit_with_previous_value(link, plc):
+    assert not plc.write_register(1, 1).isError()      # owner
     assert not plc.write_coil(16 * 11 + 3, True).isError()      # acknowledge
     assert not plc.write_coil(16 * 11 + 0, True).isError()      # execute
     e1, e2 = link.next_write(timeout=5), link.next_write(timeout=5)
@@ -95,6 +97,7 @@ def test_coil_write_sets_a_command_bit_with_previous_value(link, plc):
 
 
 def test_read_write_multiple_fc23(link, plc):
+    assert not plc.write_register(1, 1).isError()      # owner
     rr = plc.readwrite_registers(read_address=20, read_count=2, write_address=20, values=[9])
     assert rr.registers == [9, 0]
     assert link.read("recipe_select") == 9
@@ -210,9 +213,10 @@ def test_controller_may_write_ro_registers_and_u32_is_atomic_for_readers(link, p
 
 
 def test_event_queue_is_bounded_and_counts_drops():
-    with PlcLink(max_events=3) as link:
+    with PlcLink(max_events=3, clock=ManualClock(0.0)) as link:   # owner never times out here
         client = ModbusTcpClient("127.0.0.1", port=link.start(), timeout=2, retries=0)
         try:
+            client.write_register(1, 1)                                  # heartbeat: owner
             for v in range(5):
                 client.write_register(20, v)
         finally:

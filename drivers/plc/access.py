@@ -1,0 +1,200 @@
+"""Who may talk to the PLC link, and how many: the allow-list, the connection cap, idle and
+half-frame time-outs, and warnings that cannot flood the log.
+
+:class:`ConnectionGuard` lives on the Modbus server's event loop (the network side; its
+time-outs use the loop's clock, since they protect the operating system's resources, not
+the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
+
+* an address outside :attr:`AccessPolicy.allow` is closed at once, before any request;
+* at :attr:`AccessPolicy.max_connections` the connection idle the longest is shed to make
+  room, never the owner's (the PLC that owns the link, :mod:`drivers.plc.server`); with
+  nothing to shed the new one is closed;
+* a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
+  that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
+  of step).
+
+Which connection may *write* is the register side's decision (the owner rule,
+:class:`drivers.plc.server.PlcLink`); the guard tells it which peer sent a request through
+:data:`CURRENT_PEER`.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextvars
+import ipaddress
+import itertools
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from cell.log import get_logger
+
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+
+
+def _log():
+    return get_logger("plc.access")
+
+
+@dataclass(frozen=True)
+class AccessPolicy:
+    """``allow``: networks a client may connect from (None: any address, for a loopback
+    listener or an explicit ``allow_any``); ``max_connections``; ``idle_timeout_s``: close a
+    connection silent this long; ``frame_timeout_s``: close one whose frame stays
+    incomplete this long."""
+
+    allow: tuple[Network, ...] | None = None
+    max_connections: int = 8
+    idle_timeout_s: float = 60.0
+    frame_timeout_s: float = 5.0
+
+    def allows(self, host: str) -> bool:
+        if self.allow is None:
+            return True
+        try:
+            addr = ipaddress.ip_address(host.split("%")[0])
+        except ValueError:
+            return False
+        if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+            addr = addr.ipv4_mapped
+        return any(addr in net for net in self.allow)
+
+
+def parse_allow(entries: Iterable[str], field_name: str = "plc.allow") -> tuple[Network, ...]:
+    """Networks from ``entries`` (``10.0.0.5``, ``10.0.0.0/24``, ``::1``). Raises ValueError
+    naming ``field_name[i]`` and the entry that does not parse."""
+    out = []
+    for i, e in enumerate(entries):
+        try:
+            out.append(ipaddress.ip_network(str(e).strip(), strict=False))
+        except ValueError as exc:
+            raise ValueError(f"{field_name}[{i}]: {e!r} is not an address or network ({exc})") from None
+    return tuple(out)
+
+
+@dataclass(eq=False)
+class Peer:
+    """One TCP connection: an id, the client's host and port, when it opened and last sent
+    anything (loop clock), when its pending half frame began (None: no half frame)."""
+
+    id: int
+    host: str
+    port: int
+    opened: float
+    last: float
+    partial_since: float | None = None
+    close: Callable[[], None] = field(default=lambda: None, repr=False)
+
+    def __str__(self) -> str:
+        return f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
+
+
+#: the peer whose request is being served (set per request by the connection handler)
+CURRENT_PEER: contextvars.ContextVar[Peer | None] = contextvars.ContextVar("plc_peer", default=None)
+
+
+class RateLimitedWarnings:
+    """At most ``burst`` warnings of one kind per ``interval_s`` (monotonic wall clock);
+    the rest are counted and reported in one ``*_suppressed`` line when the next window
+    opens. Bounded: one small record per kind."""
+
+    def __init__(self, burst: int = 5, interval_s: float = 10.0,
+                 now: Callable[[], float] = time.monotonic):
+        self.burst, self.interval_s, self._now = burst, interval_s, now
+        self._windows: dict[str, list] = {}          # kind -> [window start, emitted, dropped]
+
+    def warning(self, kind: str, **fields) -> bool:
+        """Log ``kind`` with ``fields`` unless over the limit; returns whether it was logged."""
+        now = self._now()
+        w = self._windows.setdefault(kind, [now, 0, 0])
+        if now - w[0] >= self.interval_s:
+            if w[2]:
+                _log().warning(f"{kind}_suppressed", dropped=w[2], interval_s=self.interval_s)
+            w[:] = [now, 0, 0]
+        if w[1] >= self.burst:
+            w[2] += 1
+            return False
+        w[1] += 1
+        _log().warning(kind, **fields)
+        return True
+
+    def dropped(self, kind: str) -> int:
+        """Warnings of ``kind`` suppressed in the current window."""
+        return self._windows.get(kind, [0, 0, 0])[2]
+
+
+class ConnectionGuard:
+    """The allow-list, cap and time-outs of the module docstring, for one server.
+    ``is_owner(peer)`` tells which connection owns the link (never shed or idled out)."""
+
+    def __init__(self, policy: AccessPolicy, is_owner: Callable[[Peer], bool] = lambda p: False,
+                 warnings: RateLimitedWarnings | None = None):
+        self.policy = policy
+        self.is_owner = is_owner
+        self.warn = warnings or RateLimitedWarnings()
+        self.peers: dict[int, Peer] = {}
+        self._ids = itertools.count(1)
+        self.refused = self.shed = self.timed_out = 0
+
+    @staticmethod
+    def _now() -> float:
+        return asyncio.get_running_loop().time()
+
+    def connect(self, host: str, port: int, close: Callable[[], None]) -> Peer | None:
+        """A new connection from ``host:port``: its Peer, or None when refused (the caller
+        closes it)."""
+        if not self.policy.allows(host):
+            self.refused += 1
+            self.warn.warning("plc_client_not_allowed", client=f"{host}:{port}")
+            return None
+        if len(self.peers) >= self.policy.max_connections:
+            idle = sorted((p for p in self.peers.values() if not self.is_owner(p)), key=lambda p: p.last)
+            if not idle:
+                self.refused += 1
+                self.warn.warning("plc_connection_refused_at_cap", client=f"{host}:{port}",
+                                  max_connections=self.policy.max_connections)
+                return None
+            victim = idle[0]
+            self.shed += 1
+            self.warn.warning("plc_connection_shed", client=str(victim), for_client=f"{host}:{port}",
+                              max_connections=self.policy.max_connections)
+            self.drop(victim)
+            victim.close()
+        now = self._now()
+        peer = Peer(next(self._ids), host, port, now, now, close=close)
+        self.peers[peer.id] = peer
+        return peer
+
+    def activity(self, peer: Peer, pending_bytes: int) -> None:
+        """``peer`` sent data; ``pending_bytes`` of a frame are still incomplete."""
+        now = self._now()
+        peer.last = now
+        if pending_bytes == 0:
+            peer.partial_since = None
+        elif peer.partial_since is None:
+            peer.partial_since = now
+
+    def drop(self, peer: Peer) -> None:
+        self.peers.pop(peer.id, None)
+
+    def sweep(self) -> list[Peer]:
+        """Close idle connections and half-sent frames past their time-outs; returns them."""
+        now = self._now()
+        gone = []
+        for p in list(self.peers.values()):
+            half = p.partial_since is not None and now - p.partial_since > self.policy.frame_timeout_s
+            idle = now - p.last > self.policy.idle_timeout_s and not self.is_owner(p)
+            if half or idle:
+                self.timed_out += 1
+                self.warn.warning("plc_connection_timed_out", client=str(p),
+                                  reason="frame never completed" if half else "idle")
+                self.drop(p)
+                p.close()
+                gone.append(p)
+        return gone
+
+    async def sweep_forever(self, period_s: float | None = None) -> None:
+        period = period_s or max(0.05, min(self.policy.frame_timeout_s, self.policy.idle_timeout_s) / 4)
+        while True:
+            await asyncio.sleep(period)
+            self.sweep()

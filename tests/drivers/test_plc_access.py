@@ -1,0 +1,202 @@
+"""Who may talk to the PLC link (issue 12): the allow-list, one writer, the connection cap and
+the time-outs, warnings that cannot flood. Real pymodbus clients and raw sockets on loopback;
+a "rogue host" is a socket bound to 127.0.0.2 (Linux routes all of 127/8 to lo). The owner's
+link time-out runs on a ManualClock; network time-outs are waited for by polling, never timed."""
+from __future__ import annotations
+
+import ipaddress
+import socket
+import struct
+import time
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from cell.clock import ManualClock
+from drivers.plc import PlcConfig
+from drivers.plc.access import AccessPolicy, RateLimitedWarnings, parse_allow
+from drivers.plc.server import PlcLink
+
+pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
+LOOPBACK_ONLY = (ipaddress.ip_network("127.0.0.1/32"),)
+
+
+def _link(**policy) -> PlcLink:
+    link = PlcLink(clock=ManualClock(100.0), access=AccessPolicy(**policy), heartbeat_timeout_s=1.0)
+    link.start()
+    return link
+
+
+def _client(port: int, source: str = "127.0.0.1") -> ModbusTcpClient:
+    c = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0, source_address=(source, 0))
+    assert c.connect()
+    return c
+
+
+def _raw(port: int, source: str = "127.0.0.1") -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.settimeout(5)
+    s.bind((source, 0))
+    s.connect(("127.0.0.1", port))
+    return s
+
+
+def _closed(s: socket.socket, timeout: float = 10.0) -> bool:
+    """The server closed ``s`` within ``timeout`` s (polls; a generous bound, not a timing)."""
+    deadline = time.monotonic() + timeout
+    s.settimeout(0.2)
+    while time.monotonic() < deadline:
+        try:
+            if s.recv(1024) == b"":
+                return True
+        except socket.timeout:
+            continue
+        except OSError:
+            return True
+    return False
+
+
+def _read_hb() -> bytes:
+    """An MBAP read of the heartbeat register (FC3, address 1, 1 register)."""
+    return struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 1, 1)
+
+
+def test_a_host_outside_the_allow_list_is_closed_before_any_request():
+    link = _link(allow=LOOPBACK_ONLY)
+    try:
+        rogue = _raw(link.port, "127.0.0.2")
+        rogue.sendall(_read_hb())
+        assert _closed(rogue), "the rogue's connection stayed open"
+        rogue.close()
+        ok = _client(link.port)                          # the allowed PLC is served
+        assert ok.read_holding_registers(0, count=1).registers[0] > 0
+        ok.close()
+        assert link.guard.refused == 1
+    finally:
+        link.stop()
+
+
+def test_only_the_owner_writes_and_a_second_client_cannot_keep_the_link_alive():
+    link = _link()
+    clock = link._clock
+    plc, rogue = _client(link.port), _client(link.port, "127.0.0.2")
+    try:
+        assert not plc.write_register(1, 1).isError()                      # heartbeat: owner
+        assert link.owner is not None and link.owner.startswith("127.0.0.1:")
+        assert link.last_heartbeat_change == 100.0
+        rr = rogue.write_register(20, 7)                                   # recipe select
+        assert rr.isError() and rr.exception_code == 1 and link.read("recipe_select") == 0
+        assert rogue.read_holding_registers(20, count=1).registers == [0]   # reads are served
+        # the PLC goes silent; the rogue's heartbeat changes nothing
+        clock.advance(0.6)
+        assert rogue.write_register(1, 99).exception_code == 1
+        assert link.read("plc_heartbeat") == 1 and link.last_heartbeat_change == 100.0
+        clock.advance(0.6)                                    # 1.2 s: the watchdog would trip now
+        assert link.owner is None
+        # after the time-out the first allowed client to beat owns the link
+        assert not rogue.write_register(1, 100).isError()
+        assert link.owner.startswith("127.0.0.2:") and link.last_heartbeat_change == pytest.approx(101.2)
+        assert plc.write_register(20, 5).exception_code == 1
+        ev = [(w.name, w.peer) for w in link.drain_writes()]
+        assert ev == []                                       # heartbeats are quiet; no write landed
+        assert not rogue.write_register(20, 4).isError()
+        assert [(w.name, w.value, w.peer.split(":")[0]) for w in link.drain_writes()] == \
+            [("recipe_select", 4, "127.0.0.2")]
+    finally:
+        plc.close()
+        rogue.close()
+        link.stop()
+
+
+def test_at_the_cap_the_longest_idle_connection_is_shed_never_the_owner():
+    link = _link(max_connections=2)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                      # owner
+        idle = _raw(link.port)
+        newcomer = _client(link.port, "127.0.0.2")
+        assert newcomer.read_holding_registers(0, count=1).registers[0] > 0
+        assert _closed(idle), "the idle connection was not shed"
+        assert not plc.write_register(1, 3).isError()                      # the owner survives
+        assert link.guard.shed == 1
+        plc.close()
+        newcomer.close()
+        idle.close()
+    finally:
+        link.stop()
+
+
+def test_idle_connections_and_half_sent_frames_are_closed():
+    link = _link(idle_timeout_s=0.3, frame_timeout_s=0.3)
+    try:
+        silent = _raw(link.port)
+        half = _raw(link.port)
+        half.sendall(b"\x00\x01\x00")                         # 3 bytes of an MBAP header
+        assert _closed(silent) and _closed(half)
+        assert link.guard.timed_out == 2 and link.guard.peers == {}
+    finally:
+        link.stop()
+
+
+def test_warnings_are_rate_limited_with_a_count_of_what_was_dropped(capsys):
+    now = [0.0]
+    w = RateLimitedWarnings(burst=2, interval_s=10.0, now=lambda: now[0])
+    assert [w.warning("plc_write_not_owner", client="x") for _ in range(5)] == [True, True, False,
+                                                                                  False, False]
+    assert w.dropped("plc_write_not_owner") == 3
+    now[0] = 11.0
+    assert w.warning("plc_write_not_owner", client="x")
+    err = capsys.readouterr().err
+    assert err.count("plc_write_not_owner ") + err.count("plc_write_not_owner\x1b") >= 1
+    assert "plc_write_not_owner_suppressed" in err and "dropped=3" in err
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"allow": ["10.0.0.300"]}, "allow[0]: '10.0.0.300' is not an address or network"),
+    ({"allow": ["10.0.0.5", "plc-1"]}, "allow[1]: 'plc-1' is not an address or network"),
+    ({"host": "0.0.0.0"}, "listens on every interface and allow is empty"),
+    ({"host": "::"}, "write allow_any: true to mean it"),
+])
+def test_bad_access_config_names_the_field(kwargs, words):
+    with pytest.raises(ValueError) as exc:
+        PlcConfig(**kwargs)
+    assert words in str(exc.value)
+
+
+def test_access_policy_from_the_config():
+    assert PlcConfig().access_policy().allow is None                         # loopback listener
+    assert PlcConfig(host="0.0.0.0", allow_any=True).access_policy().allow is None
+    p = PlcConfig(host="0.0.0.0", allow=["10.0.0.0/24", "::1"]).access_policy()
+    assert p.allows("10.0.0.77") and p.allows("::1") and p.allows("::ffff:10.0.0.8")
+    assert not p.allows("10.0.1.1") and not p.allows("127.0.0.1")
+    assert parse_allow(["192.168.1.7"]) == (ipaddress.ip_network("192.168.1.7/32"),)
+
+
+def test_closed_connections_leave_no_task_behind():
+    """A storm of shed and timed-out connections must not leave one worker task each."""
+    import asyncio
+
+    link = _link(max_connections=2, idle_timeout_s=0.2)
+    try:
+        socks = []
+        for _ in range(12):
+            s = _raw(link.port)
+            s.sendall(_read_hb())                         # starts the connection's worker
+            socks.append(s)
+        assert all(_closed(s) for s in socks[:-2])        # shed at the cap, then idled out
+        assert all(_closed(s) for s in socks[-2:])
+        loop = link._server._loop
+        fut = asyncio.run_coroutine_threadsafe(_tasks(), loop)
+        names = fut.result(timeout=10)
+        # left: the server's own task and the sweep; no connection worker
+        assert [n for n in names if "sweep_forever" not in n and "ServerThread" not in n] == [], names
+        for s in socks:
+            s.close()
+    finally:
+        link.stop()
+
+
+async def _tasks() -> list[str]:
+    import asyncio
+    return [f"{t.get_name()} {t.get_coro().__qualname__}" for t in asyncio.all_tasks()
+            if t is not asyncio.current_task() and not t.done()]
