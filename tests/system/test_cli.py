@@ -16,7 +16,11 @@ from tests.system.conftest import REPO, make_config
 
 
 def write_config(tmp_path):
-    cfg = make_config(tmp_path)
+    """The system config for a ``cellctl`` child on wall time. Its PLC is a thread of this
+    test process, and a loaded machine can hold a thread for longer than the 0.4 s the
+    in-process tests use: a stalled heartbeat would lose the link (and its ownership), which
+    these tests are not about. The watchdog itself is tested on the simulated clock."""
+    cfg = make_config(tmp_path, heartbeat_timeout_s=5.0)
     path = tmp_path / "cell.yaml"
     path.write_text(yaml.safe_dump(cfg.model_dump(mode="json")))
     return cfg, path
@@ -107,8 +111,8 @@ def test_serve_sim_is_driven_by_an_independent_modbus_client(tmp_path):
 
     try:
         img = until(lambda i: i["map_version"] == PLC_MAP.version, "the server")
-        c.write_single_register(PLC_MAP["recipe_select"].address, 7)
-        c.write_multiple_registers(PLC_MAP["part_id"].address, [0, 4242])
+        assert c.write_single_register(PLC_MAP["recipe_select"].address, 7), c.last_except
+        assert c.write_multiple_registers(PLC_MAP["part_id"].address, [0, 4242]), c.last_except
         cmd = PLC_MAP["command_word"].address
         assert not bits(regs())["ready"]                             # not armed yet after start
         assert c.write_single_register(cmd, 0)                       # execute written low: armed
