@@ -19,7 +19,9 @@ def write_config(tmp_path):
     """The system config for a ``cellctl`` child on wall time. Its PLC is a thread of this
     test process, and a loaded machine can hold a thread for longer than the 0.4 s the
     in-process tests use: a stalled heartbeat would lose the link (and its ownership), which
-    these tests are not about. The watchdog itself is tested on the simulated clock."""
+    these tests are not about. The watchdog itself is tested on the simulated clock.
+    (The CI failure this guards against may also have been the race fixed in ``regs``: a
+    heartbeat sent before the server listened, a read just after, so no owner yet.)"""
     cfg = make_config(tmp_path, heartbeat_timeout_s=5.0)
     path = tmp_path / "cell.yaml"
     path.write_text(yaml.safe_dump(cfg.model_dump(mode="json")))
@@ -92,7 +94,8 @@ def test_serve_sim_is_driven_by_an_independent_modbus_client(tmp_path):
     def regs():
         nonlocal hb
         hb = (hb + 1) & 0xFFFF
-        c.write_single_register(PLC_MAP["plc_heartbeat"].address, hb)
+        if not c.write_single_register(PLC_MAP["plc_heartbeat"].address, hb):
+            return None         # not landed (e.g. the server came up only for the read after it)
         r = c.read_holding_registers(0, PLC_MAP.size)
         return r and {reg.name: (r[reg.address] << 16 | r[reg.address + 1]) if reg.words == 2
                       else r[reg.address] for reg in PLC_MAP}
