@@ -28,7 +28,9 @@ from __future__ import annotations
 from collections import deque
 
 from cell.clock import Clock, MonotonicClock
-from cell.controller_core import (CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
+import structlog
+
+from cell.controller_core import (Audit, CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
                                   ScanInputs, SettleCycle, StartCalibration, StartCycle, StationFaultIn)
 from cell.cycle import CancelToken, CycleOutcome, CycleRunner
@@ -41,6 +43,9 @@ from cell.statemachine import State, StateMachine
 from cell.worker import Job, Worker
 
 log = get_logger("controller")
+
+#: refused PLC writes are audited at most this often (clock s), one row per client and reason
+REFUSAL_AUDIT_S = 10.0
 
 __all__ = ["CellController", "ControllerSettings"]
 
@@ -73,6 +78,8 @@ class CellController:
         self._refresh: Job | None = None
         self._plc_detached = False        # going down: what the scan writes no longer reaches the PLC
         self._resets: deque[tuple[str, Job]] = deque()      # in the order asked
+        self._owner: str | None = None                      # the PLC client that owns the link
+        self._next_refusal_audit = 0.0
 
     # ------------------------------------------------------------------ views (jobs, tests)
     @property
@@ -154,9 +161,31 @@ class CellController:
     def scan(self) -> None:
         """Read inputs, step the core, write outputs, act."""
         self.scans += 1
+        self._tag_owner()
         out = self.core.step(self._read())
         self._write(out.status, out.registers)
         self._apply(out.actions)
+        self._audit_refusals()
+
+    def _tag_owner(self) -> None:
+        """Every log line of the scan thread names the PLC client that owns the link."""
+        owner = getattr(self.plc, "owner", None)
+        if owner != self._owner:
+            self._owner = owner
+            structlog.contextvars.bind_contextvars(plc_owner=owner)
+            log.info("plc_owner_changed", owner=owner)
+
+    def _audit_refusals(self) -> None:
+        """Writes the link refused (not the owner, or a role without the right) go to the
+        audit trail every :data:`REFUSAL_AUDIT_S`, summed per client and reason."""
+        take = getattr(self.plc, "take_refusals", None)
+        now = self.clock.now()
+        if take is None or now < self._next_refusal_audit:
+            return
+        self._next_refusal_audit = now + REFUSAL_AUDIT_S
+        for r in take():
+            who = f"plc {r.client}" + (f" ({r.role})" if r.role else "")
+            self._apply([Audit(who, "plc_write_refused", r.reason, f"{r.count} refused with exception 01")])
 
     def _read(self) -> ScanInputs:
         ended = None
@@ -214,6 +243,9 @@ class CellController:
                     log.warning("cycle_not_settled", reason="the PLC link is going down", cycle_id=a.cycle_id)
                 else:
                     self.log_worker.submit(self._settle, a)
+            elif isinstance(a, Audit):
+                self.log_worker.submit(self._logged, f"audit {a.action}", lambda a=a: self.log.audit(
+                    a.who or "plc", a.action, a.target, "", a.result))
             elif isinstance(a, ClearInterrupted):
                 self.log_worker.submit(self._logged, "clear_interrupted", self.log.clear_interrupted)
 

@@ -64,6 +64,7 @@ class PlcWriteIn:
     name: str
     value: int
     previous: int
+    peer: str = ""          #: the client that wrote it (host:port)
 
 
 @dataclass(frozen=True)
@@ -162,8 +163,19 @@ class ClearInterrupted:
     """The PLC has reset the fault that reported a cycle interrupted by a restart."""
 
 
+@dataclass(frozen=True)
+class Audit:
+    """A row for the hash-chained audit trail: ``who`` (the PLC client, ``host:port``),
+    what it did, to what, and how it ended."""
+
+    who: str
+    action: str
+    target: str
+    result: str
+
+
 Action = Union[StartCycle, StartCalibration, CancelCycle, QuickStop, ResetDrives, RefreshRecipes,
-               SettleCycle, ClearInterrupted]
+               SettleCycle, ClearInterrupted, Audit]
 
 
 @dataclass
@@ -190,6 +202,8 @@ class ControllerCore:
         self.last_outcome: CycleOutcome | None = None
         self.calibration_version = 0             #: version of the robot calibration in use
         self._pending_select: int | None = None
+        self._selected_by = ""                      #: PLC client of the pending selection
+        self._writer = ""                           #: PLC client of the command being handled
         self._armed = False
         self._rearming = False                   # drives being re-enabled after an abort
         self._link_ok = False
@@ -281,10 +295,12 @@ class ControllerCore:
                 select = w.value
             if w.name == "recipe_select" and w.value:   # 0 = no selection
                 self._pending_select = w.value
+                self._selected_by = getattr(w, "peer", "")
             if self._pending_select is not None and not self.sm.state.busy:
                 self._select_recipe(self._pending_select)
                 self._pending_select = None
             if w.name == "command_word" and link_ok:
+                self._writer = getattr(w, "peer", "")
                 self._on_command(w.value & ~w.previous, w.value, part_id, select)
         if self._pending_select is not None and not self.sm.state.busy:
             self._select_recipe(self._pending_select)   # asked while busy: applied once idle
@@ -435,9 +451,13 @@ class ControllerCore:
         self.sm.fire(Event.STOPPED_FAULT if self.fault_code else Event.STOPPED_ABORT)
 
     def _reset(self) -> None:
+        target = f"fault {self.fault_code}"
         if not self._link_ok:
-            log.warning("reset_refused", reason="PLC link not alive")
+            log.warning("reset_refused", reason="PLC link not alive", plc=self._writer)
+            self._actions.append(Audit(self._writer, "reset", target, "refused: PLC link not alive"))
             return
+        log.info("reset_requested", plc=self._writer, fault_code=self.fault_code)
+        self._actions.append(Audit(self._writer, "reset", target, "accepted"))
         self.sm.fire(Event.RESET)
         self._actions.append(ResetDrives("reset"))
 
@@ -466,8 +486,12 @@ class ControllerCore:
             return
         if number not in self._recipes.numbers:
             self.recipe_status = RECIPE_UNKNOWN
-            log.warning("recipe_select_unknown", number=number)
+            log.warning("recipe_select_unknown", number=number, plc=self._selected_by)
             return
+        if number != self.recipe_number:
+            log.info("recipe_selected", number=number, previous=self.recipe_number, plc=self._selected_by)
+            self._actions.append(Audit(self._selected_by, "recipe_select", str(number),
+                                       f"active (was {self.recipe_number})"))
         self.recipe_number = number
         self.recipe_status = RECIPE_OK
 

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import pytest
 
-from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, CancelCycle, ClearInterrupted,
+from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, Audit, CancelCycle, ClearInterrupted,
                                   ControllerCore, ControllerSettings, DrivesResetIn, PlcWriteIn,
                                   QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
                                   SettleCycle, StartCalibration, StartCycle, StationFaultIn)
@@ -51,6 +51,7 @@ class Cell:
         self.calibration_select = 0           #: register image
         self.numbers = frozenset(numbers)
         self.out = self.core.started(t0, RecipesIn(self.numbers, refreshed=True, rejected=rejected))
+        self.audits: list[Audit] = []         #: audit rows asked for, kept apart from the actions
 
     @property
     def state(self) -> State:
@@ -78,6 +79,8 @@ class Cell:
             command_word=self.command_word, part_id=self.part_id,
             calibration_select=self.calibration_select, **inputs))
         check_map(self.out)
+        self.audits += [a for a in self.out.actions if isinstance(a, Audit)]
+        self.out.actions = [a for a in self.out.actions if not isinstance(a, Audit)]
         return self.out
 
     def scans(self, n: int, **inputs) -> list:
@@ -724,6 +727,19 @@ def test_failed_reset_returns_to_fault_keeping_the_code_then_reset_again():
     assert c.command(RESET).actions == [ResetDrives("reset")]
     c.scan(drives_reset=DrivesResetIn("reset", True))
     assert c.state is State.IDLE and c.core.fault_code == 0
+
+
+def test_resets_and_recipe_changes_are_audited_with_the_plc_client():
+    c = fault_cell(204)
+    c.audits.clear()
+    c.command(0)
+    c.scan(PlcWriteIn("command_word", RESET, 0, "10.0.0.5:5001"))
+    assert c.audits == [Audit("10.0.0.5:5001", "reset", "fault 204", "accepted")]
+    c.scan(drives_reset=DrivesResetIn("reset", True))
+    c.audits.clear()
+    c.scan(PlcWriteIn("recipe_select", 2, 1, "10.0.0.5:5001"))
+    c.scan(PlcWriteIn("recipe_select", 2, 2, "10.0.0.5:5001"))          # the same again: no row
+    assert c.audits == [Audit("10.0.0.5:5001", "recipe_select", "2", "active (was 1)")]
 
 
 def test_reset_is_refused_while_the_link_is_down():

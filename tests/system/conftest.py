@@ -67,9 +67,9 @@ class Harness:
     """A started cell plus a connected simulated PLC, on one simulated clock that the test
     thread keeps too (until :meth:`close`)."""
 
-    def __init__(self, tmp_path: Path):
+    def __init__(self, tmp_path: Path, **plc):
         self.tmp_path = tmp_path
-        self.config = make_config(tmp_path)
+        self.config = make_config(tmp_path, **plc)
         self.clock = VirtualClock()
         self._attached = self.clock.attach("test")
         self._attached.__enter__()
