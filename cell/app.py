@@ -38,6 +38,8 @@ class Cell:
     def __init__(self, config: CellConfig, devices: str = "hardware", plc_port: int | None = None,
                  jobs: bool = True, pace: bool = False, clock: Clock | None = None):
         self.config = config
+        # certificates before anything is opened: a bad one names its field and stops here
+        tls = config.plc.tls.listener() if config.plc.tls.enabled else None
         # the log first: a log that cannot be used (damaged, read-only, in use by another
         # controller) refuses the start before any device is touched
         self.cyclelog = CycleLog(config.log.path)
@@ -61,7 +63,8 @@ class Cell:
                                          on_applied=self._use_calibration, robot=self.robot)
         self.runner: CycleRunner | None = None
         self.plc = open_link(config.plc.backend, clock=self.clock, access=config.plc.access_policy(),
-                             heartbeat_timeout_s=config.plc.heartbeat_timeout_s)
+                             heartbeat_timeout_s=config.plc.heartbeat_timeout_s, tls=tls,
+                             plain=config.plc.plain_tcp)
         self.plc_port = config.plc.port if plc_port is None else plc_port
         r = config.recipes
         self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,

@@ -29,6 +29,7 @@ COMMAND_MODULES = (
     "cell.commands.robotcal",
     "cell.commands.logcheck",
     "cell.commands.audit",
+    "cell.commands.plc",
 )
 
 

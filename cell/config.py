@@ -163,5 +163,8 @@ class CellConfig(_Section):
 
     @classmethod
     def load(cls, path: Path | str) -> "CellConfig":
-        """Load and validate ``path``; raises ConfigError naming file, line and field."""
-        return load_model(path, cls, "cell config")
+        """Load and validate ``path``; raises ConfigError naming file, line and field.
+        Relative certificate paths (``plc.tls``) are taken from the file's folder."""
+        cfg = load_model(path, cls, "cell config")
+        tls = cfg.plc.tls.resolved(Path(path).resolve().parent)
+        return cfg.model_copy(update={"plc": cfg.plc.model_copy(update={"tls": tls})})

@@ -201,7 +201,11 @@ def serve(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     actual = cell.start()
-    print(f"cell {cfg.name} serving Modbus TCP on {cfg.plc.host}:{actual}"
+    tls_port = getattr(cell.plc, "tls_port", None)
+    where = (f"Modbus TCP on {cfg.plc.host}:{actual}" if cfg.plc.plain_tcp else "") + \
+        (" and " if cfg.plc.plain_tcp and tls_port else "") + \
+        (f"Modbus/TCP Security on {cfg.plc.tls.host}:{tls_port}" if tls_port else "")
+    print(f"cell {cfg.name} serving {where}"
           f"{' (simulated devices, clock paced to wall time)' if args.sim else ''}; Ctrl-C to stop", flush=True)
     if args.sim:
         cell.clock.spawn(_auto_feed, "sim-feeder", cell, stop)

@@ -51,6 +51,51 @@ BACKENDS: dict[str, str] = {
 }
 
 
+class TlsConfig(BaseModel):
+    """The ``plc.tls`` section: Modbus/TCP Security (:mod:`drivers.plc.tls`). Relative
+    paths are taken from the config file's folder. Files are checked when the link starts."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = Field(802, ge=0, le=65535)
+    #: the controller's certificate (PEM; may hold its chain) and private key
+    cert: str = "tls/controller.pem"
+    key: str = "tls/controller.key"
+    #: the CA(s) whose client certificates are accepted (PEM)
+    ca: str = "tls/plc-ca.pem"
+    #: role (from the certificate's role extension) -> rights (run, recipe, reset, calibrate)
+    roles: dict[str, list[str]] = Field(default_factory=lambda: {
+        "operator": ["run"], "maintenance": ["run", "recipe", "reset", "calibrate"], "monitor": []})
+
+    @field_validator("roles")
+    @classmethod
+    def _rights_known(cls, v: dict[str, list[str]]) -> dict[str, list[str]]:
+        from drivers.plc.tls import RIGHTS
+        for role, rights in v.items():
+            bad = [r for r in rights if r not in RIGHTS]
+            if bad:
+                raise ValueError(f"role {role!r}: unknown right {bad[0]!r} (rights: {', '.join(RIGHTS)})")
+        return v
+
+    def resolved(self, base) -> "TlsConfig":
+        """This section with relative file paths taken from folder ``base``."""
+        from pathlib import Path
+        return self.model_copy(update={k: str(Path(base) / getattr(self, k))
+                                       for k in ("cert", "key", "ca")})
+
+    def listener(self):
+        """The :class:`~drivers.plc.server.TlsListener` of this section: files checked
+        (ConfigError naming ``plc.tls.cert|key|ca``), roles mapped to rights."""
+        from pathlib import Path
+
+        from drivers.plc.server import TlsListener
+        from drivers.plc.tls import roles_table, server_context
+        ctx = server_context(Path(self.cert), Path(self.key), Path(self.ca))
+        return TlsListener(ctx, roles_table(self.roles), self.host, self.port)
+
+
 class PlcConfig(BaseModel):
     """The ``plc`` section of the cell config. Unknown keys are rejected."""
 
@@ -67,6 +112,9 @@ class PlcConfig(BaseModel):
     max_connections: int = Field(8, ge=1, le=1000)
     idle_timeout_s: float = Field(60.0, gt=0, le=3600)
     frame_timeout_s: float = Field(5.0, gt=0, le=600)
+    #: serve plain Modbus TCP on host:port (false: Modbus/TCP Security only)
+    plain_tcp: bool = True
+    tls: TlsConfig = TlsConfig()
 
     @field_validator("allow")
     @classmethod
@@ -77,7 +125,9 @@ class PlcConfig(BaseModel):
 
     @model_validator(mode="after")
     def _wildcard_needs_a_list(self) -> "PlcConfig":
-        if self.host in ("0.0.0.0", "::", "") and not self.allow and not self.allow_any:
+        if not self.plain_tcp and not self.tls.enabled:
+            raise ValueError("plain_tcp is false and tls.enabled is false: the PLC could not connect")
+        if self.plain_tcp and self.host in ("0.0.0.0", "::", "") and not self.allow and not self.allow_any:
             raise ValueError(f"host {self.host!r} listens on every interface and allow is empty: "
                              "any host that reaches the port could drive the robot. List the "
                              "PLC's address in allow (e.g. allow: [10.0.0.5]), or write "

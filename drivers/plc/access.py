@@ -74,8 +74,10 @@ def parse_allow(entries: Iterable[str], field_name: str = "plc.allow") -> tuple[
 
 @dataclass(eq=False)
 class Peer:
-    """One TCP connection: an id, the client's host and port, when it opened and last sent
-    anything (loop clock), when its pending half frame began (None: no half frame)."""
+    """One TCP connection: an id (unique in the process, across listeners), the client's
+    host and port, when it opened and last sent anything (loop clock), when its pending half
+    frame began (None: no half frame). On Modbus/TCP Security also the certificate's
+    ``role`` and its ``rights`` (None on plain TCP: the owner rule alone decides)."""
 
     id: int
     host: str
@@ -84,9 +86,15 @@ class Peer:
     last: float
     partial_since: float | None = None
     close: Callable[[], None] = field(default=lambda: None, repr=False)
+    role: str | None = None
+    rights: frozenset[str] | None = None
 
     def __str__(self) -> str:
-        return f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
+        addr = f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
+        return addr if self.role is None else f"{addr} ({self.role})"
+
+
+_PEER_IDS = itertools.count(1)     # one sequence for every listener of the process
 
 
 #: the peer whose request is being served (set per request by the connection handler)
@@ -133,7 +141,6 @@ class ConnectionGuard:
         self.is_owner = is_owner
         self.warn = warnings or RateLimitedWarnings()
         self.peers: dict[int, Peer] = {}
-        self._ids = itertools.count(1)
         self.refused = self.shed = self.timed_out = 0
 
     @staticmethod
@@ -161,7 +168,7 @@ class ConnectionGuard:
             self.drop(victim)
             victim.close()
         now = self._now()
-        peer = Peer(next(self._ids), host, port, now, now, close=close)
+        peer = Peer(next(_PEER_IDS), host, port, now, now, close=close)
         self.peers[peer.id] = peer
         return peer
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
+from pymodbus.transport import CommParams, CommType
 
 from cell.errors import CellError
 from cell.log import get_logger
@@ -199,8 +200,32 @@ class ConformantRequestHandler(ServerRequestHandler):
         info = self.transport.get_extra_info("peername") if self.transport else None
         host, port = (str(info[0]), int(info[1])) if info else ("?", 0)
         self.peer = self.guard.connect(host, port, self.close)
+        if self.peer is not None and getattr(self.server, "roles", None) is not None:
+            self._take_role(self.server.roles)
         if self.peer is None:
             self.close()
+
+    def _take_role(self, roles: dict[str, frozenset[str]]) -> None:
+        """Modbus/TCP Security: the peer's role from its (already verified) certificate;
+        no role, or one the config does not list: the connection is refused."""
+        from drivers.plc.tls import ROLE_OID, role_of
+        ssl_object = self.transport.get_extra_info("ssl_object")
+        der = ssl_object.getpeercert(binary_form=True) if ssl_object is not None else None
+        role, subject = role_of(der) if der else (None, "no certificate")
+        reason = None
+        if role is None:
+            reason = f"certificate has no role extension (OID {ROLE_OID})"
+        elif role.casefold() not in roles:
+            reason = f"role {role!r} is not in plc.tls.roles ({', '.join(sorted(roles))})"
+        if reason is not None:
+            self.guard.warn.warning("plc_tls_client_refused", client=str(self.peer), subject=subject,
+                                    reason=reason)
+            self.guard.drop(self.peer)
+            self.peer = None
+            return
+        self.peer.role, self.peer.rights = role, roles[role.casefold()]
+        _log().info("plc_tls_client", client=str(self.peer), subject=subject,
+                    rights=sorted(self.peer.rights))
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
         if self._stream.broken is not None or (self.guard is not None and self.peer is None):
@@ -296,6 +321,20 @@ class ConformantTcpServer(ModbusTcpServer):
 
     def callback_new_connection(self):
         return ConformantRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
+class ConformantTlsServer(ConformantTcpServer):
+    """:class:`ConformantTcpServer` over TLS: Modbus/TCP Security. The MBAP framing stays
+    (the spec carries the whole Modbus/TCP ADU in TLS), so the request path is the plain
+    one's; ``sslctx`` should require client certificates (:func:`drivers.plc.tls.server_context`);
+    ``roles`` maps a certificate's role (case-folded) to its rights."""
+
+    def __init__(self, *args, sslctx, roles: dict[str, frozenset[str]], **kwargs):
+        self.tls_setup = CommParams(comm_type=CommType.TLS, comm_name="server_listener",
+                                    reconnect_delay=0.0, reconnect_delay_max=0.0,
+                                    timeout_connect=0.0, sslctx=sslctx)
+        self.roles = roles
+        super().__init__(*args, **kwargs)
 
 
 class ServerThread:

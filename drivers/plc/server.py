@@ -31,7 +31,7 @@ from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
 from drivers.plc.access import CURRENT_PEER, AccessPolicy, ConnectionGuard, Peer
-from drivers.plc.conformance import ConformantTcpServer, ServerStartError, ServerThread
+from drivers.plc.conformance import ConformantTcpServer, ConformantTlsServer, ServerStartError, ServerThread
 from drivers.plc.register_map import PLC_MAP, PlcWriteRejected, RegisterMap, RegType
 
 
@@ -57,6 +57,34 @@ class PlcWrite:
     value: int
     previous: int
     peer: str = ""
+
+
+@dataclass(frozen=True)
+class TlsListener:
+    """A Modbus/TCP Security listener: the server ``context`` (client certificates
+    required, :func:`drivers.plc.tls.server_context`), ``roles`` (case-folded role ->
+    rights), and where to listen."""
+
+    context: object
+    roles: Mapping[str, frozenset[str]]
+    host: str = "127.0.0.1"
+    port: int = 802
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Writes refused since the last :meth:`PlcLink.take_refusals`, one entry per client
+    host, role and reason: ``count`` of them, the first at clock time ``t``."""
+
+    t: float
+    client: str
+    role: str | None
+    reason: str
+    count: int
+
+
+#: distinct (host, role, reason) entries kept between two takes; the rest are summed in one
+MAX_REFUSAL_KEYS = 32
 
 
 def build_datastore(register_map: RegisterMap, action) -> SimDevice:
@@ -101,11 +129,19 @@ class PlcLink:
     Another client's write is refused with exception 01 and changes nothing, so a rogue
     cannot keep the link alive with its own heartbeat. (A map without ``plc_heartbeat``
     has no link time-out: any allowed client may write.)
+
+    **Roles.** ``tls`` (:class:`TlsListener`) adds a Modbus/TCP Security listener on the
+    same image. Its clients carry a role; a write needs the rights
+    (:func:`drivers.plc.tls.rights_needed`) of the role as well as the link's ownership, and
+    a role with no right cannot own the link. ``plain=False`` serves TLS only. Every
+    refused write (not the owner, or a right missing) is counted per client and reason for
+    the controller's audit trail (:meth:`take_refusals`).
     """
 
     def __init__(self, register_map: RegisterMap = PLC_MAP, clock: Clock | None = None,
                  quiet: Iterable[str] | None = None, max_events: int = 1024,
-                 access: AccessPolicy | None = None, heartbeat_timeout_s: float = 1.0):
+                 access: AccessPolicy | None = None, heartbeat_timeout_s: float = 1.0,
+                 tls: TlsListener | None = None, plain: bool = True):
         self.map = register_map
         self._clock = clock or MonotonicClock()
         if quiet is None:
@@ -124,38 +160,71 @@ class PlcLink:
         self._hb_change: float | None = None
         self._hb_timeout = float(heartbeat_timeout_s)
         self._owner: Peer | None = None
+        self._refusals: dict[tuple[str, str | None, str], list] = {}
         self.guard = ConnectionGuard(access or AccessPolicy(), is_owner=self._is_owner)
+        self._plain = plain
         self._server = ServerThread(
             lambda address: ConformantTcpServer(build_datastore(self.map, self._action), address=address,
                                                 guard=self.guard),
             name="plc-modbus-server")
+        self.tls = tls
+        self.tls_guard: ConnectionGuard | None = None
+        self._tls_server: ServerThread | None = None
+        if tls is not None:
+            self.tls_guard = ConnectionGuard(access or AccessPolicy(), is_owner=self._is_owner,
+                                             warnings=self.guard.warn)
+            self._tls_server = ServerThread(
+                lambda address: ConformantTlsServer(build_datastore(self.map, self._action), address=address,
+                                                    guard=self.tls_guard, sslctx=tls.context,
+                                                    roles=dict(tls.roles)),
+                name="plc-modbus-tls-server")
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Listen on ``host:port`` (0 = any free port); return the actual port.
+        """Listen on ``host:port`` (0 = any free port) and, with ``tls``, on its host and
+        port; return the plain port (the TLS port if ``plain`` is False).
 
-        Raises :class:`PlcLinkError` if already running or the address cannot be bound.
+        Raises :class:`PlcLinkError` if already running or an address cannot be bound
+        (then nothing listens).
         """
-        if self._server.running:
-            raise PlcLinkError(f"PLC link already running on port {self._server.port}")
+        if self._server.running or (self._tls_server is not None and self._tls_server.running):
+            raise PlcLinkError(f"PLC link already running on port {self.port or self.tls_port}")
+        started = []
         try:
-            port = self._server.start(host, port)
+            if self._plain:
+                started.append(self._listen(self._server, host, port, "plain"))
+            if self._tls_server is not None:
+                started.append(self._listen(self._tls_server, self.tls.host, self.tls.port, "tls"))
+        except PlcLinkError:
+            self.stop()
+            raise
+        return started[0]
+
+    def _listen(self, server: ServerThread, host: str, port: int, kind: str) -> int:
+        try:
+            port = server.start(host, port)
         except ServerStartError as exc:
-            raise PlcLinkError(f"PLC link cannot listen on {host}:{port}: {exc.__cause__}") from exc
-        _log().info("plc_link_listening", host=host, port=port)
+            raise PlcLinkError(f"PLC link ({kind}) cannot listen on {host}:{port}: {exc.__cause__}") from exc
+        _log().info("plc_link_listening", host=host, port=port, transport=kind)
         return port
 
     def stop(self) -> None:
-        """Close all PLC connections and the listener; join the server thread. Idempotent."""
-        if self._server.running:
-            port = self._server.port
-            self._server.stop()
-            _log().info("plc_link_stopped", port=port)
+        """Close all PLC connections and the listeners; join the server threads. Idempotent."""
+        for server in (self._server, self._tls_server):
+            if server is not None and server.running:
+                port = server.port
+                server.stop()
+                _log().info("plc_link_stopped", port=port)
 
     @property
     def port(self) -> int | None:
-        """Port listened on while running, else None."""
+        """Plain Modbus TCP port listened on while running, else None."""
         return self._server.port
+
+    @property
+    def tls_port(self) -> int | None:
+        """Modbus/TCP Security port listened on while running, else None."""
+        return self._tls_server.port if self._tls_server is not None else None
 
     def __enter__(self) -> PlcLink:
         return self
@@ -241,6 +310,24 @@ class PlcLink:
         with self._lock:
             return str(self._owner) if self._owner is not None and not self._expired() else None
 
+    def take_refusals(self) -> list[Refusal]:
+        """Writes refused for who sent them (not the owner, or a role without the right)
+        since the last call, one entry per client host, role and reason; empties the
+        record. Bounded: past :data:`MAX_REFUSAL_KEYS` entries the rest are summed under
+        client ``*``."""
+        with self._lock:
+            out = [Refusal(t, host, role, reason, n) for (host, role, reason), (t, n) in self._refusals.items()]
+            self._refusals.clear()
+        return out
+
+    def _note_refusal(self, peer: Peer | None, reason: str) -> None:
+        """Count one refused write (lock held)."""
+        key = (peer.host if peer is not None else "", peer.role if peer is not None else None, reason)
+        if key not in self._refusals and len(self._refusals) >= MAX_REFUSAL_KEYS:
+            key = ("*", None, "more clients and reasons")
+        entry = self._refusals.setdefault(key, [self._clock.now(), 0])
+        entry[1] += 1
+
     @property
     def rejected_writes(self) -> int:
         """PLC write requests refused with an exception since start."""
@@ -266,6 +353,7 @@ class PlcLink:
         rejected: PlcWriteRejected | None = None
         peer = CURRENT_PEER.get()
         not_owner: str | None = None
+        lacking: str | None = None
         with self._lock:
             if values is not None:
                 try:
@@ -279,13 +367,21 @@ class PlcLink:
                     self._rejected += 1
                     rejected = exc
                 else:
-                    not_owner = self._refuse_writer(peer, new)
-                    if not_owner is None:
+                    lacking = self._missing_right(peer, new)
+                    not_owner = None if lacking is not None else self._refuse_writer(peer, new)
+                    if lacking is None and not_owner is None:
                         self._apply_plc_write(new, events, peer)
                     else:
                         self._rejected += 1
+                        self._note_refusal(peer, f"role lacks right {lacking}" if lacking is not None
+                                           else "not the link owner")
             # pymodbus answers from ``registers``: give it the whole current image
             registers[:len(self._image)] = self._image
+        if lacking is not None:
+            self.guard.warn.warning("plc_write_refused_role", client=str(peer), role=peer.role,
+                                    missing=lacking, fc=func_code, address=address,
+                                    registers=sorted(new))
+            return ExcCodes(1)
         if not_owner is not None:
             self.guard.warn.warning("plc_write_not_owner", client=str(peer), owner=not_owner,
                                     fc=func_code, address=address)
@@ -303,6 +399,18 @@ class PlcLink:
                 self._events_cv.notify_all()
         return None
 
+    def _missing_right(self, peer: Peer | None, new: dict[str, int]) -> str | None:
+        """The right ``peer``'s role lacks for writing ``new``, or None (lock held; plain
+        TCP peers have no role: the owner rule alone decides)."""
+        if peer is None or peer.rights is None:
+            return None
+        from drivers.plc.tls import missing_right, rights_needed
+        current = {n: self._read_unlocked(n) for n in new}
+        return missing_right(peer.rights, rights_needed(self.map, new, current))
+
+    def _connected(self, peer: Peer) -> bool:
+        return any(g is not None and peer.id in g.peers for g in (self.guard, self.tls_guard))
+
     def _expired(self) -> bool:
         """The owner's heartbeat has not changed for the time-out (lock held)."""
         return self._hb_change is None or self._clock.now() - self._hb_change > self._hb_timeout
@@ -316,7 +424,7 @@ class PlcLink:
         naming the owner (lock held). No peer: a request from outside the guard (none)."""
         if peer is None or peer is self._owner and not self._expired():
             return None
-        owner_gone = self._owner is None or self._owner.id not in self.guard.peers
+        owner_gone = self._owner is None or not self._connected(self._owner)
         may_claim = self._owner is None or self._expired() or (
             owner_gone and self._owner.host == peer.host)
         if may_claim and ("plc_heartbeat" in new or "plc_heartbeat" not in self.map):

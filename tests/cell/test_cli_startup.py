@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-HEAVY = ("numpy", "scipy", "pydantic", "structlog", "yaml", "cv2", "pymodbus", "can", "canopen",
+HEAVY = ("numpy", "scipy", "pydantic", "structlog", "yaml", "cv2", "pymodbus", "can", "canopen", "cryptography",
          "matplotlib", "apscheduler", "lxml", "urdf_parser_py", "sqlite3")
 
 PROBE = r"""

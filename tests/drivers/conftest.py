@@ -7,7 +7,7 @@ import pytest
 from cell.clock import ManualClock
 from drivers.plc.server import PlcLink
 
-PLC_THREADS = ("plc-modbus-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
+PLC_THREADS = ("plc-modbus-server", "plc-modbus-tls-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
 
 
 @pytest.fixture
