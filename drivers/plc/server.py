@@ -131,9 +131,11 @@ class PlcLink:
     has no link time-out: any allowed client may write.)
 
     **Roles.** ``tls`` (:class:`TlsListener`) adds a Modbus/TCP Security listener on the
-    same image. Its clients carry a role; a write needs the rights
-    (:func:`drivers.plc.tls.rights_needed`) of the role as well as the link's ownership, and
-    a role with no right cannot own the link. ``plain=False`` serves TLS only. Every
+    same image. Its clients carry a role, and the role's rights
+    (:func:`drivers.plc.tls.rights_needed`) decide their writes, so a maintenance station
+    may select a recipe while the PLC owns the link. The heartbeat stays owned: only the
+    owner's counts, and a role with no right cannot own the link. ``plain=False`` serves
+    TLS only. Every
     refused write (not the owner, or a right missing) is counted per client and reason for
     the controller's audit trail (:meth:`take_refusals`).
     """
@@ -424,6 +426,8 @@ class PlcLink:
         naming the owner (lock held). No peer: a request from outside the guard (none)."""
         if peer is None or peer is self._owner and not self._expired():
             return None
+        if peer.rights is not None and "plc_heartbeat" not in new:
+            return None             # TLS: the role's rights decide (checked before); the heartbeat is owned
         owner_gone = self._owner is None or not self._connected(self._owner)
         may_claim = self._owner is None or self._expired() or (
             owner_gone and self._owner.host == peer.host)

@@ -99,7 +99,7 @@ def test_a_monitor_reads_but_can_neither_write_nor_keep_the_link_alive(link, pki
         c.close()
 
 
-def test_one_writer_across_plain_and_secure_listeners(pki):
+def test_the_heartbeat_is_owned_across_listeners_and_roles_decide_the_rest(pki):
     cfg = TlsConfig(enabled=True, port=0, cert=str(pki["server"].cert), key=str(pki["server"].key),
                     ca=str(pki["ca"].path))
     link = PlcLink(clock=ManualClock(0.0), heartbeat_timeout_s=1.0, tls=cfg.listener())
@@ -107,10 +107,16 @@ def test_one_writer_across_plain_and_secure_listeners(pki):
     plain = ModbusTcpClient("127.0.0.1", port=link.port, timeout=3, retries=0)
     secure = _tls(link, pki, "maintenance")
     try:
-        assert plain.connect() and _exc(plain.write_register(HB, 1)) is None
-        assert _exc(secure.write_register(RECIPE, 3)) == 1           # the plain PLC owns the link
-        assert _exc(secure.write_register(HB, 9)) == 1
-        assert link.read("plc_heartbeat") == 1
+        assert plain.connect() and _exc(plain.write_register(HB, 1)) is None   # the plain PLC owns it
+        assert _exc(secure.write_register(HB, 9)) == 1               # its heartbeat does not count
+        assert link.read("plc_heartbeat") == 1 and link.owner.startswith("127.0.0.1:")
+        assert _exc(secure.write_register(RECIPE, 3)) is None        # maintenance may select
+        operator = _tls(link, pki, "operator")
+        try:
+            assert _exc(operator.write_register(RECIPE, 4)) == 1     # an operator may not
+        finally:
+            operator.close()
+        assert link.read("recipe_select") == 3
     finally:
         plain.close()
         secure.close()
