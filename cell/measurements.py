@@ -13,7 +13,6 @@ import csv
 import math
 import os
 import shutil
-import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -246,10 +245,11 @@ def _write_table(path: Path, table: dict[str, np.ndarray], columns: dict) -> Non
             w.writerow(row)
 
 
-def write_campaign(campaign: Campaign, directory: Path | str) -> Path:
-    """Write ``campaign`` to ``directory`` atomically (replacing an existing campaign there)."""
+def write_campaign(campaign: Campaign, directory: Path | str, force: bool = False) -> Path:
+    """Write ``campaign`` to ``directory`` (see :func:`staged_dir`: a new, empty or earlier
+    written folder is replaced atomically; any other folder only with ``force``)."""
     d = Path(directory)
-    with staged_dir(d) as tmp:
+    with staged_dir(d, force) as tmp:
         model = campaign.model.model_dump(exclude_none=True, mode="json")
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         if campaign.points is not None:
@@ -259,23 +259,78 @@ def write_campaign(campaign: Campaign, directory: Path | str) -> Path:
     return d
 
 
+#: the list of files a campaign writer put in its folder (so that it replaces only those)
+MANIFEST = ".written-by-cellctl"
+
+
+class FolderNotEmptyError(CellError):
+    """A campaign would be written into a folder that holds files it did not write."""
+
+
+def _ours(d: Path) -> set[str] | None:
+    """Names this writer put in ``d`` (its manifest), or None without a manifest."""
+    try:
+        return set((d / MANIFEST).read_text(encoding="utf-8").split())
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
 @contextmanager
-def staged_dir(d: Path):
-    """Yield a fresh temporary directory beside ``d``; when the block ends without an
-    exception it replaces ``d`` (renamed into place, so a reader never sees a half-written
-    directory), otherwise it is removed and ``d`` stays as it was."""
+def staged_dir(d: Path, force: bool = False):
+    """Yield a fresh temporary folder beside ``d`` to write a campaign into; when the block
+    ends without an exception its files go to ``d``, else it is removed and ``d`` stays.
+
+    * ``d`` missing, empty, or holding only files an earlier write put there (its
+      :data:`MANIFEST`): the staged folder replaces it by rename, so a reader never sees a
+      half-written campaign.
+    * ``d`` holding anything else: :class:`FolderNotEmptyError` naming a few entries, unless
+      ``force``; then each file is moved in beside the others (one rename each), and of the
+      old files only those listed in the manifest and not written again are removed.
+
+    Nothing this writer did not write is ever deleted. Folders get the umask's mode."""
     d.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
+    entries = sorted(p.name for p in d.iterdir()) if d.is_dir() else []
+    ours = _ours(d) if entries else set()
+    foreign = [e for e in entries if e != MANIFEST and (ours is None or e not in ours)]
+    if d.exists() and not d.is_dir():
+        raise FolderNotEmptyError(f"{d}: is a file, not a folder; nothing written")
+    if foreign and not force:
+        shown = ", ".join(e + ("/" if (d / e).is_dir() else "") for e in foreign[:5])
+        raise FolderNotEmptyError(
+            f"{d}: folder is not empty ({shown}{', …' if len(foreign) > 5 else ''}); nothing "
+            "written. Choose a new or empty folder, or pass --force to write beside those files "
+            "(none of them is deleted)")
+    tmp = d.parent / f".{d.name}.{os.getpid()}.{os.urandom(4).hex()}"
+    tmp.mkdir()                                   # the umask's mode, not mkdtemp's 0700
     try:
         yield tmp
-        if d.exists():
-            old = d.with_name(f".{d.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.rename(d, old)
-            os.rename(tmp, d)
-            shutil.rmtree(old, ignore_errors=True)
+        written = sorted(p.name for p in tmp.iterdir())
+        (tmp / MANIFEST).write_text("\n".join(written) + "\n", encoding="utf-8")
+        if not foreign:
+            _replace_ours(d, tmp, ours or set())
         else:
-            os.rename(tmp, d)
+            for name in written + [MANIFEST]:
+                os.replace(tmp / name, d / name)
+            for name in (ours or set()) - set(written):
+                (d / name).unlink(missing_ok=True)
+            tmp.rmdir()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _replace_ours(d: Path, tmp: Path, ours: set[str]) -> None:
+    """Put ``tmp`` in the place of ``d``, which holds nothing but ``ours`` (and the manifest)."""
+    if not d.exists():
+        os.rename(tmp, d)
+        return
+    old = d.with_name(f".{d.name}.old.{os.urandom(4).hex()}")
+    os.rename(d, old)
+    os.rename(tmp, d)
+    for name in ours | {MANIFEST}:
+        p = old / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink(missing_ok=True)
+    old.rmdir()                                   # empty now: only our files were in it

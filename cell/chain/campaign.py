@@ -255,11 +255,12 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
 
 
 def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpec | None = None,
-                         files: dict[str, str] | None = None) -> Path:
+                         files: dict[str, str] | None = None, force: bool = False) -> Path:
     """Write ``c`` (with ``spec`` as its model, and extra ``files`` name → text such as a
-    URDF) to ``directory`` atomically."""
+    URDF) to ``directory`` (:func:`cell.measurements.staged_dir`: a folder holding files it
+    did not write is refused unless ``force``)."""
     d = Path(directory)
-    with staged_dir(d) as tmp:
+    with staged_dir(d, force) as tmp:
         model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         for name, text in (files or {}).items():

@@ -26,6 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("out", help="campaign directory to write")
     e.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
     e.add_argument("--robot", default="seed000", help="robot preset of the nominal model (default seed000)")
+    e.add_argument("--force", action="store_true",
+                   help="write into a folder that holds other files (they are kept, never deleted)")
     e.set_defaults(func=run_export)
 
 
@@ -95,6 +97,6 @@ def run_export(args: argparse.Namespace) -> int:
                                       command_unit_deg=robot.g.unit[0])
     except ValueError as exc:
         raise ConfigError(f"{args.db}: {exc}") from None
-    write_campaign(campaign, args.out)
+    write_campaign(campaign, args.out, force=args.force)
     print(f"{len(campaign.points['sample'])} measured moves written to {args.out}")
     return 0

@@ -59,3 +59,42 @@ def test_report_and_export_bad_input(tmp_path, capsys):
     assert main(["export", str(tmp_path / "c"), "--db", str(tmp_path / "empty.sqlite")]) == 2
     assert "no logged cycle" in capsys.readouterr().err
     assert not (tmp_path / "c").exists()
+
+
+def _tree(d):
+    return sorted(str(p.relative_to(d)) for p in d.rglob("*"))
+
+
+def test_export_into_a_folder_with_other_files_refuses_and_deletes_nothing(db, tmp_path, capsys):
+    """Probe (issue 13): export into a folder holding files deleted them, sub-folders too,
+    and set the folder's mode to 0700."""
+    out = tmp_path / "shared"
+    (out / "sub").mkdir(parents=True)
+    (out / "notes.txt").write_text("mine")
+    (out / "sub" / "keep.txt").write_text("mine too")
+    out.chmod(0o755)
+    before = _tree(out)
+    assert main(["export", str(out), "--db", str(db.path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{out}: folder is not empty (notes.txt, sub/)" in err and "--force" in err
+    assert _tree(out) == before and (out / "notes.txt").read_text() == "mine"
+    assert out.stat().st_mode & 0o777 == 0o755
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".")] == []     # no staging left
+    # --force writes beside them and deletes nothing
+    assert main(["export", str(out), "--db", str(db.path), "--force"]) == 0
+    assert set(before) <= set(_tree(out)) and (out / "sub" / "keep.txt").read_text() == "mine too"
+    assert len(read_campaign(out).points["sample"]) == 33 and out.stat().st_mode & 0o777 == 0o755
+
+
+def test_export_replaces_its_own_earlier_export_and_new_folders_get_the_umask_mode(db, tmp_path):
+    import os
+    out = tmp_path / "camp"
+    assert main(["export", str(out), "--db", str(db.path)]) == 0
+    mask = os.umask(0)
+    os.umask(mask)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~mask
+    assert main(["export", str(out), "--db", str(db.path)]) == 0          # its own: replaced
+    assert len(read_campaign(out).points["sample"]) == 33
+    (out / "extra.txt").write_text("someone else's")
+    assert main(["export", str(out), "--db", str(db.path)]) == 2          # not only its own now
+    assert (out / "extra.txt").exists()
