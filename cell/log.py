@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 from typing import Literal
 
 import structlog
@@ -15,15 +16,21 @@ import structlog
 _configured = False
 
 
+_write_lock = threading.Lock()
+
+
 class _StderrLogger:
     """Writes each rendered event to the *current* ``sys.stderr`` (which test runners and
-    daemons may swap), and never raises if that stream is already closed."""
+    daemons may swap) as one line: the event and its newline in one write, under one lock,
+    so lines from two threads never run together. Never raises if the stream is closed."""
 
     def msg(self, message: str) -> None:
-        try:
-            print(message, file=sys.stderr, flush=True)
-        except (ValueError, OSError):
-            pass
+        with _write_lock:
+            try:
+                sys.stderr.write(message + "\n")
+                sys.stderr.flush()
+            except (ValueError, OSError):
+                pass
 
     log = debug = info = warning = warn = error = critical = exception = fatal = msg
 
