@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from cell import __version__
@@ -34,7 +35,7 @@ COMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellctl", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="cellctl", description=__doc__.splitlines()[0].replace("``", "").rstrip(".") + ".")
     parser.add_argument("--version", action="version", version=f"cellctl {__version__}")
     parser.add_argument("--log-format", choices=("console", "json"), default="console",
                         help="structlog output on stderr (default console)")
@@ -51,10 +52,17 @@ def main(argv: list[str] | None = None) -> int:
     from cell import log          # structlog: only once a command runs, not for --help
     log.configure(args.log_format, args.log_level)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()
+        return code
     except CellError as exc:
         print(f"cellctl {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (``cellctl diagnose … | head``): stop quietly, as a Unix tool
+        # killed by SIGPIPE would; the interpreter's last flush must not fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

@@ -37,3 +37,10 @@ def open_log_readonly(db: str):
     if not Path(db).is_file():
         raise ConfigError(f"{db}: no cycle log here (run the cell first, or pass --db)")
     return CycleLog(db, readonly=True)
+
+
+def summary(doc: str) -> str:
+    """The first paragraph of a command module's docstring as plain help text: whole
+    sentences, joined lines, no reST backticks (``cellctl X --help`` shows it)."""
+    first = doc.strip().split("\n\n")[0]
+    return " ".join(first.split()).replace("``", "")

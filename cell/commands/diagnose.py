@@ -33,7 +33,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cell.commands import float_list
+from cell.commands import float_list, summary
 from cell.errors import ConfigError
 from cell.jsonsafe import json_safe
 
@@ -46,7 +46,7 @@ VALIDATE = "validate"
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="sim-to-real gap diagnosis of a campaign or the cycle log",
-                       description=__doc__.splitlines()[0])
+                       description=summary(__doc__))
     p.add_argument("campaign", metavar="CAMPAIGN",
                    help="campaign directory, SQLite cycle log, or 'validate'")
     p.add_argument("--json", action="store_true", help="print the report as JSON (cell-diagnosis/1)")
