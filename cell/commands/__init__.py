@@ -44,3 +44,14 @@ def summary(doc: str) -> str:
     sentences, joined lines, no reST backticks (``cellctl X --help`` shows it)."""
     first = doc.strip().split("\n\n")[0]
     return " ".join(first.split()).replace("``", "")
+
+
+def png_path(given: str, name: str):
+    """The file a ``--png`` option means: ``given`` itself, ``given/name`` when it is a
+    folder (existing, or written with a trailing slash), with ``.png`` added when it has
+    no suffix (as the plotting library would, silently)."""
+    from pathlib import Path
+    p = Path(given)
+    if p.is_dir() or given.endswith(("/", "\\")):
+        p = p / name
+    return p if p.suffix else p.with_suffix(".png")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cell.commands import open_log_readonly
+from cell.commands import open_log_readonly, png_path
 from cell.errors import ConfigError
 
 DEFAULT_DB = "var/cell.sqlite"
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
     p.add_argument("--block", type=int, default=10, help="cycles per table row (default 10)")
     p.add_argument("--recipe", help="only this recipe")
-    p.add_argument("--png", default="var/accuracy.png", help="plot file (default var/accuracy.png; '' for none)")
+    p.add_argument("--png", default="var/accuracy.png", help="plot file, or folder for accuracy.png (default var/accuracy.png; '' for none)")
     p.set_defaults(func=run_report)
     e = sub.add_parser("export", help="export logged cycles to the measurement exchange format")
     e.add_argument("out", help="campaign directory to write")
@@ -57,8 +57,9 @@ def run_report(args: argparse.Namespace) -> int:
             stats = "– | – | – | – | –"
         print(f"| {blk[0].id}–{blk[-1].id} | {blk[0].part_id} | {stats} | {faults} |")
     if args.png:
-        _plot(cycles, Path(args.png))
-        print(f"plot written to {args.png}")
+        png = png_path(args.png, "accuracy.png")
+        _plot(cycles, png)
+        print(f"plot written to {png}")
     return 0
 
 

@@ -24,6 +24,7 @@ import json
 import sys
 from pathlib import Path
 
+from cell.commands import png_path
 from cell.errors import ConfigError
 
 DEFAULT_PNG = "var/calibration/{joint}-errors.png"
@@ -42,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     j.add_argument("--period-deg", type=float, default=360.0,
                    help="period of the cyclic error, joint deg (default 360; a motor-side cycle of "
                         "a ratio-N drive is 360/N)")
-    j.add_argument("--png", help=f"error plot to write (default {DEFAULT_PNG.format(joint='<joint>')})")
+    j.add_argument("--png", help=f"error plot to write, or a folder for it (default {DEFAULT_PNG.format(joint='<joint>')})")
     _common(j)
     j.set_defaults(func=run_joint)
     k = kinds.add_parser("kinematics", help="seed 001: DH parameters from poses over the board, "
@@ -131,7 +132,7 @@ def run_joint(args: argparse.Namespace) -> int:
     plan, result = _session(args, lambda cal: cal.joint(
         joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
         period_deg=args.period_deg, progress=_progress("image")))
-    png = Path(args.png or DEFAULT_PNG.format(joint=joint))
+    png = png_path(args.png, f"{joint}-errors.png") if args.png else Path(DEFAULT_PNG.format(joint=joint))
     png.parent.mkdir(parents=True, exist_ok=True)
     plot(result, png)
     if args.json:

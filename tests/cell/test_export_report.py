@@ -98,3 +98,15 @@ def test_export_replaces_its_own_earlier_export_and_new_folders_get_the_umask_mo
     (out / "extra.txt").write_text("someone else's")
     assert main(["export", str(out), "--db", str(db.path)]) == 2          # not only its own now
     assert (out / "extra.txt").exists()
+
+
+def test_report_png_into_a_folder_names_the_file_it_wrote(db, tmp_path, capsys):
+    """Probe: ``--png DIR`` wrote DIR.png and printed DIR."""
+    folder = tmp_path / "plots"
+    folder.mkdir()
+    assert main(["report", "--db", str(db.path), "--png", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert f"plot written to {folder / 'accuracy.png'}" in out and (folder / "accuracy.png").stat().st_size > 1000
+    assert main(["report", "--db", str(db.path), "--png", str(tmp_path / "trend")]) == 0
+    assert f"plot written to {tmp_path / 'trend.png'}" in capsys.readouterr().out
+    assert (tmp_path / "trend.png").is_file()
