@@ -301,13 +301,22 @@ class CycleLog:
             args += (int(limit),)
         else:
             sql = f"SELECT * FROM cycles{where} ORDER BY id"
-        with self._lock:
-            rows = self._db.execute(sql, args).fetchall()
+        rows = self._read(sql, args)
         return [self._record(r) for r in rows]
 
-    def count(self) -> int:
+    def _read(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        """Rows of one query, under the lock. Damage met only now (pages the opening checks
+        did not touch) raises :class:`LogError` saying what it means, not sqlite3's error."""
         with self._lock:
-            return int(self._db.execute("SELECT COUNT(*) FROM cycles").fetchone()[0])
+            try:
+                return self._db.execute(sql, args).fetchall()
+            except sqlite3.OperationalError:
+                raise                                  # e.g. a table from a later schema: the caller's
+            except sqlite3.DatabaseError as exc:
+                raise logfile.explain(self.path, exc, "cannot read") from None
+
+    def count(self) -> int:
+        return int(self._read("SELECT COUNT(*) FROM cycles")[0][0])
 
     def delete_older_than(self, iso_time: str) -> int:
         """Retention: delete cycles finished before ``iso_time``; returns how many."""
@@ -350,8 +359,7 @@ class CycleLog:
                                " VALUES (?,?,?,?)", (vhash, name, text, utc_now()))
 
     def audit_rows(self) -> list[dict]:
-        with self._lock:
-            return [dict(r) for r in self._db.execute("SELECT * FROM audit ORDER BY id")]
+        return [dict(r) for r in self._read("SELECT * FROM audit ORDER BY id")]
 
     def verify_audit(self) -> int | None:
         """Id of the first audit row whose chain is broken, or None if the chain holds."""
@@ -379,8 +387,7 @@ class CycleLog:
             if rid != last_id + 1:
                 return rid, f"ids jump from {last_id} to {rid}: rows were removed"
             prev, last_id = r["row_hash"], rid
-        with self._lock:
-            seq = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name = 'audit'").fetchone()
+        seq = next(iter(self._read("SELECT seq FROM sqlite_sequence WHERE name = 'audit'")), None)
         if seq is not None and int(seq[0]) > last_id:
             return last_id + 1, (f"rows {last_id + 1}..{int(seq[0])} were written and are gone: "
                                  "the end of the trail was removed")

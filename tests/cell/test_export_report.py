@@ -110,3 +110,29 @@ def test_report_png_into_a_folder_names_the_file_it_wrote(db, tmp_path, capsys):
     assert main(["report", "--db", str(db.path), "--png", str(tmp_path / "trend")]) == 0
     assert f"plot written to {tmp_path / 'trend.png'}" in capsys.readouterr().out
     assert (tmp_path / "trend.png").is_file()
+
+
+@pytest.mark.parametrize("command", [["report", "--png", ""], ["export", "OUT"], ["diagnose"]])
+def test_a_log_damaged_past_its_first_pages_gives_a_message_and_exit_2(db, tmp_path, command, capsys):
+    """Probe: a corrupt SQLite file given to report, export or diagnose ended in a raw
+    traceback with exit 1. Damage in the first pages was caught at open; damage deeper in
+    the file showed only when the cycles were read."""
+    import hashlib
+    path = db.path
+    db.close()
+    raw = bytearray(path.read_bytes())
+    assert len(raw) >= 4 * 4096
+    for page in range(2, len(raw) // 4096):                 # keep the header and schema pages
+        raw[page * 4096 + 100: page * 4096 + 600] = b"\xff" * 500
+    path.write_bytes(bytes(raw))
+    before = hashlib.sha256(path.read_bytes()).hexdigest()
+    argv = [a.replace("OUT", str(tmp_path / "out")) for a in command]
+    if argv[0] == "diagnose":
+        argv.append(str(path))
+    else:
+        argv += ["--db", str(path)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "cycle log: cannot read: the database is damaged" in err and "mv " in err
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == before       # read, never written
+    assert not (tmp_path / "out").exists()
