@@ -153,21 +153,31 @@ def _one_part(cell, plc, active, part_id: int, plc_error) -> dict:
     try:
         res = plc.run_cycle(active.recipe.number, part_id, timeout_s=30.0)
     except plc_error as exc:
-        row.update(initial_error_mm=None, final_error_mm=None, moves=None, cycle_time_s=None,
-                   plc_round_trip_s=round(clock.now() - t0, 6), motion=None, fault=f"PLC: {exc}",
-                   wall_s=round(time.monotonic() - w0, 3))
-        return row
-    out = cell.controller.last_outcome
-    rec = out.record if out is not None and out.record is not None and out.record.part_id == part_id else None
-    row.update(initial_error_mm=res["initial_error_um"] / 1000.0 if res["done"] else None,
-               final_error_mm=res["final_error_um"] / 1000.0 if res["done"] else None,
-               moves=res["moves"] if res["done"] else None,
-               cycle_time_s=res["cycle_time_ms"] / 1000.0 if res["done"] else None,
-               plc_round_trip_s=round(clock.now() - t0, 6),
+        res, fault = None, f"PLC: {exc}"
+    else:
+        fault = None if res["done"] else (res.get("fault_code") or "aborted")
+    rec = _logged_record(cell, part_id)
+    if res is not None and res["done"]:          # what the PLC read: the registers of this cycle
+        figures = (res["initial_error_um"] / 1000.0, res["final_error_um"] / 1000.0, res["moves"],
+                   res["cycle_time_ms"] / 1000.0)
+    elif rec is not None:                        # faulted or cut off: what the log holds for it
+        figures = (rec.initial_error_mm, rec.verify_error_mm if rec.verify_error_mm is not None
+                   else rec.final_error_mm, rec.moves, rec.cycle_time_s)
+    else:                                        # nothing measured for this part
+        figures = (None, None, None, None)
+    row.update(zip(("initial_error_mm", "final_error_mm", "moves", "cycle_time_s"), figures))
+    row.update(plc_round_trip_s=round(clock.now() - t0, 6),
                motion=_motion(rec.motion) if rec is not None else None,
-               fault=None if res["done"] else (res.get("fault_code") or "aborted"),
-               wall_s=round(time.monotonic() - w0, 3))
+               fault=fault, wall_s=round(time.monotonic() - w0, 3))
     return row
+
+
+def _logged_record(cell, part_id: int):
+    """This part's cycle as the controller logged it (never an earlier part's), or None."""
+    out = cell.controller.last_outcome
+    if out is not None and out.record is not None and out.record.part_id == part_id:
+        return out.record
+    return None
 
 
 def _motion(m: dict) -> dict:

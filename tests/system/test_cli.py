@@ -197,3 +197,28 @@ def test_kill_9_during_motion_then_restart_reports_the_cycle_and_moves_nothing(t
     assert (last.part_id, last.status, last.fault_code) == (31337, "aborted", 503)
     assert log.open_cycle()["stage"] == "interrupted"       # until the PLC resets it
     log.close()
+
+
+def test_run_prints_a_faulted_parts_own_logged_figures(tmp_path):
+    """Probe: a faulted part printed the previous part's figures while the log held NULL and
+    'aborted' for it. pin-b faults 402 on this plant (its file says why): its row must show
+    what the log holds for that part, and the fault."""
+    from cell.cyclelog import CycleLog
+    db = tmp_path / "cell.sqlite"        # the built-in sim cell, seed 0: part 52 faults 402
+    out = subprocess.run([sys.executable, "-m", "cell.cli", "run", "--sim", "--db", str(db),
+                          "--recipe", "pin-b", "--cycles", "5", "--first-part", "50", "--json"],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 1, out.stderr[-2000:]
+    rows = json.loads(out.stdout)["cycles"]
+    log = CycleLog(db, readonly=True)
+    logged = {c.part_id: c for c in log.cycles()}
+    log.close()
+    *good, bad = rows                                   # the run stops at the first fault
+    assert good, "this seed should run some parts before the fault"
+    assert bad["fault"] == 402 and all(r["fault"] is None for r in good)
+    rec = logged[bad["part_id"]]
+    assert (rec.status, rec.fault_code) == ("fault", 402)
+    assert bad["final_error_mm"] == rec.verify_error_mm > 0.1 and bad["moves"] == rec.moves
+    assert bad["initial_error_mm"] == rec.initial_error_mm
+    for r in good:                                      # each row its own part's figures
+        assert abs(r["final_error_mm"] - logged[r["part_id"]].final_error_mm) < 0.001
