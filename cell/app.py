@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from cell import log as cell_log
 from cell.calibration.service import CellCalibrator, load_active
-from cell.clock import Clock
+from cell.clock import Clock, MonotonicClock
 from cell.config import CellConfig
 from cell.controller import CellController, ControllerSettings
 from cell.cycle import CycleRunner, CycleSettings, OffsetMemory
@@ -20,7 +20,7 @@ from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
 from cell.measure import MeasuringCamera
 from cell.recipe_store import RecipeStore
-from cell.recipes import motion_check_from_config
+from cell.recipes import all_checks, motion_check_from_config, reach_check
 from drivers.plc import open_link
 
 log = cell_log.get_logger("app")
@@ -33,10 +33,12 @@ class Cell:
     :param devices: device backend name (``hardware`` or ``sim``, see :mod:`cell.devices`).
     :param pace: simulated devices only: keep the simulated clock to wall time.
     :param clock: run on this clock instead of the devices' own (tests).
+    :param file_clock: the clock recipe edits settle on (default: wall time; tests).
     """
 
     def __init__(self, config: CellConfig, devices: str = "hardware", plc_port: int | None = None,
-                 jobs: bool = True, pace: bool = False, clock: Clock | None = None):
+                 jobs: bool = True, pace: bool = False, clock: Clock | None = None,
+                 file_clock: Clock | None = None):
         self.config = config
         # certificates before anything is opened: a bad one names its field and stops here
         tls = config.plc.tls.listener() if config.plc.tls.enabled else None
@@ -68,7 +70,11 @@ class Cell:
         self.plc_port = config.plc.port if plc_port is None else plc_port
         r = config.recipes
         self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,
-                                   max_bytes=r.max_bytes, settle_s=r.settle_s, clock=self.clock)
+                                   max_bytes=r.max_bytes, settle_s=r.settle_s,
+                                   clock=file_clock or MonotonicClock())
+        # ^ wall time, not the cell's: editors write files in wall time. On a simulated clock
+        # that runs ahead (run --sim), settle_s of *simulated* time passed in milliseconds and a
+        # file left half-written for a moment was taken as complete
         self.with_jobs = jobs
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
@@ -85,7 +91,9 @@ class Cell:
             self.calibrator.measuring_camera = camera
             # recipes are checked against these stations: SYNC support, and the segment time
             # against each station's delay (longest frames on the wire + measured latency)
-            self.recipes.check, _ = motion_check_from_config(self.motion.cfg, self.motion.latency_s)
+            # and against the robot: every position a cycle goes to must be reachable
+            motion, _ = motion_check_from_config(self.motion.cfg, self.motion.latency_s)
+            self.recipes.check = all_checks(motion, reach_check(self.robot, self.config.robot.elbow))
             c = self.config.cycle
             runner = self.runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog,
                                  CycleSettings(c.move_timeout_s, c.reach_tol_deg, c.tool_phi_deg,

@@ -38,6 +38,7 @@ from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
 from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, line_of, parse_recipe
+from cell.yamlio import decode_utf8
 
 log = get_logger("recipes")
 
@@ -208,7 +209,7 @@ class RecipeStore:
         try:
             if error:
                 raise ConfigError(error)
-            text = _decode(data, str(path))
+            text = decode_utf8(data, str(path))
             recipe = parse_recipe(text, str(path))
             if self.check is not None:
                 self.check(recipe, text, str(path))
@@ -250,15 +251,6 @@ class RecipeStore:
 
 def _signature(st: os.stat_result) -> tuple:
     return (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_mode)
-
-
-def _decode(data: bytes, source: str) -> str:
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ConfigError(f"{source}:{line}: cannot read: not UTF-8 text (byte 0x{data[exc.start]:02x} "
-                          f"at offset {exc.start})") from None
 
 
 def _owner(path: Path) -> str:

@@ -192,5 +192,43 @@ def motion_check_from_config(stations, latency_s=None) -> tuple[CellCheck, bool]
     return motion_check(all(s.supports_sync for s in stations.stations), lam), not measured
 
 
+def reach_check(robot, elbow: str = "right") -> CellCheck:
+    """The cell's reach check: the part's nominal position, every point of its search
+    window's rim (8 directions) and the approach position must be reachable with the
+    robot's elbow and joint limits (what a cycle needs; else it faults 401 at run time).
+    ``robot``: a :class:`cell.kinematics.Scara`."""
+    import math
+
+    from cell.errors import KinematicsError
+
+    def check(recipe: Recipe, text: str, source: str) -> None:
+        x, y = recipe.part.nominal_xy_mm
+        r = recipe.part.search_radius_mm
+        ox, oy = recipe.approach.offset_mm
+        points = [("part.nominal_xy_mm", "the nominal part position", x, y)]
+        points += [("part.search_radius_mm", f"the search window's rim at {a}°",
+                    x + r * math.cos(math.radians(a)), y + r * math.sin(math.radians(a)))
+                   for a in range(0, 360, 45)]
+        points.append(("approach.offset_mm", "the approach position", x + ox, y + oy))
+        for field, what, px, py in points:
+            try:
+                robot.ik_planar(px, py, elbow)
+            except KinematicsError as exc:
+                key = field.split(".")
+                line = node_line(yaml.compose(text, Loader=yaml.SafeLoader), tuple(key))
+                raise ConfigError(f"{source}:{line}: {field}: {what} ({px:.1f}, {py:.1f}) mm cannot "
+                                  f"be reached with the {elbow} elbow: {exc}") from None
+    return check
+
+
+def all_checks(*checks: CellCheck | None) -> CellCheck:
+    """One check that runs ``checks`` in order (None ones skipped)."""
+    def check(recipe: Recipe, text: str, source: str) -> None:
+        for c in checks:
+            if c is not None:
+                c(recipe, text, source)
+    return check
+
+
 def export_schema(path: Path | str) -> None:
     Path(path).write_text(json.dumps(recipe_schema(), indent=2) + "\n", encoding="utf-8")

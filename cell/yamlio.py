@@ -95,6 +95,12 @@ def parse_yaml(text: str, source: str, kind: str = "file") -> tuple[Any, yaml.No
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
+        if isinstance(exc, yaml.reader.ReaderError):     # a character YAML refuses: no mark
+            pos = int(exc.position)
+            line = f":{text.count(chr(10), 0, pos) + 1}"
+            code = ord(exc.character) if isinstance(exc.character, str) else int(exc.character)
+            problem = (f"character code {code:#04x} at column {pos - text.rfind(chr(10), 0, pos)} "
+                       "is not allowed in YAML text (binary data, or a control character?)")
         raise ConfigError(f"{source}{line}: malformed YAML: {problem}") from None
     if data is None:
         raise ConfigError(f"{source}:1: (top level): the {kind} is empty")
@@ -119,14 +125,28 @@ def parse_model(text: str, model: type[M], source: str, kind: str = "file") -> M
 
 
 def read_text(path: Path | str, kind: str = "file") -> str:
-    """The file's text; ConfigError if it is missing, unreadable or not UTF-8."""
+    """The file's text; ConfigError if it is missing, unreadable or not UTF-8 (naming the
+    line and column of the first bad byte)."""
     p = Path(path)
     try:
-        return p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except FileNotFoundError:
         raise ConfigError(f"{p}: {kind} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read {kind}: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read {kind}: {exc.strerror or exc}") from None
+    return decode_utf8(data, str(p))
+
+
+def decode_utf8(data: bytes, source: str) -> str:
+    """``data`` as UTF-8 text; ConfigError naming ``source``, line and column of the first
+    byte that is not UTF-8."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ConfigError(f"{source}:{line}: cannot read: not UTF-8 text (byte 0x{data[exc.start]:02x} "
+                          f"at column {column}; save the file as UTF-8)") from None
 
 
 def load_model(path: Path | str, model: type[M], kind: str = "file") -> M:

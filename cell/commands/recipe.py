@@ -39,24 +39,68 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _check(path: Path, cell_check=None) -> tuple[str, str | None]:
-    """(hash, error or None) for one recipe file."""
+def _check(path: Path, cell_check=None):
+    """(hash, error or None, recipe or None, text) for one recipe file."""
     from cell.recipes import content_hash, parse_recipe
+    from cell.yamlio import read_text
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        return "", f"{path}: cannot read: {exc}"
+        text = read_text(path, "recipe")
+    except ConfigError as exc:
+        return "", str(exc), None, ""
     try:
         recipe = parse_recipe(text, str(path))
         if cell_check is not None:
             cell_check(recipe, text, str(path))
     except ConfigError as exc:
-        return content_hash(text), str(exc)
-    return content_hash(text), None
+        return content_hash(text), str(exc), None, text
+    return content_hash(text), None, recipe, text
+
+
+def _cell_checks(config: str | None):
+    """The checks the controller makes against its cell: the robot's reach (the config's
+    robot, else the built-in one) and, with a config, the joint stations."""
+    from cell.config import CellConfig
+    from cell.kinematics import Scara
+    from cell.recipes import all_checks, motion_check_from_config, reach_check
+    cfg = CellConfig.load(config) if config else CellConfig()
+    r = cfg.robot
+    robot = Scara(r.geometry) if r.geometry is not None else Scara.preset(r.preset)
+    motion, complete = motion_check_from_config(cfg.stations) if config else (None, True)
+    if config and not complete:
+        print(f"{config}: the stations' latency is measured at start-up; the segment time is "
+              "checked against the wire time only (the controller checks again when it starts)")
+    return all_checks(motion, reach_check(robot, r.elbow))
+
+
+def _number_clashes(checked: dict[Path, tuple], rdir: Path) -> dict[Path, str]:
+    """A recipe number used by two recipes (the controller takes only one of them): the
+    error for each file of the pair that was checked, naming the other file."""
+    from cell.recipes import line_of, parse_recipe
+    from cell.yamlio import read_text
+    numbers: dict[Path, tuple[int, str]] = {}
+    for f, (_, err, rec, _) in checked.items():
+        if rec is not None:
+            numbers[f.resolve()] = (rec.number, rec.name)
+    for f in sorted(rdir.glob("*.yaml")) if rdir.is_dir() else []:
+        if f.resolve() not in numbers and not f.name.startswith("."):
+            try:
+                rec = parse_recipe(read_text(f, "recipe"), str(f))
+            except ConfigError:
+                continue
+            numbers[f.resolve()] = (rec.number, rec.name)
+    out = {}
+    for f, (_, err, rec, text) in checked.items():
+        if rec is None:
+            continue
+        other = [g for g, (n, name) in numbers.items() if n == rec.number and g != f.resolve()]
+        if other:
+            out[f] = (f"{f}:{line_of(text, 'number')}: number: recipe number {rec.number} is also "
+                      f"used by {other[0]}; the controller would take only one of them")
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
-    from cell.recipes import parse_recipe, recipe_schema
+    from cell.recipes import recipe_schema
     rdir = Path(args.dir)
     if args.recipe_cmd == "schema":
         text = json.dumps(recipe_schema(), indent=2) + "\n"
@@ -70,22 +114,16 @@ def run(args: argparse.Namespace) -> int:
                  else sorted(rdir.glob("*.yaml")))
         if not files:
             raise ConfigError(f"{rdir}: no recipe files (*.yaml)")
-        cell_check = None
-        if args.recipe_cmd == "validate" and args.config:
-            from cell.config import CellConfig
-            from cell.recipes import motion_check_from_config
-            cell_check, complete = motion_check_from_config(CellConfig.load(args.config).stations)
-            if not complete:
-                print(f"{args.config}: the stations' latency is measured at start-up; the segment time is "
-                      "checked against the wire time only (the controller checks again when it starts)")
+        cell_check = _cell_checks(args.config) if args.recipe_cmd == "validate" else None
+        checked = {f: _check(f, cell_check) for f in files}
+        clashes = _number_clashes(checked, rdir)
         bad = 0
-        for f in files:
-            h, err = _check(f, cell_check)
+        for f, (h, err, rec, _) in checked.items():
+            err = err or clashes.get(f)
             bad += err is not None
             if args.recipe_cmd == "list":
-                rec = None if err else parse_recipe(f.read_text(encoding="utf-8"), str(f))
                 print(f"{f.stem:<20} {rec.number if rec else '-':>4}  {h[:12]:<12}  "
-                      f"{'ok' if rec else 'INVALID'}  {rec.description if rec else err}")
+                      f"{'ok' if err is None else 'INVALID'}  {rec.description if err is None else err}")
             else:
                 print(f"{f}: ok ({h[:12]})" if err is None else err)
         return 2 if (bad and args.recipe_cmd == "validate") else 0
@@ -93,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         path = rdir / f"{args.name}.yaml"
         if not path.is_file():
             raise ConfigError(f"{path}: no such recipe")
-        h, err = _check(path)
+        h, err, _, _ = _check(path)
         print(f"# {path}  sha256 {h}  {'valid' if err is None else 'INVALID: ' + err}")
         print(path.read_text(encoding="utf-8"), end="")
         return 0

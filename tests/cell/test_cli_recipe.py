@@ -81,3 +81,42 @@ def test_validate_against_the_cells_stations_names_the_motion_field(rdir, tmp_pa
     assert main(["recipe", "--dir", str(rdir), "validate", "--config", str(tmp_path / "cell.yaml")]) == 2
     out = capsys.readouterr().out
     assert "motion.sync: the joint stations do not support SYNC" in out and f"{recipe}:" in out
+
+
+def test_validate_refuses_two_recipes_with_one_number(rdir, capsys):
+    """Probe: validate passed two recipes with the same number, which the controller then
+    rejected."""
+    text = (rdir / "bracket-a.yaml").read_text()
+    twin = rdir / "twin.yaml"
+    twin.write_text(text.replace("name: bracket-a", "name: twin"))
+    assert main(["recipe", "--dir", str(rdir), "validate", str(twin)]) == 2
+    out = capsys.readouterr().out
+    assert f"{twin}:4: number: recipe number 1 is also used by {(rdir / 'bracket-a.yaml').resolve()}" in out
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2      # both files of the pair
+    assert capsys.readouterr().out.count("is also used by") == 2
+
+
+def test_validate_refuses_a_position_the_robot_cannot_reach(rdir, capsys):
+    """Probe: validate passed a nominal position out of reach, which faulted 401 at run time."""
+    path = rdir / "bracket-a.yaml"
+    path.write_text(path.read_text().replace("[250.0, 930.0]", "[900.0, 930.0]"))
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
+    out = capsys.readouterr().out
+    assert f"{path}:7: part.nominal_xy_mm: the nominal part position (900.0, 930.0) mm cannot be reached" in out
+    assert "out of reach" in out
+    path.write_text(path.read_text().replace("[900.0, 930.0]", "[0.0, 998.5]"))    # the rim leaves reach
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
+    assert "part.search_radius_mm: the search window's rim" in capsys.readouterr().out
+
+
+def test_validate_names_the_line_of_bytes_that_are_not_text(rdir, capsys):
+    """Probe: non-UTF-8 recipe bytes gave no line number."""
+    path = rdir / "bracket-a.yaml"
+    raw = path.read_bytes().replace(b"fiducial_radius_mm: 1.5", b"fiducial_radius_mm: 1.5 \xff")
+    path.write_bytes(raw)
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
+    out = capsys.readouterr().out
+    assert f"{path}:8: cannot read: not UTF-8 text (byte 0xff at column 27" in out
+    path.write_bytes(raw.replace(b" \xff", b"\x00"))
+    assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
+    assert f"{path}:8: malformed YAML: character code 0x00 at column 26" in capsys.readouterr().out

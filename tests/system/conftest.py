@@ -49,7 +49,7 @@ SLOW_RECIPE = FAST_RECIPE.replace("name: fast-a", "name: slow-a").replace("numbe
     .replace("z_mm: -22.0", "z_mm: -60.0").replace("joint_speed_deg_s: 240.0", "joint_speed_deg_s: 20.0")
 
 
-def make_config(tmp_path: Path, **plc) -> CellConfig:
+def make_config(tmp_path: Path, settle_s: float = 0.0, **plc) -> CellConfig:
     rdir = tmp_path / "recipes"
     shutil.copytree(REPO / "recipes", rdir)
     (rdir / "fast-a.yaml").write_text(FAST_RECIPE)
@@ -58,7 +58,9 @@ def make_config(tmp_path: Path, **plc) -> CellConfig:
     return cfg.model_copy(update={
         "plc": cfg.plc.model_copy(update={"host": "127.0.0.1", "heartbeat_timeout_s": 0.4, **plc}),
         "log": cfg.log.model_copy(update={"path": str(tmp_path / "cell.sqlite")}),
-        "recipes": cfg.recipes.model_copy(update={"directory": str(rdir)}),
+        # edits settle on wall time; these tests write each file in one go and wait on the
+        # simulated clock, so they take an edit at the next refresh
+        "recipes": cfg.recipes.model_copy(update={"directory": str(rdir), "settle_s": settle_s}),
         "controller": cfg.controller.model_copy(update={"recipe_refresh_s": 0.05}),
     })
 
@@ -67,9 +69,10 @@ class Harness:
     """A started cell plus a connected simulated PLC, on one simulated clock that the test
     thread keeps too (until :meth:`close`)."""
 
-    def __init__(self, tmp_path: Path, **plc):
+    def __init__(self, tmp_path: Path, settle_s: float = 0.0, file_clock=None, **plc):
         self.tmp_path = tmp_path
-        self.config = make_config(tmp_path, **plc)
+        self.file_clock = file_clock
+        self.config = make_config(tmp_path, settle_s, **plc)
         self.clock = VirtualClock()
         self._attached = self.clock.attach("test")
         self._attached.__enter__()
@@ -81,7 +84,8 @@ class Harness:
 
     def new_cell(self, port: int = 0) -> Cell:
         """A cell on this harness's clock (a restart builds a second one on the same port)."""
-        return Cell(self.config, devices="sim", plc_port=port, jobs=False, clock=self.clock)
+        return Cell(self.config, devices="sim", plc_port=port, jobs=False, clock=self.clock,
+                    file_clock=self.file_clock)
 
     @property
     def controller(self):

@@ -259,3 +259,43 @@ def test_health_job_sees_drives_and_camera(harness):
     assert res["error"] == 1 and res["fault_code"] == Fault.CAMERA_FAILED
     report = jobs.health()
     assert not report["camera_open"] and report["camera_error"] and report["station_fault"]
+
+
+def test_a_half_written_recipe_is_not_taken_however_fast_simulated_time_runs(tmp_path):
+    """Probe: while cycles ran, 4 truncated recipe files (an editor saving in place) became
+    the active version. The settle time ran on the simulated clock, which races ahead of
+    the wall clock, so a file left half-written for a moment looked stable. Edits settle on
+    the file clock (wall time in the product; held still here) now."""
+    from cell.clock import ManualClock
+    from tests.system.conftest import Harness
+    files = ManualClock(0.0)
+    h = Harness(tmp_path, settle_s=1.0, file_clock=files)
+    try:
+        path = h.tmp_path / "recipes" / "fast-a.yaml"
+        before = h.cell.recipes.active["fast-a"].hash
+        full = path.read_text()
+        path.write_text(full[:full.index("verify:")])      # valid on its own: verify has defaults
+        h.sleep(5.0)                                        # 100 refreshes of simulated time ...
+        assert h.cell.recipes.active["fast-a"].hash == before   # ... but no wall time: not taken
+        path.write_text(full.replace("tolerance_mm: 0.08", "tolerance_mm: 0.07"))   # the rest
+        h.sleep(0.2)
+        files.advance(1.5)                                  # now the whole file has settled
+        h.wait(lambda: h.cell.recipes.active["fast-a"].hash != before, what="the whole edit")
+        assert h.cell.recipes.active["fast-a"].recipe.verify.tolerance_mm == 0.07
+        assert h.cycle()["done"] == 1
+    finally:
+        h.close()
+
+
+def test_an_edit_the_robot_cannot_reach_is_refused_before_it_runs(harness):
+    """Probe: a nominal position out of reach was activated and faulted 401 at run time."""
+    h = harness
+    path = h.tmp_path / "recipes" / "fast-a.yaml"
+    good = h.cell.recipes.active["fast-a"].hash
+    text = path.read_text()
+    x, y = h.cell.recipes.active["fast-a"].recipe.part.nominal_xy_mm
+    path.write_text(text.replace(f"[{x}, {y}]", f"[{x + 700.0}, {y}]"))
+    h.wait(lambda: h.plc.inputs()["recipe_status"] == 2, what="recipe_status 2")
+    rejected = [a for a in h.cell.cyclelog.audit_rows() if a["action"] == "recipe_reject"][-1]
+    assert "part.nominal_xy_mm" in rejected["result"] and "out of reach" in rejected["result"]
+    assert h.cell.recipes.active["fast-a"].hash == good and h.cycle()["done"] == 1
