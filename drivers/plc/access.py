@@ -6,9 +6,10 @@ time-outs use the loop's clock, since they protect the operating system's resour
 the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
 
 * an address outside :attr:`AccessPolicy.allow` is closed at once, before any request;
-* at :attr:`AccessPolicy.max_connections` the connection idle the longest is shed to make
-  room, never the owner's (the PLC that owns the link, :mod:`drivers.plc.server`); with
-  nothing to shed the new one is closed;
+* at :attr:`AccessPolicy.max_connections` one connection is shed to make room, never the
+  owner's (the PLC that owns the link, :mod:`drivers.plc.server`): first those that never
+  sent a well-formed request, then the one idle the longest; with nothing to shed the new
+  one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
   that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
   of step).
@@ -88,6 +89,7 @@ class Peer:
     close: Callable[[], None] = field(default=lambda: None, repr=False)
     role: str | None = None
     rights: frozenset[str] | None = None
+    asked: int = 0             #: well-formed requests received on this connection
 
     def __str__(self) -> str:
         addr = f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
@@ -155,7 +157,11 @@ class ConnectionGuard:
             self.warn.warning("plc_client_not_allowed", client=f"{host}:{port}")
             return None
         if len(self.peers) >= self.policy.max_connections:
-            idle = sorted((p for p in self.peers.values() if not self.is_owner(p)), key=lambda p: p.last)
+            # connections that never sent a well-formed request go first (idle sockets,
+            # half frames: what a storm leaves), then the longest idle; so a new client
+            # that asks at once is not shed by the next storm connection
+            idle = sorted((p for p in self.peers.values() if not self.is_owner(p)),
+                          key=lambda p: (p.asked > 0, p.last))
             if not idle:
                 self.refused += 1
                 self.warn.warning("plc_connection_refused_at_cap", client=f"{host}:{port}",

@@ -53,7 +53,8 @@ def _log():
 
 MBAP_LEN = 7            # tid(2) pid(2) length(2) unit(1)
 MAX_PDU = 253           # spec: ADU <= 260 bytes on TCP
-MAX_PENDING = 1024      # requests queued on one connection before it is closed
+MAX_PENDING = 64        # requests queued on one connection before it is closed
+MAX_UNREAD = 64 * 1024  # answer bytes a client has left unread before it is closed
 ILLEGAL_FUNCTION, ILLEGAL_DATA_ADDRESS, ILLEGAL_DATA_VALUE, SERVER_DEVICE_FAILURE = 1, 2, 3, 4
 
 
@@ -184,9 +185,12 @@ class ConformantRequestHandler(ServerRequestHandler):
 
     def __init__(self, owner, trace_packet, trace_pdu, trace_connect):
         super().__init__(owner, trace_packet, trace_pdu, trace_connect)
-        # We consume every byte ourselves; lift pymodbus's 264-byte receive cap, which
-        # would silently drop a segment carrying several pipelined requests.
-        self.max_buffer_size = 1 << 16
+        # We consume every byte ourselves; lift pymodbus's receive cap, which silently drops
+        # a read bigger than it: 516 bytes would drop a segment of pipelined requests, and
+        # 64 KiB still dropped asyncio's reads (up to 256 KiB) under a flood of pipelined
+        # requests, putting the stream out of step (found by bench/bench_link_storm.py).
+        # Nothing accumulates here: every read is consumed whole by :class:`MbapStream`.
+        self.max_buffer_size = 1 << 20
         self._stream = MbapStream()
         self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
         self._worker: asyncio.Task | None = None
@@ -232,6 +236,8 @@ class ConformantRequestHandler(ServerRequestHandler):
             return len(data)   # closing (or refused at connect): ignore whatever still arrives
         for frame in self._stream.feed(data):
             self._queue.put_nowait(frame)
+            if self.peer is not None and check_request(frame.pdu) is None:
+                self.peer.asked += 1      # a well-formed request: shed such a client last
         if self.peer is not None:
             self.guard.activity(self.peer, self._stream.pending)
         if self._queue.qsize() > MAX_PENDING and self._stream.broken is None:
@@ -268,7 +274,14 @@ class ConformantRequestHandler(ServerRequestHandler):
     async def _serve(self) -> None:
         while True:
             frame = await self._queue.get()
-            if frame is None:
+            if frame is None or self._gone():
+                self.close()
+                return
+            if self.transport.get_write_buffer_size() > MAX_UNREAD:
+                # a client that sends without reading its answers: they would pile up in
+                # memory with no bound (asyncio keeps every write); close it
+                _warn("modbus_client_not_reading", self.guard, client=str(self.peer or ""),
+                      unread_bytes=self.transport.get_write_buffer_size())
                 self.close()
                 return
             try:
@@ -294,8 +307,13 @@ class ConformantRequestHandler(ServerRequestHandler):
         CURRENT_PEER.set(self.peer)   # the datastore's action decides writes by who sent them
         await self.handle_request()   # pymodbus: datastore_update + send, exceptions -> 04
 
+    def _gone(self) -> bool:
+        """The connection is closed or closing: nothing more is answered on it (asyncio logs
+        a warning for every write to a lost connection, unthrottled)."""
+        return self.transport is None or self.transport.is_closing()
+
     def _send_raw(self, adu: bytes) -> None:
-        if self.transport is not None:
+        if not self._gone():
             self.send(adu)
 
 

@@ -200,3 +200,54 @@ async def _tasks() -> list[str]:
     import asyncio
     return [f"{t.get_name()} {t.get_coro().__qualname__}" for t in asyncio.all_tasks()
             if t is not asyncio.current_task() and not t.done()]
+
+
+def test_a_client_that_sends_without_reading_is_closed_and_the_stream_stays_in_step(capsys):
+    """Storm bench: fuzzers that never read their answers made the server's memory grow
+    (asyncio buffers every answer) and left it high; and a read over 64 KiB was silently
+    dropped by pymodbus, putting the stream out of step ("MBAP protocol id 14"). Such a
+    client is closed now, for what it is (too many requests pending, or answers unread)."""
+    link = _link()
+    try:
+        s = _raw(link.port)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        burst = b"".join(struct.pack(">HHHBBHH", i, 0, 6, 1, 3, 0, 125) for i in range(500))
+        try:
+            for _ in range(100):
+                s.sendall(burst)
+        except OSError:
+            pass                                              # closed under our feet: expected
+        assert _closed(s)
+        assert link.guard.peers == {}
+        s.close()
+        err = capsys.readouterr().err
+        assert "requests pending" in err or "modbus_client_not_reading" in err
+        assert "protocol id" not in err
+    finally:
+        link.stop()
+
+
+def test_a_storm_of_idle_sockets_cannot_shed_a_client_that_asks():
+    """Storm bench: at the cap, a new client was shed by the next storm connection before
+    its request was served (3 of 6 served). Connections that never sent a well-formed
+    request are shed first now."""
+    link = _link(max_connections=4)
+    try:
+        reader = _raw(link.port)
+        reader.sendall(_read_hb())
+        assert len(reader.recv(64)) == 11                       # served once: a known client
+        storm = [_raw(link.port) for _ in range(20)]            # idle sockets, never a request
+        for _ in range(3):
+            reader.sendall(_read_hb())
+            assert len(reader.recv(64)) == 11
+        late = _raw(link.port)                                  # a new client, asking at once
+        late.sendall(_read_hb())
+        assert len(late.recv(64)) == 11
+        storm += [_raw(link.port) for _ in range(5)]
+        late.sendall(_read_hb())
+        assert len(late.recv(64)) == 11
+        assert sum(_closed(s, 2.0) for s in storm) >= len(storm) - 2
+        for s in storm + [reader, late]:
+            s.close()
+    finally:
+        link.stop()

@@ -1,0 +1,384 @@
+"""The PLC link under attack: fuzz and connection storms against ``cellctl serve --sim``.
+
+One run, four phases on one served cell (a ``serve --sim`` child, clock paced to wall time,
+product defaults for the link: heartbeat time-out 1 s, 8 connections, 60 s idle, 5 s half
+frame):
+
+1. **quiet**: the control. The simulated PLC (``cell.sim.plc.SimPlc``, a real Modbus
+   client in a thread here) runs cycles back to back and beats every scan; a legitimate
+   reader (a raw socket, FC3 of 20 registers) measures its round trips.
+2. **fuzz**: ``--attackers`` processes send mutated frames as fast as they can (random
+   bytes; valid MBAP headers with random PDUs; bad lengths; writes from a client that does
+   not own the link), reconnecting whenever the server closes them.
+3. **connections**: the same processes open ``--sockets`` idle connections each, leave
+   half frames (slowloris) and reconnect as they are shed. Every second a *new*
+   legitimate client connects and reads once; it counts as served if answered within 2 s.
+Phases 2 and 3 are repeated ``--rounds`` times (default 2), so the memory table tells a
+high-water mark (reached in round 1, then flat) from a leak (growing every round).
+
+4. **settle**: 5 s with no attack, then the server's memory is read again.
+
+Printed, as Markdown tables: the reader's p50/p99 per phase and its ratio to the quiet
+control of the same run; false watchdog trips (fault 101 or ``plc_link_ok`` low while the
+PLC beats: the aim is 0) and the PLC's cycles per phase; the server's resident memory
+(VmRSS) before, after each storm and after settling; new clients served during the storm.
+Attackers run in their own processes so this process's GIL does not colour the latencies.
+
+    .venv/bin/python bench/bench_link_storm.py               # 20 s per phase
+    .venv/bin/python bench/bench_link_storm.py --quick       # 6 s per phase
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import random
+import resource
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cell.clock import MonotonicClock  # noqa: E402
+from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
+from drivers.plc.register_map import PLC_MAP  # noqa: E402
+
+FC3 = struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 0, 20)
+
+ATTACKER = r'''
+import os, random, resource, socket, struct, sys, time
+mode, port, seconds, nsock, seed = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+rnd = random.Random(seed)
+end = time.monotonic() + seconds
+sent = conns = 0
+
+def frame():
+    k = rnd.randrange(5)
+    if k == 0:
+        return os.urandom(rnd.randrange(1, 300))                      # noise
+    pdu = bytes([rnd.choice([3, 6, 16, 5, 15, 1, 23, 0x41, 0x90, rnd.randrange(256)])]) + os.urandom(rnd.randrange(0, 40))
+    if k == 1:
+        return struct.pack(">HHHB", rnd.randrange(65536), 0, len(pdu) + 1, 1) + pdu   # well framed, random PDU
+    if k == 2:
+        return struct.pack(">HHHB", rnd.randrange(65536), rnd.randrange(65536), rnd.randrange(65536), 1) + pdu  # bad header
+    if k == 3:                                                        # a write: this client owns nothing
+        return struct.pack(">HHHBBHH", rnd.randrange(65536), 0, 6, 1, 6, rnd.choice([1, 11, 20, 24]), rnd.randrange(65536))
+    return struct.pack(">HHHB", 1, 0, 200, 1) + pdu[:3]              # a frame that never completes
+
+def connect():
+    global conns
+    s = socket.socket()
+    s.settimeout(2)
+    s.connect(("127.0.0.1", port))
+    s.setblocking(False)
+    conns += 1
+    return s
+
+if mode == "fuzz":
+    socks = []
+    while time.monotonic() < end:
+        try:
+            while len(socks) < 4:
+                socks.append(connect())
+            for s in list(socks):
+                try:
+                    s.send(frame())
+                    sent += 1
+                    try:
+                        s.recv(65536)
+                    except BlockingIOError:
+                        pass
+                except OSError:
+                    socks.remove(s)
+                    s.close()
+        except OSError:
+            time.sleep(0.01)
+else:                                                                 # connection storm
+    socks = []
+    while time.monotonic() < end:
+        try:
+            while len(socks) < nsock:
+                s = connect()
+                if rnd.random() < 0.3:
+                    s.send(struct.pack(">HHHB", 1, 0, 200, 1))        # slowloris: a header, then nothing
+                    sent += 1
+                socks.append(s)
+        except OSError:
+            time.sleep(0.05)
+        for s in list(socks):
+            try:
+                if s.recv(1) == b"":
+                    raise OSError("closed")
+            except BlockingIOError:
+                pass
+            except OSError:
+                socks.remove(s)
+                s.close()
+        time.sleep(0.05)
+print(sent, conns)
+'''
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _recv_exact(s: socket.socket, n: int) -> bytes:
+    out = b""
+    while len(out) < n:
+        chunk = s.recv(n - len(out))
+        if not chunk:
+            raise ConnectionError("closed")
+        out += chunk
+    return out
+
+
+def _read_once(s: socket.socket) -> None:
+    s.sendall(FC3)
+    head = _recv_exact(s, 7)
+    _recv_exact(s, struct.unpack(">H", head[4:6])[0] - 1)
+
+
+class Reader(threading.Thread):
+    """The legitimate reader: FC3 round trips, one at a time, ~every 5 ms; reconnects if shed
+    (an idle reader would be: it is not the owner)."""
+
+    def __init__(self, port: int):
+        super().__init__(daemon=True)
+        self.port, self.samples, self.errors, self.phase = port, {}, {}, "quiet"
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        s = None
+        while not self.stop.is_set():
+            try:
+                if s is None:
+                    s = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+                t0 = time.perf_counter()
+                _read_once(s)
+                self.samples.setdefault(self.phase, []).append(time.perf_counter() - t0)
+            except OSError:
+                self.errors[self.phase] = self.errors.get(self.phase, 0) + 1
+                if s is not None:
+                    s.close()
+                s = None
+            time.sleep(0.005)
+        if s is not None:
+            s.close()
+
+
+class Plc(threading.Thread):
+    """The simulated PLC running cycles back to back, counting done, faulted and the false
+    trips: fault 101 or plc_link_ok low, seen while it beats."""
+
+    def __init__(self, port: int, recipe: int):
+        super().__init__(daemon=True)
+        self.plc = SimPlc("127.0.0.1", port, clock=MonotonicClock(), timeout_s=5.0)
+        self.recipe, self.phase = recipe, "quiet"
+        self.done, self.faulted, self.trips = {}, {}, {}
+        self.stop = threading.Event()
+
+    def _count(self, table: dict) -> None:
+        table[self.phase] = table.get(self.phase, 0) + 1
+
+    def run(self) -> None:
+        self.plc.start()
+        part = 1
+        while not self.stop.is_set():
+            try:
+                res = self.plc.run_cycle(self.recipe, part, timeout_s=15.0)
+                self._count(self.done if res["done"] else self.faulted)
+            except SimPlcError:
+                self._count(self.faulted)
+            img = self.plc.inputs()
+            if img["fault_code"] == 101 or not PLC_MAP.bits("status_word", img["status_word"])["plc_link_ok"]:
+                self._count(self.trips)
+            if img["fault_code"]:
+                try:
+                    self.plc.reset(timeout_s=10.0)
+                except SimPlcError:
+                    pass
+            part += 1
+        self.plc.stop()
+
+
+def _watch_trips(plc: Plc, stop: threading.Event) -> None:
+    """Between cycles too: poll the PLC's image every 50 ms for a tripped watchdog."""
+    seen = False
+    while not stop.is_set():
+        try:
+            img = plc.plc.inputs()
+        except Exception:  # noqa: BLE001 -- not started yet
+            time.sleep(0.05)
+            continue
+        tripped = img["fault_code"] == 101
+        if tripped and not seen:
+            plc._count(plc.trips)
+        seen = tripped
+        time.sleep(0.05)
+
+
+def _new_clients(port: int, seconds: float) -> tuple[int, int, float]:
+    served = tried = 0
+    worst = 0.0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        tried += 1
+        t0 = time.monotonic()
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=2) as s:
+                s.settimeout(2)
+                _read_once(s)
+            served += 1
+            worst = max(worst, time.monotonic() - t0)
+        except OSError:
+            pass
+        time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
+    return served, tried, worst
+
+
+def _attack(mode: str, port: int, seconds: float, n: int, sockets: int, seed: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", ATTACKER, mode, str(port), str(seconds), str(sockets),
+                              str(seed + i)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            for i in range(n)]
+
+
+def _collect(procs: list[subprocess.Popen]) -> tuple[int, int]:
+    sent = conns = 0
+    for p in procs:
+        out, _ = p.communicate(timeout=120)
+        a, b = (out.split() + ["0", "0"])[:2]
+        sent, conns = sent + int(a), conns + int(b)
+    return sent, conns
+
+
+def _pct(xs: list[float], q: float) -> float:
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, int(q * len(xs)))] * 1000 if xs else float("nan")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=20.0, help="length of each phase (default 20)")
+    ap.add_argument("--quick", action="store_true", help="6 s phases")
+    ap.add_argument("--attackers", type=int, default=3, help="attacking processes (default 3)")
+    ap.add_argument("--sockets", type=int, default=100, help="idle connections per attacker (default 100)")
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="fuzz + connection storms, one after the other, this often (default 2): "
+                         "memory that is flat grows in the first round at most")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    seconds = 6.0 if args.quick else args.seconds
+    tmp = Path(tempfile.mkdtemp(prefix="link-storm-"))
+    port = _free_port()
+    cfg = tmp / "cell.yaml"
+    shutil.copytree(ROOT / "recipes", tmp / "recipes")
+    cfg.write_text(f"sim:\n  plant: {ROOT / 'deploy/plants/default.yaml'}\nplc:\n  host: 127.0.0.1\n"
+                   f"log:\n  path: {tmp / 'cell.sqlite'}\n  format: json\nrecipes:\n  directory: {tmp / 'recipes'}\n")
+    print(f"`{' '.join([Path(sys.executable).name] + sys.argv)}`  \n"
+          f"{platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.2f} at start; phases of {seconds:.0f} s; "
+          f"{args.attackers} attacking processes\n")
+    server = subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(cfg),
+                               "--port", str(port)], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=open(tmp / "serve.log", "w"), text=True)
+    attackers: list[subprocess.Popen] = []
+    plc = reader = None
+    stop_watch = threading.Event()
+    try:
+        if "serving" not in server.stdout.readline():
+            raise SystemExit(f"serve did not start; see {tmp / 'serve.log'}")
+        plc, reader = Plc(port, recipe=1), Reader(port)
+        plc.start()
+        time.sleep(2.0)                                   # the PLC owns the link, first cycle runs
+        reader.start()
+        threading.Thread(target=_watch_trips, args=(plc, stop_watch), daemon=True).start()
+        rss = {"before": _rss_mb(server.pid)}
+        time.sleep(seconds)                               # 1. quiet
+        rss["after quiet"] = _rss_mb(server.pid)
+        traffic, served = {}, [0, 0, 0.0]
+        for rnd in range(1, args.rounds + 1):
+            for phase in ("fuzz", "connections"):
+                plc.phase = reader.phase = phase
+                attackers = _attack(phase if phase == "fuzz" else "conn", port, seconds, args.attackers,
+                                    args.sockets, args.seed + 100 * rnd)
+                if phase == "connections":
+                    ok, tried, worst = _new_clients(port, seconds)
+                    served = [served[0] + ok, served[1] + tried, max(served[2], worst)]
+                sent, conns = _collect(attackers)
+                before = traffic.get(phase, (0, 0))
+                traffic[phase] = (before[0] + sent, before[1] + conns)
+                attackers = []
+                rss[f"after {phase}, round {rnd}"] = _rss_mb(server.pid)
+        plc.phase = reader.phase = "settle"
+        time.sleep(5.0)
+        rss["after 5 s settle"] = _rss_mb(server.pid)
+    finally:
+        stop_watch.set()
+        for t in (reader, plc):
+            if t is not None:
+                t.stop.set()
+                t.join(timeout=30)
+        for p in attackers:
+            p.kill()
+        server.send_signal(signal.SIGTERM)
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            server.kill()
+    quiet = reader.samples.get("quiet", [])
+    print("#### The legitimate reader's FC3 round trip (20 registers)\n")
+    print("| phase | requests | errors | p50 ms | p99 ms | p99 / quiet p99 |")
+    print("|---|---|---|---|---|---|")
+    for phase in ("quiet", "fuzz", "connections", "settle"):
+        xs = reader.samples.get(phase, [])
+        print(f"| {phase} | {len(xs)} | {reader.errors.get(phase, 0)} | {_pct(xs, 0.5):.2f} | {_pct(xs, 0.99):.2f} | "
+              f"{_pct(xs, 0.99) / _pct(quiet, 0.99):.2f} |")
+    print("\n#### The simulated PLC: cycles and false watchdog trips (aim 0)\n")
+    print("| phase | cycles done | cycles faulted | watchdog trips (fault 101 / link not ok) |")
+    print("|---|---|---|---|")
+    for phase in ("quiet", "fuzz", "connections", "settle"):
+        print(f"| {phase} | {plc.done.get(phase, 0)} | {plc.faulted.get(phase, 0)} | {plc.trips.get(phase, 0)} |")
+    print("\n#### Server resident memory (VmRSS, MB)\n")
+    print("| when | MB | change from after quiet |")
+    print("|---|---|---|")
+    for when, mb in rss.items():
+        print(f"| {when} | {mb:.1f} | {mb - rss['after quiet']:+.1f} |")
+    print("\n#### Attack traffic, and new legitimate clients during the connection storm\n")
+    print("| phase | frames sent | connections opened |")
+    print("|---|---|---|")
+    for phase, (sent, conns) in traffic.items():
+        print(f"| {phase} | {sent} | {conns} |")
+    ok, tried, worst = served
+    print(f"\nNew legitimate clients served (answered within 2 s) during the connection storm: "
+          f"{ok}/{tried}; slowest {worst * 1000:.0f} ms.")
+    lines = (tmp / "serve.log").read_text().count("\n")
+    print(f"Server log lines over the whole run: {lines} (warnings are rate-limited).")
+    shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    resource.setrlimit(resource.RLIMIT_NOFILE, (resource.getrlimit(resource.RLIMIT_NOFILE)[1],) * 2)
+    random.seed(0)
+    sys.exit(main())
