@@ -134,10 +134,10 @@ def read_text(path: Path | str, kind: str = "file") -> str:
         raise ConfigError(f"{p}: {kind} not found") from None
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read {kind}: {exc.strerror or exc}") from None
-    return decode_utf8(data, str(p))
+    return decode_utf8(data, str(p), kind)
 
 
-def decode_utf8(data: bytes, source: str) -> str:
+def decode_utf8(data: bytes, source: str, kind: str | None = None) -> str:
     """``data`` as UTF-8 text; ConfigError naming ``source``, line and column of the first
     byte that is not UTF-8."""
     try:
@@ -145,7 +145,8 @@ def decode_utf8(data: bytes, source: str) -> str:
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise ConfigError(f"{source}:{line}: cannot read: not UTF-8 text (byte 0x{data[exc.start]:02x} "
+        raise ConfigError(f"{source}:{line}: cannot read{' ' + kind if kind else ''}: not UTF-8 text "
+                          f"(byte 0x{data[exc.start]:02x} "
                           f"at column {column}; save the file as UTF-8)") from None
 
 

@@ -116,7 +116,7 @@ def test_validate_names_the_line_of_bytes_that_are_not_text(rdir, capsys):
     path.write_bytes(raw)
     assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
     out = capsys.readouterr().out
-    assert f"{path}:8: cannot read: not UTF-8 text (byte 0xff at column 27" in out
+    assert f"{path}:8: cannot read recipe: not UTF-8 text (byte 0xff at column 27" in out
     path.write_bytes(raw.replace(b" \xff", b"\x00"))
     assert main(["recipe", "--dir", str(rdir), "validate"]) == 2
     assert f"{path}:8: malformed YAML: character code 0x00 at column 26" in capsys.readouterr().out
