@@ -1,17 +1,23 @@
 #!/usr/bin/env python3
 """Set-up and entry points for a fresh machine that has only Python 3.11 and pip.
 
-    python3 dev.py run     build .venv if needed, then run the simulated cell (the main job)
-    python3 dev.py test    build .venv if needed, then run the test suite
-    python3 dev.py bench   build .venv if needed, then run every benchmark in bench/
+    python3 dev.py run            build .venv if needed, then run the simulated cell (the main job)
+    python3 dev.py test [ARGS]    build .venv and the test tools if needed, then run the test suite
+    python3 dev.py bench [ARGS]   build .venv if needed, then run every benchmark in bench/
+    python3 dev.py cellctl ARGS   build .venv if needed, then run any cellctl command
 
-The virtual environment is rebuilt when pyproject.toml changes (its hash is kept in
-.venv/.cell-installed), so a clean clone and a stale checkout behave the same.
+Any working directory will do. The virtual environment is rebuilt when pyproject.toml
+changes (its hash is kept in .venv/.cell-installed), so a clean clone and a stale checkout
+behave the same. ``test`` also installs the system tools some tests drive, from Debian's
+packages, when they are missing and this user may (root with apt-get): Chromium and
+ChromeDriver (the browser tests of the HMI and the reports) and mbpoll (an independent
+Modbus client). Without them those tests skip, except under CI=true, where they fail.
 """
 from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +29,8 @@ PY = BIN / "python"
 STAMP = VENV / ".cell-installed"
 
 MAIN_JOB = ["cellctl", "run", "--sim", "--cycles", "10"]
+# test tools from Debian's packages: command -> package
+TEST_TOOLS = {"chromium": "chromium", "chromedriver": "chromium-driver", "mbpoll": "mbpoll"}
 
 
 def _ensure_venv() -> None:
@@ -35,15 +43,39 @@ def _ensure_venv() -> None:
     STAMP.write_text(want)
 
 
+def _ensure_test_tools() -> None:
+    """Install the missing test tools with apt-get when this user may; say what skips if not."""
+    missing = sorted({pkg for cmd, pkg in TEST_TOOLS.items() if shutil.which(cmd) is None})
+    if not missing:
+        return
+    apt = shutil.which("apt-get")
+    if apt is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
+        print(f"dev.py: {', '.join(missing)} not installed (apt-get install {' '.join(missing)}); "
+              "the tests that drive them skip", file=sys.stderr, flush=True)
+        return
+    print(f"dev.py: installing test tools from Debian's packages: {', '.join(missing)}", flush=True)
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    quiet = {"stdout": subprocess.DEVNULL, "env": env}
+    if subprocess.call([apt, "install", "-y", "-q", "--no-install-recommends", *missing], **quiet) != 0:
+        subprocess.call([apt, "update", "-q"], **quiet)
+        if subprocess.call([apt, "install", "-y", "-q", "--no-install-recommends", *missing], **quiet) != 0:
+            print(f"dev.py: could not install {', '.join(missing)}; the tests that drive them "
+                  "skip (fail under CI=true)", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in {"run", "test", "bench"}:
+    if not argv or argv[0] not in {"run", "test", "bench", "cellctl"}:
         print(__doc__)
         return 2
     _ensure_venv()
     cmd, rest = argv[0], argv[1:]
     if cmd == "run":
         return subprocess.call([str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest], cwd=ROOT)
+    if cmd == "cellctl":
+        # the caller's working directory: cellctl resolves its own defaults against the project
+        return subprocess.call([str(BIN / "cellctl"), *rest])
     if cmd == "test":
+        _ensure_test_tools()
         code = subprocess.call([str(PY), "-m", "pytest", *rest], cwd=ROOT)
         if code == 5:  # pytest: no tests collected -- never a pass
             print("dev.py: pytest collected no tests; failing", file=sys.stderr)
