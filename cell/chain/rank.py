@@ -14,6 +14,11 @@
    signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. It is
    ``unexplained`` when it leaves most of the holdout gap (shrink < :data:`MIN_SHRINK`)
    or, with a noise reference, a fit error well above the noise.
+6. **Confidence**: ``low`` when the same test cannot tell the named cause from the
+   runner-up of another effect, or from a scale error of the measuring instrument
+   (:func:`instrument_scale`: a uniform and a radial scale of the sensor's readings, not
+   an arm effect, so never named; a tracker's scale and a uniform stretch of the arm's
+   links look alike from outside).
 """
 from __future__ import annotations
 
@@ -140,6 +145,22 @@ def wilcoxon_p(before: np.ndarray, after: np.ndarray) -> float:
     return wilcoxon_greater(diff)
 
 
+def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
+    """Leave-one-pose-out error (total rms, per-pose mean square) of registration plus a
+    scale error of the measuring instrument, linearised at the registration-only fit
+    ``f0``: a uniform scale of the readings ``y`` and a radial one ``y·|y|`` (|y| in m)
+    about the sensor origin. A rival hypothesis outside the arm's vocabulary: when it
+    predicts left-out poses as well as a named cause, the data cannot tell the two apart."""
+    y, J = F.model(d, f0.reg, [], np.zeros(0), jac=True)
+    radius_m = np.linalg.norm(y, axis=1, keepdims=True) / 1000.0
+    J2 = np.column_stack([J, y.ravel(), (y * radius_m).ravel()])
+    r0 = f0.resid.ravel()
+    Js, _ = F._scaled(J2)
+    beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
+    total, per, *_ = F.leave_one_pose_out(J2, r0 - Js @ beta, d.obs_pose, d.n_poses)
+    return total, per
+
+
 @dataclass
 class Decision:
     chosen: Candidate | None
@@ -149,6 +170,13 @@ class Decision:
     unexplained: bool
     reasons: list[str]
     notes: list[str]
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def confidence(self) -> str:
+        """``high``, or ``low`` when :attr:`warnings` says the named cause has a rival the
+        poses do not rule out (a consumer should check before acting)."""
+        return "low" if self.warnings else "high"
 
 
 def decide(s: Search, noise_mm: float | None) -> Decision:
@@ -161,10 +189,18 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     chosen = best if best is not None and p < ALPHA else None
     runner = s.ranking[1] if chosen is not None and len(s.ranking) > 1 else None
     rp = wilcoxon_p(runner.fit.cv_pose, chosen.fit.cv_pose) if runner else None
+    warnings: list[str] = []
     if runner is not None and rp >= ALPHA and not set(runner.effects) >= set(chosen.effects) \
             and not set(chosen.effects) >= set(runner.effects):
-        notes.append(f"the runner-up {runner.label} predicts left-out poses almost as well "
-                     f"(p = {rp:.2g}); the data do not tell the two apart firmly")
+        warnings.append(f"the runner-up {runner.label} predicts left-out poses almost as well "
+                        f"(p = {rp:.2g}); the data do not tell the two apart firmly")
+    if chosen is not None:
+        _, scale_pose = instrument_scale(s.fit_d, f0)
+        sp = wilcoxon_p(scale_pose, chosen.fit.cv_pose)
+        if sp >= ALPHA:
+            warnings.append(f"a scale error of the measuring instrument predicts left-out poses "
+                            f"as well as {chosen.label} (p = {sp:.2g}): check the sensor's scale "
+                            "before changing the arm's model")
     reasons: list[str] = []
     noise3 = None if noise_mm is None else noise_mm * math.sqrt(3)
     gap = f0.rms
@@ -172,7 +208,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm 3-D); the named cause is small")
-        return Decision(chosen, p, runner, rp, False, reasons, notes)
+        return Decision(chosen, p, runner, rp, False, reasons, notes, warnings)
     before = s.nominal.hold_rms
     after = chosen.hold_rms if chosen else before
     shrink = 1 - after / before if before > 0 else 0.0
@@ -192,4 +228,4 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     if noise3 is not None and chosen.fit.rms > NOISE_FACTOR * noise3:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
                        f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D)")
-    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes)
+    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings)

@@ -147,6 +147,8 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
         cause = {"effect": "none", "joints": [], "params": {}, "ci95": {}, "subsystem": "none",
                  "components": []}
         subsystem, depends, joints = "none", "position", []
+    cause["confidence"] = dec.confidence if dec.chosen is not None else "high"
+    cause["warnings"] = dec.warnings
     cause["test"] = {"p_value": _r(dec.p_value, 8), "alpha": rank.ALPHA,
                      "method": "one-sided Wilcoxon signed-rank over fit poses of the "
                                "leave-one-pose-out error, vs registration alone",
@@ -229,7 +231,9 @@ def render_chain_text(rep: dict) -> str:
         out.append(f"cause: none (best candidate not supported: p = {c['test']['p_value']:.3g})")
     else:
         out.append(f"cause: {c['effect']} on {', '.join(c['joints'])} ({c['subsystem']}), "
-                   f"p = {c['test']['p_value']:.3g}")
+                   f"p = {c['test']['p_value']:.3g}, confidence {c.get('confidence', 'high')}")
+        for w in c.get("warnings", []):
+            out.append(f"  warning: {w}")
         for n, v in c["params"].items():
             lo, hi = c["ci95"][n]
             out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")

@@ -68,6 +68,7 @@ class Trial:
     named: str
     named_joints: tuple[str, ...]
     unexplained: bool
+    low_confidence: bool
     shrink: float
     covered: int
     n_params: int
@@ -94,7 +95,7 @@ class Trial:
 
     @property
     def confident_cause(self) -> bool:
-        return not self.unexplained and self.named != "none"
+        return not self.unexplained and self.named != "none" and not self.low_confidence
 
 
 def _size(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -169,7 +170,7 @@ def run_trial(i: int, seed: int, poses: int = 60, outside_share: float = 0.0,
     if truth.kind not in OUTSIDE and c["effect"] == truth.kind and tuple(c["joints"]) == truth.joints:
         hit, n = _covered(truth, c["ci95"])
     return Trial(i, truth, c["effect"], tuple(c["joints"]), bool(rep["unexplained"]),
-                 float(rep["holdout"]["shrink"] or 0.0), hit, n, secs)
+                 c.get("confidence") == "low", float(rep["holdout"]["shrink"] or 0.0), hit, n, secs)
 
 
 def run(trials: int, seed: int, poses: int = 60, outside_share: float = 0.0,

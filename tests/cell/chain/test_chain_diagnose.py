@@ -31,6 +31,7 @@ def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, e
     assert rep["cause"]["effect"] == effect
     assert rep["cause"]["joints"] == joints
     assert not rep["unexplained"]
+    assert rep["cause"]["confidence"] == "high", rep["cause"]["warnings"]
     assert rep["holdout"]["shrink"] > 0.6
     for name, v in truth.items():
         lo, hi = rep["cause"]["ci95"][name]
@@ -71,6 +72,24 @@ def test_no_effect_is_none_and_registration_absorbs_the_base_offset(tmp_path):
 def test_effects_outside_the_vocabulary_are_not_a_confident_cause(tmp_path, effects, lens):
     rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", effects, seed=5, lens=lens)), NOISE)
     assert rep["unexplained"] or rep["cause"]["effect"] == "none", rep["cause"]
+
+
+def test_a_sensor_scale_taken_for_longer_links_is_not_a_confident_cause():
+    # trial 21 of `cellctl diagnose validate --chain --trials 60 --seed 0 --out-of-vocabulary 1`
+    # at commit 161ec53: a tracker's radial scale (2.1e-3 /m) named link_length (j2, j3, j5)
+    # with no doubt; the instrument-scale rival predicts the left-out poses as well
+    from cell.chain import validate
+    t = validate.run_trial(21, 0, 60, 1.0, ("lens",))
+    assert t.truth.kind == "lens" and t.named == "link_length" and not t.unexplained
+    assert t.low_confidence and not t.confident_cause
+
+
+def test_the_instrument_scale_warning_names_itself(tmp_path):
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {}, seed=5, lens=3e-3)), NOISE)
+    c = rep["cause"]
+    assert c["effect"] == "link_length"          # what the links alone would make of it
+    assert c["confidence"] == "low"
+    assert any("scale error of the measuring instrument" in w for w in c["warnings"])
 
 
 def test_a_campaign_split_is_used_and_holdout_rows_are_not_fitted(tmp_path):

@@ -50,17 +50,19 @@ def test_summary_counts_answers_and_outside_trials():
     truth = validate.Truth("joint_offset", ("j2",), {}, 0.0, {"j2_offset_deg": 0.1})
     odd = validate.Truth("lens", (), {}, 2e-3, {"lens_per_m": 2e-3})
     none = validate.Truth("none", (), {}, 0.0, {})
-    ts = [validate.Trial(0, truth, "joint_offset", ("j2",), False, 0.9, 1, 1, 0.1),
-          validate.Trial(1, truth, "joint_offset", ("j3",), False, 0.2, 0, 0, 0.1),
-          validate.Trial(2, none, "gear_ratio", ("j2",), False, 0.1, 0, 0, 0.1),
-          validate.Trial(3, odd, "link_length", ("j2",), False, 0.7, 0, 0, 0.1),
-          validate.Trial(4, odd, "link_length", ("j2",), True, 0.7, 0, 0, 0.1)]
+    ts = [validate.Trial(0, truth, "joint_offset", ("j2",), False, False, 0.9, 1, 1, 0.1),
+          validate.Trial(1, truth, "joint_offset", ("j3",), False, False, 0.2, 0, 0, 0.1),
+          validate.Trial(2, none, "gear_ratio", ("j2",), False, False, 0.1, 0, 0, 0.1),
+          validate.Trial(3, odd, "link_length", ("j2",), False, False, 0.7, 0, 0, 0.1),
+          validate.Trial(4, odd, "link_length", ("j2",), True, False, 0.7, 0, 0, 0.1),
+          validate.Trial(5, odd, "link_length", ("j2",), False, True, 0.7, 0, 0, 0.1)]
     s = validate.summarise(ts)
     assert s["effect_accuracy"] == pytest.approx(2 / 3) and s["joint_accuracy_effects"] == 0.5
-    assert s["none_named_as_effect"] == 1 and s["outside_trials"] == 2
+    assert s["none_named_as_effect"] == 1 and s["outside_trials"] == 3
+    # named with low confidence (trial 5) is not a confident cause
     assert s["outside_named_as_cause"] == 1 and s["outside_unexplained"] == 1
     md = validate.markdown(ts, "t")
-    assert "| lens (outside) | 2 | 1 | – |" in md
+    assert "| lens (outside) | 3 | 2 | – |" in md
 
 
 def test_the_command_prints_json_scores(capsys):
