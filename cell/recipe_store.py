@@ -18,6 +18,8 @@ when all of these hold:
 * **Valid.** :func:`~cell.recipes.parse_recipe`, the cell's check (``check``), and a recipe
   number not used by another file; otherwise the edit is rejected with a message naming
   file, line and field, and the last good version stays active.
+* **Always decided.** A check that fails in a way nobody foresaw (any exception, not only
+  a ``ConfigError``) rejects the edit with that reason; no edit is left undecided.
 * **Audited first.** Every decision (activate, reject — unreadable, too big, outside the
   folder, invalid — or remove) goes to ``commit`` with the activated text, in one
   transaction. If that fails (disk full), nothing is applied and the change is tried again
@@ -220,6 +222,14 @@ class RecipeStore:
                                   f"{recipe.number} is already used by {clash.path}")
         except ConfigError as exc:
             return AuditEntry(who, "reject", str(path), h, str(exc)), None, h
+        except Exception as exc:                   # noqa: BLE001 -- a check's own failure
+            # an edit is never left undecided (and so unaudited, retried forever): whatever
+            # stopped the check, the file is rejected with the reason and the last good
+            # version stays active
+            log.error("recipe_check_failed", file=str(path), error=repr(exc))
+            return AuditEntry(who, "reject", str(path), h,
+                              f"{path}: could not be checked ({type(exc).__name__}: {exc}); "
+                              "the last good version stays active"), None, h
         active = ActiveRecipe(recipe, h, text, str(path))
         return AuditEntry(who, "activate", str(path), h, "ok", recipe.name), active, h
 

@@ -94,6 +94,27 @@ def test_binary_garbage_is_rejected_naming_the_line(rdir):
     assert e.action == "reject" and ":3: cannot read: not UTF-8 text (byte 0xff at column 1;" in e.result
 
 
+def test_an_edit_whose_check_fails_unforeseen_is_still_rejected_and_audited(rdir):
+    """Probe: one bad edit (binary garbage) left no audit row. Any failure inside a check,
+    not only a ConfigError, must decide the edit: rejected, audited, last good version kept."""
+    calls = []
+
+    def check(recipe, text, source):
+        if calls:                              # the start-up set passes; the edit trips it
+            raise ZeroDivisionError("float division by zero")
+        calls.append(source)
+
+    store, audit = store_with(rdir, check=lambda r, t, s: check(r, t, s) if "pin-b" in s else None)
+    before = store.active["pin-b"]
+    text = (rdir / "pin-b.yaml").read_text().replace("# ", "#  ", 1) + "\n# edited\n"
+    (rdir / "pin-b.yaml").write_text(text)
+    [e] = store.refresh()
+    assert e.action == "reject" and "could not be checked (ZeroDivisionError: float division by zero)" in e.result
+    assert [c[1] for c in audit] == ["recipe_reject"]
+    assert store.active["pin-b"] is before
+    assert store.refresh() == []               # decided once, not retried at every refresh
+
+
 def test_a_file_still_being_written_is_not_activated_until_stable(rdir):
     """Probe: 4 truncated files (an editor saving in place) became the active recipe."""
     clock = ManualClock(0.0)
