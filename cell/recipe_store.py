@@ -18,6 +18,9 @@ when all of these hold:
 * **Valid.** :func:`~cell.recipes.parse_recipe`, the cell's check (``check``), and a recipe
   number not used by another file; otherwise the edit is rejected with a message naming
   file, line and field, and the last good version stays active.
+* **Attributed.** The audit row names the file's owner, or — when an edit note
+  (:mod:`cell.recipe_notes`) describes exactly the bytes and file taken — the user and role
+  the maintenance HMI saved it for.
 * **Audited first.** Every decision (activate, reject — unreadable, too big, outside the
   folder, invalid — or remove) goes to ``commit`` with the activated text, in one
   transaction. If that fails (disk full), nothing is applied and the change is tried again
@@ -37,6 +40,7 @@ from typing import Callable, Mapping
 from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
+from cell.recipe_notes import attribution
 from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, line_of, parse_recipe
 from cell.yamlio import decode_utf8
 
@@ -206,6 +210,9 @@ class RecipeStore:
         h = hashlib.sha256(data).hexdigest() if error is None else ""
         if error is None and self._hashes.get(str(path)) == h:
             return None, None, h
+        note = attribution(path, look.signature, h) if error is None else None
+        if note is not None:                       # saved by a tool for a logged-in user (the HMI)
+            who = note.who(who)
         try:
             if error:
                 raise ConfigError(error)
