@@ -204,7 +204,8 @@ def create_app(s: HmiSettings) -> Starlette:
         if not root.is_dir():
             return []
         return sorted(str(p.relative_to(root)) for p in root.rglob("*.html")
-                      if p.is_file() and not any(part.startswith(".") for part in p.relative_to(root).parts))
+                      if p.is_file() and root in p.resolve().parents
+                      and not any(part.startswith(".") for part in p.relative_to(root).parts))
 
     async def reports(request: Request) -> Response:
         if (r := guard_view(request)) is not None:
