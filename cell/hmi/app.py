@@ -226,14 +226,15 @@ def create_app(s: HmiSettings) -> Starlette:
     # ------------------------------------------------------------------ login
     async def login(request: Request) -> Response:
         if request.method == "GET":
-            return page(request, "login.html", error=None, users=len(s.users))
+            return page(request, "login.html", error=None, users=len(s.users),
+                        next=request.query_params.get("next", "/"))
         form = dict(await request.form())
         if (r := await guard_post(request, form)) is not None:
             return r
         who = await run_in_threadpool(s.users.authenticate, str(form.get("user", "")), str(form.get("password", "")))
         if who is None:
             return page(request, "login.html", status_code=401, error="unknown user or wrong password",
-                        users=len(s.users))
+                        users=len(s.users), next=str(form.get("next", "/")))
         request.session.clear()                       # a fresh session: no fixation
         request.session.update(user={"name": who[0], "role": who[1]}, csrf=secrets.token_urlsafe(32))
         nxt = str(form.get("next", "/"))
