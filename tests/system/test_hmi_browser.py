@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import hashlib
 
+import pytest
+
 from tests.browser import chromium, require_browser
 from tests.system.hmi_cell import PASSWORD, ROLE, USER, SimCellWithHmi, poll, query
 
 WAIT_S = 120          # bounded waits for state, in wall time (never asserted as timing)
+pytestmark = pytest.mark.timeout(600)   # two processes and a browser on a loaded 2-core host
 
 
 def text_of(driver, element_id: str) -> str:

@@ -1,7 +1,7 @@
 // Polls /api/status every second and fills the status page (no inline script: CSP).
 "use strict";
 const $ = (id) => document.getElementById(id);
-const fmt = (v, k = 1) => (v === null || v === undefined) ? "–" : (v * k).toFixed(1);
+const fmt = (v, k = 1, digits = 1) => (v === null || v === undefined) ? "–" : (v * k).toFixed(digits);
 function cell(tr, text) { const td = document.createElement("td"); td.textContent = text; tr.appendChild(td); }
 let trendCount = -1;
 async function poll() {
@@ -32,7 +32,7 @@ async function poll() {
       const tr = document.createElement("tr");
       tr.className = c.status === "done" ? "ok" : "bad";
       [c.id, c.part_id, c.recipe, c.recipe_hash.slice(0, 12), c.fault_code ? `${c.status} ${c.fault_code}` : c.status,
-       fmt(c.final_error_mm, 1000), c.moves ?? "–", fmt(c.cycle_time_s), c.finished_at.slice(11, 19)].forEach((v) => cell(tr, v));
+       fmt(c.final_error_mm, 1000), c.moves ?? "–", fmt(c.cycle_time_s, 1, 2), c.finished_at.slice(11, 19)].forEach((v) => cell(tr, v));
       body.appendChild(tr);
     }
     const audit = $("audit").tBodies[0];
