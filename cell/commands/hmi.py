@@ -55,16 +55,26 @@ def _plc(text: str | None) -> tuple[str, int] | None:
 def run(args: argparse.Namespace) -> int:
     if args.hmi_cmd == "passwd":
         return _passwd(args)
-    from cell.hmi.server import serve, settings_from
+    import ipaddress
+
+    from cell.hmi.server import listen, serve, settings_from
     settings = settings_from(args.config, args.users, args.reports, _plc(args.plc), args.dir, args.db)
     if not len(settings.users):
         print(f"cellctl hmi: no users in {args.users}: viewing only; add one with "
               "'cellctl hmi passwd USER --role maintenance'", file=sys.stderr)
-
-    def ready(port: int) -> None:
-        print(f"cellctl hmi: serving http://{args.host}:{port}/ (recipes {settings.desk.directory}, "
-              f"log {settings.log_path}); Ctrl-C stops", flush=True)
-    serve(settings, args.host, args.port, ready)
+    try:
+        local = ipaddress.ip_address(args.host).is_loopback
+    except ValueError:
+        local = args.host == "localhost"
+    if not local:
+        print(f"cellctl hmi: listening on {args.host}: other machines can reach it over plain HTTP "
+              "(passwords and sessions unencrypted); prefer 127.0.0.1 behind a TLS proxy", file=sys.stderr)
+    sock = listen(args.host, args.port)
+    host, port = sock.getsockname()[:2]
+    url_host = f"[{host}]" if ":" in host else host
+    print(f"cellctl hmi: serving http://{url_host}:{port}/ (recipes {settings.desk.directory}, "
+          f"log {settings.log_path}); Ctrl-C stops", flush=True)
+    serve(settings, sock)
     return 0
 
 

@@ -11,13 +11,15 @@ anything. Saving a recipe needs a logged-in user whose role may edit
 at start, so a restart logs everyone out), HttpOnly, SameSite=Strict, 8 hours. Every POST
 carries the session's CSRF token (form field ``csrf`` or header ``X-CSRF-Token``) and, if
 the browser sends an ``Origin``, it must be this server's; otherwise 403 and nothing
-happens. Login replaces the session (no fixation). Our pages carry a strict
-Content-Security-Policy; reports are served sandboxed.
+happens. Login replaces the session (no fixation); failed logins are throttled
+(:class:`~cell.hmi.users.LoginThrottle`). Our pages carry a strict Content-Security-Policy;
+reports are served sandboxed.
 """
 from __future__ import annotations
 
 import hmac
 import ipaddress
+import json
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +37,7 @@ from starlette.templating import Jinja2Templates
 from cell.errors import ConfigError
 from cell.hmi import status as st
 from cell.hmi.recipes import RecipeDesk, SaveRefused
-from cell.hmi.users import EDIT_ROLES, Users
+from cell.hmi.users import EDIT_ROLES, LoginThrottle, Users
 
 HERE = Path(__file__).resolve().parent
 SESSION_S = 8 * 3600
@@ -57,10 +59,12 @@ class HmiSettings:
     reports: Path
     plc: tuple[str, int] | None = None
     cell_name: str = "cell"
+    throttle: LoginThrottle | None = None      #: default: 5 failures per user or client in 5 min
 
 
 def create_app(s: HmiSettings) -> Starlette:
     templates = Jinja2Templates(directory=str(HERE / "templates"))
+    throttle = s.throttle or LoginThrottle()
 
     def session_user(request: Request) -> dict | None:
         u = request.session.get("user")
@@ -111,7 +115,6 @@ def create_app(s: HmiSettings) -> Starlette:
         body = await request.body()
         if len(body) > MAX_BODY:
             raise SaveRefused(413, "request too large")
-        import json
         try:
             doc = json.loads(body)
         except ValueError:
@@ -231,10 +234,17 @@ def create_app(s: HmiSettings) -> Starlette:
         form = dict(await request.form())
         if (r := await guard_post(request, form)) is not None:
             return r
-        who = await run_in_threadpool(s.users.authenticate, str(form.get("user", "")), str(form.get("password", "")))
+        name, client = str(form.get("user", "")), request.client.host if request.client else "?"
+        wait = throttle.blocked(name, client)
+        if wait > 0:
+            return page(request, "login.html", status_code=429, users=len(s.users), next=str(form.get("next", "/")),
+                        error=f"too many failed logins: try again in {wait:.0f} s")
+        who = await run_in_threadpool(s.users.authenticate, name, str(form.get("password", "")))
         if who is None:
+            throttle.failed(name, client)
             return page(request, "login.html", status_code=401, error="unknown user or wrong password",
                         users=len(s.users), next=str(form.get("next", "/")))
+        throttle.succeeded(name)
         request.session.clear()                       # a fresh session: no fixation
         request.session.update(user={"name": who[0], "role": who[1]}, csrf=secrets.token_urlsafe(32))
         nxt = str(form.get("next", "/"))

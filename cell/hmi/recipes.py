@@ -124,8 +124,7 @@ class RecipeDesk:
         if log is None:
             return {"state": "pending", "audit": None}
         try:
-            rows = [r for r in log.audit_rows() if r["hash"] == sha256
-                    and r["action"] in ("recipe_activate", "recipe_reject")]
+            rows = [r for r in log.audit_rows(hash_=sha256) if r["action"] in ("recipe_activate", "recipe_reject")]
             active = log.last_recipe_version(name)
         finally:
             log.close()

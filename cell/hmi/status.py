@@ -41,7 +41,7 @@ def log_status(path: Path, last: int = 15, audit: int = 8) -> dict:
             out["cycles_total"] = log.count()
             out["in_flight"] = log.open_cycle()
             out["cycles"] = [_cycle_row(c) for c in reversed(log.cycles(limit=last))]
-            rows = log.audit_rows()[-audit:]
+            rows = log.audit_rows(last=audit)
             out["audit"] = [{k: r[k] for k in ("id", "at", "who", "action", "target", "hash", "result")}
                             for r in reversed(rows)]
         finally:

@@ -131,3 +131,46 @@ def set_user(path: Path | str, name: str, role: str, password: str) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+class LoginThrottle:
+    """Failed logins slow guessing down: after ``limit`` failures for one user name, or
+    from one client address, within ``window_s``, further attempts for it are refused
+    unchecked until ``window_s`` has passed since the oldest of them (times from ``clock``,
+    wall time in the product). A successful login clears the user's count."""
+
+    def __init__(self, clock=None, limit: int = 5, window_s: float = 300.0):
+        from cell.clock import MonotonicClock
+        self.clock = clock or MonotonicClock()
+        self.limit, self.window_s = int(limit), float(window_s)
+        self._fails: dict[str, list[float]] = {}
+
+    def _recent(self, key: str) -> list[float]:
+        now = self.clock.now()
+        times = [t for t in self._fails.get(key, []) if now - t < self.window_s]
+        if times:
+            self._fails[key] = times
+        else:
+            self._fails.pop(key, None)
+        return times
+
+    def blocked(self, user: str, client: str) -> float:
+        """Seconds until ``user`` from ``client`` may try again (0: now)."""
+        now, wait = self.clock.now(), 0.0
+        for key in (f"u:{user}", f"c:{client}"):
+            times = self._recent(key)
+            if len(times) >= self.limit:
+                wait = max(wait, times[-self.limit] + self.window_s - now)
+        return wait
+
+    def failed(self, user: str, client: str) -> None:
+        now = self.clock.now()
+        for key in (f"u:{user}", f"c:{client}"):
+            self._fails.setdefault(key, []).append(now)
+            del self._fails[key][:-self.limit]          # bounded memory per key
+        if len(self._fails) > 10_000:                   # many names guessed: forget the oldest
+            for key in sorted(self._fails, key=lambda k: self._fails[k][-1])[:5_000]:
+                del self._fails[key]
+
+    def succeeded(self, user: str) -> None:
+        self._fails.pop(f"u:{user}", None)

@@ -192,3 +192,32 @@ def test_passwd_adds_a_user_with_a_salted_hash_in_a_private_file(tmp_path, monke
     monkeypatch.setattr("sys.stdin", io.StringIO("short\n"))
     assert main(["hmi", "--users", str(users), "passwd", "eve", "--password-stdin"]) == 2
     assert "at least 8 characters" in capsys.readouterr().err
+
+
+def test_failed_logins_are_throttled_per_user_until_the_window_passes(hmi, rdir, tmp_path):
+    import dataclasses
+
+    from cell.clock import ManualClock
+    from cell.hmi.users import LoginThrottle
+    clock = ManualClock(0.0)
+    s = settings_from(None, str(tmp_path / "users.json"), str(tmp_path / "reports"), None, str(rdir),
+                      str(tmp_path / "cell.sqlite"))
+    app = create_app(dataclasses.replace(s, throttle=LoginThrottle(clock, limit=5, window_s=300)))
+    c = client(app)
+    for _ in range(5):
+        assert login(c, password="guess guess").status_code == 401
+    r = login(c)                                       # the right password, but too many guesses
+    assert r.status_code == 429 and "too many failed logins" in r.text
+    assert login(client(app, host="10.0.0.9")).status_code == 429      # per user, from anywhere
+    clock.advance(301.0)
+    assert login(c).status_code == 303
+
+
+def test_hmi_refuses_a_port_in_use_naming_it(tmp_path, capsys):
+    import socket
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert main(["hmi", "--users", str(tmp_path / "u.json"), "--port", str(port)]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err

@@ -4,6 +4,7 @@ const $ = (id) => document.getElementById(id);
 const fmt = (v, k = 1, digits = 1) => (v === null || v === undefined) ? "–" : (v * k).toFixed(digits);
 function cell(tr, text) { const td = document.createElement("td"); td.textContent = text; tr.appendChild(td); }
 let trendCount = -1;
+let trendAt = 0;
 async function poll() {
   try {
     const r = await fetch("/api/status", {cache: "no-store"});
@@ -42,8 +43,11 @@ async function poll() {
       [a.id, a.at.slice(11, 19), a.who, a.action, a.result.slice(0, 80)].forEach((v) => cell(tr, v));
       audit.appendChild(tr);
     }
-    if (s.cycles_total !== trendCount && s.cycles_total % 10 === 0 || trendCount < 0) {
+    // the trend is redrawn every 10 new cycles, or 15 s after the last new ones
+    if (trendCount < 0 || s.cycles_total - trendCount >= 10 ||
+        (s.cycles_total !== trendCount && Date.now() - trendAt > 15000)) {
       trendCount = s.cycles_total;
+      trendAt = Date.now();
       $("trend").src = `/trend.png?n=${s.cycles_total}`;
     }
     $("updated").textContent = `updated ${new Date().toLocaleTimeString()}`;
