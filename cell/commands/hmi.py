@@ -38,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pw.add_argument("user")
     pw.add_argument("--role", choices=ROLES, default="maintenance", help="maintenance or engineer may edit "
                                                                           "recipes; viewer only looks (default maintenance)")
+    pw.add_argument("--users", default=argparse.SUPPRESS, help=f"users file (default {DEFAULT_USERS})")
     pw.add_argument("--password-stdin", action="store_true", help="read the password from stdin "
                                                                   "(default: ask twice on the terminal)")
     p.set_defaults(func=run)
