@@ -221,3 +221,25 @@ def test_hmi_refuses_a_port_in_use_naming_it(tmp_path, capsys):
         port = taken.getsockname()[1]
         assert main(["hmi", "--users", str(tmp_path / "u.json"), "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_an_edit_the_controller_rejects_is_shown_rejected_with_its_reason_and_user(hmi, rdir, cell):
+    """The HMI without --config cannot know the stations: the controller's own check (here:
+    drives without SYNC support) refuses the saved version; the editor learns why."""
+    from cell.recipes import motion_check
+    store, log = cell
+    store.check = motion_check(False, [0.001] * 4)
+    path = rdir / "bracket-a.yaml"
+    active = store.active["bracket-a"].hash
+    text = path.read_text().replace("sync: corrected", "sync: sync")
+    assert "sync: sync" in text
+    c = client(hmi)
+    login(c)
+    token, sha = editor(c, "bracket-a")
+    saved = c.post("/api/recipes/bracket-a/save", json={"text": text, "base_sha256": sha},
+                   headers={"X-CSRF-Token": token}).json()["sha256"]
+    [entry] = store.refresh()
+    assert entry.action == "reject" and store.active["bracket-a"].hash == active
+    dec = c.get(f"/api/recipes/bracket-a/decision?sha256={saved}").json()
+    assert dec["state"] == "rejected" and "motion.sync" in dec["audit"]["result"]
+    assert dec["audit"]["who"].startswith("alice (maintenance, hmi")
