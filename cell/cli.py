@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "cell.commands.logcheck",
     "cell.commands.audit",
     "cell.commands.plc",
+    "cell.commands.hmi",
 )
 
 

@@ -358,8 +358,13 @@ class CycleLog:
                     db.execute("INSERT OR IGNORE INTO recipe_versions (hash, name, content, first_active_at)"
                                " VALUES (?,?,?,?)", (vhash, name, text, utc_now()))
 
-    def audit_rows(self) -> list[dict]:
-        return [dict(r) for r in self._read("SELECT * FROM audit ORDER BY id")]
+    def audit_rows(self, last: int | None = None, hash_: str | None = None) -> list[dict]:
+        """Audit rows in id order: all, only the last ``last``, or only those for ``hash_``."""
+        where, args = (" WHERE hash = ?", (hash_,)) if hash_ is not None else ("", ())
+        if last:
+            return [dict(r) for r in self._read(f"SELECT * FROM (SELECT * FROM audit{where} ORDER BY id DESC "
+                                                "LIMIT ?) ORDER BY id", args + (int(last),))]
+        return [dict(r) for r in self._read(f"SELECT * FROM audit{where} ORDER BY id", args)]
 
     def verify_audit(self) -> int | None:
         """Id of the first audit row whose chain is broken, or None if the chain holds."""

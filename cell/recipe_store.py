@@ -20,6 +20,9 @@ when all of these hold:
   file, line and field, and the last good version stays active.
 * **Always decided.** A check that fails in a way nobody foresaw (any exception, not only
   a ``ConfigError``) rejects the edit with that reason; no edit is left undecided.
+* **Attributed.** The audit row names the file's owner, or — when an edit note
+  (:mod:`cell.recipe_notes`) describes exactly the bytes and file taken — the user and role
+  the maintenance HMI saved it for.
 * **Audited first.** Every decision (activate, reject — unreadable, too big, outside the
   folder, invalid — or remove) goes to ``commit`` with the activated text, in one
   transaction. If that fails (disk full), nothing is applied and the change is tried again
@@ -39,6 +42,7 @@ from typing import Callable, Mapping
 from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
+from cell.recipe_notes import attribution
 from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, line_of, parse_recipe
 from cell.yamlio import decode_utf8
 
@@ -208,6 +212,9 @@ class RecipeStore:
         h = hashlib.sha256(data).hexdigest() if error is None else ""
         if error is None and self._hashes.get(str(path)) == h:
             return None, None, h
+        note = attribution(path, look.signature, h) if error is None else None
+        if note is not None:                       # saved by a tool for a logged-in user (the HMI)
+            who = note.who(who)
         try:
             if error:
                 raise ConfigError(error)

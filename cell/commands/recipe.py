@@ -4,7 +4,8 @@
 valid edit between cycles by itself); with ``--config`` also against the cell's joint
 stations (SYNC support, the segment time against the stations' delays). ``diff NAME`` compares the file on disk with the
 version the controller last activated (kept in the cycle log database); ``diff A B``
-compares two files.
+compares two files. The checks live in :mod:`cell.recipe_validation`, which the maintenance
+HMI runs too.
 """
 from __future__ import annotations
 
@@ -40,63 +41,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _check(path: Path, cell_check=None):
-    """(hash, error or None, recipe or None, text) for one recipe file."""
-    from cell.recipes import content_hash, parse_recipe
-    from cell.yamlio import read_text
-    try:
-        text = read_text(path, "recipe")
-    except ConfigError as exc:
-        return "", str(exc), None, ""
-    try:
-        recipe = parse_recipe(text, str(path))
-        if cell_check is not None:
-            cell_check(recipe, text, str(path))
-    except ConfigError as exc:
-        return content_hash(text), str(exc), None, text
-    return content_hash(text), None, recipe, text
+    from cell.recipe_validation import check_file
+    return check_file(path, cell_check)
 
 
 def _cell_checks(config: str | None):
-    """The checks the controller makes against its cell: the robot's reach (the config's
-    robot, else the built-in one) and, with a config, the joint stations."""
-    from cell.config import CellConfig
-    from cell.kinematics import Scara
-    from cell.recipes import all_checks, motion_check_from_config, reach_check
-    cfg = CellConfig.load(config) if config else CellConfig()
-    r = cfg.robot
-    robot = Scara(r.geometry) if r.geometry is not None else Scara.preset(r.preset)
-    motion, complete = motion_check_from_config(cfg.stations) if config else (None, True)
+    from cell.recipe_validation import cell_checks
+    check, complete = cell_checks(config)
     if config and not complete:
         print(f"{config}: the stations' latency is measured at start-up; the segment time is "
               "checked against the wire time only (the controller checks again when it starts)")
-    return all_checks(motion, reach_check(robot, r.elbow))
+    return check
 
 
 def _number_clashes(checked: dict[Path, tuple], rdir: Path) -> dict[Path, str]:
-    """A recipe number used by two recipes (the controller takes only one of them): the
-    error for each file of the pair that was checked, naming the other file."""
-    from cell.recipes import line_of, parse_recipe
-    from cell.yamlio import read_text
-    numbers: dict[Path, tuple[int, str]] = {}
-    for f, (_, err, rec, _) in checked.items():
-        if rec is not None:
-            numbers[f.resolve()] = (rec.number, rec.name)
-    for f in sorted(rdir.glob("*.yaml")) if rdir.is_dir() else []:
-        if f.resolve() not in numbers and not f.name.startswith("."):
-            try:
-                rec = parse_recipe(read_text(f, "recipe"), str(f))
-            except ConfigError:
-                continue
-            numbers[f.resolve()] = (rec.number, rec.name)
-    out = {}
-    for f, (_, err, rec, text) in checked.items():
-        if rec is None:
-            continue
-        other = [g for g, (n, name) in numbers.items() if n == rec.number and g != f.resolve()]
-        if other:
-            out[f] = (f"{f}:{line_of(text, 'number')}: number: recipe number {rec.number} is also "
-                      f"used by {other[0]}; the controller would take only one of them")
-    return out
+    from cell.recipe_validation import number_clashes
+    return number_clashes(checked, rdir)
 
 
 def run(args: argparse.Namespace) -> int:

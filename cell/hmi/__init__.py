@@ -1,0 +1,13 @@
+"""The maintenance HMI (``cellctl hmi``): a small local web app beside the controller.
+
+It shows the cell's status and last cycles (the cycle log read-only; optionally the PLC
+status registers, read-only over Modbus TCP), the accuracy trend, the recipes (view, diff
+against the active version, edit with validation as you type) and the diagnosis reports.
+It never writes the cycle log (the controller holds its writer's lock): a saved recipe
+reaches the cell the way every edit does, through the controller's recipe store, which
+audits it with the user and role of the edit note the HMI leaves (:mod:`cell.recipe_notes`).
+
+Modules: :mod:`~cell.hmi.app` (routes, login, CSRF), :mod:`~cell.hmi.recipes` (the recipe
+desk), :mod:`~cell.hmi.status` (log, PLC, trend), :mod:`~cell.hmi.users` (the users file),
+:mod:`~cell.hmi.server` (settings from the cell config, uvicorn).
+"""
