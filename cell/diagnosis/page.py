@@ -25,6 +25,8 @@ from cell.diagnosis.action import recommend
 
 #: parameters shown in the answer card; the rest are in the parameters table below
 CARD_PARAMS = 3
+#: ranking rows shown (the rest are in report.json)
+TABLE_ROWS = 15
 
 CSS = """
 *{box-sizing:border-box}
@@ -192,15 +194,17 @@ def ranking_table(rep: dict, chain: bool, chosen_label: str | None = None) -> st
                 "<th class='n'>BIC (fit rows)</th><th class='n'>HOLDOUT rms mm</th>"
                 "<th>fit</th><th>identifiable</th></tr>")
         rows = []
-        for i, r in enumerate(rep["ranking"]):
+        for i, r in enumerate(rep["ranking"][:TABLE_ROWS]):
             ident = "yes" if r["identifiable"] else "no: " + r.get("reason", "")
             rows.append(f"<tr{' class=chosen' if i == chosen else ''}><td class='n'>{i + 1}</td>"
                         f"<td>{esc(r['label'])}</td><td class='n'>{r['k']}</td>"
                         f"<td class='n'>{num(r['score'], 1)}</td>"
                         f"<td class='n'>{num(r['holdout_rms_mm'])}</td><td>{esc(r.get('fit', ''))}</td>"
                         f"<td>{esc(ident)}</td></tr>")
+    more = len(rep["ranking"]) - TABLE_ROWS
+    tail = (f"<p class='small'>{more} more candidates in report.json.</p>" if more > 0 else "")
     return (f"<div class='scroll'><table id='ranking'><thead>{head}</thead>"
-            f"<tbody>{''.join(rows)}</tbody></table></div>")
+            f"<tbody>{''.join(rows)}</tbody></table></div>{tail}")
 
 
 def params_table(rep: dict) -> str:
