@@ -31,13 +31,15 @@ CALIBRATABLE_JOINTS = ("j1", "j2", "j4")
 @dataclass(frozen=True)
 class Action:
     """``kind`` (calibrate_joint, calibrate_kinematics, thermal, camera, comms,
-    compliance, none, investigate), ``text`` (one sentence for a person), ``commands``
-    (shell commands to run, may be empty), ``caveat`` (or '')."""
+    compliance, none, investigate), ``text`` (one short sentence for a person), ``commands``
+    (shell commands to run, may be empty), ``caveat`` (or ''), ``detail`` (or '': what
+    follows the headline)."""
 
     kind: str
     text: str
     commands: tuple[str, ...] = ()
     caveat: str = ""
+    detail: str = ""
 
 
 def recommend(rep: dict) -> Action:
@@ -52,9 +54,9 @@ def recommend(rep: dict) -> Action:
     if rep.get("unexplained"):
         where = (rep.get("remainder") or {}).get("depends_on")
         lies = f" (the remainder depends on {where.replace('_', ' ')})" if where else ""
-        best = f"; the best candidate, {effect}, takes off only part of it" if effect != "none" else ""
-        return Action("investigate", "Investigate: the gap is not explained by the vocabulary"
-                      f"{best}. See where it lies{lies} in the plots below.", (), caveat)
+        best = f"The best candidate, {effect}, takes off only part of it. " if effect != "none" else ""
+        return Action("investigate", "Investigate: the gap is not explained by the vocabulary.",
+                      (), caveat, f"{best}See where it lies{lies} in the plots below.")
     if effect == "none":
         return Action("none", "No action: the gap is within noise.", (), "")
     on = f" on {', '.join(joints)}" if joints else ""

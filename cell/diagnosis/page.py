@@ -166,6 +166,7 @@ def _action_card(rep: dict) -> str:
     why = (f"<p class='small'>{esc(reasons[0])}</p>" if rep["unexplained"] and reasons else "")
     return (f'<section class="card action" id="action" data-kind="{esc(a.kind)}">'
             f'<h3>What to do</h3><p class="big">{esc(a.text)}</p>'
+            f'{f"<p>{esc(a.detail)}</p>" if a.detail else ""}'
             f'{"<ul>" + cmds + "</ul>" if cmds else ""}{cav}{why}</section>')
 
 

@@ -58,8 +58,8 @@ def test_none_is_no_action_within_noise():
 def test_unexplained_wins_over_a_named_cause_and_says_where_to_look():
     a = recommend(rep("link_length", ["j2"], "kinematics", unexplained=True, depends_on="position"))
     assert a.kind == "investigate" and a.commands == ()
-    assert "not explained by the vocabulary" in a.text and "see where it lies" in a.text.lower()
-    assert "link_length" in a.text and "depends on position" in a.text
+    assert "not explained by the vocabulary" in a.text and "See where it lies" in a.detail
+    assert "link_length" in a.detail and "depends on position" in a.detail
     assert recommend(rep(unexplained=True)).kind == "investigate"
 
 
