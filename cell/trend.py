@@ -170,11 +170,18 @@ def plot_trend(cycles: list[CycleRecord], limits: Limits, size_in=(11.0, 7.5), d
             art[f"tolerance:{name}"], = ax1.step(
                 x, tv, where="post", color=col, lw=2.2, ls=(0, (6, 2, 1, 2)),
                 label=f"{name}: tolerance {', '.join(f'{t:g}' for t in known)} mm (recipe)")
+            last = next(t for t in reversed(tol) if t is not None)
+            ax1.annotate(f"tolerance {last:g} mm", (1.0, last), xycoords=("axes fraction", "data"),
+                         xytext=(-4, -3), textcoords="offset points", ha="right", va="top",
+                         fontsize=8, color=col)
         else:
             ax1.plot([], [], " ", label=f"{name}: tolerance unknown (recipe version not in the log)")
     art["threshold"] = ax0.axhline(limits.threshold_mm, color="black", lw=1.8, ls="-.",
                                    label=f"recalibration threshold {limits.threshold_mm:g} mm "
                                          f"(mean of last {w})")
+    ax0.annotate(f"recalibration threshold {limits.threshold_mm:g} mm", (1.0, limits.threshold_mm),
+                 xycoords=("axes fraction", "data"), xytext=(-4, -3), textcoords="offset points",
+                 ha="right", va="top", fontsize=8)
     bad = [xs[i] for i, c in enumerate(cycles) if c.status != "done"]
     for ax in (ax0, ax1):
         lines = [ax.axvline(x, color="tab:red", lw=0.9, alpha=0.55) for x in bad]
