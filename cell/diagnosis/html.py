@@ -73,12 +73,12 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
     ok = np.abs(np.sin(np.radians(cmd[:, 1]))) > 0.15
     dq = np.full_like(r0, np.nan)
     dq[ok] = np.linalg.solve(np.stack([j1[ok], j2[ok]], 2), r0[ok][:, :, None])[:, :, 0]
-    panels = [("θ1 deg", cmd[:, 0]), ("θ2 deg", cmd[:, 1]), ("j1 direction", dirs[:, 0]),
-              ("j2 direction", dirs[:, 1]), ("time s", t)]
+    panels = [("θ1, deg", cmd[:, 0]), ("θ2, deg", cmd[:, 1]), ("j1 direction (−1 / +1)", dirs[:, 0]),
+              ("j2 direction (−1 / +1)", dirs[:, 1]), ("time, s", t)]
     if temp is not None:
-        panels.append(("temperature °C", temp))
+        panels.append(("temperature, °C", temp))
     if payload is not None:
-        panels.append(("payload kg", payload))
+        panels.append(("payload, kg", payload))
     n = len(panels) + bool(d.moves)
     cols = 4
     fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(14, 3.2 * ((n + cols - 1) // cols)),

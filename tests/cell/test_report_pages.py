@@ -107,3 +107,13 @@ def test_every_report_text_is_escaped():
                 "<pre-text>", "a < b"):
         assert raw not in text
     assert "&lt;script&gt;" in text and "a &lt; b &amp; c" in text
+
+
+def test_chain_page_for_a_campaign_with_no_cause(tmp_path):
+    """No cause: the plots draw 'after' as registration only; the action is no action."""
+    from tests.cell.chain import chainsim
+    camp = chainsim.make(tmp_path / "c", {}, seed=4)
+    assert main(["diagnose", str(camp), "--noise-mm", "0.03", "--html", str(tmp_path / "p")]) == 0
+    text = (tmp_path / "p" / "index.html").read_text()
+    assert 'data-kind="none"' in text and "No action: the gap is within noise." in text
+    assert "None: within noise" in text and "class=chosen" not in text
