@@ -411,6 +411,15 @@ class CycleLog:
                                  " ORDER BY first_active_at DESC, rowid DESC LIMIT 1", (name,)).fetchone()
         return (r[0], r[1]) if r else None
 
+    def recipe_text(self, hash_: str) -> str | None:
+        """Text of the recipe version with content hash ``hash_`` (what a cycle's
+        ``recipe_hash`` names), or None if the log never activated it."""
+        try:
+            rows = self._read("SELECT content FROM recipe_versions WHERE hash = ?", (hash_,))
+        except sqlite3.OperationalError:          # a log without the table
+            return None
+        return rows[0][0] if rows else None
+
 
 def _append_audit(db: sqlite3.Connection, who: str, action: str, target: str, hash_: str, result: str) -> None:
     last = db.execute("SELECT row_hash FROM audit ORDER BY id DESC LIMIT 1").fetchone()

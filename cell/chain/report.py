@@ -14,6 +14,7 @@ function of the readings, so they should agree.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -113,10 +114,24 @@ def _entry(c: rank.Candidate) -> dict:
             "rank": rk, "columns": cols, "condition": _r(cond, 1)}
 
 
+@dataclass
+class ChainDiagnosis:
+    """The report and what it was computed from (the HTML page's plots need the fits)."""
+
+    report: dict
+    search: rank.Search
+    decision: rank.Decision
+
+
 def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
     """The report (a JSON-ready dict) for chain campaign ``cc``; ``noise_mm`` is σ per axis
     of one point measurement if known. Raises CampaignFormatError for data that cannot be
     diagnosed (too few poses, a sensor frame the fit poses cannot fix)."""
+    return diagnose_chain_full(cc, noise_mm).report
+
+
+def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> ChainDiagnosis:
+    """:func:`diagnose_chain` with the search and decision behind the report."""
     fit_mask, split_src = split_poses(cc)
     d_all = F.Data.of(cc)
     fit_d, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
@@ -164,7 +179,7 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
                     f"on {', '.join(joints)}")
     summary += (", but most of it is left unexplained." if dec.unexplained else ".")
     n_reg = F.n_registration(fit_d)
-    return {
+    return ChainDiagnosis({
         "format": FORMAT,
         "source": cc.source,
         "chain": {"kinematics": chain.kind, "convention": chain.convention or None,
@@ -196,7 +211,7 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
                   "registration_cv_rms_mm": _r(f0.cv_rms)},
         "split": {"source": split_src, "fit_poses": fit_d.n_poses, "holdout_poses": hold_d.n_poses,
                   "fit_rows": len(fit_d.xyz), "holdout_rows": len(hold_d.xyz)},
-    }
+    }, s, dec)
 
 
 def render_chain_text(rep: dict) -> str:

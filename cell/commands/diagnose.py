@@ -1,7 +1,7 @@
 """``cellctl diagnose``: where the sim-to-real gap lies, which effect causes it, how far it
 shrinks on withheld rows (report format in ``cell/measurements.md``).
 
-    cellctl diagnose CAMPAIGN [--json] [--html DIR]
+    cellctl diagnose CAMPAIGN [--json] [--html DIR]      (planar or chain campaign)
     cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]
     cellctl diagnose validate [--trials 200] [--seed S] [--combos] [--points 300] [--json]
                               [--out-of-vocabulary SHARE] [--oov-kinds K1,K2]
@@ -113,10 +113,17 @@ def run(args: argparse.Namespace) -> int:
 
 def run_chain(campaign, args: argparse.Namespace) -> int:
     """A chain campaign (Extension v1.1): registration first, then the chain vocabulary."""
-    from cell.chain.report import diagnose_chain, render_chain_text
+    from cell.chain.report import diagnose_chain_full, render_chain_text
+    cd = diagnose_chain_full(campaign, args.noise_mm)
+    rep = cd.report
     if args.html:
-        raise ConfigError("--html: not available for chain campaigns yet; use --json")
-    rep = diagnose_chain(campaign, args.noise_mm)
+        from cell.chain.html import write_chain_html
+        try:
+            index = write_chain_html(cd, args.html)
+        except OSError as exc:
+            raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
+        if not args.json:
+            print(f"HTML report written to {index}")
     if args.json:
         print(json.dumps(json_safe(rep), indent=2, allow_nan=False))
     else:

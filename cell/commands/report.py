@@ -1,7 +1,8 @@
 """``cellctl report``: the process engineer's accuracy trend, and ``cellctl export``.
 
 ``report`` prints, per block of consecutive cycles, the initial and final error (mean, p95,
-max), moves and faults, and writes a PNG plot of every cycle's errors over time.
+max), moves and faults, and writes a PNG of the trend against the recipe's tolerance and
+the recalibration threshold (:mod:`cell.trend`).
 ``export`` writes the logged cycles as a measurement campaign for ``cellctl diagnose``.
 """
 from __future__ import annotations
@@ -21,6 +22,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--block", type=int, default=10, help="cycles per table row (default 10)")
     p.add_argument("--recipe", help="only this recipe")
     p.add_argument("--png", default="var/accuracy.png", help="plot file, or folder for accuracy.png (default var/accuracy.png; '' for none)")
+    p.add_argument("--config", help="cell config whose scheduler section gives the recalibration "
+                                    "threshold and window (default: the built-in defaults the "
+                                    "simulated cell runs with)")
+    p.add_argument("--recipes", default="recipes",
+                   help="recipe folder, for versions the log does not hold (default recipes)")
     p.set_defaults(func=run_report)
     e = sub.add_parser("export", help="export logged cycles to the measurement exchange format")
     e.add_argument("out", help="campaign directory to write")
@@ -58,34 +64,19 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"| {blk[0].id}–{blk[-1].id} | {blk[0].part_id} | {stats} | {faults} |")
     if args.png:
         png = png_path(args.png, "accuracy.png")
-        _plot(cycles, png)
+        _plot(args, cycles, png)
         print(f"plot written to {png}")
     return 0
 
 
-def _plot(cycles, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    done = [c for c in cycles if c.status == "done" and c.final_error_mm is not None]
-    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=100)
-    ids = [c.id for c in done]
-    ax.semilogy(ids, [c.initial_error_mm for c in done], ".", color="0.6", label="initial error (first arrival)")
-    ax.semilogy(ids, [c.verify_error_mm if c.verify_error_mm is not None else c.final_error_mm
-                      for c in done], "o", ms=3, label="final error (verified by the camera)")
-    ax.xaxis.get_major_locator().set_params(integer=True)
-    bad = [c for c in cycles if c.status != "done"]
-    for c in bad:
-        ax.axvline(c.id, color="tab:red", lw=0.8, alpha=0.6)
-    ax.set_xlabel("cycle id")
-    ax.set_ylabel("error, mm (log scale)")
-    ax.set_title(f"Accuracy trend, {len(done)} completed cycles, {len(bad)} faulted/aborted (red)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="upper right")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+def _plot(args: argparse.Namespace, cycles, path: Path) -> None:
+    """The trend PNG (:func:`cell.trend.write_png`): tolerance of each cycle's recipe
+    version, the drift watch's recalibration threshold from ``--config`` (or the defaults)."""
+    from cell.config import CellConfig
+    from cell.trend import write_png
+    sched = CellConfig.load(args.config).scheduler if args.config else None
+    write_png(Path(args.db), cycles, path, Path(args.recipes),
+              sched.drift_threshold_mm if sched else None, sched.drift_window if sched else None)
 
 
 def run_export(args: argparse.Namespace) -> int:

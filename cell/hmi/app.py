@@ -137,7 +137,7 @@ def create_app(s: HmiSettings) -> Starlette:
     async def trend(request: Request) -> Response:
         if (r := guard_view(request)) is not None:
             return r
-        png = await run_in_threadpool(st.trend_png, s.log_path)
+        png = await run_in_threadpool(st.trend_png, s.log_path, s.desk.directory)
         if png is None:
             return PlainTextResponse("no cycles logged yet", status_code=404)
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})

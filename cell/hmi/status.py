@@ -87,11 +87,11 @@ def plc_status(host: str, port: int, timeout_s: float = 1.0) -> dict:
     return out
 
 
-def trend_png(path: Path) -> bytes | None:
-    """The accuracy-trend PNG of ``cellctl report`` for the log at ``path``; None without
-    cycles or a readable log."""
-    from cell.commands.report import _plot
+def trend_png(path: Path, recipes_dir: Path | None = None) -> bytes | None:
+    """The accuracy-trend PNG of ``cellctl report`` for the log at ``path`` (tolerances
+    also from the files of ``recipes_dir``); None without cycles or a readable log."""
     from cell.cyclelog import CycleLog
+    from cell.trend import write_png
     if not Path(path).is_file():
         return None
     try:
@@ -106,5 +106,5 @@ def trend_png(path: Path) -> bytes | None:
         return None
     with _plot_lock, tempfile.TemporaryDirectory(prefix="hmi-trend-") as d:
         png = Path(d) / "accuracy.png"
-        _plot(cycles, png)              # the very plot `cellctl report` writes
+        write_png(Path(path), cycles, png, recipes_dir)   # the very plot `cellctl report` writes
         return png.read_bytes()
