@@ -19,6 +19,7 @@ from cell.cyclelog import CycleLog
 from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
 from cell.measure import MeasuringCamera
+from cell.publish import Publisher
 from cell.recipe_store import RecipeStore
 from cell.recipes import all_checks, motion_check_from_config, reach_check
 from drivers.plc import open_link
@@ -76,6 +77,9 @@ class Cell:
         # that runs ahead (run --sim), settle_s of *simulated* time passed in milliseconds and a
         # file left half-written for a moment was taken as complete
         self.with_jobs = jobs
+        #: settled cycles and status changes for the plant (OPC UA, MQTT, the HMI):
+        #: subscribe before or after start (:mod:`cell.publish`)
+        self.publisher = Publisher()
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
         self.measuring_camera: MeasuringCamera | None = None
@@ -103,7 +107,8 @@ class Cell:
             settings = ControllerSettings(self.config.controller.scan_s, self.config.plc.heartbeat_timeout_s,
                                           self.config.controller.recipe_refresh_s)
             self.controller = CellController(self.plc, self.motion, runner, self.cyclelog, self.recipes,
-                                             settings, clock=self.clock, calibrator=self.calibrator)
+                                             settings, clock=self.clock, calibrator=self.calibrator,
+                                             publisher=self.publisher)
             self.controller.start()
             port = self.plc.start(self.config.plc.host, self.plc_port)
             if self.with_jobs:

@@ -16,7 +16,9 @@ handshake); this shell only moves data in and out:
 * out: status bits and registers; actions — start a cycle (with an atomic snapshot of
   the recipe) or a calibration (``calibrator``, in the same task slot), cancel it (the
   cycle is *given* the reason), quick-stop every joint, reset the drives, re-read the
-  recipes (auditing every change), record what the PLC was told.
+  recipes (auditing every change), record what the PLC was told; publish each settled
+  cycle and every status change (:mod:`cell.publish`, the one place plant integration
+  subscribes to).
 
 Nothing slow runs on the scan task. Re-reading recipes and log updates go to the
 ``cell-log`` worker, re-enabling drives to the ``cell-drives`` worker
@@ -37,6 +39,7 @@ from cell.cycle import CancelToken, CycleOutcome, CycleRunner
 from cell.cyclelog import CycleLog
 from cell.faults import Fault, station_fault
 from cell.log import get_logger
+from cell.publish import Publisher
 from cell.recipe_store import RecipeStore
 from cell.recipes import ActiveRecipe
 from cell.statemachine import State, StateMachine
@@ -55,12 +58,15 @@ class CellController:
 
     def __init__(self, plc, motion, runner: CycleRunner, cyclelog: CycleLog, recipes: RecipeStore,
                  settings: ControllerSettings = ControllerSettings(), clock: Clock | None = None,
-                 calibrator=None):
+                 calibrator=None, publisher: Publisher | None = None):
         """:param calibrator: runs calibrations the PLC starts (``run_safely(select, cancel)
             -> CycleOutcome``, ``version``; :class:`cell.calibration.service.CellCalibrator`);
-            None: every calibrate edge ends in fault 601."""
+            None: every calibrate edge ends in fault 601.
+        :param publisher: where settled cycles and status changes go for the plant
+            (:mod:`cell.publish`); default: one of its own (:attr:`publisher`)."""
         self.plc, self.motion, self.runner, self.log, self.recipes = plc, motion, runner, cyclelog, recipes
         self.calibrator = calibrator
+        self.publisher = publisher or Publisher()   #: settled cycles and status, for the plant
         self._task_outcome = lambda: self.runner.outcome   # where the running task leaves its end
         self.settings = settings
         self.clock = clock or MonotonicClock()
@@ -166,6 +172,14 @@ class CellController:
         self._write(out.status, out.registers)
         self._apply(out.actions)
         self._audit_refusals()
+        self.publisher.status(self.clock.now(), self.status_snapshot())
+
+    def status_snapshot(self) -> dict:
+        """What a PLC or an operator looks at, as published on ``status`` (:mod:`cell.publish`)."""
+        return {"state": self.sm.state.name.lower(), "fault_code": int(self.fault_code),
+                "fault_text": self.fault_text, "cycle_count": int(self.cycle_count),
+                "recipe_number": int(self.recipe_number), "recalibration_due": bool(self.recalibration_due),
+                "plc_owner": self._owner}
 
     def _tag_owner(self) -> None:
         """Every log line of the scan thread names the PLC client that owns the link."""
@@ -287,6 +301,9 @@ class CellController:
         def settle():
             if self.log.settle_cycle(a.started_at, a.cycle_id, a.status, a.fault_code, a.text):
                 log.warning("cycle_row_corrected", cycle_id=a.cycle_id, told=a.status, fault=a.fault_code)
+            rec = self.log.cycle(a.cycle_id) if a.cycle_id is not None else None
+            if rec is not None:                    # settled: as the log and the PLC have it
+                self.publisher.cycle(self.clock.now(), rec)
         self._logged("settle_cycle", settle)
 
     @staticmethod

@@ -304,6 +304,11 @@ class CycleLog:
         rows = self._read(sql, args)
         return [self._record(r) for r in rows]
 
+    def cycle(self, cycle_id: int) -> CycleRecord | None:
+        """The cycle with id ``cycle_id``, or None."""
+        rows = self._read("SELECT * FROM cycles WHERE id = ?", (int(cycle_id),))
+        return self._record(rows[0]) if rows else None
+
     def _read(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         """Rows of one query, under the lock. Damage met only now (pages the opening checks
         did not touch) raises :class:`LogError` saying what it means, not sqlite3's error."""
