@@ -13,15 +13,16 @@ import difflib
 import json
 from pathlib import Path
 
+from cell import paths
 from cell.errors import ConfigError
 
-DEFAULT_DIR = "recipes"
-DEFAULT_DB = "var/cell.sqlite"
+DEFAULT_DIR = paths.DEFAULT_RECIPES
+DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("recipe", help="list, show, validate and diff recipes")
-    p.add_argument("--dir", default=DEFAULT_DIR, help=f"recipe directory (default {DEFAULT_DIR})")
+    p.add_argument("--dir", default=str(paths.project(DEFAULT_DIR)), help=f"recipe directory (default: the project's {DEFAULT_DIR}/)")
     rs = p.add_subparsers(dest="recipe_cmd", required=True, metavar="ACTION")
     rs.add_parser("list", help="every recipe file with its number, hash and validity")
     s = rs.add_parser("show", help="print one recipe with its hash")
@@ -33,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d = rs.add_parser("diff", help="diff a recipe against its last activated version, or two files")
     d.add_argument("a", help="recipe name, or a file")
     d.add_argument("b", nargs="?", help="second file")
-    d.add_argument("--db", default=DEFAULT_DB, help=f"cycle log with activated versions (default {DEFAULT_DB})")
+    d.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log with activated versions (default: the project's {DEFAULT_DB})")
     sc = rs.add_parser("schema", help="print (or write) the recipe JSON schema for editors")
     sc.add_argument("--out", help="write to this file instead of printing")
     p.set_defaults(func=run)
@@ -62,7 +63,7 @@ def _cell_checks(config: str | None):
     from cell.config import CellConfig
     from cell.kinematics import Scara
     from cell.recipes import all_checks, motion_check_from_config, reach_check
-    cfg = CellConfig.load(config) if config else CellConfig()
+    cfg = CellConfig.load(config) if config else CellConfig().with_paths()
     r = cfg.robot
     robot = Scara(r.geometry) if r.geometry is not None else Scara.preset(r.preset)
     motion, complete = motion_check_from_config(cfg.stations) if config else (None, True)

@@ -24,10 +24,11 @@ import json
 import sys
 from pathlib import Path
 
+from cell import paths
 from cell.commands import png_path
 from cell.errors import ConfigError
 
-DEFAULT_PNG = "var/calibration/{joint}-errors.png"
+DEFAULT_PNG = "var/calibration/{joint}-errors.png"   #: in the project folder (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -132,7 +133,7 @@ def run_joint(args: argparse.Namespace) -> int:
     plan, result = _session(args, lambda cal: cal.joint(
         joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
         period_deg=args.period_deg, progress=_progress("image")))
-    png = png_path(args.png, f"{joint}-errors.png") if args.png else Path(DEFAULT_PNG.format(joint=joint))
+    png = png_path(args.png, f"{joint}-errors.png") if args.png else paths.project(DEFAULT_PNG.format(joint=joint))
     png.parent.mkdir(parents=True, exist_ok=True)
     plot(result, png)
     if args.json:

@@ -24,12 +24,13 @@ from pathlib import Path
 
 from typing import TYPE_CHECKING
 
+from cell import paths
 from cell.errors import ConfigError
 
 if TYPE_CHECKING:
     from cell.config import CellConfig
 
-DEFAULT_SIM_DB = "var/cell.sqlite"      #: where cellctl report/export/diagnose look by default
+DEFAULT_SIM_DB = paths.DEFAULT_DB     #: where cellctl report/export/diagnose look by default (in the project)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -71,9 +72,11 @@ def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | 
     if sim and not path:
         update["plc"] = cfg.plc.model_copy(update={"host": "127.0.0.1"})
         update["log"] = cfg.log.model_copy(update={"path": DEFAULT_SIM_DB})
-    if db:
-        update["log"] = (update.get("log") or cfg.log).model_copy(update={"path": db})
-    return cfg.model_copy(update=update) if update else cfg
+    # defaults against the project (a loaded config's own paths are absolute already) ...
+    cfg = (cfg.model_copy(update=update) if update else cfg).with_paths()
+    if db:                                # ... but what the user typed, against their shell
+        cfg = cfg.model_copy(update={"log": cfg.log.model_copy(update={"path": db})})
+    return cfg
 
 
 def fresh_log(path: str) -> None:
@@ -138,9 +141,9 @@ def run_sim(args: argparse.Namespace) -> int:
         if done:
             fin = [r["final_error_mm"] for r in done]
             print(f"{len(done)}/{len(rows)} cycles done; final error mean {sum(fin) / len(fin):.3f} mm, "
-                  f"max {max(fin):.3f} mm; {sim_s:.1f} s simulated in {wall_s:.1f} s; log {cfg.log.path}")
+                  f"max {max(fin):.3f} mm; {sim_s:.1f} s simulated in {wall_s:.1f} s; log {paths.shown(cfg.log.path)}")
         else:
-            print(f"no cycle done; log {cfg.log.path}")
+            print(f"no cycle done; log {paths.shown(cfg.log.path)}")
     return 0 if all(r["fault"] is None for r in rows) and len(rows) == args.cycles else 1
 
 
