@@ -3,6 +3,7 @@ nothing when piped; ``run`` prints each part's line when the part finishes; ``se
 what stopped it, why, and the state it ended in."""
 from __future__ import annotations
 
+import json
 import os
 import pty
 import re
@@ -100,3 +101,27 @@ def test_serve_says_why_it_stopped_and_in_what_state(tmp_path):
         proc.kill()
     assert proc.returncode == 0, err
     assert "stopped: SIGTERM received; final state " in err, err
+
+
+def test_a_run_cut_short_by_a_plc_time_out_still_prints_the_parts_before(tmp_path, capsys, monkeypatch):
+    from cell.cli import main
+    from cell.sim.plc import SimPlc, SimPlcError
+    real, calls = SimPlc.run_cycle, []
+
+    def second_times_out(self, *a, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise SimPlcError("SimPlc: timed out after 30 s waiting for done, error or aborted")
+        return real(self, *a, **kw)
+    monkeypatch.setattr(SimPlc, "run_cycle", second_times_out)
+    assert main(["run", "--sim", "--cycles", "3", "--db", str(tmp_path / "log.sqlite")]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].split()[:2] == ["1", "bracket-a"] and lines[1].rstrip().endswith("-")
+    assert lines[2].split()[:2] == ["2", "bracket-a"] and "PLC: SimPlc: timed out" in lines[2]
+    assert lines[3].startswith("1/2 cycles done")
+
+    calls.clear()
+    assert main(["run", "--sim", "--cycles", "3", "--json", "--db", str(tmp_path / "log2.sqlite")]) == 1
+    cycles = json.loads(capsys.readouterr().out)["cycles"]
+    assert [c["part_id"] for c in cycles] == [1, 2]
+    assert cycles[0]["fault"] is None and cycles[1]["fault"].startswith("PLC: SimPlc: timed out")
