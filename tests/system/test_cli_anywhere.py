@@ -63,11 +63,14 @@ def test_paths_in_a_config_are_the_config_files(tmp_path):
 def test_config_defaults_are_the_projects_and_written_paths_the_files(tmp_path):
     from cell.config import CellConfig
     path = tmp_path / "cell.yaml"
-    path.write_text("sim: {}\nrecipes:\n  directory: my-recipes\n")
+    path.write_text("sim: {}\nrecipes:\n  directory: my-recipes\ncamera: {backend: folder, path: frames}\n"
+                    "log:\n  path: /abs/cell.sqlite\n")
     cfg = CellConfig.load(path)
     assert cfg.recipes.directory == str(tmp_path / "my-recipes")
+    assert cfg.camera["path"] == str(tmp_path / "frames")
     assert cfg.sim.plant == str(REPO / "deploy/plants/default.yaml")
-    assert cfg.log.path == str(REPO / "var/cell.sqlite")
+    assert cfg.log.path == "/abs/cell.sqlite"
+    assert cfg.calibration.file == str(REPO / "var/robot-calibration.json")
     assert CellConfig().with_paths().vision.calibration == str(REPO / "var/calibration.json")
 
 
