@@ -70,7 +70,8 @@ def main(argv: list[str]) -> int:
     _ensure_venv()
     cmd, rest = argv[0], argv[1:]
     if cmd == "run":
-        return subprocess.call([str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest], cwd=ROOT)
+        # the caller's working directory: cellctl resolves its own defaults against the project
+        return subprocess.call([str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest])
     if cmd == "cellctl":
         # the caller's working directory: cellctl resolves its own defaults against the project
         return subprocess.call([str(BIN / "cellctl"), *rest])

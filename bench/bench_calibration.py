@@ -53,7 +53,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from cell import log  # noqa: E402
+from cell import log, progress  # noqa: E402
 from cell.app import Cell  # noqa: E402
 from cell.calibration.service import CellCalibrator  # noqa: E402
 from cell.config import CellConfig, SimSection  # noqa: E402
@@ -186,7 +186,7 @@ def main(argv=None) -> int:
     rows_p, rows_h, rows_j, rows_c = [], [], [], []
     tmp = Path(tempfile.mkdtemp(prefix="bench-cal-"))
     try:
-        for name in names:
+        for name in progress.each(names, "plants", "plant"):
             pl = plant(name)
             pf = tmp / f"{name}.yaml"
             pf.write_text(yaml.safe_dump(pl))

@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import can  # noqa: E402
 import numpy as np  # noqa: E402
 
+from cell import progress  # noqa: E402
 from cell.errors import TrajectoryError  # noqa: E402
 from cell.kinematics import JOINT_NAMES, Scara  # noqa: E402
 from cell.log import configure  # noqa: E402
@@ -202,7 +203,7 @@ def main() -> None:
     speeds = (100.0, 500.0) if args.quick else (100.0, 300.0, 500.0)
     t_wall = time.perf_counter()
     rows: list[Row] = []
-    for sigma in sigmas:
+    for sigma in progress.each(sigmas, "bus delays σ", "σ"):
         rig = Rig(sigma)
         try:
             for name in LINES:

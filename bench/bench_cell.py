@@ -65,7 +65,7 @@ import pymodbus  # noqa: E402
 from pymodbus.client import ModbusTcpClient  # noqa: E402
 from pymodbus.server import ModbusTcpServer  # noqa: E402
 
-from cell import log  # noqa: E402
+from cell import log, progress  # noqa: E402
 from cell.app import Cell  # noqa: E402
 from cell.config import CellConfig, SimSection  # noqa: E402
 from cell.cyclelog import CycleLog  # noqa: E402
@@ -183,7 +183,7 @@ def main_job(n: int, db: Path, seed: int | None) -> dict:
 def faster_than_real_time(n: int, runs: int, tmp: Path, seed: int | None) -> list[dict]:
     load0 = loadavg()
     res = []
-    for i in range(runs):
+    for i in progress.each(range(runs), "main-job runs", "run"):
         d = tmp / f"run{i + 1}"
         d.mkdir()
         res.append(main_job(n, d / "x.sqlite", seed))

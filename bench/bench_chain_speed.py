@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import cell  # noqa: F401  (one BLAS thread, as cellctl runs: see cell/__init__.py)
+from cell import progress
 from cell.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth.chain_campaign import MARKER4, MARKERS, arm, make
@@ -60,7 +61,7 @@ def table(title: str, key: str, cases, repeats: int, tmp: Path) -> None:
     print(f"| {key} | points | CPU s (median) | ms per pose | × smallest case | cause named |")
     print("|---:|---:|---:|---:|---:|---|")
     base = None
-    for value, (poses, joints) in cases:
+    for value, (poses, joints) in progress.each(cases, title, "case"):
         d = campaign(tmp, poses, joints)
         s, rep = cpu(d, repeats)
         base = base or s

@@ -18,6 +18,7 @@ import argparse
 import platform
 import time
 
+from cell import progress
 from cell.diagnosis import validate
 
 
@@ -34,7 +35,9 @@ def main() -> None:
             (False, 1.0, "outside the vocabulary"))
     for combos, share, kind in runs:
         t0 = time.perf_counter()
-        ts = validate.run(n, args.seed, combos, args.points, outside_share=share)
+        with progress.bar(kind, total=n, unit="campaign") as bar:
+            ts = validate.run(n, args.seed, combos, args.points, outside_share=share,
+                              progress=lambda i, t: bar.update(1))
         wall = time.perf_counter() - t0
         cmd = (f"cellctl diagnose validate --trials {n} --seed {args.seed} --points {args.points}"
                + (" --combos" if combos else "")

@@ -26,6 +26,7 @@ import statistics
 import time
 
 from cell import effects as fx
+from cell import progress
 from cell.diagnosis import diagnose
 from cell.diagnosis.synth import Design, make_campaign
 
@@ -68,7 +69,7 @@ def main() -> None:
     print("| points | rows | before-style CPU s median (max) | after CPU s median (max) "
           "| ratio of medians | same answer |")
     print("|---:|---:|---:|---:|---:|---:|")
-    for n in sizes:
+    for n in progress.each(sizes, "sizes", "size"):
         times = {w: [] for w, _ in WAYS}
         same = 0
         rows = 0

@@ -48,6 +48,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from cell import progress  # noqa: E402
 from cell.clock import MonotonicClock  # noqa: E402
 from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
 from drivers.plc.register_map import PLC_MAP  # noqa: E402
@@ -317,7 +318,7 @@ def main() -> int:
         time.sleep(seconds)                               # 1. quiet
         rss["after quiet"] = _rss_mb(server.pid)
         traffic, served = {}, [0, 0, 0.0]
-        for rnd in range(1, args.rounds + 1):
+        for rnd in progress.each(range(1, args.rounds + 1), "storm rounds", "round"):
             for phase in ("fuzz", "connections"):
                 plc.phase = reader.phase = phase
                 attackers = _attack(phase if phase == "fuzz" else "conn", port, seconds, args.attackers,

@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cell import log  # noqa: E402
+from cell import log, progress  # noqa: E402
 from cell.clock import MonotonicClock  # noqa: E402
 from cell.controller import CellController, ControllerSettings  # noqa: E402
 from cell.cycle import CycleRunner  # noqa: E402
@@ -125,7 +125,7 @@ def main() -> int:
     rows = []
     try:
         time.sleep(1.0)
-        for name, action in phases:
+        for name, action in progress.each(phases, "phases", "phase"):
             rows.append((name, run_phase(ctl, args.seconds, action)))
     finally:
         plc.stop()

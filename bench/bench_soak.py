@@ -169,7 +169,7 @@ def machine() -> str:
 
 def config(db: Path, seed: int | None) -> CellConfig:
     """The built-in simulated cell of ``cellctl run --sim``, its log at ``db``."""
-    cfg = CellConfig(sim=SimSection())
+    cfg = CellConfig(sim=SimSection()).with_paths()     # the project's plant and recipes, from any folder
     sim = cfg.sim if seed is None else cfg.sim.model_copy(update={"seed": seed})
     return cfg.model_copy(update={"sim": sim, "plc": cfg.plc.model_copy(update={"host": "127.0.0.1"}),
                                   "log": cfg.log.model_copy(update={"path": str(db)})})

@@ -20,6 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from cell import progress
+
 REPO = Path(__file__).resolve().parents[1]
 BASELINE = [sys.executable, "-c", "pass"]
 COMMANDS = ([], ["diagnose"], ["calibrate", "kinematics"], ["run"], ["plan", "line"])
@@ -51,7 +53,7 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.2f}; {args.runs} pairs per command\n")
     print("| command | CPU s median (min–max) | `python -c pass` CPU s median | ratio median (min–max) |")
     print("|---|---:|---:|---:|")
-    for words in COMMANDS:
+    for words in progress.each(COMMANDS, "commands", "command"):
         argv = [sys.executable, "-m", "cell.cli", *words, "--help"]
         a, b = paired(argv, args.runs)
         ratios = [x / y for x, y in zip(a, b) if y > 0]

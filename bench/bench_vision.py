@@ -28,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from cell import progress  # noqa: E402
 from cell.vision import CameraModel, find_fiducial, find_fiducials  # noqa: E402
 from cell.sim.camera import Fiducial, Optics, render, render_float  # noqa: E402
 
@@ -61,7 +62,7 @@ def accuracy(trials: int, seed: int):
     pos = rng.uniform(-3.0, 3.0, (trials, 2))
     fisher = np.array([fisher_sums(x, y) for x, y in pos])
     rows = []
-    for noise in NOISES:
+    for noise in progress.each(NOISES, "noise levels", "level"):
         crb_var = noise ** 2 / fisher                        # (trials, 2)
         errs = {m: [] for m in METHODS}
         fails = {m: 0 for m in METHODS}

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from cell import paths
 from cell.errors import CellError
 from cell.kinematics import PRESETS, Geometry, Scara
 from cell.yamlio import load_model
@@ -164,7 +165,46 @@ class CellConfig(_Section):
     @classmethod
     def load(cls, path: Path | str) -> "CellConfig":
         """Load and validate ``path``; raises ConfigError naming file, line and field.
-        Relative certificate paths (``plc.tls``) are taken from the file's folder."""
+        Relative paths written in the file (certificates, recipes, log, calibrations, plant,
+        a replay camera's folder) are taken from the file's folder; the defaults of keys it
+        leaves out, from the project's (:mod:`cell.paths`), never from the shell's."""
         cfg = load_model(path, cls, "cell config")
         tls = cfg.plc.tls.resolved(Path(path).resolve().parent)
-        return cfg.model_copy(update={"plc": cfg.plc.model_copy(update={"tls": tls})})
+        cfg = cfg.model_copy(update={"plc": cfg.plc.model_copy(update={"tls": tls})})
+        return cfg.with_paths(path)
+
+    def with_paths(self, file: Path | str | None = None) -> "CellConfig":
+        """This config with every relative file path made absolute: a value written in the
+        config ``file`` against that file's folder, a default (every value when ``file`` is
+        None: a config built in code) against the project's folder."""
+        def fix(section: BaseModel, *names: str) -> BaseModel:
+            update = {}
+            for name in names:
+                value = getattr(section, name)
+                if not value or Path(value).is_absolute():
+                    continue
+                written = file is not None and name in section.model_fields_set
+                update[name] = str(paths.from_file(value, file) if written else paths.project(value))
+            return section.model_copy(update=update) if update else section
+
+        def camera(conf: dict[str, Any] | None, written: bool) -> dict[str, Any] | None:
+            # the replay camera reads a folder of images (drivers.camera: backend folder)
+            if not conf or conf.get("backend") != "folder" or not isinstance(conf.get("path"), str) \
+                    or Path(conf["path"]).is_absolute():
+                return conf
+            base = paths.from_file(conf["path"], file) if written and file is not None \
+                else paths.project(conf["path"])
+            return {**conf, "path": str(base)}
+
+        cal = fix(self.calibration, "file", "hand_calibration")
+        cal = cal.model_copy(update={"hand_camera": camera(cal.hand_camera, "hand_camera" in cal.model_fields_set)})
+        update: dict[str, Any] = {
+            "vision": fix(self.vision, "calibration"),
+            "recipes": fix(self.recipes, "directory"),
+            "log": fix(self.log, "path"),
+            "calibration": cal,
+            "camera": camera(self.camera, "camera" in self.model_fields_set),
+        }
+        if self.sim is not None:
+            update["sim"] = fix(self.sim, "plant")
+        return self.model_copy(update=update)

@@ -110,13 +110,28 @@ def _parse_cell(kind: str, text: str, path: Path, line: int, column: str) -> obj
     return v
 
 
+def _check_separator(path: Path, header: str) -> None:
+    """A header with ';' or tabs and no ',' (a spreadsheet export in a locale whose decimal
+    mark is ','): say so, instead of reporting the one long column as missing columns."""
+    if "," in header:
+        return
+    for sep, name in ((";", "';'"), ("\t", "a tab")):
+        if sep in header:
+            raise CampaignFormatError(path, f"the separator is {name} where ',' is required (the "
+                                            "format, cell/measurements.md, is comma-separated with "
+                                            "'.' as decimal mark); save the file as CSV with ',' "
+                                            "separators", line=1)
+
+
 def _read_table(path: Path, columns: dict[str, tuple[str, bool]]) -> tuple[dict[str, np.ndarray], list[int]]:
     """Parse one CSV table; returns the columns and the 1-based file line of every row."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CampaignFormatError(path, f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    rows = list(csv.reader(text.splitlines()))
+    lines = text.splitlines()
+    _check_separator(path, lines[0] if lines else "")
+    rows = list(csv.reader(lines))
     if not rows or not any(c.strip() for c in rows[0]):
         raise CampaignFormatError(path, "empty file: expected a header line", line=1)
     header = [h.strip() for h in rows[0]]

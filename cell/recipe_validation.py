@@ -42,7 +42,7 @@ def cell_checks(config: str | None):
     ``complete`` is False when the stations' latency is measured at start-up, so the segment
     time is checked against the wire time only (the controller checks again)."""
     from cell.config import CellConfig
-    cfg = CellConfig.load(config) if config else CellConfig()
+    cfg = CellConfig.load(config) if config else CellConfig().with_paths()
     return checks_for(cfg, with_stations=bool(config))
 
 

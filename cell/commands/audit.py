@@ -13,20 +13,21 @@ from __future__ import annotations
 import argparse
 import json
 
+from cell import paths
 from cell.commands import open_log_readonly
 from cell.errors import ConfigError
 
-DEFAULT_DB = "var/cell.sqlite"
+DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("audit", help="the tamper-evident audit trail: verify its chain, list it")
     asub = p.add_subparsers(dest="audit_command", required=True, metavar="ACTION")
     v = asub.add_parser("verify", help="check the hash chain; name the first broken row")
-    v.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    v.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
     v.set_defaults(func=run_verify)
     ls = asub.add_parser("list", help="the audit rows, oldest first")
-    ls.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    ls.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
     ls.add_argument("--last", type=int, metavar="N", help="only the last N rows")
     ls.add_argument("--json", action="store_true", help="print the rows as JSON")
     ls.set_defaults(func=run_list)

@@ -1,20 +1,28 @@
 """``cellctl calibrate-camera``: the camera's plane calibration from images of a board.
 
 The board (circle grid or chessboard) lies on the work plane at a known place in the robot
-base frame, described in a small YAML file::
+base frame. ``--board FILE`` describes it in a small YAML file::
 
-    kind: circles          # or chessboard
-    cols: 11
-    rows: 7
-    pitch_mm: 4.0          # chessboard: square_mm
-    radius_mm: 1.0
+    kind: circles            # circles: a symmetric grid of dark dots on light paper
+    cols: 11                 # dots per row (chessboard: inner corners per row), 3-100
+    rows: 7                  # rows of dots (chessboard: inner corners per column), 3-100
+    pitch_mm: 4.0            # circles: centre-to-centre distance (default 10)
+    radius_mm: 1.0           # circles: dot radius (default 2.5)
+    origin_mm: [230.0, 918.0]  # base-frame x, y of point (col 0, row 0) (default [0, 0])
+    angle_deg: 0.0           # the board's col axis from the base x axis, counter-clockwise (default 0)
+
+    kind: chessboard         # a chessboard instead: the points are its inner corners,
+    cols: 9                  # the square at (-1, -1) is black, a one-square white border
+    rows: 6
+    square_mm: 10.0          # side of a square (default 10)
     origin_mm: [230.0, 918.0]
     angle_deg: 0.0
 
-Images come from a folder (``--images DIR``, e.g. saved by the camera vendor's tool) or from
-the configured camera (``--config deploy/cell.yaml --views 3``). The result is the JSON file
-the cell loads at start-up (``vision.calibration``), written atomically; the command prints
-the reprojection error in pixels and mm.
+Point (col, row) lies at origin_mm + R(angle_deg) · (col, row) · pitch (or square). No
+other key is accepted. Images come from a folder (``--images DIR``, e.g. saved by the
+camera vendor's tool) or from the configured camera (``--config deploy/cell.yaml --views
+3``). The result is the JSON file the cell loads at start-up (``vision.calibration``),
+written atomically; the command prints the reprojection error in pixels and mm.
 """
 from __future__ import annotations
 
@@ -28,8 +36,12 @@ from cell.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate-camera", help="plane calibration of the camera from board images")
-    p.add_argument("--board", required=True, help="board description (YAML, see cellctl calibrate-camera -h)")
+    p = sub.add_parser("calibrate-camera", help="plane calibration of the camera from board images",
+                       description=__doc__.replace("``", "").replace("::", ":"),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--board", required=True, metavar="BOARD.yaml",
+                   help="the board: kind, cols, rows, pitch_mm/radius_mm or square_mm, origin_mm, "
+                        "angle_deg (format above)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--images", help="folder of board images")
     src.add_argument("--config", help="cell config: grab from its camera")

@@ -33,6 +33,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cell import progress
 from cell.commands import float_list, summary
 from cell.errors import ConfigError
 from cell.jsonsafe import json_safe
@@ -225,7 +226,9 @@ def run_validate(args: argparse.Namespace) -> int:
     from cell.diagnosis import validate
     trials, seed, points, share, kinds = _validate_options(args, validate.OUTSIDE, 200, 300,
                                                            "static poses per campaign")
-    ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds)
+    with progress.bar("validate", total=trials, unit="campaign") as p:
+        ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds,
+                          progress=lambda i, t: p.update(1))
     kind = "main effect + smaller second" if args.combos else "single effect"
     title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
              f"6 moves each")
@@ -240,7 +243,8 @@ def run_validate_chain(args: argparse.Namespace) -> int:
         raise ConfigError("--combos: not available with --chain yet (single effects only)")
     trials, seed, poses, share, kinds = _validate_options(args, validate.OUTSIDE, 100, 60,
                                                           "poses per chain campaign", chain=True)
-    ts = validate.run(trials, seed, poses, share, kinds)
+    with progress.bar("validate --chain", total=trials, unit="campaign") as p:
+        ts = validate.run(trials, seed, poses, share, kinds, progress=lambda i, t: p.update(1))
     title = (f"Chain diagnosis validation: {trials} campaigns, seed {seed}, {poses} poses × 3 "
              "markers each (UR5, tracker at an unknown pose)")
     if share:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from cell import paths
 from cell.errors import ConfigError
 
 DEFAULT_USERS = "var/hmi-users.json"
@@ -27,8 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; "
                                                         "clients other than loopback must log in to see anything)")
     p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 picks a free one)")
-    p.add_argument("--users", default=DEFAULT_USERS, help=f"users file (default {DEFAULT_USERS})")
-    p.add_argument("--reports", default=DEFAULT_REPORTS, help=f"folder of HTML reports (default {DEFAULT_REPORTS})")
+    p.add_argument("--users", default=str(paths.project(DEFAULT_USERS)),
+                   help=f"users file (default: the project's {DEFAULT_USERS})")
+    p.add_argument("--reports", default=str(paths.project(DEFAULT_REPORTS)),
+                   help=f"folder of HTML reports (default: the project's {DEFAULT_REPORTS})")
     p.add_argument("--plc", metavar="HOST:PORT", help="read the controller's status registers from this "
                                                       "Modbus TCP link (read-only); default: the log only")
     p.add_argument("--dir", help="recipe folder (default: the config's recipes.directory)")
@@ -38,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pw.add_argument("user")
     pw.add_argument("--role", choices=ROLES, default="maintenance", help="maintenance or engineer may edit "
                                                                           "recipes; viewer only looks (default maintenance)")
-    pw.add_argument("--users", default=argparse.SUPPRESS, help=f"users file (default {DEFAULT_USERS})")
+    pw.add_argument("--users", default=argparse.SUPPRESS,
+                    help=f"users file (default: the project's {DEFAULT_USERS})")
     pw.add_argument("--password-stdin", action="store_true", help="read the password from stdin "
                                                                   "(default: ask twice on the terminal)")
     p.set_defaults(func=run)

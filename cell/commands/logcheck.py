@@ -10,16 +10,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cell import paths
 from cell.errors import ConfigError, LogError
 
-DEFAULT_DB = "var/cell.sqlite"
+DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("log", help="the cycle log: check it for damage")
     lsub = p.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     c = lsub.add_parser("check", help="integrity check, audit chain, cycle in flight, lock holder")
-    c.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    c.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
     c.set_defaults(func=run_check)
 
 

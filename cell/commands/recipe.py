@@ -14,15 +14,16 @@ import difflib
 import json
 from pathlib import Path
 
+from cell import paths
 from cell.errors import ConfigError
 
-DEFAULT_DIR = "recipes"
-DEFAULT_DB = "var/cell.sqlite"
+DEFAULT_DIR = paths.DEFAULT_RECIPES
+DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("recipe", help="list, show, validate and diff recipes")
-    p.add_argument("--dir", default=DEFAULT_DIR, help=f"recipe directory (default {DEFAULT_DIR})")
+    p.add_argument("--dir", default=str(paths.project(DEFAULT_DIR)), help=f"recipe directory (default: the project's {DEFAULT_DIR}/)")
     rs = p.add_subparsers(dest="recipe_cmd", required=True, metavar="ACTION")
     rs.add_parser("list", help="every recipe file with its number, hash and validity")
     s = rs.add_parser("show", help="print one recipe with its hash")
@@ -34,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d = rs.add_parser("diff", help="diff a recipe against its last activated version, or two files")
     d.add_argument("a", help="recipe name, or a file")
     d.add_argument("b", nargs="?", help="second file")
-    d.add_argument("--db", default=DEFAULT_DB, help=f"cycle log with activated versions (default {DEFAULT_DB})")
+    d.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log with activated versions (default: the project's {DEFAULT_DB})")
     sc = rs.add_parser("schema", help="print (or write) the recipe JSON schema for editors")
     sc.add_argument("--out", help="write to this file instead of printing")
     p.set_defaults(func=run)

@@ -10,27 +10,28 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cell import paths
 from cell.commands import open_log_readonly, png_path
 from cell.errors import ConfigError
 
-DEFAULT_DB = "var/cell.sqlite"
+DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="accuracy trend of the logged cycles (table + PNG plot)")
-    p.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    p.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
     p.add_argument("--block", type=int, default=10, help="cycles per table row (default 10)")
     p.add_argument("--recipe", help="only this recipe")
-    p.add_argument("--png", default="var/accuracy.png", help="plot file, or folder for accuracy.png (default var/accuracy.png; '' for none)")
+    p.add_argument("--png", default=str(paths.project("var/accuracy.png")), help="plot file, or folder for accuracy.png (default: the project's var/accuracy.png; '' for none)")
     p.add_argument("--config", help="cell config whose scheduler section gives the recalibration "
                                     "threshold and window (default: the built-in defaults the "
                                     "simulated cell runs with)")
-    p.add_argument("--recipes", default="recipes",
-                   help="recipe folder, for versions the log does not hold (default recipes)")
+    p.add_argument("--recipes", default=str(paths.project(paths.DEFAULT_RECIPES)),
+                   help="recipe folder, for versions the log does not hold (default: the project's recipes/)")
     p.set_defaults(func=run_report)
     e = sub.add_parser("export", help="export logged cycles to the measurement exchange format")
     e.add_argument("out", help="campaign directory to write")
-    e.add_argument("--db", default=DEFAULT_DB, help=f"cycle log (default {DEFAULT_DB})")
+    e.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
     e.add_argument("--robot", default="seed000", help="robot preset of the nominal model (default seed000)")
     e.add_argument("--force", action="store_true",
                    help="write into a folder that holds other files (they are kept, never deleted)")

@@ -24,10 +24,11 @@ import json
 import sys
 from pathlib import Path
 
+from cell import paths, progress
 from cell.commands import png_path
 from cell.errors import ConfigError
 
-DEFAULT_PNG = "var/calibration/{joint}-errors.png"
+DEFAULT_PNG = "var/calibration/{joint}-errors.png"   #: in the project folder (cell.paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -104,18 +105,6 @@ def _session(args, body):
             close()
 
 
-def _progress(what: str):
-    """Progress on stderr: every 10 % (a person waiting sees the run advance)."""
-    last = [-1]
-
-    def show(done: int, total: int) -> None:
-        tenth = done * 10 // max(total, 1)
-        if tenth != last[0]:
-            last[0] = tenth
-            print(f"  {what} {done}/{total}", file=sys.stderr, flush=True)
-    return show
-
-
 def _joint_name(text: str) -> str:
     name = text if text.startswith("j") else f"j{text}"
     if name not in ("j1", "j2", "j3", "j4"):
@@ -129,10 +118,11 @@ def run_joint(args: argparse.Namespace) -> int:
     joint = _joint_name(args.joint)
     if args.runs is not None and args.runs < 1:
         raise ConfigError(f"--runs {args.runs} must be ≥ 1")
-    plan, result = _session(args, lambda cal: cal.joint(
-        joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
-        period_deg=args.period_deg, progress=_progress("image")))
-    png = png_path(args.png, f"{joint}-errors.png") if args.png else Path(DEFAULT_PNG.format(joint=joint))
+    with progress.bar(f"calibrate {joint}", unit="image") as bar:
+        plan, result = _session(args, lambda cal: cal.joint(
+            joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
+            period_deg=args.period_deg, progress=progress.callback(bar)))
+    png = png_path(args.png, f"{joint}-errors.png") if args.png else paths.project(DEFAULT_PNG.format(joint=joint))
     png.parent.mkdir(parents=True, exist_ok=True)
     plot(result, png)
     if args.json:
@@ -183,8 +173,10 @@ def run_kinematics(args: argparse.Namespace) -> int:
         return run_chain(args)
     from cell.calibration import calfile
 
-    cal, out = _session(args, lambda cal: (cal, cal.kinematics(
-        poses=args.poses, holdout=args.holdout, write=not args.dry_run, progress=_progress("pose"))))
+    with progress.bar("calibrate kinematics", unit="pose") as bar:
+        cal, out = _session(args, lambda cal: (cal, cal.kinematics(
+            poses=args.poses, holdout=args.holdout, write=not args.dry_run,
+            progress=progress.callback(bar))))
     report = {"parameters": out.parameters(cal.nominal), **out.report(),
               "written": None if out.document is None else
               {"path": str(cal.path), "version": out.document["version"],

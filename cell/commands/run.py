@@ -24,12 +24,13 @@ from pathlib import Path
 
 from typing import TYPE_CHECKING
 
+from cell import paths, progress
 from cell.errors import ConfigError
 
 if TYPE_CHECKING:
     from cell.config import CellConfig
 
-DEFAULT_SIM_DB = "var/cell.sqlite"      #: where cellctl report/export/diagnose look by default
+DEFAULT_SIM_DB = paths.DEFAULT_DB     #: where cellctl report/export/diagnose look by default (in the project)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -71,9 +72,11 @@ def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | 
     if sim and not path:
         update["plc"] = cfg.plc.model_copy(update={"host": "127.0.0.1"})
         update["log"] = cfg.log.model_copy(update={"path": DEFAULT_SIM_DB})
-    if db:
-        update["log"] = (update.get("log") or cfg.log).model_copy(update={"path": db})
-    return cfg.model_copy(update=update) if update else cfg
+    # defaults against the project (a loaded config's own paths are absolute already) ...
+    cfg = (cfg.model_copy(update=update) if update else cfg).with_paths()
+    if db:                                # ... but what the user typed, against their shell
+        cfg = cfg.model_copy(update={"log": cfg.log.model_copy(update={"path": db})})
+    return cfg
 
 
 def fresh_log(path: str) -> None:
@@ -117,15 +120,21 @@ def run_sim(args: argparse.Namespace) -> int:
                 _print_header()
             plc = SimPlc("127.0.0.1", port, clock=clock)
             plc.start()
+            # the table's lines are its progress; --json prints at the end: a bar on a terminal
+            bar = progress.bar("run", total=args.cycles, unit="part") if args.json else None
             try:
                 for part_id in range(args.first_part, args.first_part + args.cycles):
                     row = _one_part(cell, plc, active, part_id, SimPlcError)
                     rows.append(row)
                     if not args.json:
                         _print_row(row)
+                    elif bar is not None:
+                        bar.update(1)
                     if row["fault"] is not None:
                         break
             finally:
+                if bar is not None:
+                    bar.close()
                 plc.stop()
             sim_s = clock.now()
         finally:
@@ -138,9 +147,9 @@ def run_sim(args: argparse.Namespace) -> int:
         if done:
             fin = [r["final_error_mm"] for r in done]
             print(f"{len(done)}/{len(rows)} cycles done; final error mean {sum(fin) / len(fin):.3f} mm, "
-                  f"max {max(fin):.3f} mm; {sim_s:.1f} s simulated in {wall_s:.1f} s; log {cfg.log.path}")
+                  f"max {max(fin):.3f} mm; {sim_s:.1f} s simulated in {wall_s:.1f} s; log {paths.shown(cfg.log.path)}")
         else:
-            print(f"no cycle done; log {cfg.log.path}")
+            print(f"no cycle done; log {paths.shown(cfg.log.path)}")
     return 0 if all(r["fault"] is None for r in rows) and len(rows) == args.cycles else 1
 
 
@@ -208,8 +217,13 @@ def serve(args: argparse.Namespace) -> int:
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
     cell = Cell(cfg, devices="sim" if args.sim else "hardware", plc_port=port, pace=True)
     stop = threading.Event()
+    why: list[str] = []                          # what ended the service, first cause wins
+
+    def on_signal(signum, _frame) -> None:
+        why.append(f"{signal.Signals(signum).name} received")
+        stop.set()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, on_signal)
     actual = cell.start()
     tls_port = getattr(cell.plc, "tls_port", None)
     where = (f"Modbus TCP on {cfg.plc.host}:{actual}" if cfg.plc.plain_tcp else "") + \
@@ -217,12 +231,37 @@ def serve(args: argparse.Namespace) -> int:
         (f"Modbus/TCP Security on {cfg.plc.tls.host}:{tls_port}" if tls_port else "")
     print(f"cell {cfg.name} serving {where}"
           f"{' (simulated devices, clock paced to wall time)' if args.sim else ''}; Ctrl-C to stop", flush=True)
-    if args.sim:
-        cell.clock.spawn(_auto_feed, "sim-feeder", cell, stop)
-    stop.wait(args.seconds)
-    print(f"cell {cfg.name} stopping", file=sys.stderr, flush=True)
-    cell.stop()
+    cycles0 = cell.controller.cycle_count
+    try:
+        if args.sim:
+            cell.clock.spawn(_auto_feed, "sim-feeder", cell, stop)
+        if not stop.wait(args.seconds):
+            why.append(f"--seconds {args.seconds:g} elapsed")
+    except BaseException as exc:                 # an error, or a second Ctrl-C: still say what stopped
+        why.append(f"error: {exc!r}" if not isinstance(exc, KeyboardInterrupt) else "interrupted")
+        raise
+    finally:
+        stop.set()
+        state = _final_state(cell, cycles0)      # before the stop: the state the PLC last saw
+        print(f"cell {cfg.name} stopping ({why[0] if why else 'stopped'})", file=sys.stderr, flush=True)
+        try:
+            cell.stop()
+        finally:
+            print(f"cell {cfg.name} stopped: {why[0] if why else 'stopped'}; {state}; "
+                  f"log {paths.shown(cfg.log.path)}", file=sys.stderr, flush=True)
     return 0
+
+
+def _final_state(cell, cycles0: int) -> str:
+    """The controller's state, fault and cycle count, in words, for the stop message."""
+    c = cell.controller
+    if c is None:
+        return "controller not started"
+    try:
+        fault = f"fault {c.fault_code} ({c.fault_text})" if c.fault_code else "no fault"
+        return f"final state {c.sm.state.name}, {fault}, {c.cycle_count - cycles0} cycle(s) this run"
+    except Exception as exc:                     # noqa: BLE001 -- the message must still be printed
+        return f"final state unknown ({exc!r})"
 
 
 def _auto_feed(cell, stop: threading.Event) -> None:

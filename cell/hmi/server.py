@@ -23,7 +23,7 @@ def settings_from(config: str | None, users: str, reports: str, plc: tuple[str, 
     from cell.hmi.recipes import RecipeDesk
     from cell.hmi.users import Users
     from cell.recipe_validation import checks_for
-    cfg = CellConfig.load(config) if config else CellConfig()
+    cfg = CellConfig.load(config) if config else CellConfig().with_paths()
     check, _ = checks_for(cfg, with_stations=bool(config))
     rdir = Path(recipes or cfg.recipes.directory)
     if not rdir.is_dir():

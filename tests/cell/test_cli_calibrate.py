@@ -57,3 +57,23 @@ def test_bad_inputs_name_what_and_where(tmp_path, capsys):
     (tmp_path / "board.yaml").write_text(yaml.safe_dump(BOARD))
     assert main(args) == 2
     assert "junk.png" in capsys.readouterr().err
+
+
+def test_help_documents_the_board_format_and_its_examples_parse(capsys):
+    """``--board`` used to point to ``cellctl calibrate-camera -h``, which did not describe it."""
+    import re
+
+    import pytest
+    import yaml
+
+    from cell.cli import main
+    from cell.vision.calibration import ChessBoard, CircleGridBoard, board_from_dict
+    with pytest.raises(SystemExit):
+        main(["calibrate-camera", "--help"])
+    out = capsys.readouterr().out
+    for word in ("kind: circles", "kind: chessboard", "pitch_mm", "radius_mm", "square_mm",
+                 "origin_mm", "angle_deg"):
+        assert word in out
+    blocks = re.findall(r"\n((?:    \w+: .*\n)+)", out)
+    boards = [board_from_dict(yaml.safe_load(b)) for b in blocks]
+    assert [type(b) for b in boards] == [CircleGridBoard, ChessBoard]

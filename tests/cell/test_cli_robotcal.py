@@ -24,18 +24,22 @@ def test_kinematic_calibration_writes_a_file_the_cell_accepts(tmp_path, capsys):
     out = tmp_path / "robot.json"
     assert main(["calibrate", "kinematics", "--sim", "--poses", "8", "--holdout", "4",
                  "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    text, err = capsys.readouterr()
     assert "held-out poses (4): rms" in text and "PASSED" in text and f"written: {out}" in text
+    assert "\r" not in err and "\x1b[" not in err and "pose" not in err   # not a terminal: no progress
     assert "base.rz" in text and "not observable" in text
     doc = calfile.load(out, Scara.preset("seed000"), "cell-1")
     assert doc["version"] == 1 and doc["report"]["holdout"]["passed"]
 
 
-def test_dry_run_writes_nothing(tmp_path, capsys):
+def test_dry_run_writes_nothing(tmp_path, capsys, monkeypatch):
     out = tmp_path / "robot.json"
+    monkeypatch.setenv("CELL_PROGRESS", "1")          # as on a terminal: the bar goes to stderr only
     assert main(["calibrate", "kinematics", "--sim", "--poses", "8", "--holdout", "4", "--out",
                  str(out), "--dry-run", "--json"]) == 0
-    report = json.loads(capsys.readouterr().out)
+    text, err = capsys.readouterr()
+    assert "calibrate kinematics" in err and "pose" in err and "\r" in err
+    report = json.loads(text)
     assert report["written"] is None and report["holdout"]["passed"] and not out.exists()
 
 

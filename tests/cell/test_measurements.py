@@ -118,3 +118,28 @@ def test_binary_garbage_is_rejected(tmp_path):
     (d / "points.csv").write_bytes(b"\xff\xfe\x00garbage\x80")
     with pytest.raises(CampaignFormatError, match="not UTF-8"):
         read_campaign(d)
+
+
+@pytest.mark.parametrize("sep, named", [(";", "';'"), ("\t", "a tab")])
+def test_a_semicolon_or_tab_separated_file_names_its_separator(tmp_path, capsys, sep, named):
+    """A spreadsheet export with ';' (or tabs) was reported as "missing required column
+    'sample'", without a word about the separator (issue 13, item 3)."""
+    points = POINTS.replace(",", sep)
+    d = make(tmp_path, points=points, paths=None)
+    with pytest.raises(CampaignFormatError) as err:
+        read_campaign(d)
+    msg = str(err.value)
+    assert msg.startswith(f"{d / 'points.csv'}, line 1: the separator is {named} where ',' is required")
+    assert "missing" not in msg
+    # the command says the same, exit 2, and writes nothing
+    from cell.cli import main
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    assert main(["diagnose", str(d), "--html", str(tmp_path / "html")]) == 2
+    err_text = capsys.readouterr().err
+    assert "points.csv, line 1: the separator is" in err_text and "Traceback" not in err_text
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+def test_a_comma_separated_file_with_semicolons_in_a_field_is_read(tmp_path):
+    d = make(tmp_path, points=POINTS.replace("anything", '"a;b"'), paths=None)
+    assert read_campaign(d).points["sample"].tolist() == [0, 1]
