@@ -69,7 +69,9 @@ def test_mbpoll_reads_with_1_based_references(link):
     link.write("part_id_echo", 0x12345678)
     out = _mbpoll(link.port, "-r", "1", "-c", "3", "127.0.0.1")
     assert out.returncode == 0, out.stderr
-    assert "[1]: \t1" in out.stdout                          # reference 1 = address 0 = map_version
+    # reference 1 = address 0 = map_version (2 since the calibration registers; this test
+    # said 1 and went unnoticed while mbpoll was not installed and it skipped)
+    assert f"[1]: \t{PLC_MAP.version}" in out.stdout
     ref = PLC_MAP["part_id_echo"].modicon - 40000
     out = _mbpoll(link.port, "-t", "4:int", "-B", "-r", str(ref), "127.0.0.1")
     assert out.returncode == 0, out.stderr
@@ -78,9 +80,17 @@ def test_mbpoll_reads_with_1_based_references(link):
 
 @pytest.mark.skipif(MBPOLL is None, reason="mbpoll not installed (apt-get install mbpoll)")
 def test_mbpoll_writes_rw_and_is_refused_ro(link):
-    out = _mbpoll(link.port, "-r", str(PLC_MAP["recipe_select"].modicon - 40000), "127.0.0.1", "7")
+    # one writer: a write before any client owns the link is refused with exception 01
+    select = str(PLC_MAP["recipe_select"].modicon - 40000)
+    out = _mbpoll(link.port, "-r", select, "127.0.0.1", "7")
+    assert out.returncode != 0 and "Illegal function" in out.stdout + out.stderr
+    assert link.read("recipe_select") == 0
+    # the heartbeat (RW) is the write that takes the link: mbpoll's is accepted
+    out = _mbpoll(link.port, "-r", str(PLC_MAP["plc_heartbeat"].modicon - 40000), "127.0.0.1", "5")
     assert out.returncode == 0, out.stderr
-    assert link.read("recipe_select") == 7
-    out = _mbpoll(link.port, "-r", "1", "127.0.0.1", "7")   # map_version is RO
+    assert link.read("plc_heartbeat") == 5
+    assert link.owner is not None and link.owner.startswith("127.0.0.1:")
+    # RO: map_version is refused with exception 02 whoever asks
+    out = _mbpoll(link.port, "-r", "1", "127.0.0.1", "7")
     assert out.returncode != 0 and "Illegal data address" in out.stdout + out.stderr
     assert link.read("map_version") == PLC_MAP.version
