@@ -246,6 +246,7 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         except asyncio.CancelledError:
             raise
         except Exception as exc:   # timed out, refused certificate, not TLS, closed
+            _drop_tracebacks(exc)
             if not self.is_closing:
                 _warn("plc_tls_handshake_failed", self.guard, client=str(self.peer or ""),
                       error=f"{type(exc).__name__}: {exc}"[:200])
@@ -369,6 +370,17 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
     def _send_raw(self, adu: bytes) -> None:
         if not self._gone():
             self.send(adu)
+
+
+def _drop_tracebacks(exc: BaseException | None) -> None:
+    """Forget the tracebacks of ``exc`` and the exceptions it chains. A failed ``start_tls``
+    raises the exception its waiter future holds, and the traceback holds ``start_tls``'s
+    frame, which holds the waiter: a reference cycle that kept the connection's
+    ``SSLProtocol`` (with asyncio's 256 KiB read buffer) until the cyclic GC ran."""
+    seen = 0
+    while exc is not None and seen < 8:
+        exc.__traceback__ = None
+        exc, seen = exc.__context__ or exc.__cause__, seen + 1
 
 
 def _warn(kind: str, guard: ConnectionGuard | None, **fields) -> None:

@@ -190,3 +190,40 @@ def test_half_open_tls_connections_count_against_the_cap(pki):
 def test_the_handshake_time_out_is_validated(bad):
     with pytest.raises(ValidationError, match="handshake_timeout_s"):
         TlsConfig(handshake_timeout_s=bad)
+
+
+def test_memory_is_trimmed_only_after_churn_and_at_a_low_rate(monkeypatch):
+    from drivers.plc import memory
+    if not memory.available():
+        pytest.skip("not glibc: no malloc_trim")
+    monkeypatch.setattr(memory, "_state", {"last": float("-inf"), "trims": 0, "seconds": 0.0,
+                                               "last_s": 0.0})
+    assert not memory.maybe_trim(memory.MIN_CONNECTIONS - 1, now=1000.0)    # a PLC that stays connected
+    assert memory.maybe_trim(memory.MIN_CONNECTIONS, now=1000.0)
+    assert not memory.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S / 2)  # not more often than the period
+    assert memory.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S)
+    assert memory.stats()["trims"] == 2
+
+
+def test_failed_handshakes_free_their_tls_state_without_the_cyclic_gc(pki):
+    """A failed ``start_tls`` used to leave a reference cycle (exception -> traceback ->
+    frame -> waiter -> exception) holding the connection's SSLProtocol and its 256 KiB
+    buffer until the cyclic GC ran; with the GC off, none may be left over."""
+    from asyncio.sslproto import SSLProtocol
+    link = _link(pki, max_connections=4)
+    link.start()
+    gc.collect()
+    gc.disable()
+    try:
+        baseline = link._tls_server.counts()
+        rnd = random.Random(3)
+        for _ in range(5):
+            _burst(link.tls_port, rnd, 10)        # garbage and silence: failed handshakes
+        assert _settles(link._tls_server, baseline) == baseline
+        end = time.monotonic() + 30.0             # closes still under way finish (bounded)
+        while (left := sum(type(o) is SSLProtocol for o in gc.get_objects())) and time.monotonic() < end:
+            time.sleep(0.1)
+    finally:
+        gc.enable()
+        link.stop()
+    assert left == 0
