@@ -40,6 +40,7 @@ import argparse
 import os
 import platform
 import random
+import re
 import resource
 import shutil
 import signal
@@ -424,11 +425,13 @@ def main() -> int:
     print("|---|---|---|")
     for when, mb in rss.items():
         print(f"| {when} | {mb:.1f} | {mb - rss['after quiet']:+.1f} |")
-    first, last = rss[f"after {PHASES[-1]}, round 1"], rss[f"after {PHASES[-1]}, round {args.rounds}"]
+    def high(r: int) -> float:     # the round's high-water: RSS after its storms, the largest
+        return max(rss[f"after {p}, round {r}"] for p in PHASES)
+    first, last = high(1), high(args.rounds)
     verdict = "flat" if last - first <= args.flat_mb else "NOT flat"
-    print(f"\nMemory verdict: **{verdict}**: after round {args.rounds} {last - first:+.1f} MB against after "
-          f"round 1 (flat: within {args.flat_mb:g} MB); {rss['after 5 s settle'] - rss['after quiet']:+.1f} MB "
-          f"after settling against the quiet control.")
+    print(f"\nMemory verdict: **{verdict}**: round {args.rounds}'s high-water {last - first:+.1f} MB against "
+          f"round 1's (flat: within {args.flat_mb:g} MB); after settling "
+          f"{rss['after 5 s settle'] - rss['after quiet']:+.1f} MB against the quiet control.")
     print("\n#### Attack traffic, and new legitimate clients during the connection storm\n")
     print("| phase | frames sent | connections opened |")
     print("|---|---|---|")
@@ -438,8 +441,13 @@ def main() -> int:
         ok, tried, worst = served[phase]
         print(f"\nNew legitimate {what} served (answered within 2 s) during the {phase} storm: "
               f"{ok}/{tried}; slowest {worst * 1000:.0f} ms.")
-    lines = (tmp / "serve.log").read_text().count("\n")
-    print(f"Server log lines over the whole run: {lines} (warnings are rate-limited).")
+    log = (tmp / "serve.log").read_text()
+    print(f"Server log lines over the whole run: {log.count(chr(10))} (warnings are rate-limited).")
+    trims = [float(m.group(1)) for line in log.splitlines() if "plc_memory_trimmed" in line
+             for m in [re.search(r'"ms": ([0-9.]+)', line)] if m]
+    if trims:
+        print(f"malloc_trim after connection churn (drivers/plc/memory.py): {len(trims)} times, "
+              f"{sum(trims):.1f} ms in all, the longest {max(trims):.1f} ms.")
     shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
