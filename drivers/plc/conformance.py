@@ -243,7 +243,8 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
                 raw, self, server.sslctx, server_side=True,
                 ssl_handshake_timeout=server.handshake_timeout_s,
                 ssl_shutdown_timeout=server.handshake_timeout_s)
-        except asyncio.CancelledError:
+        except asyncio.CancelledError as exc:      # the server is stopping
+            _drop_tracebacks(exc)
             raise
         except Exception as exc:   # timed out, refused certificate, not TLS, closed
             _drop_tracebacks(exc)
@@ -254,8 +255,12 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
             return
         finally:
             self._handshake = None
-        if self.is_closing or self.peer is None:   # shed or timed out during the handshake
-            tls.abort()
+        if tls is None or self.is_closing or self.peer is None:
+            # shed or timed out during the handshake (start_tls returns None when the
+            # connection was closed cleanly before the handshake ended)
+            if tls is not None:
+                tls.abort()
+            self.close()
             return
         self.transport = tls
         self._take_role(server.roles)
@@ -310,10 +315,11 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         goes with it. pymodbus calls no ``callback_disconnected`` for a close it did not see
         coming from the peer, so without this the worker would wait on its queue forever,
         one task per closed connection."""
-        for task in (self._worker, self._handshake):
-            if task is not None and task is not asyncio.current_task():
-                task.cancel()
-        self._worker = self._handshake = None
+        worker, self._worker = self._worker, None
+        if worker is not None and worker is not asyncio.current_task():
+            worker.cancel()
+        # a handshake under way ends with the transport closed below (start_tls fails and
+        # _start_tls returns); cancelling it instead left a reference cycle to its TLS state
         if self.guard is not None and self.peer is not None:
             self.guard.drop(self.peer)
         super().close(reconnect)

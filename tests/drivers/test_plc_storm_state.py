@@ -221,7 +221,11 @@ def test_failed_handshakes_free_their_tls_state_without_the_cyclic_gc(pki):
             _burst(link.tls_port, rnd, 10)        # garbage and silence: failed handshakes
         assert _settles(link._tls_server, baseline) == baseline
         end = time.monotonic() + 30.0             # closes still under way finish (bounded)
-        while (left := sum(type(o) is SSLProtocol for o in gc.get_objects())) and time.monotonic() < end:
+        loop = link._tls_server._loop           # this link's, not other tests' TLS objects
+
+        def mine() -> int:
+            return sum(type(o) is SSLProtocol and o._loop is loop for o in gc.get_objects())
+        while (left := mine()) and time.monotonic() < end:
             time.sleep(0.1)
     finally:
         gc.enable()
