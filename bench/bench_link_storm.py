@@ -20,8 +20,8 @@ frame):
    second a new legitimate TLS client (an Operator certificate) connects and reads once.
 Phases 2 to 4 are repeated ``--rounds`` times (default 2), so the memory table tells a
 high-water mark (reached in round 1, then flat) from a leak (growing every round). The
-verdict: memory is *flat* when RSS after the last round is within ``--flat-mb`` (2 MB) of
-RSS after the first round.
+verdict: memory is *flat* when the last round's high-water (the largest RSS after its
+storms) is within ``--flat-mb`` (2 MB) of the first round's.
 
 5. **settle**: 5 s with no attack, then the server's memory is read again.
 
@@ -338,7 +338,7 @@ def main() -> int:
                          "memory that is flat grows in the first round at most")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--flat-mb", type=float, default=2.0,
-                    help="memory is flat if RSS after the last round is within this of RSS after round 1")
+                    help="memory is flat if the last round's high-water RSS is within this of round 1's (default 2)")
     args = ap.parse_args()
     seconds = 6.0 if args.quick else args.seconds
     tmp = Path(tempfile.mkdtemp(prefix="link-storm-"))
