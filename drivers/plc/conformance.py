@@ -432,6 +432,9 @@ class ConformantTlsServer(ConformantTcpServer):
                  handshake_timeout_s: float = HANDSHAKE_TIMEOUT_S, **kwargs):
         if not handshake_timeout_s > 0:
             raise ValueError(f"handshake_timeout_s must be > 0, got {handshake_timeout_s}")
+        if kwargs.get("guard") is None:
+            # TLS is started for connections the guard admits: without one it never would be
+            raise ValueError("ConformantTlsServer needs a guard")
         self.sslctx = sslctx
         self.handshake_timeout_s = float(handshake_timeout_s)
         self.roles = roles
