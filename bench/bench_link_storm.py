@@ -13,10 +13,17 @@ frame):
 3. **connections**: the same processes open ``--sockets`` idle connections each, leave
    half frames (slowloris) and reconnect as they are shed. Every second a *new*
    legitimate client connects and reads once; it counts as served if answered within 2 s.
-Phases 2 and 3 are repeated ``--rounds`` times (default 2), so the memory table tells a
-high-water mark (reached in round 1, then flat) from a leak (growing every round).
+4. **tls**: the same processes storm the Modbus/TCP Security listener (served on its own
+   port with certificates made for the run): full TLS handshakes without a client
+   certificate (refused in the handshake), garbage instead of a ClientHello, and silent
+   connections left half-open (up to ``--sockets`` each) until shed or timed out. Every
+   second a new legitimate TLS client (an Operator certificate) connects and reads once.
+Phases 2 to 4 are repeated ``--rounds`` times (default 2), so the memory table tells a
+high-water mark (reached in round 1, then flat) from a leak (growing every round). The
+verdict: memory is *flat* when the last round's high-water (the largest RSS after its
+storms) is within ``--flat-mb`` (2 MB) of the first round's.
 
-4. **settle**: 5 s with no attack, then the server's memory is read again.
+5. **settle**: 5 s with no attack, then the server's memory is read again.
 
 Printed, as Markdown tables: the reader's p50/p99 per phase and its ratio to the quiet
 control of the same run; false watchdog trips (fault 101 or ``plc_link_ok`` low while the
@@ -33,6 +40,7 @@ import argparse
 import os
 import platform
 import random
+import re
 import resource
 import shutil
 import signal
@@ -54,9 +62,10 @@ from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
 from drivers.plc.register_map import PLC_MAP  # noqa: E402
 
 FC3 = struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 0, 20)
+PHASES = ("fuzz", "connections", "tls")      # the storms, in the order of one round
 
 ATTACKER = r'''
-import os, random, resource, socket, struct, sys, time
+import os, random, resource, socket, ssl, struct, sys, time
 mode, port, seconds, nsock, seed = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
 resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
@@ -105,6 +114,45 @@ if mode == "fuzz":
                     s.close()
         except OSError:
             time.sleep(0.01)
+elif mode == "tls":                                                   # Modbus/TCP Security storm
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+    socks, n = [], 0
+    while time.monotonic() < end:
+        k = rnd.randrange(3)
+        try:
+            if k == 0:                                                # a handshake without a client certificate
+                with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+                    conns += 1
+                    try:
+                        with ctx.wrap_socket(raw) as t:
+                            t.send(frame())
+                            t.recv(1)                                 # TLS 1.3: the refusal comes here
+                    except OSError:
+                        pass
+                    sent += 1
+            elif k == 1:                                              # garbage instead of a ClientHello
+                s = connect()
+                s.send(os.urandom(rnd.randrange(1, 600)))
+                sent += 1
+                socks.append(s)
+            else:                                                     # connect, say nothing
+                socks.append(connect())
+        except OSError:
+            time.sleep(0.01)
+        while len(socks) > nsock:
+            socks.pop(0).close()
+        n += 1
+        if n % 20 == 0:                                               # let go of those the server closed
+            for s in list(socks):
+                try:
+                    if s.recv(1) == b"":
+                        raise OSError("closed")
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    socks.remove(s)
+                    s.close()
 else:                                                                 # connection storm
     socks = []
     while time.monotonic() < end:
@@ -239,7 +287,8 @@ def _watch_trips(plc: Plc, stop: threading.Event) -> None:
         time.sleep(0.05)
 
 
-def _new_clients(port: int, seconds: float) -> tuple[int, int, float]:
+def _new_clients(port: int, seconds: float, sslctx=None) -> tuple[int, int, float]:
+    """Every second a new client connects (over TLS with ``sslctx``) and reads once."""
     served = tried = 0
     worst = 0.0
     end = time.monotonic() + seconds
@@ -247,8 +296,9 @@ def _new_clients(port: int, seconds: float) -> tuple[int, int, float]:
         tried += 1
         t0 = time.monotonic()
         try:
-            with socket.create_connection(("127.0.0.1", port), timeout=2) as s:
-                s.settimeout(2)
+            with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+                raw.settimeout(2)
+                s = sslctx.wrap_socket(raw) if sslctx is not None else raw
                 _read_once(s)
             served += 1
             worst = max(worst, time.monotonic() - t0)
@@ -288,13 +338,21 @@ def main() -> int:
                     help="fuzz + connection storms, one after the other, this often (default 2): "
                          "memory that is flat grows in the first round at most")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--flat-mb", type=float, default=2.0,
+                    help="memory is flat if the last round's high-water RSS is within this of round 1's (default 2)")
     args = ap.parse_args()
     seconds = 6.0 if args.quick else args.seconds
     tmp = Path(tempfile.mkdtemp(prefix="link-storm-"))
-    port = _free_port()
+    port, tls_port = _free_port(), _free_port()
     cfg = tmp / "cell.yaml"
     shutil.copytree(ROOT / "recipes", tmp / "recipes")
+    from tests.drivers.tlscerts import Authority, client_context   # certificates for this run only
+    ca = Authority(tmp)
+    me, plc_cert = ca.issue("controller", server=True), ca.issue("plc-operator", role="Operator")
+    tls_client = client_context(ca, plc_cert)
     cfg.write_text(f"sim:\n  plant: {ROOT / 'deploy/plants/default.yaml'}\nplc:\n  host: 127.0.0.1\n"
+                   f"  tls:\n    enabled: true\n    port: {tls_port}\n    cert: {me.cert}\n    key: {me.key}\n"
+                   f"    ca: {ca.path}\n"
                    f"log:\n  path: {tmp / 'cell.sqlite'}\n  format: json\nrecipes:\n  directory: {tmp / 'recipes'}\n")
     print(f"`{' '.join([Path(sys.executable).name] + sys.argv)}`  \n"
           f"{platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} cores, "
@@ -317,15 +375,18 @@ def main() -> int:
         rss = {"before": _rss_mb(server.pid)}
         time.sleep(seconds)                               # 1. quiet
         rss["after quiet"] = _rss_mb(server.pid)
-        traffic, served = {}, [0, 0, 0.0]
+        traffic, served = {}, {"connections": [0, 0, 0.0], "tls": [0, 0, 0.0]}
         for rnd in progress.each(range(1, args.rounds + 1), "storm rounds", "round"):
-            for phase in ("fuzz", "connections"):
+            for phase in PHASES:
                 plc.phase = reader.phase = phase
-                attackers = _attack(phase if phase == "fuzz" else "conn", port, seconds, args.attackers,
+                mode = {"fuzz": "fuzz", "connections": "conn", "tls": "tls"}[phase]
+                attackers = _attack(mode, tls_port if phase == "tls" else port, seconds, args.attackers,
                                     args.sockets, args.seed + 100 * rnd)
-                if phase == "connections":
-                    ok, tried, worst = _new_clients(port, seconds)
-                    served = [served[0] + ok, served[1] + tried, max(served[2], worst)]
+                if phase in served:
+                    ok, tried, worst = (_new_clients(tls_port, seconds, tls_client) if phase == "tls"
+                                        else _new_clients(port, seconds))
+                    was = served[phase]
+                    served[phase] = [was[0] + ok, was[1] + tried, max(was[2], worst)]
                 sent, conns = _collect(attackers)
                 before = traffic.get(phase, (0, 0))
                 traffic[phase] = (before[0] + sent, before[1] + conns)
@@ -351,30 +412,43 @@ def main() -> int:
     print("#### The legitimate reader's FC3 round trip (20 registers)\n")
     print("| phase | requests | errors | p50 ms | p99 ms | p99 / quiet p99 |")
     print("|---|---|---|---|---|---|")
-    for phase in ("quiet", "fuzz", "connections", "settle"):
+    for phase in ("quiet", *PHASES, "settle"):
         xs = reader.samples.get(phase, [])
         print(f"| {phase} | {len(xs)} | {reader.errors.get(phase, 0)} | {_pct(xs, 0.5):.2f} | {_pct(xs, 0.99):.2f} | "
               f"{_pct(xs, 0.99) / _pct(quiet, 0.99):.2f} |")
     print("\n#### The simulated PLC: cycles and false watchdog trips (aim 0)\n")
     print("| phase | cycles done | cycles faulted | watchdog trips (fault 101 / link not ok) |")
     print("|---|---|---|---|")
-    for phase in ("quiet", "fuzz", "connections", "settle"):
+    for phase in ("quiet", *PHASES, "settle"):
         print(f"| {phase} | {plc.done.get(phase, 0)} | {plc.faulted.get(phase, 0)} | {plc.trips.get(phase, 0)} |")
     print("\n#### Server resident memory (VmRSS, MB)\n")
     print("| when | MB | change from after quiet |")
     print("|---|---|---|")
     for when, mb in rss.items():
         print(f"| {when} | {mb:.1f} | {mb - rss['after quiet']:+.1f} |")
+    def high(r: int) -> float:     # the round's high-water: RSS after its storms, the largest
+        return max(rss[f"after {p}, round {r}"] for p in PHASES)
+    first, last = high(1), high(args.rounds)
+    verdict = "flat" if last - first <= args.flat_mb else "NOT flat"
+    print(f"\nMemory verdict: **{verdict}**: round {args.rounds}'s high-water {last - first:+.1f} MB against "
+          f"round 1's (flat: within {args.flat_mb:g} MB); after settling "
+          f"{rss['after 5 s settle'] - rss['after quiet']:+.1f} MB against the quiet control.")
     print("\n#### Attack traffic, and new legitimate clients during the connection storm\n")
     print("| phase | frames sent | connections opened |")
     print("|---|---|---|")
     for phase, (sent, conns) in traffic.items():
         print(f"| {phase} | {sent} | {conns} |")
-    ok, tried, worst = served
-    print(f"\nNew legitimate clients served (answered within 2 s) during the connection storm: "
-          f"{ok}/{tried}; slowest {worst * 1000:.0f} ms.")
-    lines = (tmp / "serve.log").read_text().count("\n")
-    print(f"Server log lines over the whole run: {lines} (warnings are rate-limited).")
+    for phase, what in (("connections", "plain TCP clients"), ("tls", "TLS clients (Operator)")):
+        ok, tried, worst = served[phase]
+        print(f"\nNew legitimate {what} served (answered within 2 s) during the {phase} storm: "
+              f"{ok}/{tried}; slowest {worst * 1000:.0f} ms.")
+    log = (tmp / "serve.log").read_text()
+    print(f"Server log lines over the whole run: {log.count(chr(10))} (warnings are rate-limited).")
+    trims = [float(m.group(1)) for line in log.splitlines() if "plc_memory_trimmed" in line
+             for m in [re.search(r'"ms": ([0-9.]+)', line)] if m]
+    if trims:
+        print(f"malloc_trim after connection churn (drivers/plc/memory.py): {len(trims)} times, "
+              f"{sum(trims):.1f} ms in all, the longest {max(trims):.1f} ms.")
     shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

@@ -60,6 +60,8 @@ class TlsConfig(BaseModel):
     enabled: bool = False
     host: str = "127.0.0.1"
     port: int = Field(802, ge=0, le=65535)
+    #: a client that has not finished its TLS handshake this long after connecting is closed
+    handshake_timeout_s: float = Field(5.0, gt=0, le=60)
     #: the controller's certificate (PEM; may hold its chain) and private key
     cert: str = "tls/controller.pem"
     key: str = "tls/controller.key"
@@ -93,7 +95,7 @@ class TlsConfig(BaseModel):
         from drivers.plc.server import TlsListener
         from drivers.plc.tls import roles_table, server_context
         ctx = server_context(Path(self.cert), Path(self.key), Path(self.ca))
-        return TlsListener(ctx, roles_table(self.roles), self.host, self.port)
+        return TlsListener(ctx, roles_table(self.roles), self.host, self.port, self.handshake_timeout_s)
 
 
 class PlcConfig(BaseModel):

@@ -144,6 +144,7 @@ class ConnectionGuard:
         self.warn = warnings or RateLimitedWarnings()
         self.peers: dict[int, Peer] = {}
         self.refused = self.shed = self.timed_out = 0
+        self.connections = 0       #: connections seen since start (refused ones included)
 
     @staticmethod
     def _now() -> float:
@@ -152,6 +153,7 @@ class ConnectionGuard:
     def connect(self, host: str, port: int, close: Callable[[], None]) -> Peer | None:
         """A new connection from ``host:port``: its Peer, or None when refused (the caller
         closes it)."""
+        self.connections += 1
         if not self.policy.allows(host):
             self.refused += 1
             self.warn.warning("plc_client_not_allowed", client=f"{host}:{port}")
@@ -207,7 +209,18 @@ class ConnectionGuard:
         return gone
 
     async def sweep_forever(self, period_s: float | None = None) -> None:
+        """Sweep time-outs; and after connection churn give freed memory back to the
+        system (:func:`drivers.plc.memory.maybe_trim`, low rate, on this loop's thread)."""
+        from drivers.plc import memory
         period = period_s or max(0.05, min(self.policy.frame_timeout_s, self.policy.idle_timeout_s) / 4)
+        trimmed_at = self.connections
         while True:
             await asyncio.sleep(period)
             self.sweep()
+            try:
+                if memory.maybe_trim(self.connections - trimmed_at):
+                    _log().info("plc_memory_trimmed", connections=self.connections - trimmed_at,
+                                ms=round(memory.stats()["last_s"] * 1000, 3))
+                    trimmed_at = self.connections
+            except Exception as exc:   # the time-outs above must keep running whatever happens here
+                self.warn.warning("plc_memory_trim_failed", error=repr(exc))

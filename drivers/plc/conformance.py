@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import ssl
 import struct
 import threading
 from collections.abc import Callable
@@ -39,7 +40,6 @@ from dataclasses import dataclass
 
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
-from pymodbus.transport import CommParams, CommType
 
 from cell.errors import CellError
 from cell.log import get_logger
@@ -55,6 +55,10 @@ MBAP_LEN = 7            # tid(2) pid(2) length(2) unit(1)
 MAX_PDU = 253           # spec: ADU <= 260 bytes on TCP
 MAX_PENDING = 64        # requests queued on one connection before it is closed
 MAX_UNREAD = 64 * 1024  # answer bytes a client has left unread before it is closed
+#: bytes taken from a socket per read: asyncio's own reads are 256 KiB (one fresh
+#: allocation per read, shrunk to what came); ours go into one buffer per server
+READ_CHUNK = 16 * 1024
+HANDSHAKE_TIMEOUT_S = 5.0   # TLS: a client must finish its handshake within this
 ILLEGAL_FUNCTION, ILLEGAL_DATA_ADDRESS, ILLEGAL_DATA_VALUE, SERVER_DEVICE_FAILURE = 1, 2, 3, 4
 
 
@@ -175,12 +179,21 @@ def exception_adu(frame: Frame, code: int) -> bytes:
     return struct.pack(">HHHBBB", frame.tid, 0, 3, frame.unit, (frame.pdu[0] | 0x80) & 0xFF, code)
 
 
-class ConformantRequestHandler(ServerRequestHandler):
+class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
     """pymodbus connection handler with the spec pre-decoder in front (see module doc).
 
     Frames are queued and answered strictly in arrival order by one worker task; valid
     requests are decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so
     the datastore and its action see exactly what a bare pymodbus server would.
+
+    Memory: it is an ``asyncio.BufferedProtocol``, so the transport reads into the
+    server's one :data:`READ_CHUNK` buffer (:meth:`get_buffer`) instead of allocating
+    256 KiB per read and shrinking it. Under a storm those short-lived 256 KiB blocks
+    came from the heap between long-lived small objects, and the C allocator could not
+    give the heap back (RSS grew every storm round; found by bench/bench_link_storm.py).
+    On a TLS listener the guard sees the TCP connection *before* its handshake (allow-list,
+    cap and shedding apply to half-open connections too) and TLS is started on it with
+    our own handshake time-out (:meth:`_start_tls`).
     """
 
     def __init__(self, owner, trace_packet, trace_pdu, trace_connect):
@@ -190,12 +203,23 @@ class ConformantRequestHandler(ServerRequestHandler):
         # 64 KiB still dropped asyncio's reads (up to 256 KiB) under a flood of pipelined
         # requests, putting the stream out of step (found by bench/bench_link_storm.py).
         # Nothing accumulates here: every read is consumed whole by :class:`MbapStream`.
+        # (Reads are at most READ_CHUNK now, see get_buffer.)
         self.max_buffer_size = 1 << 20
         self._stream = MbapStream()
         self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
         self._worker: asyncio.Task | None = None
+        self._handshake: asyncio.Task | None = None
         self.guard: ConnectionGuard | None = getattr(owner, "guard", None)
         self.peer: Peer | None = None
+
+    # asyncio.BufferedProtocol: read into the server's buffer, consumed at once (below)
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self.server.read_view
+
+    def buffer_updated(self, nbytes: int) -> None:
+        # copied out before anything else can read into the shared buffer: the loop is
+        # single-threaded and this call consumes it synchronously
+        self.data_received(bytes(self.server.read_view[:nbytes]))
 
     def callback_connected(self) -> None:
         super().callback_connected()
@@ -204,8 +228,42 @@ class ConformantRequestHandler(ServerRequestHandler):
         info = self.transport.get_extra_info("peername") if self.transport else None
         host, port = (str(info[0]), int(info[1])) if info else ("?", 0)
         self.peer = self.guard.connect(host, port, self.close)
-        if self.peer is not None and getattr(self.server, "roles", None) is not None:
-            self._take_role(self.server.roles)
+        if self.peer is None:
+            self.close()
+        elif getattr(self.server, "sslctx", None) is not None:
+            self._handshake = asyncio.get_running_loop().create_task(self._start_tls())
+
+    async def _start_tls(self) -> None:
+        """Modbus/TCP Security: TLS on this (already admitted) TCP connection, with our
+        handshake time-out; then the role from the client's certificate. A handshake that
+        fails or does not finish in time closes the connection (logged, rate-limited)."""
+        raw, server = self.transport, self.server
+        try:
+            tls = await asyncio.get_running_loop().start_tls(
+                raw, self, server.sslctx, server_side=True,
+                ssl_handshake_timeout=server.handshake_timeout_s,
+                ssl_shutdown_timeout=server.handshake_timeout_s)
+        except asyncio.CancelledError as exc:      # the server is stopping
+            _drop_tracebacks(exc)
+            raise
+        except Exception as exc:   # timed out, refused certificate, not TLS, closed
+            _drop_tracebacks(exc)
+            if not self.is_closing:
+                _warn("plc_tls_handshake_failed", self.guard, client=str(self.peer or ""),
+                      error=f"{type(exc).__name__}: {exc}"[:200])
+                self.close()
+            return
+        finally:
+            self._handshake = None
+        if tls is None or self.is_closing or self.peer is None:
+            # shed or timed out during the handshake (start_tls returns None when the
+            # connection was closed cleanly before the handshake ended)
+            if tls is not None:
+                tls.abort()
+            self.close()
+            return
+        self.transport = tls
+        self._take_role(server.roles)
         if self.peer is None:
             self.close()
 
@@ -232,7 +290,8 @@ class ConformantRequestHandler(ServerRequestHandler):
                     rights=sorted(self.peer.rights))
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        if self._stream.broken is not None or (self.guard is not None and self.peer is None):
+        if self._stream.broken is not None or (self.guard is not None and self.peer is None) \
+                or self._handshake is not None:
             return len(data)   # closing (or refused at connect): ignore whatever still arrives
         for frame in self._stream.feed(data):
             self._queue.put_nowait(frame)
@@ -259,6 +318,8 @@ class ConformantRequestHandler(ServerRequestHandler):
         worker, self._worker = self._worker, None
         if worker is not None and worker is not asyncio.current_task():
             worker.cancel()
+        # a handshake under way ends with the transport closed below (start_tls fails and
+        # _start_tls returns); cancelling it instead left a reference cycle to its TLS state
         if self.guard is not None and self.peer is not None:
             self.guard.drop(self.peer)
         super().close(reconnect)
@@ -317,6 +378,17 @@ class ConformantRequestHandler(ServerRequestHandler):
             self.send(adu)
 
 
+def _drop_tracebacks(exc: BaseException | None) -> None:
+    """Forget the tracebacks of ``exc`` and the exceptions it chains. A failed ``start_tls``
+    raises the exception its waiter future holds, and the traceback holds ``start_tls``'s
+    frame, which holds the waiter: a reference cycle that kept the connection's
+    ``SSLProtocol`` (with asyncio's 256 KiB read buffer) until the cyclic GC ran."""
+    seen = 0
+    while exc is not None and seen < 8:
+        exc.__traceback__ = None
+        exc, seen = exc.__context__ or exc.__cause__, seen + 1
+
+
 def _warn(kind: str, guard: ConnectionGuard | None, **fields) -> None:
     """A warning about the network side, rate-limited when the server has a guard."""
     if guard is not None:
@@ -336,6 +408,8 @@ class ConformantTcpServer(ModbusTcpServer):
     def __init__(self, *args, guard: ConnectionGuard | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.guard = guard
+        # every connection of this server reads into this one buffer (see get_buffer)
+        self.read_view = memoryview(bytearray(READ_CHUNK))
 
     def callback_new_connection(self):
         return ConformantRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
@@ -345,12 +419,24 @@ class ConformantTlsServer(ConformantTcpServer):
     """:class:`ConformantTcpServer` over TLS: Modbus/TCP Security. The MBAP framing stays
     (the spec carries the whole Modbus/TCP ADU in TLS), so the request path is the plain
     one's; ``sslctx`` should require client certificates (:func:`drivers.plc.tls.server_context`);
-    ``roles`` maps a certificate's role (case-folded) to its rights."""
+    ``roles`` maps a certificate's role (case-folded) to its rights.
 
-    def __init__(self, *args, sslctx, roles: dict[str, frozenset[str]], **kwargs):
-        self.tls_setup = CommParams(comm_type=CommType.TLS, comm_name="server_listener",
-                                    reconnect_delay=0.0, reconnect_delay_max=0.0,
-                                    timeout_connect=0.0, sslctx=sslctx)
+    It listens on plain TCP and starts TLS on each connection the guard admits
+    (``loop.start_tls``), instead of pymodbus's ``create_server(ssl=...)``: there, the
+    handshake ran before any code of ours saw the connection, with asyncio's 60 s
+    time-out, outside the connection cap, and a failed handshake left its handler in
+    ``active_connections`` for good. ``handshake_timeout_s`` bounds the handshake (and the
+    TLS shutdown of a closed connection)."""
+
+    def __init__(self, *args, sslctx: ssl.SSLContext, roles: dict[str, frozenset[str]],
+                 handshake_timeout_s: float = HANDSHAKE_TIMEOUT_S, **kwargs):
+        if not handshake_timeout_s > 0:
+            raise ValueError(f"handshake_timeout_s must be > 0, got {handshake_timeout_s}")
+        if kwargs.get("guard") is None:
+            # TLS is started for connections the guard admits: without one it never would be
+            raise ValueError("ConformantTlsServer needs a guard")
+        self.sslctx = sslctx
+        self.handshake_timeout_s = float(handshake_timeout_s)
         self.roles = roles
         super().__init__(*args, **kwargs)
 
@@ -369,6 +455,29 @@ class ServerThread:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
         self.port: int | None = None
+        self.server: ModbusTcpServer | None = None
+
+    def call(self, fn: Callable[[], object], timeout_s: float = 10.0) -> object:
+        """``fn()`` run on the server's loop thread (its state is the loop's alone); its result."""
+        if self._loop is None:
+            raise ServerStartError(f"{self._name}: not running")
+
+        async def run():
+            return fn()
+        return asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout_s)
+
+    def counts(self) -> dict[str, int]:
+        """Per-connection state held now: pymodbus's ``connections``, the guard's ``peers``
+        and the loop's ``tasks`` (the sweep and this query included). A storm that has
+        ended must leave these at their quiet values (tests/drivers/test_plc_storm_state.py)."""
+        server = self.server
+
+        def count():
+            guard = getattr(server, "guard", None)
+            return {"connections": len(server.active_connections),
+                    "peers": len(guard.peers) if guard is not None else 0,
+                    "tasks": len(asyncio.all_tasks())}
+        return self.call(count)  # type: ignore[return-value]
 
     def start(self, host: str = "127.0.0.1", port: int = 0, timeout_s: float = 10.0) -> int:
         """Listen on ``host:port`` (0 = any free port), return the port. Raises
@@ -395,7 +504,7 @@ class ServerThread:
             self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(timeout=10)
         self._thread = self._loop = self._stop = None
-        self.port = None
+        self.port = self.server = None
 
     @property
     def running(self) -> bool:
@@ -416,6 +525,7 @@ class ServerThread:
             ready.set_exception(exc)
             return
         self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
+        self.server = server
         guard = getattr(server, "guard", None)
         if guard is not None:
             asyncio.get_running_loop().create_task(guard.sweep_forever(), name="plc-connection-sweep")

@@ -63,12 +63,14 @@ class PlcWrite:
 class TlsListener:
     """A Modbus/TCP Security listener: the server ``context`` (client certificates
     required, :func:`drivers.plc.tls.server_context`), ``roles`` (case-folded role ->
-    rights), and where to listen."""
+    rights), where to listen, and the time a client has to finish its TLS handshake
+    (``handshake_timeout_s``; closed after it)."""
 
     context: object
     roles: Mapping[str, frozenset[str]]
     host: str = "127.0.0.1"
     port: int = 802
+    handshake_timeout_s: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -178,7 +180,8 @@ class PlcLink:
             self._tls_server = ServerThread(
                 lambda address: ConformantTlsServer(build_datastore(self.map, self._action), address=address,
                                                     guard=self.tls_guard, sslctx=tls.context,
-                                                    roles=dict(tls.roles)),
+                                                    roles=dict(tls.roles),
+                                                    handshake_timeout_s=tls.handshake_timeout_s),
                 name="plc-modbus-tls-server")
 
     # ------------------------------------------------------------------ lifecycle
