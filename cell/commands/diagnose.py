@@ -99,17 +99,22 @@ def run(args: argparse.Namespace) -> int:
     dg = diagnose(campaign, lines, args.noise_mm)
     if args.html:
         from cell.diagnosis.html import write_html
-        try:
-            index = write_html(dg, args.html)
-        except OSError as exc:
-            raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
-        if not args.json:
-            print(f"HTML report written to {index}")
+        _html(write_html, dg, args)
     if args.json:
         print(json.dumps(json_safe(dg.report), indent=2, allow_nan=False))
     else:
         print(render_text(dg.report))
     return 0
+
+
+def _html(write, diagnosis, args: argparse.Namespace) -> None:
+    """Write the HTML page of ``diagnosis`` into ``--html`` with ``write``; say where."""
+    try:
+        index = write(diagnosis, args.html)
+    except OSError as exc:
+        raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
+    if not args.json:
+        print(f"HTML report written to {index}")
 
 
 def run_chain(campaign, args: argparse.Namespace) -> int:
@@ -119,12 +124,7 @@ def run_chain(campaign, args: argparse.Namespace) -> int:
     rep = cd.report
     if args.html:
         from cell.chain.html import write_chain_html
-        try:
-            index = write_chain_html(cd, args.html)
-        except OSError as exc:
-            raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
-        if not args.json:
-            print(f"HTML report written to {index}")
+        _html(write_chain_html, cd, args)
     if args.json:
         print(json.dumps(json_safe(rep), indent=2, allow_nan=False))
     else:
