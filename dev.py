@@ -63,18 +63,27 @@ def _ensure_test_tools() -> None:
                   "skip (fail under CI=true)", file=sys.stderr, flush=True)
 
 
+def _become(argv: list[str]) -> int:
+    """Run ``argv`` in this process's place (POSIX), so a stop signal meant for the command
+    (``kill``, ``timeout``, a service manager, Ctrl-C) reaches it, not only dev.py: with a
+    child process, SIGTERM ended dev.py and left ``serve`` or ``hmi`` running, orphaned."""
+    if os.name != "posix":
+        return subprocess.call(argv)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(argv[0], argv)
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in {"run", "test", "bench", "cellctl"}:
         print(__doc__)
         return 2
     _ensure_venv()
     cmd, rest = argv[0], argv[1:]
-    if cmd == "run":
+    if cmd in {"run", "cellctl"}:
         # the caller's working directory: cellctl resolves its own defaults against the project
-        return subprocess.call([str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest])
-    if cmd == "cellctl":
-        # the caller's working directory: cellctl resolves its own defaults against the project
-        return subprocess.call([str(BIN / "cellctl"), *rest])
+        argv = [str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest] if cmd == "run" else [str(BIN / "cellctl"), *rest]
+        return _become(argv)
     if cmd == "test":
         _ensure_test_tools()
         code = subprocess.call([str(PY), "-m", "pytest", *rest], cwd=ROOT)

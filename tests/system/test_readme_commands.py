@@ -6,8 +6,10 @@ Each test here reproduces a defect the audit of the README's commands found.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import yaml
 
@@ -35,3 +37,26 @@ def test_serve_without_the_can_interface_says_why_and_exits_2(tmp_path):
     assert "Traceback" not in out.stderr, out.stderr[-3000:]
     assert out.returncode == 2, out.stderr[-3000:]
     assert "cellnocan9" in out.stderr and "stations.channel" in out.stderr, out.stderr
+
+
+def test_dev_py_passes_a_stop_signal_to_the_command_it_runs(tmp_path):
+    """``python3 dev.py cellctl serve --sim`` (or ``hmi``) stopped by SIGTERM (``timeout``,
+    a service manager, ``kill``) ended dev.py alone: the cell kept serving, orphaned, and
+    never said why it stopped. dev.py now becomes the command, so the signal reaches it."""
+    out, err = tmp_path / "out.txt", tmp_path / "err.txt"
+    with open(out, "w") as fo, open(err, "w") as fe:
+        p = subprocess.Popen([sys.executable, str(REPO / "dev.py"), "cellctl", "serve", "--sim",
+                              "--port", "0", "--db", "x.sqlite", "--seconds", "40"],
+                             cwd=tmp_path, stdout=fo, stderr=fe)
+    try:
+        for _ in range(600):
+            if "serving" in out.read_text() or p.poll() is not None:
+                break
+            time.sleep(0.1)
+        assert "serving" in out.read_text(), err.read_text()[-2000:]
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=60) == 0, err.read_text()[-2000:]
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert "stopped: SIGTERM received" in err.read_text(), err.read_text()[-2000:]
