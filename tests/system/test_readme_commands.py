@@ -60,3 +60,37 @@ def test_dev_py_passes_a_stop_signal_to_the_command_it_runs(tmp_path):
         if p.poll() is None:
             p.kill()
     assert "stopped: SIGTERM received" in err.read_text(), err.read_text()[-2000:]
+
+
+def _umask_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
+    """``cellctl calibrate-camera … --out cal.json`` and ``calibrate joint --png`` wrote their
+    files 0600 (``tempfile.mkstemp``'s mode): run as root as deploy/INSTALL.md step 3 does,
+    the calibration the service user ``cell`` must read at start-up was unreadable to it.
+    The project's other outputs (reports, exports) take the umask's mode; so do these now."""
+    import cv2
+
+    from cell.sim.camera import SimCamera
+    from cell.vision.calibration import CircleGridBoard
+    from cell.vision.camera_model import CameraModel
+    board = CircleGridBoard(cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=(234.0, 920.0))
+    cam = SimCamera(CameraModel.nadir(640, 512, 0.08, centre_mm=(250.0, 930.0)), lambda: [board], seed=3)
+    cam.open()
+    (tmp_path / "imgs").mkdir()
+    cv2.imwrite(str(tmp_path / "imgs" / "board1.png"), cam.grab().image)
+    cam.close()
+    (tmp_path / "board.yaml").write_text(yaml.safe_dump(dict(
+        kind="circles", cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=[234.0, 920.0], angle_deg=0.0)))
+    out = cellctl(tmp_path, "calibrate-camera", "--board", "board.yaml", "--images", "imgs",
+                  "--out", "cal.json")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (tmp_path / "cal.json").stat().st_mode & 0o777 == _umask_mode()
+
+    out = cellctl(tmp_path, "calibrate", "joint", "j4", "--sim", "--runs", "1", "--png", "j4.png")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (tmp_path / "j4.png").stat().st_mode & 0o777 == _umask_mode()
