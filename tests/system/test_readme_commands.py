@@ -10,7 +10,9 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+import pytest
 import yaml
 
 from tests.system.conftest import REPO
@@ -94,3 +96,48 @@ def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
     out = cellctl(tmp_path, "calibrate", "joint", "j4", "--sim", "--runs", "1", "--png", "j4.png")
     assert out.returncode == 0, out.stderr[-2000:]
     assert (tmp_path / "j4.png").stat().st_mode & 0o777 == _umask_mode()
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc for the child")
+def test_dev_py_bench_stopped_by_sigterm_stops_its_benchmark(tmp_path):
+    """``python3 dev.py bench`` stopped by SIGTERM ended dev.py alone: the benchmark it was
+    running went on, orphaned (and ``dev.py test``'s pytest likewise)."""
+    p = subprocess.Popen([sys.executable, str(REPO / "dev.py"), "bench"], cwd=tmp_path,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    kids: list[int] = []
+    try:
+        for _ in range(600):
+            kids = _children(p.pid)
+            if kids or p.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert kids, "dev.py bench started no benchmark"
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        p.wait(timeout=60)
+        for _ in range(300):
+            if not any(Path(f"/proc/{k}").exists() for k in kids):
+                break
+            time.sleep(0.1)
+        left = [k for k in kids if Path(f"/proc/{k}").exists()]
+        assert not left, f"benchmark process(es) {left} still running after dev.py was stopped"
+    finally:
+        if p.poll() is None:
+            p.kill()
+        for k in kids:
+            try:
+                os.kill(k, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
