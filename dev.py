@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -63,21 +64,41 @@ def _ensure_test_tools() -> None:
                   "skip (fail under CI=true)", file=sys.stderr, flush=True)
 
 
+def _call(argv: list[str], **kwargs) -> int:
+    """``subprocess.call`` that passes a SIGTERM for dev.py on to the command: without it
+    ``dev.py bench`` or ``test`` stopped by ``kill`` left its benchmark or pytest running."""
+    child = subprocess.Popen(argv, **kwargs)
+    previous = signal.signal(signal.SIGTERM, lambda signum, _frame: child.send_signal(signum))
+    try:
+        return child.wait()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _become(argv: list[str]) -> int:
+    """Run ``argv`` in this process's place (POSIX), so a stop signal meant for the command
+    (``kill``, ``timeout``, a service manager, Ctrl-C) reaches it, not only dev.py: with a
+    child process, SIGTERM ended dev.py and left ``serve`` or ``hmi`` running, orphaned."""
+    if os.name != "posix":
+        return subprocess.call(argv)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(argv[0], argv)
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in {"run", "test", "bench", "cellctl"}:
         print(__doc__)
         return 2
     _ensure_venv()
     cmd, rest = argv[0], argv[1:]
-    if cmd == "run":
+    if cmd in {"run", "cellctl"}:
         # the caller's working directory: cellctl resolves its own defaults against the project
-        return subprocess.call([str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest])
-    if cmd == "cellctl":
-        # the caller's working directory: cellctl resolves its own defaults against the project
-        return subprocess.call([str(BIN / "cellctl"), *rest])
+        argv = [str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest] if cmd == "run" else [str(BIN / "cellctl"), *rest]
+        return _become(argv)
     if cmd == "test":
         _ensure_test_tools()
-        code = subprocess.call([str(PY), "-m", "pytest", *rest], cwd=ROOT)
+        code = _call([str(PY), "-m", "pytest", *rest], cwd=ROOT)
         if code == 5:  # pytest: no tests collected -- never a pass
             print("dev.py: pytest collected no tests; failing", file=sys.stderr)
             return 1
@@ -85,7 +106,10 @@ def main(argv: list[str]) -> int:
     code = 0
     for script in sorted((ROOT / "bench").glob("bench_*.py")):
         print(f"\n## {script.name}\n", flush=True)
-        code |= subprocess.call([str(PY), str(script), *rest], cwd=ROOT)
+        rc = _call([str(PY), str(script), *rest], cwd=ROOT)
+        if rc == -signal.SIGTERM:            # stopped: not the next benchmark either
+            return 128 + signal.SIGTERM
+        code |= rc
     return code
 
 

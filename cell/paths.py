@@ -46,3 +46,18 @@ def shown(path: str | Path) -> str:
         return str(p.resolve().relative_to(Path.cwd().resolve()))
     except (ValueError, OSError):
         return str(p)
+
+
+def temp_beside(path: str | Path, suffix: str = ".tmp") -> tuple[int, str]:
+    """``(fd, name)`` of a new file beside ``path``, open for writing, to rename over it
+    (an atomic write), like ``tempfile.mkstemp`` but with the umask's mode as any file a
+    command writes: ``mkstemp``'s 0600 made a calibration written by root (deploy/INSTALL.md)
+    unreadable to the service user."""
+    import os
+    path = Path(path)
+    while True:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}{suffix}")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), str(tmp)
+        except FileExistsError:
+            continue

@@ -12,8 +12,8 @@ Writes, into ``--out``:
   Chromium (``tests/browser.py``: Debian's chromium and chromium-driver);
 - ``diagnosis-report-sim.png``: the same for ``cellctl diagnose LOG`` on the fresh run.
 
-Everything else goes to a temporary folder that is removed. Run from the repository root
-(``run --sim`` reads ``recipes/`` and ``deploy/`` there).
+Everything else goes to a temporary folder that is removed. Any folder will do: the
+commands take the project's ``recipes/`` and ``deploy/`` wherever they run from.
 """
 from __future__ import annotations
 

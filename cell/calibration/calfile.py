@@ -22,11 +22,11 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from cell import paths
 from cell.errors import CalibrationError, KinematicsError
 from cell.kinematics import Elbow, Geometry, Scara
 
@@ -133,7 +133,7 @@ def _write(path: Path, doc: dict) -> dict:
             keep_as = path.with_name(f"{path.stem}.unreadable.json")
     doc = {**doc, "version": version}
     doc["sha256"] = _digest(doc)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = paths.temp_beside(path)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=1)

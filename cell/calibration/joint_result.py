@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from cell import paths
 
 if TYPE_CHECKING:  # annotation only: joint imports this module
     from cell.calibration.joint import CircleFit
@@ -175,7 +176,7 @@ def plot(result: JointResult, path) -> Path:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    fd, tmp = paths.temp_beside(out)
     try:
         with os.fdopen(fd, "wb") as f:
             fig.savefig(f, format="png", dpi=100)

@@ -29,9 +29,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import tempfile
 from pathlib import Path
 
+from cell import paths
 from cell.errors import ConfigError
 
 
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"calibration failed: {exc} ({names})") from None
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    fd, tmp = paths.temp_beside(out)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         json.dump(cal.as_dict(), f, indent=2)
     os.replace(tmp, out)

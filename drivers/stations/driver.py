@@ -127,12 +127,20 @@ class JointStations(BringUpMixin, StreamingMixin):
 
         :raises StationStartupError: a station did not boot or refused its configuration
             (everything opened so far is closed again).
-        :raises can.CanError: the interface could not be opened.
+        :raises StationStartupError: also when the CAN interface could not be opened (missing,
+            down, no driver), naming ``stations.interface`` and ``stations.channel``.
         """
         if self._started:
             return
         c = self.cfg
-        bus = open_bus(c.interface, c.channel, c.bitrate, clock=self.clock)
+        try:
+            bus = open_bus(c.interface, c.channel, c.bitrate, clock=self.clock)
+        except (can.CanError, OSError) as exc:      # python-can raises either, by interface
+            hint = (f" (ip link set {c.channel} up type can bitrate {c.bitrate})"
+                    if c.interface == "socketcan" else "")
+            raise StationStartupError(
+                f"cannot open the CAN bus: stations.interface {c.interface!r}, stations.channel "
+                f"{c.channel!r}: {exc}; check that the interface exists and is up{hint}") from None
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.05
         od_path = str(EDS_PATH)

@@ -142,3 +142,14 @@ def test_an_unreadable_active_file_is_kept_aside_and_replaced(tmp_path):
     assert calfile.write(path, doc())["version"] == 1
     assert (tmp_path / "robot.unreadable.json").read_bytes() == b"\xff\xfe not json"
     assert calfile.load(path, SEED000, "cell-1")["version"] == 1
+
+
+def test_the_file_gets_the_umask_mode_not_0600(tmp_path):
+    """The service user must read a calibration an engineer wrote (``cellctl calibrate
+    kinematics`` as root): it was written 0600, ``tempfile.mkstemp``'s mode."""
+    import os
+    mask = os.umask(0)
+    os.umask(mask)
+    path = tmp_path / "robot.json"
+    calfile.write(path, doc())
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask
