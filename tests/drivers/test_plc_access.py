@@ -251,3 +251,132 @@ def test_a_storm_of_idle_sockets_cannot_shed_a_client_that_asks():
             s.close()
     finally:
         link.stop()
+
+
+# ---------------------------------------------------------------- per-host quota (issue 12)
+def _guard_state(link: PlcLink, seen: int, upper_s: float = 30.0) -> dict[str, int]:
+    """The guard's connections per host once it has seen ``seen`` connections since start
+    (a bounded poll on the server's own loop: counts, never a timing)."""
+    deadline = time.monotonic() + upper_s
+    while True:
+        seen_now, hosts = link._server.call(lambda: (link.guard.connections, link.guard.per_host()))
+        if seen_now >= seen or time.monotonic() > deadline:
+            return hosts
+        time.sleep(0.02)
+
+
+def _asks(s: socket.socket) -> bool:
+    s.sendall(_read_hb())
+    return len(s.recv(64)) == 11
+
+
+def test_one_hosts_flood_stays_within_its_quota_and_never_sheds_another_hosts_connections():
+    """A host past ``max_per_host`` sheds its own connections; the other host's reader and
+    the owner (from a third address) keep theirs."""
+    link = _link(max_connections=8, max_per_host=3)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # 127.0.0.1 owns the link
+        reader = _raw(link.port, "127.0.0.3")
+        assert _asks(reader)
+        flood = [_raw(link.port, "127.0.0.2") for _ in range(40)]      # idle sockets, never a request
+        hosts = _guard_state(link, seen=42)
+        assert hosts == {"127.0.0.1": 1, "127.0.0.3": 1, "127.0.0.2": 3}, hosts
+        assert sum(_closed(s, 5.0) for s in flood[:-3]) == 37          # the flood shed its own, oldest first
+        assert _asks(reader)                                           # the other host is still served
+        assert not plc.write_register(1, 2).isError()                  # and the owner still writes
+        assert link.guard.shed == 37
+        for s in flood + [reader]:
+            s.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+def test_at_the_cap_the_host_holding_the_most_is_shed_and_a_host_with_fewer_keeps_its_own():
+    """Global cap 6, no quota: host .2 fills the link; a connection from host .3 (which
+    holds fewer) sheds one of .2's; .2's next connections shed its own, never .3's, even
+    .3's that never asked (a TLS client in its handshake has not asked yet)."""
+    link = _link(max_connections=6)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # owner: never counted, never shed
+        flood = [_raw(link.port, "127.0.0.2") for _ in range(5)]       # the link is full
+        assert _guard_state(link, seen=6) == {"127.0.0.1": 1, "127.0.0.2": 5}
+        quiet = _raw(link.port, "127.0.0.3")                           # sends nothing, like a handshake
+        assert _guard_state(link, seen=7) == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}
+        assert _closed(flood[0], 5.0)                                  # .2's oldest made room
+        flood += [_raw(link.port, "127.0.0.2") for _ in range(30)]
+        hosts = _guard_state(link, seen=37)
+        assert hosts == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}, hosts
+        assert _asks(quiet)                                            # .3's connection survived
+        assert not plc.write_register(1, 2).isError()
+        # a second host with fewer connections is served too; on a tie the newcomer's own host pays
+        other = _raw(link.port, "127.0.0.4")
+        assert _asks(other)
+        assert _guard_state(link, seen=38) == {"127.0.0.1": 1, "127.0.0.2": 3, "127.0.0.3": 1,
+                                               "127.0.0.4": 1}
+        again = _raw(link.port, "127.0.0.3")                            # .3 would hold 2 < 3: .2 pays
+        assert _guard_state(link, seen=39) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
+                                               "127.0.0.4": 1}
+        third = _raw(link.port, "127.0.0.3")                            # .3 would hold 3 > 2: its own,
+        assert _guard_state(link, seen=40) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
+                                               "127.0.0.4": 1}
+        assert _closed(again, 5.0)                                     # the one that never asked
+        assert _asks(quiet) and _asks(third) and _asks(other)
+        for s in flood + [quiet, other, again, third]:
+            s.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+def test_the_owners_connection_does_not_count_against_its_hosts_quota():
+    link = _link(max_connections=8, max_per_host=1)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # owner
+        hmi = _raw(link.port)                                          # same host: its one connection
+        assert _asks(hmi)
+        more = _raw(link.port)                                         # past the quota: sheds hmi, not the PLC
+        assert _guard_state(link, seen=3) == {"127.0.0.1": 2}
+        assert _closed(hmi, 5.0) and _asks(more)
+        assert not plc.write_register(1, 2).isError()
+        hmi.close()
+        more.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+@pytest.mark.parametrize("kwargs, field, words", [
+    ({"max_connections_per_host": "four"}, "max_connections_per_host", "valid integer"),
+    ({"max_connections_per_host": 0}, "max_connections_per_host", "greater than or equal to 1"),
+    ({"max_connections_per_host": 2.5}, "max_connections_per_host", "valid integer"),
+    ({"max_connections_per_host": 9}, "", "max_connections_per_host (9) is more than max_connections (8)"),
+    ({"max_connections": 2, "max_connections_per_host": 3}, "", "is more than max_connections (2)"),
+])
+def test_a_bad_per_host_quota_names_the_field(kwargs, field, words):
+    with pytest.raises(ValueError) as exc:
+        PlcConfig(**kwargs)
+    assert field in str(exc.value) and words in str(exc.value)
+
+
+def test_a_bad_per_host_quota_in_the_config_file_names_file_line_and_field(tmp_path):
+    from cell.config import CellConfig
+    from cell.errors import ConfigError
+    for value, words in (("lots", "valid integer"), ("20", "is more than max_connections (8)")):
+        cfg = tmp_path / "cell.yaml"
+        cfg.write_text(f"format: cell-config/1\nplc:\n  max_connections: 8\n  max_connections_per_host: {value}\n")
+        with pytest.raises(ConfigError) as exc:
+            CellConfig.load(cfg)
+        assert f"cell.yaml:4: plc.max_connections_per_host: " in str(exc.value) and words in str(exc.value), \
+            str(exc.value)
+
+
+def test_the_quota_reaches_the_access_policy_and_the_policy_checks_it():
+    assert PlcConfig().access_policy().max_per_host == 4
+    assert PlcConfig(max_connections=3, max_connections_per_host=2).access_policy().max_per_host == 2
+    for bad in (0, 9, "2"):
+        with pytest.raises(ValueError, match="max_per_host must be an integer from 1 to max_connections"):
+            AccessPolicy(max_connections=8, max_per_host=bad)
