@@ -9,11 +9,12 @@ the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
 * a host may hold at most :attr:`AccessPolicy.max_per_host` connections (the owner's not
   counted): past it, the host's new connection sheds one of that host's own;
 * at :attr:`AccessPolicy.max_connections` one connection is shed to make room, never the
-  owner's (the PLC that owns the link, :mod:`drivers.plc.server`), from the host holding
-  the most connections (the new one counted with its host; on a tie the new one's own
-  host): so one host's flood sheds its own connections, never another host's while it
-  holds more than that host. Within the host: first those that never sent a well-formed
-  request, then the one idle the longest; with nothing to shed the new one is closed;
+  owner's (the PLC that owns the link, :mod:`drivers.plc.server`): a host that would hold
+  more than any other (the new one counted) sheds its own; otherwise one of the host(s)
+  holding the most is shed. So one host's flood sheds its own connections, never those
+  of a host holding fewer. Among the candidates: first those that never sent a
+  well-formed request, then those that sent malformed frames, then the one idle the
+  longest; with nothing to shed the new one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
   that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
   of step).
@@ -104,6 +105,7 @@ class Peer:
     role: str | None = None
     rights: frozenset[str] | None = None
     asked: int = 0             #: well-formed requests received on this connection
+    malformed: int = 0         #: frames received that failed the spec checks (answered 01/03)
 
     def __str__(self) -> str:
         addr = f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
@@ -149,9 +151,10 @@ class RateLimitedWarnings:
 
 def _least_needed(peers: list[Peer]) -> Peer:
     """Of ``peers``, the one to shed first: one that never sent a well-formed request (idle
-    sockets, half frames, TLS handshakes: what a storm leaves), else the one idle longest;
-    so a client that asks at once is not shed by the next storm connection."""
-    return min(peers, key=lambda p: (p.asked > 0, p.last))
+    sockets, half frames, TLS handshakes: what a storm leaves), then one that sent
+    malformed frames (a fuzzer), else the one idle longest; so a client that asks at once,
+    and asks well, is not shed by the next storm connection."""
+    return min(peers, key=lambda p: (p.asked > 0, p.malformed == 0, p.last))
 
 
 class ConnectionGuard:
@@ -208,21 +211,19 @@ class ConnectionGuard:
 
     def _victim_at_cap(self, host: str, new_count: int) -> Peer | None:
         """At the cap: the connection to shed for a new one from ``host`` (which would then
-        hold ``new_count``), or None. From the host holding the most connections, the owner's
-        not counted and never shed; the new one's own host on a tie, so a flooding host
-        sheds its own and never a host that holds fewer."""
+        hold ``new_count``), or None. The owner's connection is not counted and never shed.
+        A host holding more than every other sheds its own; otherwise the connection comes
+        from the other host(s) holding the most, never from a host holding fewer than the
+        new one's would, and never from the new one's host on a tie."""
         by_host: dict[str, list[Peer]] = {}
         for p in self.peers.values():
             if not self.is_owner(p):
                 by_host.setdefault(p.host, []).append(p)
-        if not by_host:
-            return None
-        most = max(len(v) for v in by_host.values())
-        if new_count >= most and by_host.get(host):
-            return _least_needed(by_host[host])
-        # the largest other host(s); among several, the least needed of their connections
-        biggest = [p for h, v in by_host.items() if len(v) == most for p in v]
-        return _least_needed(biggest)
+        others = {h: v for h, v in by_host.items() if h != host}
+        most = max((len(v) for v in others.values()), default=0)
+        if new_count > most or not others:
+            return _least_needed(by_host[host]) if by_host.get(host) else None
+        return _least_needed([p for v in others.values() if len(v) == most for p in v])
 
     def per_host(self) -> dict[str, int]:
         """Connections held now, per client host (the owner's included)."""

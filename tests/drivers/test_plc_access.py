@@ -311,22 +311,49 @@ def test_at_the_cap_the_host_holding_the_most_is_shed_and_a_host_with_fewer_keep
         assert hosts == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}, hosts
         assert _asks(quiet)                                            # .3's connection survived
         assert not plc.write_register(1, 2).isError()
-        # a second host with fewer connections is served too; on a tie the newcomer's own host pays
-        other = _raw(link.port, "127.0.0.4")
+        other = _raw(link.port, "127.0.0.4")                           # another host with fewer: .2 pays
         assert _asks(other)
         assert _guard_state(link, seen=38) == {"127.0.0.1": 1, "127.0.0.2": 3, "127.0.0.3": 1,
                                                "127.0.0.4": 1}
-        again = _raw(link.port, "127.0.0.3")                            # .3 would hold 2 < 3: .2 pays
+        again = _raw(link.port, "127.0.0.3")                           # .3 would hold 2 < 3: .2 pays
         assert _guard_state(link, seen=39) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
                                                "127.0.0.4": 1}
-        third = _raw(link.port, "127.0.0.3")                            # .3 would hold 3 > 2: its own,
+        third = _raw(link.port, "127.0.0.3")                           # .3 would hold 3 > 2: its own,
         assert _guard_state(link, seen=40) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
                                                "127.0.0.4": 1}
         assert _closed(again, 5.0)                                     # the one that never asked
         assert _asks(quiet) and _asks(third) and _asks(other)
-        for s in flood + [quiet, other, again, third]:
+        # a tie: .4 would hold 2 like .2 and .3; not its own, but the tied hosts' least
+        # needed: .2's sockets that never asked, not .3's that ask
+        fourth = _raw(link.port, "127.0.0.4")
+        assert _guard_state(link, seen=41) == {"127.0.0.1": 1, "127.0.0.2": 1, "127.0.0.3": 2,
+                                               "127.0.0.4": 2}
+        assert _asks(quiet) and _asks(third) and _asks(other) and _asks(fourth)
+        assert not plc.write_register(1, 3).isError()
+        for s in flood + [quiet, other, again, third, fourth]:
             s.close()
         plc.close()
+    finally:
+        link.stop()
+
+
+def test_at_the_cap_a_fuzzer_is_shed_before_a_client_that_asks_well():
+    """Fuzz storm: the legitimate reader was shed when every fuzzing socket had sent a
+    well-formed request too and been active more recently; one that sent malformed frames
+    goes first now."""
+    link = _link(max_connections=3)
+    try:
+        good, third = _raw(link.port, "127.0.0.2"), _raw(link.port, "127.0.0.4")
+        assert _asks(good) and _asks(third)                            # good is idle the longest ...
+        bad = _raw(link.port, "127.0.0.3")
+        bad.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))          # unsupported function: 01
+        assert bad.recv(64)[7:] == bytes([0xC1, 1])
+        assert _asks(bad)                                              # and one good request
+        newcomer = _raw(link.port, "127.0.0.5")                        # ... yet the fuzzer goes first
+        assert _asks(newcomer)
+        assert _closed(bad, 5.0) and _asks(good) and _asks(third)
+        for s in (good, bad, third, newcomer):
+            s.close()
     finally:
         link.stop()
 
