@@ -13,8 +13,8 @@ the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
   more than any other (the new one counted) sheds its own; otherwise one of the host(s)
   holding the most is shed. So one host's flood sheds its own connections, never those
   of a host holding fewer. Among the candidates: first those that never sent a
-  well-formed request, then those that sent malformed frames, then the one idle the
-  longest; with nothing to shed the new one is closed;
+  well-formed request, then those that sent malformed frames or hold a half-sent one,
+  then the one idle the longest; with nothing to shed the new one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
   that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
   of step).
@@ -152,9 +152,10 @@ class RateLimitedWarnings:
 def _least_needed(peers: list[Peer]) -> Peer:
     """Of ``peers``, the one to shed first: one that never sent a well-formed request (idle
     sockets, half frames, TLS handshakes: what a storm leaves), then one that sent
-    malformed frames (a fuzzer), else the one idle longest; so a client that asks at once,
-    and asks well, is not shed by the next storm connection."""
-    return min(peers, key=lambda p: (p.asked > 0, p.malformed == 0, p.last))
+    malformed frames or holds a half-sent one (a fuzzer, slowloris), else the one idle
+    longest; so a client that asks at once, and asks well, is not shed by the next storm
+    connection, even before its first request has been read."""
+    return min(peers, key=lambda p: (p.asked > 0, p.malformed == 0 and p.partial_since is None, p.last))
 
 
 class ConnectionGuard:

@@ -358,6 +358,30 @@ def test_at_the_cap_a_fuzzer_is_shed_before_a_client_that_asks_well():
         link.stop()
 
 
+def test_at_the_cap_a_half_sent_frame_is_shed_before_a_new_client_that_has_not_asked_yet():
+    """Fuzz storm: a new client whose request the server had not read yet was shed for a
+    fuzzing socket that kept sending a frame it never completed (more recent, so idle
+    less long)."""
+    link = _link(max_connections=2)
+    try:
+        fresh = _raw(link.port, "127.0.0.2")                           # connected, nothing sent yet
+        assert _guard_state(link, seen=1) == {"127.0.0.2": 1}
+        half = _raw(link.port, "127.0.0.3")
+        half.sendall(struct.pack(">HHHB", 1, 0, 200, 1) + b"\x03")    # a frame that never completes
+        def half_seen():
+            return [p.partial_since is not None for p in link.guard.peers.values() if p.host == "127.0.0.3"]
+        deadline = time.monotonic() + 10
+        while link._server.call(half_seen) != [True] and time.monotonic() < deadline:
+            time.sleep(0.02)                                           # the server has read the half frame
+        newcomer = _raw(link.port, "127.0.0.4")
+        assert _asks(newcomer)
+        assert _closed(half, 5.0) and _asks(fresh)
+        for s in (fresh, half, newcomer):
+            s.close()
+    finally:
+        link.stop()
+
+
 def test_the_owners_connection_does_not_count_against_its_hosts_quota():
     link = _link(max_connections=8, max_per_host=1)
     try:
