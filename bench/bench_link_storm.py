@@ -302,6 +302,9 @@ def _watch_trips(plc: Plc, stop: threading.Event) -> None:
         time.sleep(0.05)
 
 
+FAILED: dict[str, int] = {}      # why new clients were not served, over the run
+
+
 def _new_clients(port: int, seconds: float, sslctx=None) -> tuple[int, int, float]:
     """Every second a new client connects (over TLS with ``sslctx``) and reads once."""
     served = tried = 0
@@ -318,8 +321,9 @@ def _new_clients(port: int, seconds: float, sslctx=None) -> tuple[int, int, floa
                 _read_once(s)
             served += 1
             worst = max(worst, time.monotonic() - t0)
-        except OSError:
-            pass
+        except OSError as exc:
+            why = type(exc).__name__
+            FAILED[why] = FAILED.get(why, 0) + 1
         time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
     return served, tried, worst
 
@@ -518,6 +522,9 @@ def main() -> int:
         ok, tried, worst = served[phase]
         what = "TLS (Operator)" if phase == "tls" else "plain TCP"
         print(f"| {phase} | {sent} | {conns} | {ok}/{tried} {what} | {worst * 1000:.0f} |")
+    if FAILED:
+        print(f"\nNew clients not served, by error: "
+              f"{', '.join(f'{k} {v}' for k, v in sorted(FAILED.items()))} (both runs).")
     log = run["log"]
     print(f"\nServer log lines over the whole run: {log.count(chr(10))} (warnings are rate-limited).")
     trims = [float(m.group(1)) for line in log.splitlines() if "plc_memory_trimmed" in line
