@@ -11,8 +11,8 @@ the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
 * at :attr:`AccessPolicy.max_connections` one connection is shed to make room, never the
   owner's (the PLC that owns the link, :mod:`drivers.plc.server`): a host that would hold
   more than any other (the new one counted) sheds its own; otherwise one of the host(s)
-  holding the most is shed. So one host's flood sheds its own connections, never those
-  of a host holding fewer. Among the candidates: first those that never sent a
+  holding the most is shed (of several, one misbehaving now first). So one host's flood
+  sheds its own connections, never those of a host holding fewer. Among the candidates: first those that never sent a
   well-formed request, then those that sent malformed frames or hold a half-sent one,
   then the one idle the longest; with nothing to shed the new one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
@@ -149,13 +149,18 @@ class RateLimitedWarnings:
         return self._windows.get(kind, [0, 0, 0])[2]
 
 
+def _misbehaves(p: Peer) -> bool:
+    """``p`` sent malformed frames or holds a half-sent one (a fuzzer, slowloris)."""
+    return p.malformed > 0 or p.partial_since is not None
+
+
 def _least_needed(peers: list[Peer]) -> Peer:
     """Of ``peers``, the one to shed first: one that never sent a well-formed request (idle
     sockets, half frames, TLS handshakes: what a storm leaves), then one that sent
     malformed frames or holds a half-sent one (a fuzzer, slowloris), else the one idle
     longest; so a client that asks at once, and asks well, is not shed by the next storm
     connection, even before its first request has been read."""
-    return min(peers, key=lambda p: (p.asked > 0, p.malformed == 0 and p.partial_since is None, p.last))
+    return min(peers, key=lambda p: (p.asked > 0, not _misbehaves(p), p.last))
 
 
 class ConnectionGuard:
@@ -224,7 +229,12 @@ class ConnectionGuard:
         most = max((len(v) for v in others.values()), default=0)
         if new_count > most or not others:
             return _least_needed(by_host[host]) if by_host.get(host) else None
-        return _least_needed([p for v in others.values() if len(v) == most for p in v])
+        # several hosts may hold the most: one misbehaving now (a connection of it sent
+        # malformed frames or holds a half-sent one) goes first, even before a clean
+        # host's client whose first request has not been read yet
+        tied = [v for v in others.values() if len(v) == most]
+        hostile = [v for v in tied if any(_misbehaves(p) for p in v)]
+        return _least_needed([p for v in (hostile or tied) for p in v])
 
     def per_host(self) -> dict[str, int]:
         """Connections held now, per client host (the owner's included)."""

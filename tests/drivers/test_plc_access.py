@@ -382,6 +382,31 @@ def test_at_the_cap_a_half_sent_frame_is_shed_before_a_new_client_that_has_not_a
         link.stop()
 
 
+def test_on_a_tie_a_misbehaving_host_is_shed_before_a_clean_hosts_new_client():
+    """Fuzz storm: the legitimate host (reader and a new client) held as many connections
+    as each fuzzing host; a fuzzing host's next connection shed the new client, whose
+    request had not been read yet, as the oldest connection that had not asked."""
+    link = _link(max_connections=4)
+    try:
+        reader = _raw(link.port, "127.0.0.1")
+        assert _asks(reader)
+        fresh = _raw(link.port, "127.0.0.1")                           # a new client, not asked yet
+        fuzz = _raw(link.port, "127.0.0.2")
+        fuzz.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))          # malformed: 01
+        assert fuzz.recv(64)[7:] == bytes([0xC1, 1])
+        assert _asks(fuzz)                                             # and it asks, more recently
+        other = _raw(link.port, "127.0.0.2")                           # .2 holds 2, as .1 does: the cap
+        assert _guard_state(link, seen=4) == {"127.0.0.1": 2, "127.0.0.2": 2}
+        newcomer = _raw(link.port, "127.0.0.3")                        # .3 would hold 1: .1 or .2 pays
+        assert _guard_state(link, seen=5) == {"127.0.0.1": 2, "127.0.0.2": 1, "127.0.0.3": 1}
+        assert _closed(other, 5.0)                                     # the misbehaving host's
+        assert _asks(fresh) and _asks(reader) and _asks(newcomer)
+        for s in (reader, fresh, fuzz, other, newcomer):
+            s.close()
+    finally:
+        link.stop()
+
+
 def test_the_owners_connection_does_not_count_against_its_hosts_quota():
     link = _link(max_connections=8, max_per_host=1)
     try:
