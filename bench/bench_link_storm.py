@@ -30,8 +30,9 @@ Phases 2 to 4 are repeated ``--rounds`` times (default 2). Memory: each round's 
 is the largest RSS after its storms. The verdict is on the least-squares slope of the
 high-water over the second half of the rounds (the first half is warm-up): *flat* when at
 most ``--flat-mb`` (0.5) MB per round. A leak keeps its slope round after round; a level
-being reached does not. ``--control`` then runs the same schedule on a fresh cell with no
-attack, so the cell's own warm-up is measured in the same run.
+being reached does not. With fewer than 8 rounds no verdict is given. ``--control`` then
+runs the same schedule on a fresh cell with no attack, so the cell's own warm-up is
+measured in the same run.
 
 5. **settle**: 5 s with no attack, then the server's memory is read again.
 
@@ -43,7 +44,7 @@ Attackers run in their own processes so this process's GIL does not colour the l
 
     .venv/bin/python bench/bench_link_storm.py               # 20 s per phase
     .venv/bin/python bench/bench_link_storm.py --quick       # 6 s per phase
-    .venv/bin/python bench/bench_link_storm.py --quick --rounds 8 --control   # the memory verdict
+    .venv/bin/python bench/bench_link_storm.py --quick --rounds 16 --control  # the memory verdict
 """
 from __future__ import annotations
 
@@ -432,6 +433,11 @@ def high_water(rss: dict[str, float], rounds: int) -> list[float]:
     return [max(rss[f"after {p}, round {r}"] for p in PHASES) for r in range(1, rounds + 1)]
 
 
+#: rounds needed for a memory verdict: its second half (4 rounds or more) must lie past the
+#: warm-up (in 16-round runs the high-water levelled by about round 7)
+MIN_VERDICT_ROUNDS = 8
+
+
 def late_slope(highs: list[float]) -> tuple[float, int]:
     """Least-squares slope (MB per round) of the high-water over the second half of the
     rounds (rounds floor(n/2)+1 .. n: the first half is the warm-up) and the first round
@@ -508,8 +514,10 @@ def main() -> int:
         print(f"No attack (control, same schedule, fresh cell): {', '.join(f'{h:.1f}' for h in chighs)}; "
               f"round {args.rounds} against round 1: {chighs[-1] - chighs[0]:+.1f} MB; "
               f"slope over rounds {from_round}-{args.rounds}: {cslope:+.2f} MB/round.")
-    if slope != slope:
-        print("\nMemory verdict: none: the second half of the rounds needs 2 rounds or more (--rounds 3 or more).")
+    if args.rounds < MIN_VERDICT_ROUNDS:
+        print(f"\nMemory verdict: none: {args.rounds} rounds are too few (the cell and the storms warm up "
+              f"over several rounds; use --rounds {MIN_VERDICT_ROUNDS} or more). Slope over rounds "
+              f"{from_round}-{args.rounds}: {slope:+.2f} MB/round.")
     else:
         verdict = "flat" if slope <= args.flat_mb else "NOT flat"
         print(f"\nMemory verdict: **{verdict}**: the round high-water's slope over rounds {from_round}-"
