@@ -12,9 +12,10 @@ the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
   owner's (the PLC that owns the link, :mod:`drivers.plc.server`): a host that would hold
   more than any other (the new one counted) sheds its own; otherwise one of the host(s)
   holding the most is shed (of several, one misbehaving now first). So one host's flood
-  sheds its own connections, never those of a host holding fewer. Among the candidates: first those that never sent a
-  well-formed request, then those that sent malformed frames or hold a half-sent one,
-  then the one idle the longest; with nothing to shed the new one is closed;
+  sheds its own connections, never those of a host holding fewer. Among the candidates:
+  first those that never sent a well-formed request, then those that sent malformed
+  frames or hold a half-sent one, then the one idle the longest; with nothing to shed the
+  new one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
   that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
   of step).
