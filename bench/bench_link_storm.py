@@ -1,8 +1,8 @@
 """The PLC link under attack: fuzz and connection storms against ``cellctl serve --sim``.
 
 One run, four phases on one served cell (a ``serve --sim`` child, clock paced to wall time,
-product defaults for the link: heartbeat time-out 1 s, 8 connections, 60 s idle, 5 s half
-frame):
+product defaults for the link: heartbeat time-out 1 s, 8 connections, 4 per client host,
+60 s idle, 5 s half frame):
 
 1. **quiet**: the control. The simulated PLC (``cell.sim.plc.SimPlc``, a real Modbus
    client in a thread here) runs cycles back to back and beats every scan; a legitimate
@@ -11,28 +11,40 @@ frame):
    bytes; valid MBAP headers with random PDUs; bad lengths; writes from a client that does
    not own the link), reconnecting whenever the server closes them.
 3. **connections**: the same processes open ``--sockets`` idle connections each, leave
-   half frames (slowloris) and reconnect as they are shed. Every second a *new*
-   legitimate client connects and reads once; it counts as served if answered within 2 s.
+   half frames (slowloris) and reconnect as they are shed.
 4. **tls**: the same processes storm the Modbus/TCP Security listener (served on its own
    port with certificates made for the run): full TLS handshakes without a client
    certificate (refused in the handshake), garbage instead of a ClientHello, and silent
-   connections left half-open (up to ``--sockets`` each) until shed or timed out. Every
-   second a new legitimate TLS client (an Operator certificate) connects and reads once.
-Phases 2 to 4 are repeated ``--rounds`` times (default 2), so the memory table tells a
-high-water mark (reached in round 1, then flat) from a leak (growing every round). The
-verdict: memory is *flat* when the last round's high-water (the largest RSS after its
-storms) is within ``--flat-mb`` (2 MB) of the first round's.
+   connections left half-open (up to ``--sockets`` each) until shed or timed out.
+During every storm, each second a *new* legitimate client connects (plain TCP; during the
+TLS storm over TLS with an Operator certificate) and reads once; it counts as served if
+answered within 2 s.
+
+Hosts. As in a plant, each attacker connects from a host of its own (127.0.0.2, .3, ...:
+Linux routes all of 127/8 to lo), and the PLC, the reader and the new clients from
+127.0.0.1. The allow-list lists them all: allowed-but-hostile clients are the worst case,
+since a host outside it is closed at connect. ``--same-host`` puts the attackers on
+127.0.0.1 too, a case a per-host quota cannot tell apart (reported as what it is).
+
+Phases 2 to 4 are repeated ``--rounds`` times (default 2). Memory: each round's high-water
+is the largest RSS after its storms. The verdict is on the least-squares slope of the
+high-water over the second half of the rounds (the first half is warm-up): *flat* when at
+most ``--flat-mb`` (0.5) MB per round. A leak keeps its slope round after round; a level
+being reached does not. With fewer than 8 rounds no verdict is given. ``--control`` then
+runs the same schedule on a fresh cell with no attack, so the cell's own warm-up is
+measured in the same run.
 
 5. **settle**: 5 s with no attack, then the server's memory is read again.
 
 Printed, as Markdown tables: the reader's p50/p99 per phase and its ratio to the quiet
 control of the same run; false watchdog trips (fault 101 or ``plc_link_ok`` low while the
 PLC beats: the aim is 0) and the PLC's cycles per phase; the server's resident memory
-(VmRSS) before, after each storm and after settling; new clients served during the storm.
+(VmRSS) before, after each storm and after settling; new clients served during each storm.
 Attackers run in their own processes so this process's GIL does not colour the latencies.
 
     .venv/bin/python bench/bench_link_storm.py               # 20 s per phase
     .venv/bin/python bench/bench_link_storm.py --quick       # 6 s per phase
+    .venv/bin/python bench/bench_link_storm.py --quick --rounds 16 --control  # the memory verdict
 """
 from __future__ import annotations
 
@@ -62,11 +74,13 @@ from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
 from drivers.plc.register_map import PLC_MAP  # noqa: E402
 
 FC3 = struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 0, 20)
+LEGIT_HOST = "127.0.0.1"     # the PLC, the reader and the new clients connect from here
 PHASES = ("fuzz", "connections", "tls")      # the storms, in the order of one round
 
 ATTACKER = r'''
 import os, random, resource, socket, ssl, struct, sys, time
-mode, port, seconds, nsock, seed = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+mode, port, seconds, nsock, seed, src = (sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]),
+                                         int(sys.argv[5]), sys.argv[6])
 soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
 resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 rnd = random.Random(seed)
@@ -90,6 +104,7 @@ def connect():
     global conns
     s = socket.socket()
     s.settimeout(2)
+    s.bind((src, 0))                                                  # this attacker's host
     s.connect(("127.0.0.1", port))
     s.setblocking(False)
     conns += 1
@@ -122,7 +137,7 @@ elif mode == "tls":                                                   # Modbus/T
         k = rnd.randrange(3)
         try:
             if k == 0:                                                # a handshake without a client certificate
-                with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+                with socket.create_connection(("127.0.0.1", port), timeout=2, source_address=(src, 0)) as raw:
                     conns += 1
                     try:
                         with ctx.wrap_socket(raw) as t:
@@ -222,7 +237,8 @@ class Reader(threading.Thread):
         while not self.stop.is_set():
             try:
                 if s is None:
-                    s = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+                    s = socket.create_connection(("127.0.0.1", self.port), timeout=5,
+                                                 source_address=(LEGIT_HOST, 0))
                 t0 = time.perf_counter()
                 _read_once(s)
                 self.samples.setdefault(self.phase, []).append(time.perf_counter() - t0)
@@ -287,6 +303,9 @@ def _watch_trips(plc: Plc, stop: threading.Event) -> None:
         time.sleep(0.05)
 
 
+FAILED: dict[str, int] = {}      # why new clients were not served, over the run
+
+
 def _new_clients(port: int, seconds: float, sslctx=None) -> tuple[int, int, float]:
     """Every second a new client connects (over TLS with ``sslctx``) and reads once."""
     served = tried = 0
@@ -296,22 +315,30 @@ def _new_clients(port: int, seconds: float, sslctx=None) -> tuple[int, int, floa
         tried += 1
         t0 = time.monotonic()
         try:
-            with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+            with socket.create_connection(("127.0.0.1", port), timeout=2,
+                                          source_address=(LEGIT_HOST, 0)) as raw:
                 raw.settimeout(2)
                 s = sslctx.wrap_socket(raw) if sslctx is not None else raw
                 _read_once(s)
             served += 1
             worst = max(worst, time.monotonic() - t0)
-        except OSError:
-            pass
+        except OSError as exc:
+            why = type(exc).__name__
+            FAILED[why] = FAILED.get(why, 0) + 1
         time.sleep(max(0.0, 1.0 - (time.monotonic() - t0)))
     return served, tried, worst
 
 
-def _attack(mode: str, port: int, seconds: float, n: int, sockets: int, seed: int) -> list[subprocess.Popen]:
+def attacker_hosts(n: int, same_host: bool) -> list[str]:
+    """Where attacker ``i`` connects from: 127.0.0.(2+i), a host of its own (Linux routes all
+    of 127/8 to lo), or with ``same_host`` the legitimate clients' 127.0.0.1."""
+    return [LEGIT_HOST if same_host else f"127.0.0.{2 + i}" for i in range(n)]
+
+
+def _attack(mode: str, port: int, seconds: float, hosts: list[str], sockets: int, seed: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", ATTACKER, mode, str(port), str(seconds), str(sockets),
-                              str(seed + i)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-            for i in range(n)]
+                              str(seed + i), src], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            for i, src in enumerate(hosts)]
 
 
 def _collect(procs: list[subprocess.Popen]) -> tuple[int, int]:
@@ -328,45 +355,35 @@ def _pct(xs: list[float], q: float) -> float:
     return xs[min(len(xs) - 1, int(q * len(xs)))] * 1000 if xs else float("nan")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=20.0, help="length of each phase (default 20)")
-    ap.add_argument("--quick", action="store_true", help="6 s phases")
-    ap.add_argument("--attackers", type=int, default=3, help="attacking processes (default 3)")
-    ap.add_argument("--sockets", type=int, default=100, help="idle connections per attacker (default 100)")
-    ap.add_argument("--rounds", type=int, default=2,
-                    help="fuzz + connection storms, one after the other, this often (default 2): "
-                         "memory that is flat grows in the first round at most")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--flat-mb", type=float, default=2.0,
-                    help="memory is flat if the last round's high-water RSS is within this of round 1's (default 2)")
-    args = ap.parse_args()
-    seconds = 6.0 if args.quick else args.seconds
-    tmp = Path(tempfile.mkdtemp(prefix="link-storm-"))
+def run_cell(args, seconds: float, hosts: list[str], tmp: Path, label: str) -> dict:
+    """One served cell through quiet, ``args.rounds`` rounds of the storms from ``hosts`` (none:
+    the same schedule with no attack, the control) and settle; what was measured."""
     port, tls_port = _free_port(), _free_port()
-    cfg = tmp / "cell.yaml"
-    shutil.copytree(ROOT / "recipes", tmp / "recipes")
+    cfg = tmp / f"cell-{label}.yaml"
     from tests.drivers.tlscerts import Authority, client_context   # certificates for this run only
-    ca = Authority(tmp)
+    (tmp / f"pki-{label}").mkdir()
+    ca = Authority(tmp / f"pki-{label}")
     me, plc_cert = ca.issue("controller", server=True), ca.issue("plc-operator", role="Operator")
     tls_client = client_context(ca, plc_cert)
+    # the attackers' hosts are allowed: allowed-but-hostile clients are the worst case (a
+    # host outside the allow-list is closed at connect, before it costs a handshake)
+    allow = sorted({LEGIT_HOST, *attacker_hosts(max(args.attackers, 1), args.same_host)})
     cfg.write_text(f"sim:\n  plant: {ROOT / 'deploy/plants/default.yaml'}\nplc:\n  host: 127.0.0.1\n"
+                   f"  allow: [{', '.join(allow)}]\n"
                    f"  tls:\n    enabled: true\n    port: {tls_port}\n    cert: {me.cert}\n    key: {me.key}\n"
                    f"    ca: {ca.path}\n"
-                   f"log:\n  path: {tmp / 'cell.sqlite'}\n  format: json\nrecipes:\n  directory: {tmp / 'recipes'}\n")
-    print(f"`{' '.join([Path(sys.executable).name] + sys.argv)}`  \n"
-          f"{platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} cores, "
-          f"load average {os.getloadavg()[0]:.2f} at start; phases of {seconds:.0f} s; "
-          f"{args.attackers} attacking processes\n")
+                   f"log:\n  path: {tmp / f'cell-{label}.sqlite'}\n  format: json\n"
+                   f"recipes:\n  directory: {tmp / 'recipes'}\n")
+    log_path = tmp / f"serve-{label}.log"
     server = subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(cfg),
                                "--port", str(port)], cwd=ROOT, stdout=subprocess.PIPE,
-                              stderr=open(tmp / "serve.log", "w"), text=True)
+                              stderr=open(log_path, "w"), text=True)
     attackers: list[subprocess.Popen] = []
     plc = reader = None
     stop_watch = threading.Event()
     try:
         if "serving" not in server.stdout.readline():
-            raise SystemExit(f"serve did not start; see {tmp / 'serve.log'}")
+            raise SystemExit(f"serve did not start; see {log_path}")
         plc, reader = Plc(port, recipe=1), Reader(port)
         plc.start()
         time.sleep(2.0)                                   # the PLC owns the link, first cycle runs
@@ -375,18 +392,17 @@ def main() -> int:
         rss = {"before": _rss_mb(server.pid)}
         time.sleep(seconds)                               # 1. quiet
         rss["after quiet"] = _rss_mb(server.pid)
-        traffic, served = {}, {"connections": [0, 0, 0.0], "tls": [0, 0, 0.0]}
-        for rnd in progress.each(range(1, args.rounds + 1), "storm rounds", "round"):
+        traffic, served = {}, {phase: [0, 0, 0.0] for phase in PHASES}
+        for rnd in progress.each(range(1, args.rounds + 1), f"storm rounds ({label})", "round"):
             for phase in PHASES:
                 plc.phase = reader.phase = phase
                 mode = {"fuzz": "fuzz", "connections": "conn", "tls": "tls"}[phase]
-                attackers = _attack(mode, tls_port if phase == "tls" else port, seconds, args.attackers,
+                attackers = _attack(mode, tls_port if phase == "tls" else port, seconds, hosts,
                                     args.sockets, args.seed + 100 * rnd)
-                if phase in served:
-                    ok, tried, worst = (_new_clients(tls_port, seconds, tls_client) if phase == "tls"
-                                        else _new_clients(port, seconds))
-                    was = served[phase]
-                    served[phase] = [was[0] + ok, was[1] + tried, max(was[2], worst)]
+                ok, tried, worst = (_new_clients(tls_port, seconds, tls_client) if phase == "tls"
+                                    else _new_clients(port, seconds))
+                was = served[phase]
+                served[phase] = [was[0] + ok, was[1] + tried, max(was[2], worst)]
                 sent, conns = _collect(attackers)
                 before = traffic.get(phase, (0, 0))
                 traffic[phase] = (before[0] + sent, before[1] + conns)
@@ -408,6 +424,65 @@ def main() -> int:
             server.wait(timeout=30)
         except subprocess.TimeoutExpired:
             server.kill()
+    return {"reader": reader, "plc": plc, "rss": rss, "traffic": traffic, "served": served,
+            "log": log_path.read_text()}
+
+
+def high_water(rss: dict[str, float], rounds: int) -> list[float]:
+    """Each round's high-water: the largest RSS after its storms."""
+    return [max(rss[f"after {p}, round {r}"] for p in PHASES) for r in range(1, rounds + 1)]
+
+
+#: rounds needed for a memory verdict: its second half (4 rounds or more) must lie past the
+#: warm-up (in 16-round runs the high-water levelled by about round 7)
+MIN_VERDICT_ROUNDS = 8
+
+
+def late_slope(highs: list[float]) -> tuple[float, int]:
+    """Least-squares slope (MB per round) of the high-water over the second half of the
+    rounds (rounds floor(n/2)+1 .. n: the first half is the warm-up) and the first round
+    of that half. A leak keeps a slope; a level being reached does not."""
+    first = len(highs) // 2                       # index of the half's first round
+    ys = highs[first:]
+    xs = list(range(first + 1, len(highs) + 1))
+    if len(ys) < 2:
+        return float("nan"), first + 1
+    mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
+    return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs), first + 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=20.0, help="length of each phase (default 20)")
+    ap.add_argument("--quick", action="store_true", help="6 s phases")
+    ap.add_argument("--attackers", type=int, default=3,
+                    help="attacking processes (default 3), each from a host of its own (127.0.0.2, .3, ...)")
+    ap.add_argument("--same-host", action="store_true",
+                    help="the attackers connect from 127.0.0.1, the legitimate clients' host: what a "
+                         "per-host quota cannot tell apart")
+    ap.add_argument("--sockets", type=int, default=100, help="idle connections per attacker (default 100)")
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="fuzz + connection + TLS storms, one after the other, this often (default 2)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--flat-mb", type=float, default=0.5,
+                    help="memory is flat if the round high-water's slope over the second half of the "
+                         "rounds is at most this many MB per round (default 0.5)")
+    ap.add_argument("--control", action="store_true",
+                    help="then run the same schedule on a fresh cell with no attack (the cell's own "
+                         "warm-up) and compare")
+    args = ap.parse_args()
+    seconds = 6.0 if args.quick else args.seconds
+    tmp = Path(tempfile.mkdtemp(prefix="link-storm-"))
+    shutil.copytree(ROOT / "recipes", tmp / "recipes")
+    hosts = attacker_hosts(args.attackers, args.same_host)
+    print(f"`{' '.join([Path(sys.executable).name] + sys.argv)}`  \n"
+          f"{platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.2f} at start; phases of {seconds:.0f} s; "
+          f"{args.attackers} attacking processes from {', '.join(sorted(set(hosts))) or 'nowhere'}; "
+          f"legitimate clients from {LEGIT_HOST}\n")
+    run = run_cell(args, seconds, hosts, tmp, "storm")
+    control = run_cell(args, seconds, [], tmp, "control") if args.control else None
+    reader, plc, rss, traffic, served = run["reader"], run["plc"], run["rss"], run["traffic"], run["served"]
     quiet = reader.samples.get("quiet", [])
     print("#### The legitimate reader's FC3 round trip (20 registers)\n")
     print("| phase | requests | errors | p50 ms | p99 ms | p99 / quiet p99 |")
@@ -422,28 +497,44 @@ def main() -> int:
     for phase in ("quiet", *PHASES, "settle"):
         print(f"| {phase} | {plc.done.get(phase, 0)} | {plc.faulted.get(phase, 0)} | {plc.trips.get(phase, 0)} |")
     print("\n#### Server resident memory (VmRSS, MB)\n")
-    print("| when | MB | change from after quiet |")
-    print("|---|---|---|")
+    ctl = control["rss"] if control else None
+    print("| when | MB | change from after quiet |" + (" no attack (control) MB | control's change |" if ctl else ""))
+    print("|---|---|---|" + ("---|---|" if ctl else ""))
     for when, mb in rss.items():
-        print(f"| {when} | {mb:.1f} | {mb - rss['after quiet']:+.1f} |")
-    def high(r: int) -> float:     # the round's high-water: RSS after its storms, the largest
-        return max(rss[f"after {p}, round {r}"] for p in PHASES)
-    first, last = high(1), high(args.rounds)
-    verdict = "flat" if last - first <= args.flat_mb else "NOT flat"
-    print(f"\nMemory verdict: **{verdict}**: round {args.rounds}'s high-water {last - first:+.1f} MB against "
-          f"round 1's (flat: within {args.flat_mb:g} MB); after settling "
-          f"{rss['after 5 s settle'] - rss['after quiet']:+.1f} MB against the quiet control.")
-    print("\n#### Attack traffic, and new legitimate clients during the connection storm\n")
-    print("| phase | frames sent | connections opened |")
-    print("|---|---|---|")
+        extra = f" {ctl[when]:.1f} | {ctl[when] - ctl['after quiet']:+.1f} |" if ctl else ""
+        print(f"| {when} | {mb:.1f} | {mb - rss['after quiet']:+.1f} |{extra}")
+    highs = high_water(rss, args.rounds)
+    slope, from_round = late_slope(highs)
+    print(f"\nRound high-water (largest RSS after a round's storms), MB: "
+          f"{', '.join(f'{h:.1f}' for h in highs)}; round {args.rounds} against round 1: "
+          f"{highs[-1] - highs[0]:+.1f} MB.")
+    if ctl:
+        chighs = high_water(ctl, args.rounds)
+        cslope, _ = late_slope(chighs)
+        print(f"No attack (control, same schedule, fresh cell): {', '.join(f'{h:.1f}' for h in chighs)}; "
+              f"round {args.rounds} against round 1: {chighs[-1] - chighs[0]:+.1f} MB; "
+              f"slope over rounds {from_round}-{args.rounds}: {cslope:+.2f} MB/round.")
+    if args.rounds < MIN_VERDICT_ROUNDS:
+        print(f"\nMemory verdict: none: {args.rounds} rounds are too few (the cell and the storms warm up "
+              f"over several rounds; use --rounds {MIN_VERDICT_ROUNDS} or more). Slope over rounds "
+              f"{from_round}-{args.rounds}: {slope:+.2f} MB/round.")
+    else:
+        verdict = "flat" if slope <= args.flat_mb else "NOT flat"
+        print(f"\nMemory verdict: **{verdict}**: the round high-water's slope over rounds {from_round}-"
+              f"{args.rounds} is {slope:+.2f} MB/round (flat: at most {args.flat_mb:g}); after settling "
+              f"{rss['after 5 s settle'] - rss['after quiet']:+.1f} MB against the quiet control.")
+    print("\n#### Attack traffic, and new legitimate clients during each storm\n")
+    print("| phase | frames sent | connections opened | new clients served (answered within 2 s) | slowest ms |")
+    print("|---|---|---|---|---|")
     for phase, (sent, conns) in traffic.items():
-        print(f"| {phase} | {sent} | {conns} |")
-    for phase, what in (("connections", "plain TCP clients"), ("tls", "TLS clients (Operator)")):
         ok, tried, worst = served[phase]
-        print(f"\nNew legitimate {what} served (answered within 2 s) during the {phase} storm: "
-              f"{ok}/{tried}; slowest {worst * 1000:.0f} ms.")
-    log = (tmp / "serve.log").read_text()
-    print(f"Server log lines over the whole run: {log.count(chr(10))} (warnings are rate-limited).")
+        what = "TLS (Operator)" if phase == "tls" else "plain TCP"
+        print(f"| {phase} | {sent} | {conns} | {ok}/{tried} {what} | {worst * 1000:.0f} |")
+    if FAILED:
+        print(f"\nNew clients not served, by error: "
+              f"{', '.join(f'{k} {v}' for k, v in sorted(FAILED.items()))} (both runs).")
+    log = run["log"]
+    print(f"\nServer log lines over the whole run: {log.count(chr(10))} (warnings are rate-limited).")
     trims = [float(m.group(1)) for line in log.splitlines() if "plc_memory_trimmed" in line
              for m in [re.search(r'"ms": ([0-9.]+)', line)] if m]
     if trims:

@@ -112,6 +112,8 @@ class PlcConfig(BaseModel):
     #: listen on every interface with no allow-list: must be said, never a default
     allow_any: bool = False
     max_connections: int = Field(8, ge=1, le=1000)
+    #: connections one client host may hold (the owner's not counted); at most max_connections
+    max_connections_per_host: int = Field(4, ge=1, le=1000)
     idle_timeout_s: float = Field(60.0, gt=0, le=3600)
     frame_timeout_s: float = Field(5.0, gt=0, le=600)
     #: serve plain Modbus TCP on host:port (false: Modbus/TCP Security only)
@@ -126,6 +128,16 @@ class PlcConfig(BaseModel):
         return v
 
     @model_validator(mode="after")
+    def _quota_within_the_cap(self) -> "PlcConfig":
+        if self.max_connections_per_host > self.max_connections:
+            exc = ValueError(f"max_connections_per_host ({self.max_connections_per_host}) is more than "
+                             f"max_connections ({self.max_connections}): one host could take every "
+                             "connection; give at most max_connections")
+            exc.loc = ("max_connections_per_host",)   # where the problem is (for file:line)
+            raise exc
+        return self
+
+    @model_validator(mode="after")
     def _wildcard_needs_a_list(self) -> "PlcConfig":
         if not self.plain_tcp and not self.tls.enabled:
             raise ValueError("plain_tcp is false and tls.enabled is false: the PLC could not connect")
@@ -138,7 +150,8 @@ class PlcConfig(BaseModel):
 
     def access_policy(self):
         """The :class:`~drivers.plc.access.AccessPolicy` of this section: the allow-list
-        (none for a loopback listener or with ``allow_any``), the cap and the time-outs."""
+        (none for a loopback listener or with ``allow_any``), the cap, the per-host quota
+        and the time-outs."""
         import ipaddress
 
         from drivers.plc.access import AccessPolicy, parse_allow
@@ -147,7 +160,8 @@ class PlcConfig(BaseModel):
         except ValueError:
             loopback = self.host == "localhost"
         allow = None if (self.allow_any or (loopback and not self.allow)) else parse_allow(self.allow)
-        return AccessPolicy(allow, self.max_connections, self.idle_timeout_s, self.frame_timeout_s)
+        return AccessPolicy(allow, self.max_connections, self.idle_timeout_s, self.frame_timeout_s,
+                            max_per_host=self.max_connections_per_host)
 
 
 def open_link(backend: str = "modbus_tcp", **kwargs) -> PlcPort:

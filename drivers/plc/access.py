@@ -6,10 +6,16 @@ time-outs use the loop's clock, since they protect the operating system's resour
 the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
 
 * an address outside :attr:`AccessPolicy.allow` is closed at once, before any request;
+* a host may hold at most :attr:`AccessPolicy.max_per_host` connections (the owner's not
+  counted): past it, the host's new connection sheds one of that host's own;
 * at :attr:`AccessPolicy.max_connections` one connection is shed to make room, never the
-  owner's (the PLC that owns the link, :mod:`drivers.plc.server`): first those that never
-  sent a well-formed request, then the one idle the longest; with nothing to shed the new
-  one is closed;
+  owner's (the PLC that owns the link, :mod:`drivers.plc.server`): a host that would hold
+  more than any other (the new one counted) sheds its own; otherwise one of the host(s)
+  holding the most is shed (of several, one misbehaving now first). So one host's flood
+  sheds its own connections, never those of a host holding fewer. Among the candidates:
+  first those that never sent a well-formed request, then those that sent malformed
+  frames or hold a half-sent one, then the one idle the longest; with nothing to shed the
+  new one is closed;
 * a connection silent for ``idle_timeout_s`` is closed (not the owner's), and so is one
   that leaves a frame half-sent for ``frame_timeout_s`` (the owner's too: its stream is out
   of step).
@@ -42,12 +48,22 @@ class AccessPolicy:
     """``allow``: networks a client may connect from (None: any address, for a loopback
     listener or an explicit ``allow_any``); ``max_connections``; ``idle_timeout_s``: close a
     connection silent this long; ``frame_timeout_s``: close one whose frame stays
-    incomplete this long."""
+    incomplete this long; ``max_per_host``: connections one host may hold, the owner's
+    not counted (None: only the global cap)."""
 
     allow: tuple[Network, ...] | None = None
     max_connections: int = 8
     idle_timeout_s: float = 60.0
     frame_timeout_s: float = 5.0
+    max_per_host: int | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.max_connections, int) or self.max_connections < 1:
+            raise ValueError(f"max_connections must be an integer >= 1, got {self.max_connections!r}")
+        if self.max_per_host is not None and (
+                not isinstance(self.max_per_host, int) or not 1 <= self.max_per_host <= self.max_connections):
+            raise ValueError(f"max_per_host must be an integer from 1 to max_connections "
+                             f"({self.max_connections}), got {self.max_per_host!r}")
 
     def allows(self, host: str) -> bool:
         if self.allow is None:
@@ -90,6 +106,7 @@ class Peer:
     role: str | None = None
     rights: frozenset[str] | None = None
     asked: int = 0             #: well-formed requests received on this connection
+    malformed: int = 0         #: frames received that failed the spec checks (answered 01/03)
 
     def __str__(self) -> str:
         addr = f"{self.host}:{self.port}" if ":" not in self.host else f"[{self.host}]:{self.port}"
@@ -133,6 +150,20 @@ class RateLimitedWarnings:
         return self._windows.get(kind, [0, 0, 0])[2]
 
 
+def _misbehaves(p: Peer) -> bool:
+    """``p`` sent malformed frames or holds a half-sent one (a fuzzer, slowloris)."""
+    return p.malformed > 0 or p.partial_since is not None
+
+
+def _least_needed(peers: list[Peer]) -> Peer:
+    """Of ``peers``, the one to shed first: one that never sent a well-formed request (idle
+    sockets, half frames, TLS handshakes: what a storm leaves), then one that sent
+    malformed frames or holds a half-sent one (a fuzzer, slowloris), else the one idle
+    longest; so a client that asks at once, and asks well, is not shed by the next storm
+    connection, even before its first request has been read."""
+    return min(peers, key=lambda p: (p.asked > 0, not _misbehaves(p), p.last))
+
+
 class ConnectionGuard:
     """The allow-list, cap and time-outs of the module docstring, for one server.
     ``is_owner(peer)`` tells which connection owns the link (never shed or idled out)."""
@@ -158,27 +189,60 @@ class ConnectionGuard:
             self.refused += 1
             self.warn.warning("plc_client_not_allowed", client=f"{host}:{port}")
             return None
-        if len(self.peers) >= self.policy.max_connections:
-            # connections that never sent a well-formed request go first (idle sockets,
-            # half frames: what a storm leaves), then the longest idle; so a new client
-            # that asks at once is not shed by the next storm connection
-            idle = sorted((p for p in self.peers.values() if not self.is_owner(p)),
-                          key=lambda p: (p.asked > 0, p.last))
-            if not idle:
+        victim = None
+        mine = [p for p in self.peers.values() if p.host == host and not self.is_owner(p)]
+        quota = self.policy.max_per_host
+        if quota is not None and len(mine) >= quota:
+            # this host holds its quota: it makes room among its own connections
+            victim = _least_needed(mine)
+            reason = "host_quota"
+        elif len(self.peers) >= self.policy.max_connections:
+            victim = self._victim_at_cap(host, len(mine) + 1)
+            reason = "max_connections"
+            if victim is None:
                 self.refused += 1
                 self.warn.warning("plc_connection_refused_at_cap", client=f"{host}:{port}",
                                   max_connections=self.policy.max_connections)
                 return None
-            victim = idle[0]
+        if victim is not None:
             self.shed += 1
             self.warn.warning("plc_connection_shed", client=str(victim), for_client=f"{host}:{port}",
-                              max_connections=self.policy.max_connections)
+                              reason=reason, max_connections=self.policy.max_connections,
+                              max_per_host=quota)
             self.drop(victim)
             victim.close()
         now = self._now()
         peer = Peer(next(_PEER_IDS), host, port, now, now, close=close)
         self.peers[peer.id] = peer
         return peer
+
+    def _victim_at_cap(self, host: str, new_count: int) -> Peer | None:
+        """At the cap: the connection to shed for a new one from ``host`` (which would then
+        hold ``new_count``), or None. The owner's connection is not counted and never shed.
+        A host holding more than every other sheds its own; otherwise the connection comes
+        from the other host(s) holding the most, never from a host holding fewer than the
+        new one's would, and never from the new one's host on a tie."""
+        by_host: dict[str, list[Peer]] = {}
+        for p in self.peers.values():
+            if not self.is_owner(p):
+                by_host.setdefault(p.host, []).append(p)
+        others = {h: v for h, v in by_host.items() if h != host}
+        most = max((len(v) for v in others.values()), default=0)
+        if new_count > most or not others:
+            return _least_needed(by_host[host]) if by_host.get(host) else None
+        # several hosts may hold the most: one misbehaving now (a connection of it sent
+        # malformed frames or holds a half-sent one) goes first, even before a clean
+        # host's client whose first request has not been read yet
+        tied = [v for v in others.values() if len(v) == most]
+        hostile = [v for v in tied if any(_misbehaves(p) for p in v)]
+        return _least_needed([p for v in (hostile or tied) for p in v])
+
+    def per_host(self) -> dict[str, int]:
+        """Connections held now, per client host (the owner's included)."""
+        out: dict[str, int] = {}
+        for p in self.peers.values():
+            out[p.host] = out.get(p.host, 0) + 1
+        return out
 
     def activity(self, peer: Peer, pending_bytes: int) -> None:
         """``peer`` sent data; ``pending_bytes`` of a frame are still incomplete."""

@@ -295,8 +295,11 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
             return len(data)   # closing (or refused at connect): ignore whatever still arrives
         for frame in self._stream.feed(data):
             self._queue.put_nowait(frame)
-            if self.peer is not None and check_request(frame.pdu) is None:
-                self.peer.asked += 1      # a well-formed request: shed such a client last
+            if self.peer is not None:
+                if check_request(frame.pdu) is None:
+                    self.peer.asked += 1      # a well-formed request: shed such a client last
+                else:
+                    self.peer.malformed += 1  # a fuzzer's: shed before a client that asks well
         if self.peer is not None:
             self.guard.activity(self.peer, self._stream.pending)
         if self._queue.qsize() > MAX_PENDING and self._stream.broken is None:

@@ -251,3 +251,208 @@ def test_a_storm_of_idle_sockets_cannot_shed_a_client_that_asks():
             s.close()
     finally:
         link.stop()
+
+
+# ---------------------------------------------------------------- per-host quota (issue 12)
+def _guard_state(link: PlcLink, seen: int, upper_s: float = 30.0) -> dict[str, int]:
+    """The guard's connections per host once it has seen ``seen`` connections since start
+    (a bounded poll on the server's own loop: counts, never a timing)."""
+    deadline = time.monotonic() + upper_s
+    while True:
+        seen_now, hosts = link._server.call(lambda: (link.guard.connections, link.guard.per_host()))
+        if seen_now >= seen or time.monotonic() > deadline:
+            return hosts
+        time.sleep(0.02)
+
+
+def _asks(s: socket.socket) -> bool:
+    s.sendall(_read_hb())
+    return len(s.recv(64)) == 11
+
+
+def test_one_hosts_flood_stays_within_its_quota_and_never_sheds_another_hosts_connections():
+    """A host past ``max_per_host`` sheds its own connections; the other host's reader and
+    the owner (from a third address) keep theirs."""
+    link = _link(max_connections=8, max_per_host=3)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # 127.0.0.1 owns the link
+        reader = _raw(link.port, "127.0.0.3")
+        assert _asks(reader)
+        flood = [_raw(link.port, "127.0.0.2") for _ in range(40)]      # idle sockets, never a request
+        hosts = _guard_state(link, seen=42)
+        assert hosts == {"127.0.0.1": 1, "127.0.0.3": 1, "127.0.0.2": 3}, hosts
+        assert sum(_closed(s, 5.0) for s in flood[:-3]) == 37          # the flood shed its own, oldest first
+        assert _asks(reader)                                           # the other host is still served
+        assert not plc.write_register(1, 2).isError()                  # and the owner still writes
+        assert link.guard.shed == 37
+        for s in flood + [reader]:
+            s.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+def test_at_the_cap_the_host_holding_the_most_is_shed_and_a_host_with_fewer_keeps_its_own():
+    """Global cap 6, no quota: host .2 fills the link; a connection from host .3 (which
+    holds fewer) sheds one of .2's; .2's next connections shed its own, never .3's, even
+    .3's that never asked (a TLS client in its handshake has not asked yet)."""
+    link = _link(max_connections=6)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # owner: never counted, never shed
+        flood = [_raw(link.port, "127.0.0.2") for _ in range(5)]       # the link is full
+        assert _guard_state(link, seen=6) == {"127.0.0.1": 1, "127.0.0.2": 5}
+        quiet = _raw(link.port, "127.0.0.3")                           # sends nothing, like a handshake
+        assert _guard_state(link, seen=7) == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}
+        assert _closed(flood[0], 5.0)                                  # .2's oldest made room
+        flood += [_raw(link.port, "127.0.0.2") for _ in range(30)]
+        hosts = _guard_state(link, seen=37)
+        assert hosts == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}, hosts
+        assert _asks(quiet)                                            # .3's connection survived
+        assert not plc.write_register(1, 2).isError()
+        other = _raw(link.port, "127.0.0.4")                           # another host with fewer: .2 pays
+        assert _asks(other)
+        assert _guard_state(link, seen=38) == {"127.0.0.1": 1, "127.0.0.2": 3, "127.0.0.3": 1,
+                                               "127.0.0.4": 1}
+        again = _raw(link.port, "127.0.0.3")                           # .3 would hold 2 < 3: .2 pays
+        assert _guard_state(link, seen=39) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
+                                               "127.0.0.4": 1}
+        third = _raw(link.port, "127.0.0.3")                           # .3 would hold 3 > 2: its own,
+        assert _guard_state(link, seen=40) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
+                                               "127.0.0.4": 1}
+        assert _closed(again, 5.0)                                     # the one that never asked
+        assert _asks(quiet) and _asks(third) and _asks(other)
+        # a tie: .4 would hold 2 like .2 and .3; not its own, but the tied hosts' least
+        # needed: .2's sockets that never asked, not .3's that ask
+        fourth = _raw(link.port, "127.0.0.4")
+        assert _guard_state(link, seen=41) == {"127.0.0.1": 1, "127.0.0.2": 1, "127.0.0.3": 2,
+                                               "127.0.0.4": 2}
+        assert _asks(quiet) and _asks(third) and _asks(other) and _asks(fourth)
+        assert not plc.write_register(1, 3).isError()
+        for s in flood + [quiet, other, again, third, fourth]:
+            s.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+def test_at_the_cap_a_fuzzer_is_shed_before_a_client_that_asks_well():
+    """Fuzz storm: the legitimate reader was shed when every fuzzing socket had sent a
+    well-formed request too and been active more recently; one that sent malformed frames
+    goes first now."""
+    link = _link(max_connections=3)
+    try:
+        good, third = _raw(link.port, "127.0.0.2"), _raw(link.port, "127.0.0.4")
+        assert _asks(good) and _asks(third)                            # good is idle the longest ...
+        bad = _raw(link.port, "127.0.0.3")
+        bad.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))          # unsupported function: 01
+        assert bad.recv(64)[7:] == bytes([0xC1, 1])
+        assert _asks(bad)                                              # and one good request
+        newcomer = _raw(link.port, "127.0.0.5")                        # ... yet the fuzzer goes first
+        assert _asks(newcomer)
+        assert _closed(bad, 5.0) and _asks(good) and _asks(third)
+        for s in (good, bad, third, newcomer):
+            s.close()
+    finally:
+        link.stop()
+
+
+def test_at_the_cap_a_half_sent_frame_is_shed_before_a_new_client_that_has_not_asked_yet():
+    """Fuzz storm: a new client whose request the server had not read yet was shed for a
+    fuzzing socket that kept sending a frame it never completed (more recent, so idle
+    less long)."""
+    link = _link(max_connections=2)
+    try:
+        fresh = _raw(link.port, "127.0.0.2")                           # connected, nothing sent yet
+        assert _guard_state(link, seen=1) == {"127.0.0.2": 1}
+        half = _raw(link.port, "127.0.0.3")
+        half.sendall(struct.pack(">HHHB", 1, 0, 200, 1) + b"\x03")    # a frame that never completes
+        def half_seen():
+            return [p.partial_since is not None for p in link.guard.peers.values() if p.host == "127.0.0.3"]
+        deadline = time.monotonic() + 10
+        while link._server.call(half_seen) != [True] and time.monotonic() < deadline:
+            time.sleep(0.02)                                           # the server has read the half frame
+        newcomer = _raw(link.port, "127.0.0.4")
+        assert _asks(newcomer)
+        assert _closed(half, 5.0) and _asks(fresh)
+        for s in (fresh, half, newcomer):
+            s.close()
+    finally:
+        link.stop()
+
+
+def test_on_a_tie_a_misbehaving_host_is_shed_before_a_clean_hosts_new_client():
+    """Fuzz storm: the legitimate host (reader and a new client) held as many connections
+    as each fuzzing host; a fuzzing host's next connection shed the new client, whose
+    request had not been read yet, as the oldest connection that had not asked."""
+    link = _link(max_connections=4)
+    try:
+        reader = _raw(link.port, "127.0.0.1")
+        assert _asks(reader)
+        fresh = _raw(link.port, "127.0.0.1")                           # a new client, not asked yet
+        fuzz = _raw(link.port, "127.0.0.2")
+        fuzz.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))          # malformed: 01
+        assert fuzz.recv(64)[7:] == bytes([0xC1, 1])
+        assert _asks(fuzz)                                             # and it asks, more recently
+        other = _raw(link.port, "127.0.0.2")                           # .2 holds 2, as .1 does: the cap
+        assert _guard_state(link, seen=4) == {"127.0.0.1": 2, "127.0.0.2": 2}
+        newcomer = _raw(link.port, "127.0.0.3")                        # .3 would hold 1: .1 or .2 pays
+        assert _guard_state(link, seen=5) == {"127.0.0.1": 2, "127.0.0.2": 1, "127.0.0.3": 1}
+        assert _closed(other, 5.0)                                     # the misbehaving host's
+        assert _asks(fresh) and _asks(reader) and _asks(newcomer)
+        for s in (reader, fresh, fuzz, other, newcomer):
+            s.close()
+    finally:
+        link.stop()
+
+
+def test_the_owners_connection_does_not_count_against_its_hosts_quota():
+    link = _link(max_connections=8, max_per_host=1)
+    try:
+        plc = _client(link.port)
+        assert not plc.write_register(1, 1).isError()                  # owner
+        hmi = _raw(link.port)                                          # same host: its one connection
+        assert _asks(hmi)
+        more = _raw(link.port)                                         # past the quota: sheds hmi, not the PLC
+        assert _guard_state(link, seen=3) == {"127.0.0.1": 2}
+        assert _closed(hmi, 5.0) and _asks(more)
+        assert not plc.write_register(1, 2).isError()
+        hmi.close()
+        more.close()
+        plc.close()
+    finally:
+        link.stop()
+
+
+@pytest.mark.parametrize("kwargs, field, words", [
+    ({"max_connections_per_host": "four"}, "max_connections_per_host", "valid integer"),
+    ({"max_connections_per_host": 0}, "max_connections_per_host", "greater than or equal to 1"),
+    ({"max_connections_per_host": 2.5}, "max_connections_per_host", "valid integer"),
+    ({"max_connections_per_host": 9}, "", "max_connections_per_host (9) is more than max_connections (8)"),
+    ({"max_connections": 2, "max_connections_per_host": 3}, "", "is more than max_connections (2)"),
+])
+def test_a_bad_per_host_quota_names_the_field(kwargs, field, words):
+    with pytest.raises(ValueError) as exc:
+        PlcConfig(**kwargs)
+    assert field in str(exc.value) and words in str(exc.value)
+
+
+def test_a_bad_per_host_quota_in_the_config_file_names_file_line_and_field(tmp_path):
+    from cell.config import CellConfig
+    from cell.errors import ConfigError
+    for value, words in (("lots", "valid integer"), ("20", "is more than max_connections (8)")):
+        cfg = tmp_path / "cell.yaml"
+        cfg.write_text(f"format: cell-config/1\nplc:\n  max_connections: 8\n  max_connections_per_host: {value}\n")
+        with pytest.raises(ConfigError) as exc:
+            CellConfig.load(cfg)
+        assert f"cell.yaml:4: plc.max_connections_per_host: " in str(exc.value) and words in str(exc.value), \
+            str(exc.value)
+
+
+def test_the_quota_reaches_the_access_policy_and_the_policy_checks_it():
+    assert PlcConfig().access_policy().max_per_host == 4
+    assert PlcConfig(max_connections=3, max_connections_per_host=2).access_policy().max_per_host == 2
+    for bad in (0, 9, "2"):
+        with pytest.raises(ValueError, match="max_per_host must be an integer from 1 to max_connections"):
+            AccessPolicy(max_connections=8, max_per_host=bad)
