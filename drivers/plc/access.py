@@ -11,7 +11,8 @@ the simulated process). Every TCP connection gets a :class:`Peer` when it opens:
 * at :attr:`AccessPolicy.max_connections` one connection is shed to make room, never the
   owner's (the PLC that owns the link, :mod:`drivers.plc.server`): a host that would hold
   more than any other (the new one counted) sheds its own; otherwise one of the host(s)
-  holding the most is shed (of several, one misbehaving now first). So one host's flood
+  holding the most is shed (of several, first one misbehaving now or within
+  :data:`HOSTILE_MEMORY_S`: a fuzzer whose bad sockets were just closed still counts). So one host's flood
   sheds its own connections, never those of a host holding fewer. Among the candidates:
   first those that never sent a well-formed request, then those that sent malformed
   frames or hold a half-sent one, then the one idle the longest; with nothing to shed the
@@ -31,6 +32,7 @@ import contextvars
 import ipaddress
 import itertools
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -150,6 +152,13 @@ class RateLimitedWarnings:
         return self._windows.get(kind, [0, 0, 0])[2]
 
 
+#: how long a host that misbehaved (malformed or half-sent frames) still counts as hostile
+#: when hosts tie for shedding, after its bad connections are gone (loop seconds)
+HOSTILE_MEMORY_S = 30.0
+#: hosts remembered as hostile at most (the oldest is forgotten first): memory stays bounded
+HOSTILE_MAX_HOSTS = 1024
+
+
 def _misbehaves(p: Peer) -> bool:
     """``p`` sent malformed frames or holds a half-sent one (a fuzzer, slowloris)."""
     return p.malformed > 0 or p.partial_since is not None
@@ -176,6 +185,8 @@ class ConnectionGuard:
         self.peers: dict[int, Peer] = {}
         self.refused = self.shed = self.timed_out = 0
         self.connections = 0       #: connections seen since start (refused ones included)
+        #: host -> when a connection of it last left misbehaving (bounded, oldest first)
+        self._hostile: OrderedDict[str, float] = OrderedDict()
 
     @staticmethod
     def _now() -> float:
@@ -234,7 +245,7 @@ class ConnectionGuard:
         # malformed frames or holds a half-sent one) goes first, even before a clean
         # host's client whose first request has not been read yet
         tied = [v for v in others.values() if len(v) == most]
-        hostile = [v for v in tied if any(_misbehaves(p) for p in v)]
+        hostile = [v for v in tied if any(_misbehaves(p) for p in v) or self._was_hostile(v[0].host)]
         return _least_needed([p for v in (hostile or tied) for p in v])
 
     def per_host(self) -> dict[str, int]:
@@ -254,7 +265,17 @@ class ConnectionGuard:
             peer.partial_since = now
 
     def drop(self, peer: Peer) -> None:
-        self.peers.pop(peer.id, None)
+        if self.peers.pop(peer.id, None) is not None and _misbehaves(peer):
+            # a fuzzer whose bad connections were just closed must not look clean at the
+            # next tie: its host is remembered for a while (bounded)
+            self._hostile.pop(peer.host, None)
+            self._hostile[peer.host] = self._now()
+            while len(self._hostile) > HOSTILE_MAX_HOSTS:
+                self._hostile.popitem(last=False)
+
+    def _was_hostile(self, host: str) -> bool:
+        t = self._hostile.get(host)
+        return t is not None and self._now() - t <= HOSTILE_MEMORY_S
 
     def sweep(self) -> list[Peer]:
         """Close idle connections and half-sent frames past their time-outs; returns them."""

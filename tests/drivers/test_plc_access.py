@@ -407,6 +407,54 @@ def test_on_a_tie_a_misbehaving_host_is_shed_before_a_clean_hosts_new_client():
         link.stop()
 
 
+def test_on_a_tie_a_host_whose_bad_connection_just_left_is_still_shed_first():
+    """16-round storm bench: 6 of 96 new clients were reset during the fuzz storm. A fuzzing
+    host whose malformed connections had just been closed looked clean at the next tie,
+    and the clean host's new client (its request not read yet) went first. A host that
+    misbehaved is remembered for a while (bounded)."""
+    link = _link(max_connections=4)
+    try:
+        reader = _raw(link.port, "127.0.0.1")
+        assert _asks(reader)
+        fresh = _raw(link.port, "127.0.0.1")                           # a new client, not asked yet
+        bad = _raw(link.port, "127.0.0.2")
+        bad.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))           # malformed: 01
+        assert bad.recv(64)[7:] == bytes([0xC1, 1])
+        bad.close()                                                    # the fuzzer's bad socket leaves
+        deadline = time.monotonic() + 30
+        while link._server.call(link.guard.per_host) != {"127.0.0.1": 2} and time.monotonic() < deadline:
+            time.sleep(0.02)                                           # the server has seen it go
+        assert link._server.call(link.guard.per_host) == {"127.0.0.1": 2}
+        polite = [_raw(link.port, "127.0.0.2") for _ in range(2)]      # the same host, asking well now
+        assert all(_asks(c) for c in polite)
+        assert _guard_state(link, seen=5) == {"127.0.0.1": 2, "127.0.0.2": 2}
+        newcomer = _raw(link.port, "127.0.0.3")                        # a tie of .1 and .2: .2 pays
+        assert _guard_state(link, seen=6) == {"127.0.0.1": 2, "127.0.0.2": 1, "127.0.0.3": 1}
+        assert _asks(fresh) and _asks(reader) and _asks(newcomer)
+        for s in (reader, fresh, newcomer, *polite):
+            s.close()
+    finally:
+        link.stop()
+
+
+def test_the_hostile_hosts_remembered_are_bounded():
+    import asyncio
+
+    from drivers.plc import access
+    from drivers.plc.access import AccessPolicy, ConnectionGuard, Peer
+
+    async def churn():
+        g = ConnectionGuard(AccessPolicy())                            # allow None: any address
+        for i in range(access.HOSTILE_MAX_HOSTS + 50):
+            p = g.connect(f"10.0.{i // 250}.{i % 250}", 1000, lambda: None)
+            p.malformed = 1
+            g.drop(p)
+        return g
+    g = asyncio.run(churn())
+    assert len(g._hostile) == access.HOSTILE_MAX_HOSTS and not g.peers
+    assert "10.0.0.0" not in g._hostile                                 # the oldest forgotten first
+
+
 def test_the_owners_connection_does_not_count_against_its_hosts_quota():
     link = _link(max_connections=8, max_per_host=1)
     try:
