@@ -110,6 +110,18 @@ def connect():
     conns += 1
     return s
 
+def reap(socks):
+    """Let go of the sockets the server closed (non-blocking peeks)."""
+    for s in list(socks):
+        try:
+            if s.recv(1) == b"":
+                raise OSError("closed")
+        except BlockingIOError:
+            pass
+        except OSError:
+            socks.remove(s)
+            s.close()
+
 if mode == "fuzz":
     socks = []
     while time.monotonic() < end:
@@ -159,15 +171,7 @@ elif mode == "tls":                                                   # Modbus/T
             socks.pop(0).close()
         n += 1
         if n % 20 == 0:                                               # let go of those the server closed
-            for s in list(socks):
-                try:
-                    if s.recv(1) == b"":
-                        raise OSError("closed")
-                except BlockingIOError:
-                    pass
-                except OSError:
-                    socks.remove(s)
-                    s.close()
+            reap(socks)
 else:                                                                 # connection storm
     socks = []
     while time.monotonic() < end:
@@ -180,15 +184,7 @@ else:                                                                 # connecti
                 socks.append(s)
         except OSError:
             time.sleep(0.05)
-        for s in list(socks):
-            try:
-                if s.recv(1) == b"":
-                    raise OSError("closed")
-            except BlockingIOError:
-                pass
-            except OSError:
-                socks.remove(s)
-                s.close()
+        reap(socks)
         time.sleep(0.05)
 print(sent, conns)
 '''

@@ -1,4 +1,5 @@
 """Shared fixtures of the driver tests."""
+import socket
 import threading
 import time
 
@@ -36,6 +37,22 @@ def wait_for(pred, timeout=2.0, what="condition"):
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out waiting for {what}")
         time.sleep(0.002)
+
+
+def server_closed(s: socket.socket, timeout: float = 10.0) -> bool:
+    """The server closed ``s`` (EOF or reset) within ``timeout`` s: polls, a generous bound,
+    not a timing. Data the server sends meanwhile is read and dropped."""
+    deadline = time.monotonic() + timeout
+    s.settimeout(0.2)
+    while time.monotonic() < deadline:
+        try:
+            if s.recv(4096) == b"":
+                return True
+        except socket.timeout:
+            continue
+        except OSError:
+            return True
+    return False
 
 
 # ------------------------------------------------------------------ simulated clock helpers

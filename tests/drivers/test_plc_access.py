@@ -16,6 +16,7 @@ from cell.clock import ManualClock
 from drivers.plc import PlcConfig
 from drivers.plc.access import AccessPolicy, RateLimitedWarnings, parse_allow
 from drivers.plc.server import PlcLink
+from tests.drivers.conftest import server_closed, wait_for
 
 pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 LOOPBACK_ONLY = (ipaddress.ip_network("127.0.0.1/32"),)
@@ -41,21 +42,6 @@ def _raw(port: int, source: str = "127.0.0.1") -> socket.socket:
     return s
 
 
-def _closed(s: socket.socket, timeout: float = 10.0) -> bool:
-    """The server closed ``s`` within ``timeout`` s (polls; a generous bound, not a timing)."""
-    deadline = time.monotonic() + timeout
-    s.settimeout(0.2)
-    while time.monotonic() < deadline:
-        try:
-            if s.recv(1024) == b"":
-                return True
-        except socket.timeout:
-            continue
-        except OSError:
-            return True
-    return False
-
-
 def _read_hb() -> bytes:
     """An MBAP read of the heartbeat register (FC3, address 1, 1 register)."""
     return struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, 1, 1)
@@ -66,7 +52,7 @@ def test_a_host_outside_the_allow_list_is_closed_before_any_request():
     try:
         rogue = _raw(link.port, "127.0.0.2")
         rogue.sendall(_read_hb())
-        assert _closed(rogue), "the rogue's connection stayed open"
+        assert server_closed(rogue), "the rogue's connection stayed open"
         rogue.close()
         ok = _client(link.port)                          # the allowed PLC is served
         assert ok.read_holding_registers(0, count=1).registers[0] > 0
@@ -116,7 +102,7 @@ def test_at_the_cap_the_longest_idle_connection_is_shed_never_the_owner():
         idle = _raw(link.port)
         newcomer = _client(link.port, "127.0.0.2")
         assert newcomer.read_holding_registers(0, count=1).registers[0] > 0
-        assert _closed(idle), "the idle connection was not shed"
+        assert server_closed(idle), "the idle connection was not shed"
         assert not plc.write_register(1, 3).isError()                      # the owner survives
         assert link.guard.shed == 1
         plc.close()
@@ -132,7 +118,7 @@ def test_idle_connections_and_half_sent_frames_are_closed():
         silent = _raw(link.port)
         half = _raw(link.port)
         half.sendall(b"\x00\x01\x00")                         # 3 bytes of an MBAP header
-        assert _closed(silent) and _closed(half)
+        assert server_closed(silent) and server_closed(half)
         assert link.guard.timed_out == 2 and link.guard.peers == {}
     finally:
         link.stop()
@@ -183,8 +169,8 @@ def test_closed_connections_leave_no_task_behind():
             s = _raw(link.port)
             s.sendall(_read_hb())                         # starts the connection's worker
             socks.append(s)
-        assert all(_closed(s) for s in socks[:-2])        # shed at the cap, then idled out
-        assert all(_closed(s) for s in socks[-2:])
+        assert all(server_closed(s) for s in socks[:-2])        # shed at the cap, then idled out
+        assert all(server_closed(s) for s in socks[-2:])
         loop = link._server._loop
         fut = asyncio.run_coroutine_threadsafe(_tasks(), loop)
         names = fut.result(timeout=10)
@@ -217,7 +203,7 @@ def test_a_client_that_sends_without_reading_is_closed_and_the_stream_stays_in_s
                 s.sendall(burst)
         except OSError:
             pass                                              # closed under our feet: expected
-        assert _closed(s)
+        assert server_closed(s)
         assert link.guard.peers == {}
         s.close()
         err = capsys.readouterr().err
@@ -246,7 +232,7 @@ def test_a_storm_of_idle_sockets_cannot_shed_a_client_that_asks():
         storm += [_raw(link.port) for _ in range(5)]
         late.sendall(_read_hb())
         assert len(late.recv(64)) == 11
-        assert sum(_closed(s, 2.0) for s in storm) >= len(storm) - 2
+        assert sum(server_closed(s, 2.0) for s in storm) >= len(storm) - 2
         for s in storm + [reader, late]:
             s.close()
     finally:
@@ -282,7 +268,7 @@ def test_one_hosts_flood_stays_within_its_quota_and_never_sheds_another_hosts_co
         flood = [_raw(link.port, "127.0.0.2") for _ in range(40)]      # idle sockets, never a request
         hosts = _guard_state(link, seen=42)
         assert hosts == {"127.0.0.1": 1, "127.0.0.3": 1, "127.0.0.2": 3}, hosts
-        assert sum(_closed(s, 5.0) for s in flood[:-3]) == 37          # the flood shed its own, oldest first
+        assert sum(server_closed(s, 5.0) for s in flood[:-3]) == 37          # the flood shed its own, oldest first
         assert _asks(reader)                                           # the other host is still served
         assert not plc.write_register(1, 2).isError()                  # and the owner still writes
         assert link.guard.shed == 37
@@ -305,7 +291,7 @@ def test_at_the_cap_the_host_holding_the_most_is_shed_and_a_host_with_fewer_keep
         assert _guard_state(link, seen=6) == {"127.0.0.1": 1, "127.0.0.2": 5}
         quiet = _raw(link.port, "127.0.0.3")                           # sends nothing, like a handshake
         assert _guard_state(link, seen=7) == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}
-        assert _closed(flood[0], 5.0)                                  # .2's oldest made room
+        assert server_closed(flood[0], 5.0)                                  # .2's oldest made room
         flood += [_raw(link.port, "127.0.0.2") for _ in range(30)]
         hosts = _guard_state(link, seen=37)
         assert hosts == {"127.0.0.1": 1, "127.0.0.2": 4, "127.0.0.3": 1}, hosts
@@ -321,7 +307,7 @@ def test_at_the_cap_the_host_holding_the_most_is_shed_and_a_host_with_fewer_keep
         third = _raw(link.port, "127.0.0.3")                           # .3 would hold 3 > 2: its own,
         assert _guard_state(link, seen=40) == {"127.0.0.1": 1, "127.0.0.2": 2, "127.0.0.3": 2,
                                                "127.0.0.4": 1}
-        assert _closed(again, 5.0)                                     # the one that never asked
+        assert server_closed(again, 5.0)                                     # the one that never asked
         assert _asks(quiet) and _asks(third) and _asks(other)
         # a tie: .4 would hold 2 like .2 and .3; not its own, but the tied hosts' least
         # needed: .2's sockets that never asked, not .3's that ask
@@ -351,7 +337,7 @@ def test_at_the_cap_a_fuzzer_is_shed_before_a_client_that_asks_well():
         assert _asks(bad)                                              # and one good request
         newcomer = _raw(link.port, "127.0.0.5")                        # ... yet the fuzzer goes first
         assert _asks(newcomer)
-        assert _closed(bad, 5.0) and _asks(good) and _asks(third)
+        assert server_closed(bad, 5.0) and _asks(good) and _asks(third)
         for s in (good, bad, third, newcomer):
             s.close()
     finally:
@@ -370,12 +356,11 @@ def test_at_the_cap_a_half_sent_frame_is_shed_before_a_new_client_that_has_not_a
         half.sendall(struct.pack(">HHHB", 1, 0, 200, 1) + b"\x03")    # a frame that never completes
         def half_seen():
             return [p.partial_since is not None for p in link.guard.peers.values() if p.host == "127.0.0.3"]
-        deadline = time.monotonic() + 10
-        while link._server.call(half_seen) != [True] and time.monotonic() < deadline:
-            time.sleep(0.02)                                           # the server has read the half frame
+        wait_for(lambda: link._server.call(half_seen) == [True], timeout=10,
+                 what="the server to read the half frame")
         newcomer = _raw(link.port, "127.0.0.4")
         assert _asks(newcomer)
-        assert _closed(half, 5.0) and _asks(fresh)
+        assert server_closed(half, 5.0) and _asks(fresh)
         for s in (fresh, half, newcomer):
             s.close()
     finally:
@@ -399,7 +384,7 @@ def test_on_a_tie_a_misbehaving_host_is_shed_before_a_clean_hosts_new_client():
         assert _guard_state(link, seen=4) == {"127.0.0.1": 2, "127.0.0.2": 2}
         newcomer = _raw(link.port, "127.0.0.3")                        # .3 would hold 1: .1 or .2 pays
         assert _guard_state(link, seen=5) == {"127.0.0.1": 2, "127.0.0.2": 1, "127.0.0.3": 1}
-        assert _closed(other, 5.0)                                     # the misbehaving host's
+        assert server_closed(other, 5.0)                                     # the misbehaving host's
         assert _asks(fresh) and _asks(reader) and _asks(newcomer)
         for s in (reader, fresh, fuzz, other, newcomer):
             s.close()
@@ -421,10 +406,8 @@ def test_on_a_tie_a_host_whose_bad_connection_just_left_is_still_shed_first():
         bad.sendall(struct.pack(">HHHBB", 9, 0, 2, 1, 0x41))           # malformed: 01
         assert bad.recv(64)[7:] == bytes([0xC1, 1])
         bad.close()                                                    # the fuzzer's bad socket leaves
-        deadline = time.monotonic() + 30
-        while link._server.call(link.guard.per_host) != {"127.0.0.1": 2} and time.monotonic() < deadline:
-            time.sleep(0.02)                                           # the server has seen it go
-        assert link._server.call(link.guard.per_host) == {"127.0.0.1": 2}
+        wait_for(lambda: link._server.call(link.guard.per_host) == {"127.0.0.1": 2}, timeout=30,
+                 what="the server to see the fuzzer's socket go")
         polite = [_raw(link.port, "127.0.0.2") for _ in range(2)]      # the same host, asking well now
         assert all(_asks(c) for c in polite)
         assert _guard_state(link, seen=5) == {"127.0.0.1": 2, "127.0.0.2": 2}
@@ -464,7 +447,7 @@ def test_the_owners_connection_does_not_count_against_its_hosts_quota():
         assert _asks(hmi)
         more = _raw(link.port)                                         # past the quota: sheds hmi, not the PLC
         assert _guard_state(link, seen=3) == {"127.0.0.1": 2}
-        assert _closed(hmi, 5.0) and _asks(more)
+        assert server_closed(hmi, 5.0) and _asks(more)
         assert not plc.write_register(1, 2).isError()
         hmi.close()
         more.close()

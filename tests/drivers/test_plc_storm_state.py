@@ -25,6 +25,7 @@ from drivers.plc import TlsConfig
 from drivers.plc.access import AccessPolicy
 from drivers.plc.conformance import ConformantRequestHandler
 from drivers.plc.server import PlcLink
+from tests.drivers.conftest import server_closed
 from tests.drivers.tlscerts import Authority, client_context
 
 pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
@@ -93,21 +94,6 @@ def _burst(port: int, rnd: random.Random, n: int) -> None:
         s.close()
 
 
-def _wait_closed(s: socket.socket, upper_s: float) -> bool:
-    """True once the server closed ``s`` (EOF or reset), polling up to ``upper_s``."""
-    s.settimeout(0.2)
-    end = time.monotonic() + upper_s
-    while time.monotonic() < end:
-        try:
-            if s.recv(4096) == b"":
-                return True
-        except socket.timeout:
-            continue
-        except OSError:
-            return True
-    return False
-
-
 def test_plain_bursts_leave_no_connection_state_behind():
     link = _link(max_connections=4)
     link.start()
@@ -158,7 +144,7 @@ def test_a_client_that_never_handshakes_is_closed_after_the_time_out(pki):
         baseline = link._tls_server.counts()
         s = socket.create_connection(("127.0.0.1", link.tls_port), timeout=5)
         try:
-            assert _wait_closed(s, upper_s=30.0)  # closed by the server, not by us
+            assert server_closed(s, timeout=30.0)  # closed by the server, not by us
         finally:
             s.close()
         assert _settles(link._tls_server, baseline) == baseline
