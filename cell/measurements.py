@@ -22,6 +22,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.errors import CellError
+from cell.yamlio import error_text
 
 FORMAT = "cell-measurements/1"
 CHAIN_KINEMATICS = ("dh", "urdf")
@@ -178,7 +179,7 @@ def _load_model(path: Path) -> ModelSpec:
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in err["loc"])
-        raise CampaignFormatError(path, f"{err['msg']}", line=_yaml_line(path, err["loc"]),
+        raise CampaignFormatError(path, error_text(err, ModelSpec), line=_yaml_line(path, err["loc"]),
                                   column=loc) from None
     if model.kinematics != "scara":
         raise CampaignFormatError(path, f"unsupported kinematics {model.kinematics!r}; known: scara, "

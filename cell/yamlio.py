@@ -3,15 +3,25 @@
 Every YAML file the cell reads (cell config, recipes, plant files) goes through here, so
 every such error reads the same, in the compiler style editors jump to::
 
-    recipes/bracket-a.yaml:8: part.fiducial_radius_mm: Input should be greater than 0.2
+    recipes/bracket-a.yaml:8: part.fiducial_radius_mm: must be greater than 0.2
 
 Only ``yaml.safe_load``/``yaml.compose`` are used (no arbitrary object construction). A
 validation error is located by walking the composed node tree along the error's ``loc``
-path; all errors are reported, in file order. A key given twice is an error (plain YAML
-would silently keep the last one).
+path; all errors are reported, in file order, in our words (:func:`error_text`: "unknown
+field; did you mean 'verify'?", not pydantic's "Extra inputs are not permitted"). A key
+given twice is an error (plain YAML would silently keep the last one).
+
+**Bounded work.** Before anything is composed, one pass over the parser's events refuses
+anchors and aliases (``&a`` / ``*a``: a 2 KB "billion laughs" file expands into billions of
+nodes for every walk of the tree) and nesting deeper than :data:`MAX_DEPTH`. The pass is
+linear in the text, so what any file can cost is bounded by its size, which every reader
+bounds first.
 """
 from __future__ import annotations
 
+import difflib
+import types
+import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -21,6 +31,9 @@ from pydantic import BaseModel, ValidationError
 from cell.errors import ConfigError
 
 M = TypeVar("M", bound=BaseModel)
+
+#: the deepest nesting of mappings and lists a cell file may have (ours need 4)
+MAX_DEPTH = 16
 
 
 def field_name(loc) -> str:
@@ -68,14 +81,67 @@ def duplicate_key(node: yaml.Node | None, path=()) -> tuple[tuple, yaml.Node] | 
     return None
 
 
-def validation_message(source: str, exc: ValidationError, root: yaml.Node | None) -> str:
-    """Every error of ``exc`` as ``source:line: field: message``, in file order. An error
-    raised inside a validator may carry a ``loc`` attribute that refines the field."""
+def _unwrap(tp: Any) -> Any:
+    """``X`` of ``X | None`` (an Optional field), else ``tp``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return args[0] if len(args) == 1 else None
+    return tp
+
+
+def _fields_at(model: type[BaseModel] | None, loc) -> list[str]:
+    """The field names a mapping at ``loc`` inside ``model`` may have ([] if unknown)."""
+    tp: Any = model
+    for part in loc:
+        tp = _unwrap(tp)
+        if isinstance(tp, type) and issubclass(tp, BaseModel) and isinstance(part, str):
+            field = tp.model_fields.get(part)
+            tp = field.annotation if field is not None else None
+        elif typing.get_origin(tp) in (list, tuple, dict) and typing.get_args(tp):
+            args = typing.get_args(tp)
+            tp = args[0] if typing.get_origin(tp) is tuple else args[-1]
+        else:
+            return []
+    tp = _unwrap(tp)
+    return list(tp.model_fields) if isinstance(tp, type) and issubclass(tp, BaseModel) else []
+
+
+def error_text(err: dict, model: type[BaseModel] | None = None) -> str:
+    """One pydantic error in the cell's words: an unknown key says which keys were meant
+    (``did you mean 'verify'?``), a missing one that it is required, and pydantic's "Input
+    should be" reads "must be". ``model``: the model validated, for the known field names."""
+    kind, msg = err.get("type", ""), str(err.get("msg", ""))
+    loc = tuple(err.get("loc", ()))
+    if kind == "extra_forbidden":
+        known = _fields_at(model, loc[:-1])
+        close = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6) if loc else []
+        hint = f"; did you mean {close[0]!r}?" if close else (
+            f"; known fields here: {', '.join(known)}" if known else "")
+        return f"unknown field{hint}"
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        known = _fields_at(model, loc)
+        fields = f" ({', '.join(known)})" if known else ""
+        if err.get("input") is None:
+            return f"empty section: write out its fields{fields}"
+        return f"must be a mapping of fields{fields}, got {type(err.get('input')).__name__}"
+    if kind == "missing":
+        return "required, but missing (write it out: it is never taken from a default)"
+    for prefix in ("Value error, ", "Assertion failed, "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix):]
+    return msg.replace("Input should be", "must be").replace("input should be", "must be")
+
+
+def validation_message(source: str, exc: ValidationError, root: yaml.Node | None,
+                       model: type[BaseModel] | None = None) -> str:
+    """Every error of ``exc`` as ``source:line: field: message``, in file order and in the
+    cell's words (:func:`error_text`). An error raised inside a validator may carry a
+    ``loc`` attribute that refines the field. ``model`` names the known fields of a typo."""
     lines = []
     for err in exc.errors():
         loc = tuple(err["loc"])
         cause = (err.get("ctx") or {}).get("error")
-        msg = err["msg"]
+        msg = error_text(err, model)
         if isinstance(cause, Exception):
             loc += tuple(getattr(cause, "loc", ()))
             msg = str(cause)
@@ -85,10 +151,33 @@ def validation_message(source: str, exc: ValidationError, root: yaml.Node | None
     return "; ".join(m for _, m in sorted(lines, key=lambda x: x[0]))
 
 
+def bounded(text: str, source: str) -> None:
+    """Refuse anchors, aliases and nesting deeper than :data:`MAX_DEPTH` in ``text``, in one
+    linear pass over the parser's events, before anything is composed.
+
+    :raises ConfigError: naming ``source``, the line and what was found.
+    :raises yaml.YAMLError: the text does not parse (the caller reports it).
+    """
+    depth = 0
+    for ev in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(ev, yaml.AliasEvent) or getattr(ev, "anchor", None) is not None:
+            sign = "*" if isinstance(ev, yaml.AliasEvent) else "&"
+            raise ConfigError(f"{source}:{ev.start_mark.line + 1}: (file): YAML anchors and aliases "
+                              f"({sign}{ev.anchor}) are not allowed in cell files: write the value out")
+        if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise ConfigError(f"{source}:{ev.start_mark.line + 1}: (file): nested deeper than "
+                                  f"{MAX_DEPTH} levels; no cell file needs that many")
+        elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+
+
 def parse_yaml(text: str, source: str, kind: str = "file") -> tuple[Any, yaml.Node | None]:
     """Parse ``text``; returns (data, node tree). Raises ConfigError for malformed YAML, an
     empty document, a top level that is not a mapping, or a key given twice."""
     try:
+        bounded(text, source)
         root = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -121,7 +210,7 @@ def parse_model(text: str, model: type[M], source: str, kind: str = "file") -> M
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(validation_message(source, exc, root)) from None
+        raise ConfigError(validation_message(source, exc, root, model)) from None
 
 
 def read_text(path: Path | str, kind: str = "file") -> str:

@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.chain.model import Chain, dh_chain, urdf_chain
 from cell.measurements import FORMAT, CampaignFormatError, _read_table, _yaml_line, staged_dir
+from cell.yamlio import error_text
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
@@ -119,7 +120,8 @@ def load_spec(path: Path) -> ChainSpec:
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in err["loc"])
-        raise CampaignFormatError(path, err["msg"], line=_yaml_line(path, err["loc"]), column=loc) from None
+        raise CampaignFormatError(path, error_text(err, ChainSpec), line=_yaml_line(path, err["loc"]),
+                                  column=loc) from None
     if spec.kinematics == "dh" and not all(isinstance(j, DHRow) for j in spec.joints):
         raise CampaignFormatError(path, "kinematics dh: every joint needs name, type, a_mm, "
                                         "alpha_deg, d_mm, theta_deg", column="joints")

@@ -125,6 +125,7 @@ class StationsConfig(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            fields = "; ".join(f"{where}.{'.'.join(map(str, e['loc'])) or '(section)'}: {e['msg']}"
+            from cell.yamlio import error_text
+            fields = "; ".join(f"{where}.{'.'.join(map(str, e['loc'])) or '(section)'}: {error_text(e, cls)}"
                                for e in exc.errors())
             raise ConfigError(f"invalid joint-station config: {fields}") from None

@@ -19,7 +19,7 @@ def test_shipped_example_is_valid():
     ("  port: 502 ", "  port: 70000 ", r":{line}: plc.port"),
     ("  heartbeat_ms: 100 ", "  heartbeat_ms: 1 ", r":{line}: stations.heartbeat_ms"),
     ("  preset: seed000 ", "  preset: puma560 ", r":{parent}: robot: .*unknown robot preset 'puma560'"),
-    ("  tool_radius_mm: 3.0", "  tool_radius_mm: 3.0\n  tool_colour: red", r":{line2}: vision.tool_colour: Extra"),
+    ("  tool_radius_mm: 3.0", "  tool_radius_mm: 3.0\n  tool_colour: red", r":{line2}: vision.tool_colour: unknown field"),
     ("format: cell-config/1", "format: cell-config/9", r":{line}: format"),
     ("    kind: circles\n", "    kind: chessboard\n", r"calibration\.board must be a circle grid"),
     ("    cols: 7\n", "    cols: 2\n", r"calibration\.board: .*cols = 2 must be an integer in \[3, 100\]"),

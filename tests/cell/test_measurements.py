@@ -86,7 +86,7 @@ def test_bad_points_are_located(tmp_path, points, line, column, words):
 @pytest.mark.parametrize("model, column, words", [
     ("format: cell-measurements/2\nl1_mm: 1\nl2_mm: 1\n", "format", "unknown format"),
     (f"format: {FORMAT}\nl1_mm: -1\nl2_mm: 1\n", "l1_mm", "greater than 0"),
-    (f"format: {FORMAT}\nl1_mm: 1\nl2_mm: 1\nlink3: 2\n", "link3", "Extra inputs"),
+    (f"format: {FORMAT}\nl1_mm: 1\nl2_mm: 1\nlink3: 2\n", "link3", "unknown field"),
     (f"format: {FORMAT}\nkinematics: puma\nl1_mm: 1\nl2_mm: 1\n", "kinematics", "unsupported"),
     ("format: [unclosed\n", None, "not valid YAML"),
     ("- just\n- a list\n", None, "mapping"),

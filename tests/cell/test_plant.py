@@ -232,14 +232,14 @@ def test_the_good_file_loads(tmp_path):
 
 
 @pytest.mark.parametrize("old, new, line, field, words", [
-    ("seed: 1", "seed: 1\ncolour: red", 3, "colour", "Extra inputs are not permitted"),
+    ("seed: 1", "seed: 1\ncolour: red", 3, "colour", "unknown field"),
     ("effect: backlash", "effect: backlush", 5, "effects[0].effect", "unknown effect 'backlush'"),
     ("0.02}", "-0.02}", 7, "effects[0].params.j2_backlash_deg", "outside [0.0, 2.0]"),
     ("repeatability_mm: 0.01", "repeatability_mm: -0.01", 3, "repeatability_mm",
      "greater than or equal to 0"),
     ("repeatability_mm: 0.01", "repeatability_mm: lots", 3, "repeatability_mm", "valid number"),
     ("2.3e-5", "warm", 10, "effects[1].params.thermal_expansion_per_k", "valid number"),
-    ("    joints: [j2]", "    joints: [j2]\n    speed: 3", 7, "effects[0].speed", "Extra inputs"),
+    ("    joints: [j2]", "    joints: [j2]\n    speed: 3", 7, "effects[0].speed", "unknown field"),
     ("joints: [j2]", "joints: [j5]", 6, "effects[0].joints", "joints ['j5'] invalid"),
     ("robot: seed000", "robot: seed999", 1, "robot", "unknown robot preset 'seed999'"),
     ("seed: 1", "seed: 1\ngeometry: {l1_mm: 300, l2_mm: 200}", 1, "robot", "exactly one"),

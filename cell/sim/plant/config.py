@@ -151,7 +151,7 @@ def config_from_mapping(data: Any, source: str = "<plant config>",
     try:
         return PlantConfig.model_validate(dict(data))
     except ValidationError as exc:
-        raise ConfigError(validation_message(source, exc, root)) from None
+        raise ConfigError(validation_message(source, exc, root, PlantConfig)) from None
 
 
 def load_plant_config(path) -> PlantConfig:
