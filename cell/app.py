@@ -35,17 +35,19 @@ class Cell:
     :param pace: simulated devices only: keep the simulated clock to wall time.
     :param clock: run on this clock instead of the devices' own (tests).
     :param file_clock: the clock recipe edits settle on (default: wall time; tests).
+    :param fresh_log: start an empty cycle log, keeping the one there under a time-stamped
+        name once this cell holds the log's lock (``run --sim``: a cell from power-on).
     """
 
     def __init__(self, config: CellConfig, devices: str = "hardware", plc_port: int | None = None,
                  jobs: bool = True, pace: bool = False, clock: Clock | None = None,
-                 file_clock: Clock | None = None):
+                 file_clock: Clock | None = None, fresh_log: bool = False):
         self.config = config
         # certificates before anything is opened: a bad one names its field and stops here
         tls = config.plc.tls.listener() if config.plc.tls.enabled else None
         # the log first: a log that cannot be used (damaged, read-only, in use by another
         # controller) refuses the start before any device is touched
-        self.cyclelog = CycleLog(config.log.path)
+        self.cyclelog = CycleLog(config.log.path, fresh=fresh_log)
         try:
             self.devices: Devices = open_devices(config, devices, clock=clock, pace=pace)
         except BaseException:
@@ -72,7 +74,7 @@ class Cell:
         r = config.recipes
         self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,
                                    max_bytes=r.max_bytes, settle_s=r.settle_s,
-                                   clock=file_clock or MonotonicClock())
+                                   clock=file_clock or MonotonicClock(), allow_examples=r.allow_examples)
         # ^ wall time, not the cell's: editors write files in wall time. On a simulated clock
         # that runs ahead (run --sim), settle_s of *simulated* time passed in milliseconds and a
         # file left half-written for a moment was taken as complete

@@ -143,11 +143,14 @@ class CycleLog:
 
     :param readonly: open for reading only: no lock, no check, nothing created or changed
         (``report``, ``export``, ``diagnose``; works beside a running controller).
+    :param fresh: start an empty log (the simulated cell starts from power-on): the file
+        there is kept under a time-stamped name (:func:`cell.logfile.keep_previous`) — only
+        once this writer holds the lock, so a refused start moves nothing.
     :raises LogError: the file is damaged, not a database, cannot be written (writer), is
         missing (reader), or another controller holds it (writer); see :mod:`cell.logfile`.
     """
 
-    def __init__(self, path: Path | str, readonly: bool = False):
+    def __init__(self, path: Path | str, readonly: bool = False, fresh: bool = False):
         self.path = Path(path)
         self.readonly = readonly
         self._lock = threading.Lock()
@@ -161,7 +164,11 @@ class CycleLog:
             raise LogError(f"{self.path}: cannot create the cycle log's folder: {exc.strerror}") from None
         self._file_lock = LogLock(self.path)
         self._file_lock.acquire()
+        #: where the previous log was kept (``fresh``), or None
+        self.previous: Path | None = None
         try:
+            if fresh:
+                self.previous = logfile.keep_previous(self.path)
             self._db = logfile.connect(self.path, readonly=False)
             self._open_for_writing()
         except BaseException:
@@ -177,8 +184,8 @@ class CycleLog:
             raise logfile.explain(self.path, exc, "quick_check failed") from None
         if problems:
             db.close()
-            raise LogError(f"{self.path}: cycle log is damaged (quick_check: {'; '.join(problems[:3])}); "
-                           f"{logfile.recovery(self.path)}")
+            problem = f"{self.path}: cycle log is damaged (quick_check: {'; '.join(problems[:3])})"
+            raise LogError(f"{problem}; {logfile.recovery(self.path)}", problem=problem)
         try:
             db.execute("PRAGMA journal_mode=WAL")
             db.execute("PRAGMA synchronous=FULL")

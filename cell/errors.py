@@ -24,7 +24,12 @@ class MeasurementError(CellError):
 
 class LogError(CellError):
     """The cycle log cannot be used (damaged, read-only, disk full, in use by another
-    controller); the message names the file, the cause and how to recover."""
+    controller); the message names the file, the cause and how to recover. ``problem``:
+    the file and the cause alone, for a caller that gives its own advice (``log check``)."""
+
+    def __init__(self, message: str, problem: str | None = None):
+        super().__init__(message)
+        self.problem = problem or message
 
 
 class CalibrationError(CellError, ValueError):

@@ -20,13 +20,50 @@ from pathlib import Path
 
 from cell.errors import LogError
 
-__all__ = ["LogLock", "connect", "explain", "damage", "recovery"]
+__all__ = ["LogLock", "connect", "explain", "damage", "recovery", "keep_previous"]
+
+SIDECARS = ("-wal", "-shm")      #: SQLite's files beside a WAL-mode log: they move with it
 
 
 def recovery(path: Path) -> str:
     """How to get a cell running again when its log cannot be used."""
     return (f"move it aside with its -wal and -shm files (e.g. mv {path} {path}.damaged) and start "
             f"again with a fresh log; 'cellctl log check --db {path}.damaged' names the damage")
+
+
+def keep_previous(path: Path, now: datetime | None = None) -> Path | None:
+    """Move the log at ``path`` (with its -wal and -shm files) aside as
+    ``<stem>.prev-<UTC time><suffix>`` so a fresh log can start there; returns the new name,
+    or None if there was no log. Never overwrites: a name already taken gets ``-2``, ``-3``…
+    Call it only while holding the log's :class:`LogLock`: a log another controller writes
+    must never move.
+
+    :raises LogError: the file cannot be moved (permissions, another file system).
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    stamp = (now or datetime.now(timezone.utc)).strftime("%Y%m%dT%H%M%SZ")
+    for n in range(1, 10_000):
+        kept = path.with_name(f"{path.stem}.prev-{stamp}{'' if n == 1 else f'-{n}'}{path.suffix}")
+        if not any(Path(str(kept) + s).exists() for s in ("", *SIDECARS)):
+            break
+    else:
+        raise LogError(f"{path}: cannot keep the previous cycle log: 9999 logs of {stamp} already kept")
+    names = [s for s in ("", *SIDECARS) if Path(str(path) + s).exists()]
+    linked: list[str] = []
+    try:
+        for s in names:                    # link all first (link never overwrites) ...
+            os.link(str(path) + s, str(kept) + s)
+            linked.append(s)
+    except OSError as exc:
+        for s in linked:                   # ... so a failure leaves the log where it was
+            os.unlink(str(kept) + s)
+        raise LogError(f"{path}: cannot keep the previous cycle log as {kept.name}: {exc.strerror}; "
+                       f"give the controller write access to {path.parent}, or pass --db") from None
+    for s in sorted(names, key=lambda s: s == ""):   # then the old names go, the log itself last
+        os.unlink(str(path) + s)
+    return kept
 
 
 def explain(path: Path, exc: sqlite3.Error, doing: str) -> LogError:
@@ -48,7 +85,8 @@ def explain(path: Path, exc: sqlite3.Error, doing: str) -> LogError:
                         f"{path.parent}")
     else:
         why = text
-    return LogError(f"{path}: cycle log: {doing}: {why}; {recovery(path)}")
+    return LogError(f"{path}: cycle log: {doing}: {why}; {recovery(path)}",
+                    problem=f"{path}: cycle log: {doing}: {why}")
 
 
 def damage(db: sqlite3.Connection, full: bool = False, limit: int = 20) -> list[str]:

@@ -37,8 +37,8 @@ def run_check(args: argparse.Namespace) -> int:
     try:
         log = CycleLog(path, readonly=True)
     except LogError as exc:
-        print(f"cannot be read: {exc}")
-        return _verdict(True)
+        print(f"cannot be read: {exc.problem}")
+        return _verdict(True, path)
     damaged = False
     try:
         problems = log.check(full=True)
@@ -55,7 +55,7 @@ def run_check(args: argparse.Namespace) -> int:
             flight = log.open_cycle()
         except sqlite3.Error as exc:
             print(f"reading failed: {exc}")
-            return _verdict(True)
+            return _verdict(True, path)
         if flight is None:
             print("cycle in flight: none")
         elif flight["stage"] == "interrupted":
@@ -66,13 +66,20 @@ def run_check(args: argparse.Namespace) -> int:
                   + ("" if holder else "; the next controller start records it as interrupted"))
     except sqlite3.Error as exc:
         print(f"integrity_check cannot finish: {exc}")
-        return _verdict(True)
+        return _verdict(True, path)
     finally:
         log.close()
-    return _verdict(damaged)
+    return _verdict(damaged, path)
 
 
-def _verdict(damaged: bool) -> int:
-    print("verdict: " + ("DAMAGED: stop the controller, move the file aside with its -wal and -shm "
-                         "files, and start with a fresh log" if damaged else "sound"))
-    return 1 if damaged else 0
+def _verdict(damaged: bool, path: Path) -> int:
+    """Print the verdict; for a damaged log, the steps that get the cell running again."""
+    if not damaged:
+        print("verdict: sound")
+        return 0
+    side = f"{path}.damaged"
+    print(f"verdict: DAMAGED. To run the cell again: stop the controller; move the log aside with its "
+          f"-wal and -shm files (mv {path} {side}; mv {path}-wal {side}-wal; mv {path}-shm {side}-shm, "
+          f"for those that exist); start the controller, which begins a fresh log. Keep {side}: "
+          f"'sqlite3 {side} .recover' salvages the rows it still holds")
+    return 1

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import sys
 import threading
@@ -42,7 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--seed", type=int, help="seed of the simulated cell (default: the config's, 0)")
     r.add_argument("--db", help=f"cycle log to append to (default: a fresh log at the config's path, "
                                 f"{DEFAULT_SIM_DB} without --config; the previous one is kept as "
-                                "<name>.prev.sqlite)")
+                                "<name>.prev-<UTC time>.sqlite, never overwritten)")
+    r.add_argument("--allow-examples", action="store_true",
+                   help="also activate recipes marked 'production: false' (shipped examples such as pin-b)")
     r.add_argument("--first-part", type=int, default=1, help="first part id (default 1)")
     r.add_argument("--json", action="store_true", help="print the cycles as JSON at the end")
     r.set_defaults(func=run_sim)
@@ -56,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=serve)
 
 
-def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | None = None) -> CellConfig:
+def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | None = None,
+                allow_examples: bool = False) -> CellConfig:
     from cell.config import CellConfig, SimSection
     if path:
         cfg = CellConfig.load(path)
@@ -69,6 +71,8 @@ def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | 
         update["sim"] = SimSection()
     if seed is not None:
         update["sim"] = (update.get("sim") or cfg.sim).model_copy(update={"seed": seed})
+    if allow_examples:
+        update["recipes"] = cfg.recipes.model_copy(update={"allow_examples": True})
     if sim and not path:
         update["plc"] = cfg.plc.model_copy(update={"host": "127.0.0.1"})
         update["log"] = cfg.log.model_copy(update={"path": DEFAULT_SIM_DB})
@@ -79,33 +83,18 @@ def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | 
     return cfg
 
 
-def fresh_log(path: str) -> None:
-    """Start the simulated cell with an empty log: a previous one (with its WAL files) is
-    kept once, as ``<name>.prev.sqlite``."""
-    p = Path(path)
-    if not p.exists():
-        return
-    prev = p.with_name(p.stem + ".prev" + p.suffix)
-    for suffix in ("", "-wal", "-shm"):
-        old = Path(str(prev) + suffix)
-        if old.exists():
-            old.unlink()
-    for suffix in ("", "-wal", "-shm"):
-        cur = Path(str(p) + suffix)
-        if cur.exists():
-            os.replace(cur, str(prev) + suffix)
-
-
 def run_sim(args: argparse.Namespace) -> int:
     from cell.app import Cell
     from cell.sim.plc import SimPlc, SimPlcError
     if args.cycles < 1:
         raise ConfigError(f"--cycles {args.cycles} must be ≥ 1")
-    cfg = load_config(args.config, True, args.db, args.seed)
-    if not args.db:                        # a simulated cell starts from power-on, log included
-        fresh_log(cfg.log.path)
+    cfg = load_config(args.config, True, args.db, args.seed, args.allow_examples)
+    _refuse_example(cfg, args.recipe)
     wall0 = time.monotonic()
-    cell = Cell(cfg, devices="sim", plc_port=0)
+    # a simulated cell starts from power-on, log included (unless --db names one to append to)
+    cell = Cell(cfg, devices="sim", plc_port=0, fresh_log=not args.db)
+    if cell.cyclelog.previous is not None:
+        print(f"previous log kept as {paths.shown(str(cell.cyclelog.previous))}", file=sys.stderr, flush=True)
     rows: list[dict] = []
     clock = cell.clock
     # this thread keeps the simulated time from power-on to the end: no simulated time may
@@ -151,6 +140,19 @@ def run_sim(args: argparse.Namespace) -> int:
         else:
             print(f"no cycle done; log {paths.shown(cfg.log.path)}")
     return 0 if all(r["fault"] is None for r in rows) and len(rows) == args.cycles else 1
+
+
+def _refuse_example(cfg, name: str) -> None:
+    """Refuse, before anything starts, to run an example recipe the config does not allow
+    (the controller would not activate it; say why and how, not just "not active")."""
+    from cell.recipe_validation import check_file
+    from cell.recipes import example_refusal
+    path = Path(cfg.recipes.directory) / f"{name}.yaml"
+    if cfg.recipes.allow_examples or not path.is_file():
+        return
+    _, err, recipe, text = check_file(path)
+    if recipe is not None and not recipe.production:
+        raise ConfigError(example_refusal(recipe, text, str(path)))
 
 
 def _one_part(cell, plc, active, part_id: int, plc_error) -> dict:

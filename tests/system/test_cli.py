@@ -63,8 +63,9 @@ def test_run_sim_twice_with_one_seed_prints_the_same_cycles(tmp_path):
     first = run_json(path, "--cycles", "4", "--seed", "7")
     second = run_json(path, "--cycles", "4", "--seed", "7")
     assert without_wall_time(first) == without_wall_time(second)
-    assert (tmp_path / "cell.prev.sqlite").exists()
+    assert len(list(tmp_path.glob("cell.prev-*.sqlite"))) == 1
     other = run_json(path, "--cycles", "4", "--seed", "8")
+    assert len(list(tmp_path.glob("cell.prev-*.sqlite"))) == 2        # kept, never overwritten
     assert without_wall_time(other)["cycles"] != without_wall_time(first)["cycles"]
 
 
@@ -206,7 +207,8 @@ def test_run_prints_a_faulted_parts_own_logged_figures(tmp_path):
     from cell.cyclelog import CycleLog
     db = tmp_path / "cell.sqlite"        # the built-in sim cell, seed 0: part 52 faults 402
     out = subprocess.run([sys.executable, "-m", "cell.cli", "run", "--sim", "--db", str(db),
-                          "--recipe", "pin-b", "--cycles", "5", "--first-part", "50", "--json"],
+                          "--recipe", "pin-b", "--allow-examples", "--cycles", "5", "--first-part", "50",
+                          "--json"],
                          cwd=REPO, capture_output=True, text=True, timeout=300)
     assert out.returncode == 1, out.stderr[-2000:]
     rows = json.loads(out.stdout)["cycles"]
