@@ -93,6 +93,10 @@ place:
 compensation:
   method: lattice
   max_moves: 4
+motion:
+  sync: corrected
+  segment_ms: 10
+  time_law: smooth
 verify:
   tolerance_mm: 0.08
 """

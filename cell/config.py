@@ -55,6 +55,8 @@ class RecipesSection(_Section):
     directory: str = "recipes"
     max_bytes: int = Field(default=64 * 1024, ge=1024, le=16 * 1024 * 1024)   #: larger files are refused unread
     settle_s: float = Field(default=1.0, ge=0, le=60)   #: a changed file must stay unchanged this long
+    #: activate recipes marked ``production: false`` (shipped examples); off on a production cell
+    allow_examples: bool = False
 
 
 class LogSection(_Section):

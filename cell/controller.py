@@ -320,4 +320,4 @@ class CellController:
         entries = job.result or []
         numbers = frozenset(a.recipe.number for a in self.recipes.active.values())
         return RecipesIn(numbers, refreshed=True, changed=bool(entries),
-                         rejected=any(e.action == "reject" for e in entries))
+                         rejected=any(e.action == "reject" and not e.example for e in entries))

@@ -18,6 +18,8 @@ when all of these hold:
 * **Valid.** :func:`~cell.recipes.parse_recipe`, the cell's check (``check``), and a recipe
   number not used by another file; otherwise the edit is rejected with a message naming
   file, line and field, and the last good version stays active.
+* **For production.** A recipe marked ``production: false`` (a shipped example) is rejected
+  the same way unless the store allows examples (``allow_examples``).
 * **Always decided.** A check that fails in a way nobody foresaw (any exception, not only
   a ``ConfigError``) rejects the edit with that reason; no edit is left undecided.
 * **Attributed.** The audit row names the file's owner, or — when an edit note
@@ -43,7 +45,7 @@ from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
 from cell.recipe_notes import attribution
-from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, line_of, parse_recipe
+from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, example_refusal, line_of, parse_recipe
 from cell.yamlio import decode_utf8
 
 log = get_logger("recipes")
@@ -76,11 +78,14 @@ class RecipeStore:
     :param check: validates each recipe against the cell (e.g. :func:`~cell.recipes.motion_check`).
     :param max_bytes: the largest recipe file, bytes.
     :param settle_s: how long a changed file must stay unchanged before it is taken (clock s).
+    :param allow_examples: also activate recipes marked ``production: false``.
     """
 
     def __init__(self, directory: Path | str, commit: Commit | None = None, check: CellCheck | None = None,
-                 max_bytes: int = DEFAULT_MAX_BYTES, settle_s: float = 0.0, clock: Clock | None = None):
+                 max_bytes: int = DEFAULT_MAX_BYTES, settle_s: float = 0.0, clock: Clock | None = None,
+                 allow_examples: bool = False):
         self.directory = Path(directory)
+        self.allow_examples = bool(allow_examples)
         self._commit = commit if commit is not None else (lambda changes: None)
         self.check = check
         self.max_bytes = int(max_bytes)
@@ -169,7 +174,9 @@ class RecipeStore:
         for path in decided:
             self._pending.pop(path, None)
         for e in entries:
-            if e.action == "reject":
+            if e.example:                          # refused by design, not an edit gone wrong
+                log.info("recipe_example_not_activated", file=e.target)
+            elif e.action == "reject":
                 self.last_rejection = e.result
                 log.warning("recipe_rejected", file=e.target, error=e.result)
             elif e.action == "activate":
@@ -222,6 +229,9 @@ class RecipeStore:
             recipe = parse_recipe(text, str(path))
             if self.check is not None:
                 self.check(recipe, text, str(path))
+            if not recipe.production and not self.allow_examples:
+                return AuditEntry(who, "reject", str(path), h, example_refusal(recipe, text, str(path)),
+                                  recipe.name, example=True), None, h
             clash = next((a for a in new.values() if a.recipe.number == recipe.number
                           and a.recipe.name != recipe.name), None)
             if clash:

@@ -29,25 +29,23 @@ class PartSpec(_Strict):
     """Where parts of this type arrive and what their fiducial looks like."""
     nominal_xy_mm: tuple[float, float] = Field(description="nominal part position, robot base frame")
     fiducial_radius_mm: float = Field(gt=0.2, le=20)
-    search_radius_mm: float = Field(default=5.0, gt=0, le=50,
-                                    description="how far from nominal a part may lie")
+    search_radius_mm: float = Field(gt=0, le=50, description="how far from nominal a part may lie")
 
 
 class ApproachSpec(_Strict):
-    offset_mm: tuple[float, float] = Field(default=(-12.0, 0.0),
-                                           description="approach point relative to the nominal part "
+    offset_mm: tuple[float, float] = Field(description="approach point relative to the nominal part "
                                                        "position; keep the tool clear of the part so "
                                                        "the camera sees both")
-    z_mm: float = Field(default=0.0, ge=-500, le=500)
-    joint_speed_deg_s: float = Field(default=60.0, gt=0, le=720)
+    z_mm: float = Field(ge=-500, le=500)
+    joint_speed_deg_s: float = Field(gt=0, le=720)
 
 
 class PlaceSpec(_Strict):
-    z_mm: float = Field(default=-50.0, ge=-500, le=500, description="height of the final move")
+    z_mm: float = Field(ge=-500, le=500, description="height of the final move")
 
 
 class CompensationSpec(_Strict):
-    method: Literal["lattice", "paper"] = "lattice"
+    method: Literal["lattice", "paper"]
     max_moves: int = Field(default=4, ge=1, le=20, description="lattice: move budget incl. first arrival")
     min_gain_mm: float = Field(default=0.002, ge=0, le=1)
     backlash_margin_units: int = Field(default=5, ge=0, le=1000,
@@ -60,39 +58,72 @@ class CompensationSpec(_Strict):
 class MotionSpec(_Strict):
     """How every move of the cycle is streamed to the joint stations (seed 002)."""
     sync: Literal["corrected", "sync", "none"] = Field(
-        default="corrected",
         description="corrected: each station applies on reception, velocities Δθ/(T − λ) with λ "
                     "measured on the bus (seed 002); sync: all stations apply on one SYNC frame "
                     "(needs drives with SYNC support); none: Δθ/T on reception (for comparison)")
-    segment_ms: float = Field(default=10.0, ge=1, le=1000,
+    segment_ms: float = Field(ge=1, le=1000,
                               description="interpolation segment time T; must exceed every station's delay")
     time_law: Literal["smooth", "linear"] = Field(
-        default="smooth", description="smooth: smooth start and stop (seed 002 Fig. 8c); "
-                                      "linear: equal steps")
+        description="smooth: smooth start and stop (seed 002 Fig. 8c); linear: equal steps")
 
 
 class VerifySpec(_Strict):
-    tolerance_mm: float = Field(default=0.08, gt=0, le=5,
-                                description="the cycle faults if the verified error exceeds this")
+    tolerance_mm: float = Field(gt=0, le=5, description="the cycle faults if the verified error exceeds this")
 
 
 class Recipe(_Strict):
-    """One part type's recipe (``recipes/<name>.yaml``)."""
+    """One part type's recipe (``recipes/<name>.yaml``).
+
+    Every section, and every field in it that sets a safety or quality limit (where the
+    tool goes and how fast, how moves are streamed, the tolerance), must be written out:
+    a file cut short, or a section left out, is refused rather than filled in from
+    defaults. Only tuning fields of the compensation method have defaults.
+
+    ``production: false`` marks a recipe shipped as an example (to compare methods, say):
+    listed and validated like any other, but the controller activates it only where the
+    cell config allows examples (``recipes.allow_examples``, ``run --allow-examples``).
+    """
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9_-]{0,39}$")
     number: int = Field(ge=1, le=999, description="what the PLC writes to recipe_select")
     description: str = ""
+    production: bool = Field(default=True, description="false: an example, not for production; "
+                                                       "activated only where the cell allows examples")
     part: PartSpec
-    approach: ApproachSpec = ApproachSpec()
-    place: PlaceSpec = PlaceSpec()
-    compensation: CompensationSpec = CompensationSpec()
-    motion: MotionSpec = MotionSpec()
-    verify: VerifySpec = VerifySpec()
+    approach: ApproachSpec
+    place: PlaceSpec
+    compensation: CompensationSpec
+    motion: MotionSpec
+    verify: VerifySpec
 
     @model_validator(mode="after")
     def _check(self) -> "Recipe":
         if self.verify.tolerance_mm < self.compensation.min_gain_mm:
             raise ValueError("verify.tolerance_mm must not be below compensation.min_gain_mm")
         return self
+
+
+#: the tolerance a recipe version got when it left ``verify`` out, before every limit had to
+#: be written out (schema of 2026-11): what the controller enforced for such a version
+UNSTATED_TOLERANCE_MM = 0.08
+
+
+def recorded_tolerance(text: str) -> float | None:
+    """``verify.tolerance_mm`` a logged recipe version ran with: read from its text as it
+    was activated (an older version may lack sections the schema now requires, and then ran
+    with :data:`UNSTATED_TOLERANCE_MM`); None if the text is not a recipe at all."""
+    from cell.yamlio import bounded
+    try:
+        bounded(text, "<log>")
+        doc = yaml.safe_load(text)
+    except (yaml.YAMLError, ConfigError):
+        return None
+    if not isinstance(doc, dict) or "name" not in doc:
+        return None
+    verify = doc.get("verify")
+    if verify is None:
+        return UNSTATED_TOLERANCE_MM
+    tol = verify.get("tolerance_mm", UNSTATED_TOLERANCE_MM) if isinstance(verify, dict) else None
+    return float(tol) if isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0 else None
 
 
 def content_hash(text: str) -> str:
@@ -121,6 +152,9 @@ class AuditEntry:
     hash: str
     result: str          # "ok" or the error message
     recipe: str = ""
+    #: a valid example recipe (``production: false``) the cell does not allow: refused by
+    #: design, so not an edit the PLC must hear of as rejected (recipe_status 2)
+    example: bool = False
 
 
 def parse_recipe(text: str, source: str) -> Recipe:
@@ -129,12 +163,18 @@ def parse_recipe(text: str, source: str) -> Recipe:
     try:
         recipe = Recipe.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(validation_message(source, exc, root)) from None
+        raise ConfigError(validation_message(source, exc, root, Recipe)) from None
     stem = Path(source).stem
     if stem != recipe.name and not source.startswith("<"):
         raise ConfigError(f"{source}:{node_line(root, ('name',))}: name: recipe name {recipe.name!r} "
                           f"must match the file name {stem!r}")
     return recipe
+
+
+def example_refusal(recipe: Recipe, text: str, source: str) -> str:
+    """Why a cell that does not allow examples refuses recipe ``recipe`` (``production: false``)."""
+    return (f"{source}:{line_of(text, 'production')}: production: {recipe.name} is an example, not for production: not activated (allow it with recipes.allow_examples: true in the cell "
+            "config, or cellctl run --allow-examples)")
 
 
 def line_of(text: str, key: str) -> int | None:

@@ -94,10 +94,9 @@ def x_axis(cycles: list[CycleRecord]) -> tuple[list, str]:
 def tolerances(log: CycleLog, cycles: list[CycleRecord], recipes_dir: Path | None = None
                ) -> dict[str, float | None]:
     """recipe_hash → ``verify.tolerance_mm`` of that version: its text from the log's
-    ``recipe_versions``, else a file in ``recipes_dir`` with that very hash; None if
-    neither holds it (or it no longer parses)."""
-    from cell.errors import ConfigError
-    from cell.recipes import content_hash, parse_recipe
+    ``recipe_versions``, else a file in ``recipes_dir`` with that very hash, as that version
+    was activated (:func:`cell.recipes.recorded_tolerance`); None if neither holds it."""
+    from cell.recipes import content_hash, recorded_tolerance
     files: dict[str, str] = {}
     if recipes_dir is not None and Path(recipes_dir).is_dir():
         for p in sorted(Path(recipes_dir).glob("*.yaml")):
@@ -109,10 +108,7 @@ def tolerances(log: CycleLog, cycles: list[CycleRecord], recipes_dir: Path | Non
     out: dict[str, float | None] = {}
     for h in {c.recipe_hash for c in cycles}:
         text = log.recipe_text(h) or files.get(h)
-        try:
-            out[h] = parse_recipe(text, "<log>").verify.tolerance_mm if text else None
-        except ConfigError:
-            out[h] = None
+        out[h] = recorded_tolerance(text) if text else None
     return out
 
 

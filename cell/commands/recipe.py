@@ -82,18 +82,25 @@ def run(args: argparse.Namespace) -> int:
         for f, (h, err, rec, _) in checked.items():
             err = err or clashes.get(f)
             bad += err is not None
+            state = "INVALID" if err is not None else ("EXAMPLE" if not rec.production else "ok")
             if args.recipe_cmd == "list":
-                print(f"{f.stem:<20} {rec.number if rec else '-':>4}  {h[:12]:<12}  "
-                      f"{'ok' if err is None else 'INVALID'}  {rec.description if err is None else err}")
+                note = err if err is not None else rec.description + (
+                    " [example, not for production: activated only with recipes.allow_examples]"
+                    if not rec.production else "")
+                print(f"{f.stem:<20} {rec.number if rec else '-':>4}  {h[:12]:<12}  {state:<7}  {note}")
             else:
-                print(f"{f}: ok ({h[:12]})" if err is None else err)
+                print(err if err is not None else f"{f}: ok ({h[:12]})" + (
+                    "; an example, not for production: the controller activates it only with "
+                    "recipes.allow_examples" if not rec.production else ""))
         return 2 if (bad and args.recipe_cmd == "validate") else 0
     if args.recipe_cmd == "show":
         path = rdir / f"{args.name}.yaml"
         if not path.is_file():
             raise ConfigError(f"{path}: no such recipe")
-        h, err, _, _ = _check(path)
-        print(f"# {path}  sha256 {h}  {'valid' if err is None else 'INVALID: ' + err}")
+        h, err, rec, _ = _check(path)
+        state = "INVALID: " + err if err is not None else (
+            "valid; an example, not for production" if not rec.production else "valid")
+        print(f"# {path}  sha256 {h}  {state}")
         print(path.read_text(encoding="utf-8"), end="")
         return 0
     # diff

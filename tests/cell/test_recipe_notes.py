@@ -25,7 +25,7 @@ def save_as(rdir, name, text, user="alice", role="maintenance"):
 
 def test_the_activation_row_names_the_user_and_role_of_the_note(rdir):
     audit = Audit()
-    store = RecipeStore(rdir, commit=audit)
+    store = RecipeStore(rdir, commit=audit, allow_examples=True)
     store.refresh()
     audit.clear()
     text = (rdir / "pin-b.yaml").read_text().replace("tolerance_mm: 0.1", "tolerance_mm: 0.075")
@@ -39,7 +39,7 @@ def test_the_activation_row_names_the_user_and_role_of_the_note(rdir):
 
 def test_a_later_hand_edit_back_to_the_same_bytes_is_not_attributed_to_the_note(rdir):
     audit = Audit()
-    store = RecipeStore(rdir, commit=audit)
+    store = RecipeStore(rdir, commit=audit, allow_examples=True)
     store.refresh()
     original = (rdir / "pin-b.yaml").read_text()
     edited = original.replace("tolerance_mm: 0.1", "tolerance_mm: 0.075")

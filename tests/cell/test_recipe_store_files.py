@@ -21,7 +21,7 @@ class Audit(list):
 
 def store_with(rdir, **kw):
     audit = Audit()
-    store = RecipeStore(rdir, commit=audit, **kw)
+    store = RecipeStore(rdir, commit=audit, **{"allow_examples": True, **kw})
     store.refresh()
     audit.clear()
     return store, audit
@@ -158,7 +158,7 @@ def test_when_the_audit_cannot_be_written_nothing_is_activated_and_it_is_retried
 def test_activation_and_audit_are_one_transaction_in_the_real_log(rdir, tmp_path):
     log = CycleLog(tmp_path / "cell.sqlite")
     try:
-        store = RecipeStore(rdir, commit=log.record_recipe_changes)
+        store = RecipeStore(rdir, commit=log.record_recipe_changes, allow_examples=True)
         store.refresh()
         rows = log.audit_rows()
         assert sorted(r["target"].rsplit("/", 1)[-1] for r in rows) == ["bracket-a.yaml", "pin-b.yaml"]

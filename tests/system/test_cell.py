@@ -143,7 +143,7 @@ def test_abort_mid_cycle_and_retrigger_refused(harness):
 def test_sync_mode_recipe_runs_every_move_on_sync(harness):
     h = harness
     path = h.tmp_path / "recipes" / "fast-a.yaml"
-    path.write_text(path.read_text() + "motion:\n  sync: sync\n  segment_ms: 10\n")
+    path.write_text(path.read_text().replace("  sync: corrected\n", "  sync: sync\n"))
     h.wait(lambda: "sync" == h.cell.recipes.active["fast-a"].recipe.motion.sync, what="sync recipe active")
     res = [h.cycle() for _ in range(3)]
     assert all(r["done"] == 1 for r in res)
@@ -154,7 +154,7 @@ def test_recipe_the_stations_cannot_run_is_refused_naming_the_field(harness):
     h = harness
     path = h.tmp_path / "recipes" / "fast-a.yaml"
     good = h.cell.recipes.active["fast-a"].hash
-    path.write_text(path.read_text() + "motion:\n  sync: corrected\n  segment_ms: 1\n")
+    path.write_text(path.read_text().replace("  segment_ms: 10\n", "  segment_ms: 1\n"))
     h.wait(lambda: h.plc.inputs()["recipe_status"] == 2, what="recipe_status 2")
     rejected = [a for a in h.cell.cyclelog.audit_rows() if a["action"] == "recipe_reject"][-1]
     assert "motion.segment_ms" in rejected["result"] and "fast-a.yaml:" in rejected["result"]
@@ -296,6 +296,7 @@ def test_an_edit_the_robot_cannot_reach_is_refused_before_it_runs(harness):
     x, y = h.cell.recipes.active["fast-a"].recipe.part.nominal_xy_mm
     path.write_text(text.replace(f"[{x}, {y}]", f"[{x + 700.0}, {y}]"))
     h.wait(lambda: h.plc.inputs()["recipe_status"] == 2, what="recipe_status 2")
-    rejected = [a for a in h.cell.cyclelog.audit_rows() if a["action"] == "recipe_reject"][-1]
+    rejected = [a for a in h.cell.cyclelog.audit_rows() if a["action"] == "recipe_reject"
+                and a["target"] == str(path)][-1]
     assert "part.nominal_xy_mm" in rejected["result"] and "out of reach" in rejected["result"]
     assert h.cell.recipes.active["fast-a"].hash == good and h.cycle()["done"] == 1
