@@ -127,7 +127,11 @@ class PlcLink:
     client to write ``plc_heartbeat`` while the link has no owner, and stays owner until
     its heartbeat has not changed for ``heartbeat_timeout_s`` on ``clock`` (the controller's
     watchdog time-out). If its connection closes, a new connection from the same host may
-    take over at once (the PLC reconnecting); any other client only after the time-out.
+    take over at once (the PLC reconnecting). Once the owner is silent past the time-out, a
+    connection from its host may take over, and from another host only if an allow-list
+    (``access.allow``) names that host: with no allow-list the link stays with the PLC's
+    host for the life of the process (a site that moves its PLC to another address names
+    it in ``plc.allow``, or restarts the controller).
     Another client's write is refused with exception 01 and changes nothing, so a rogue
     cannot keep the link alive with its own heartbeat. (A map without ``plc_heartbeat``
     has no link time-out: any allowed client may write.)
@@ -432,15 +436,25 @@ class PlcLink:
         if peer.rights is not None and "plc_heartbeat" not in new:
             return None             # TLS: the role's rights decide (checked before); the heartbeat is owned
         owner_gone = self._owner is None or not self._connected(self._owner)
-        may_claim = self._owner is None or self._expired() or (
-            owner_gone and self._owner.host == peer.host)
+        same_host = self._owner is None or self._owner.host == peer.host
+        may_claim = self._owner is None or (self._expired() and (same_host or self._named(peer.host))) or (
+            owner_gone and same_host)
         if may_claim and ("plc_heartbeat" in new or "plc_heartbeat" not in self.map):
             previous = self._owner
             self._owner = peer      # the link is ok only once its heartbeat changes
             _log().info("plc_link_owner", client=str(peer),
                         previous=str(previous) if previous is not None else None)
             return None
+        if self._owner is not None and self._expired() and not same_host:
+            return (f"{self._owner} (silent; only its host {self._owner.host} or a host plc.allow names "
+                    "may take the link over)")
         return str(self._owner) if self._owner is not None else "none (write plc_heartbeat first)"
+
+    def _named(self, host: str) -> bool:
+        """``host`` is named by an allow-list (of either listener): a host the site chose
+        for its PLC, so it may take a silent link over."""
+        return any(g is not None and g.policy.allow is not None and g.policy.allows(host)
+                   for g in (self.guard, self.tls_guard))
 
     def _apply_plc_write(self, new: dict[str, int], events: list[PlcWrite], peer: Peer | None = None) -> None:
         """Apply map-validated PLC values to the image (lock held); collect their events."""

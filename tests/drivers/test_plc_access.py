@@ -79,18 +79,46 @@ def test_only_the_owner_writes_and_a_second_client_cannot_keep_the_link_alive():
         assert link.read("plc_heartbeat") == 1 and link.last_heartbeat_change == 100.0
         clock.advance(0.6)                                    # 1.2 s: the watchdog would trip now
         assert link.owner is None
-        # after the time-out the first allowed client to beat owns the link
-        assert not rogue.write_register(1, 100).isError()
-        assert link.owner.startswith("127.0.0.2:") and link.last_heartbeat_change == pytest.approx(101.2)
-        assert plc.write_register(20, 5).exception_code == 1
-        ev = [(w.name, w.peer) for w in link.drain_writes()]
-        assert ev == []                                       # heartbeats are quiet; no write landed
-        assert not rogue.write_register(20, 4).isError()
+        # silent past the time-out, with no allow-list: another host still cannot take over,
+        # neither by its heartbeat nor by a command (a reset, an execute)
+        assert rogue.write_register(1, 100).exception_code == 1
+        assert rogue.write_register(20, 4).exception_code == 1
+        assert link.owner is None and link.read("plc_heartbeat") == 1 and link.read("recipe_select") == 0
+        assert link.drain_writes() == []
+        # the PLC's own host (a new connection: the PLC restarted) takes it back
+        plc.close()
+        plc = _client(link.port)
+        assert not plc.write_register(1, 2).isError()
+        assert link.owner.startswith("127.0.0.1:") and link.last_heartbeat_change == pytest.approx(101.2)
+        assert not plc.write_register(20, 5).isError()
         assert [(w.name, w.value, w.peer.split(":")[0]) for w in link.drain_writes()] == \
-            [("recipe_select", 4, "127.0.0.2")]
+            [("recipe_select", 5, "127.0.0.1")]
+        refused = {(r.client, r.reason): r.count for r in link.take_refusals()}
+        assert refused == {("127.0.0.2", "not the link owner"): 4}
     finally:
         plc.close()
         rogue.close()
+        link.stop()
+
+
+def test_a_host_the_allow_list_names_may_take_a_silent_link_over():
+    """A site that moves its PLC names the new address in plc.allow: once the old PLC is
+    silent past the time-out, the named host owns the link; a host not named never does."""
+    allow = (ipaddress.ip_network("127.0.0.1/32"), ipaddress.ip_network("127.0.0.2/32"),
+             ipaddress.ip_network("127.0.0.3/32"))
+    link = _link(allow=allow)
+    clock = link._clock
+    old, new = _client(link.port), _client(link.port, "127.0.0.2")
+    try:
+        assert not old.write_register(1, 1).isError()
+        assert new.write_register(1, 7).exception_code == 1          # not while the PLC beats
+        clock.advance(1.2)
+        assert not new.write_register(1, 8).isError()
+        assert link.owner.startswith("127.0.0.2:")
+        assert old.write_register(1, 2).exception_code == 1           # the new owner beats now
+    finally:
+        old.close()
+        new.close()
         link.stop()
 
 
