@@ -91,8 +91,9 @@ class Clock(Protocol):
         """Start ``target(*args)`` in a new daemon thread that keeps this clock's time."""
         ...
 
-    def attach(self) -> ContextManager:
-        """``with clock.attach():`` the calling thread keeps this clock's time inside."""
+    def attach(self, name: str | None = None) -> ContextManager:
+        """``with clock.attach():`` the calling thread keeps this clock's time inside;
+        ``name`` names it where a clock keeps a list of its threads."""
         ...
 
 
@@ -149,7 +150,7 @@ class MonotonicClock:
     def spawn(self, target: Callable[..., Any], name: str, *args: Any) -> _ThreadTask:
         return _ThreadTask(target, name, args)
 
-    def attach(self) -> ContextManager:
+    def attach(self, name: str | None = None) -> ContextManager:
         return contextlib.nullcontext(self)
 
 
@@ -236,5 +237,5 @@ class ManualClock:
     def spawn(self, target: Callable[..., Any], name: str, *args: Any) -> _ThreadTask:
         return _ThreadTask(target, name, args)
 
-    def attach(self) -> ContextManager:
+    def attach(self, name: str | None = None) -> ContextManager:
         return contextlib.nullcontext(self)

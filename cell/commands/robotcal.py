@@ -20,6 +20,7 @@ service first: the drives take one master).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -84,11 +85,39 @@ def _config(args):
 
 def _session(args, body):
     """Bring the devices up, run ``body(calibrator)`` on their clock, take them down."""
-    from cell.calibration.service import CellCalibrator, load_active
-    from cell.devices import open_devices
     cfg = _config(args)
     if getattr(args, "out", None):
         cfg = cfg.model_copy(update={"calibration": cfg.calibration.model_copy(update={"file": args.out})})
+    with _sole_master(cfg, args.sim):
+        return _run_session(cfg, args, body)
+
+
+@contextlib.contextmanager
+def _sole_master(cfg, sim: bool):
+    """On hardware, hold the cell's log lock for the session: the drives take one master, so
+    a calibration beside a running controller is refused before any drive is touched (the
+    simulated cell's devices are this process's own: nothing to hold)."""
+    from cell.errors import LogError
+    from cell.logfile import LogLock
+    if sim:
+        yield
+        return
+    lock = LogLock(Path(cfg.log.path))
+    try:
+        Path(cfg.log.path).parent.mkdir(parents=True, exist_ok=True)
+        lock.acquire()
+    except (LogError, OSError) as exc:
+        raise ConfigError(f"calibrate: {exc}; a calibration on hardware needs the cell to itself "
+                          "(the drives take one master): stop the cell service first") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _run_session(cfg, args, body):
+    from cell.calibration.service import CellCalibrator, load_active
+    from cell.devices import open_devices
     devices = open_devices(cfg, "sim" if args.sim else "hardware")
     try:
         with devices.clock.attach("calibrate"):

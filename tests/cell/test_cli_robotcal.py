@@ -56,3 +56,26 @@ def test_bad_requests_get_a_clear_error_and_exit_2(argv, message, capsys, tmp_pa
     assert main([*argv[:2], *argv[2:]] + (["--png", str(tmp_path / "p.png")] if argv[1] == "joint" else [])) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "p.png").exists()
+
+
+@pytest.mark.parametrize("kind", [["joint", "j1"], ["kinematics", "--dry-run"]])
+def test_hardware_calibration_beside_a_running_controller_is_refused(kind, tmp_path, capsys):
+    """The drives take one master: while a controller holds the cell's log (as ``serve``
+    does), a calibration on that cell's hardware stops before it opens any device."""
+    import yaml
+
+    from cell.config import CellConfig
+    from cell.cyclelog import CycleLog
+    from tests.system.conftest import REPO
+    cfg = CellConfig.load(REPO / "deploy" / "cell.yaml")
+    cfg = cfg.model_copy(update={"log": cfg.log.model_copy(update={"path": str(tmp_path / "cell.sqlite")})})
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(cfg.model_dump(mode="json")))
+    controller = CycleLog(tmp_path / "cell.sqlite")             # the running controller's writer
+    try:
+        assert main(["calibrate", *kind, "--config", str(path)]) == 2
+    finally:
+        controller.close()
+    err = capsys.readouterr().err
+    assert "in use by another controller" in err and "stop the cell service first" in err
+    assert "CAN" not in err and "stations" not in err          # no device was opened
