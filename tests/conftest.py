@@ -1,5 +1,13 @@
-"""Project-wide pytest options: ``--hw`` runs the tests marked ``@pytest.mark.hw`` on real devices."""
+"""Project-wide pytest options: ``--hw`` runs the tests marked ``@pytest.mark.hw`` on real devices.
+
+Under ``CI=true`` (CI runs ``python3 dev.py test`` so) a test may skip only if it is marked
+``hw``: any other skip, whatever raised it (a ``skipif``, ``pytest.skip``, a missing tool
+of :mod:`tests.tools`), is turned into a failure that names the skip's reason, so CI cannot
+pass by not running a test.
+"""
 import pytest
+
+from tests.tools import under_ci
 
 
 def pytest_addoption(parser):
@@ -14,3 +22,15 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "hw" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if not (report.skipped and under_ci()) or hasattr(report, "wasxfail") or "hw" in item.keywords:
+        return
+    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+    report.outcome = "failed"
+    report.longrepr = (f"skipped under CI=true, where only real-hardware (hw) tests may skip: "
+                       f"{reason}")

@@ -1,19 +1,18 @@
-"""Clients nobody here wrote must work against PlcLink: pyModbusTCP always, mbpoll if on PATH.
+"""Clients nobody here wrote must work against PlcLink: pyModbusTCP always, and mbpoll
+(Debian's ``mbpoll``; without it its tests skip, and fail under ``CI=true``: tests/tools.py).
 
 Both count addresses their own way (pyModbusTCP: 0-based protocol addresses; mbpoll:
 1-based references unless ``-0``), which checks the map's documented address base too.
 """
 from __future__ import annotations
 
-import shutil
 import subprocess
 
 import pytest
 from pyModbusTCP.client import ModbusClient
 
 from drivers.plc.register_map import PLC_MAP
-
-MBPOLL = shutil.which("mbpoll")
+from tests.tools import require_tool
 
 pytestmark = pytest.mark.usefixtures("no_leaked_plc_threads")
 
@@ -60,17 +59,16 @@ def test_pymodbustcp_sees_the_exception_codes(link, client, write, code):
 
 
 def _mbpoll(port: int, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([MBPOLL, "-m", "tcp", "-p", str(port), "-1", "-o", "5", *args],
+    mbpoll = require_tool("mbpoll", package="mbpoll")
+    return subprocess.run([mbpoll, "-m", "tcp", "-p", str(port), "-1", "-o", "5", *args],
                           capture_output=True, text=True, timeout=30)
 
 
-@pytest.mark.skipif(MBPOLL is None, reason="mbpoll not installed (apt-get install mbpoll)")
 def test_mbpoll_reads_with_1_based_references(link):
     link.write("part_id_echo", 0x12345678)
     out = _mbpoll(link.port, "-r", "1", "-c", "3", "127.0.0.1")
     assert out.returncode == 0, out.stderr
-    # reference 1 = address 0 = map_version (2 since the calibration registers; this test
-    # said 1 and went unnoticed while mbpoll was not installed and it skipped)
+    # reference 1 = address 0 = map_version
     assert f"[1]: \t{PLC_MAP.version}" in out.stdout
     ref = PLC_MAP["part_id_echo"].modicon - 40000
     out = _mbpoll(link.port, "-t", "4:int", "-B", "-r", str(ref), "127.0.0.1")
@@ -78,7 +76,6 @@ def test_mbpoll_reads_with_1_based_references(link):
     assert f"[{ref}]: \t{0x12345678}" in out.stdout           # high word first = mbpoll -B
 
 
-@pytest.mark.skipif(MBPOLL is None, reason="mbpoll not installed (apt-get install mbpoll)")
 def test_mbpoll_writes_rw_and_is_refused_ro(link):
     # one writer: a write before any client owns the link is refused with exception 01
     select = str(PLC_MAP["recipe_select"].modicon - 40000)
