@@ -38,8 +38,51 @@ def _load_trim():
 
 
 _TRIM = _load_trim()
-_LOCK = threading.Lock()
-_state = {"last": float("-inf"), "trims": 0, "seconds": 0.0, "last_s": 0.0}
+
+
+class Trimmer:
+    """Trims at most once per ``period_s`` and only after ``min_connections`` opened
+    connections; thread-safe (every server thread shares one). The process has one,
+    behind :func:`maybe_trim` and :func:`stats`; a test makes its own to start from no trim.
+
+    :param period_s: the shortest time between two trims, s of the ``now`` passed in
+        (``time.monotonic`` by default).
+    :param min_connections: connections opened since the last trim that make one worth it.
+    """
+
+    def __init__(self, period_s: float = PERIOD_S, min_connections: int = MIN_CONNECTIONS):
+        self.period_s = float(period_s)
+        self.min_connections = int(min_connections)
+        self._lock = threading.Lock()
+        self._last = float("-inf")
+        self._trims, self._seconds, self._last_s = 0, 0.0, 0.0
+
+    def maybe_trim(self, opened_since_last: int, now: float | None = None) -> bool:
+        """Trim if ``opened_since_last`` connections justify it and none ran in the last
+        ``period_s`` (any thread); returns whether it trimmed. Never on a C library without
+        ``malloc_trim`` (:func:`available`)."""
+        if _TRIM is None or opened_since_last < self.min_connections:
+            return False
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            if now - self._last < self.period_s:
+                return False
+            self._last = now
+            t0 = time.perf_counter()
+            _TRIM(0)
+            took = time.perf_counter() - t0
+            self._trims += 1
+            self._seconds += took
+            self._last_s = took
+        return True
+
+    def stats(self) -> dict[str, float]:
+        """Trims done, the time they took in all and the last one's (s)."""
+        with self._lock:
+            return {"trims": self._trims, "seconds": self._seconds, "last_s": self._last_s}
+
+
+_PROCESS = Trimmer()
 
 
 def available() -> bool:
@@ -48,25 +91,11 @@ def available() -> bool:
 
 
 def maybe_trim(opened_since_last: int, now: float | None = None) -> bool:
-    """Trim if ``opened_since_last`` connections justify it and none ran in the last
-    :data:`PERIOD_S` (any server thread); returns whether it trimmed."""
-    if _TRIM is None or opened_since_last < MIN_CONNECTIONS:
-        return False
-    now = time.monotonic() if now is None else now
-    with _LOCK:
-        if now - _state["last"] < PERIOD_S:
-            return False
-        _state["last"] = now
-        t0 = time.perf_counter()
-        _TRIM(0)
-        took = time.perf_counter() - t0
-        _state["trims"] += 1
-        _state["seconds"] += took
-        _state["last_s"] = took
-    return True
+    """:meth:`Trimmer.maybe_trim` of the process's trimmer (one rate limit for every server
+    thread)."""
+    return _PROCESS.maybe_trim(opened_since_last, now)
 
 
 def stats() -> dict[str, float]:
-    """Trims done in this process, the time they took in all and the last one's (s)."""
-    with _LOCK:
-        return {"trims": _state["trims"], "seconds": _state["seconds"], "last_s": _state["last_s"]}
+    """The process's trims: how many, the time they took in all and the last one's (s)."""
+    return _PROCESS.stats()

@@ -178,17 +178,18 @@ def test_the_handshake_time_out_is_validated(bad):
         TlsConfig(handshake_timeout_s=bad)
 
 
-def test_memory_is_trimmed_only_after_churn_and_at_a_low_rate(monkeypatch):
+def test_memory_is_trimmed_only_after_churn_and_at_a_low_rate():
     from drivers.plc import memory
     if not memory.available():
         pytest.skip("not glibc: no malloc_trim")
-    monkeypatch.setattr(memory, "_state", {"last": float("-inf"), "trims": 0, "seconds": 0.0,
-                                               "last_s": 0.0})
-    assert not memory.maybe_trim(memory.MIN_CONNECTIONS - 1, now=1000.0)    # a PLC that stays connected
-    assert memory.maybe_trim(memory.MIN_CONNECTIONS, now=1000.0)
-    assert not memory.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S / 2)  # not more often than the period
-    assert memory.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S)
-    assert memory.stats()["trims"] == 2
+    trimmer = memory.Trimmer()                                              # the process's defaults
+    assert (trimmer.period_s, trimmer.min_connections) == (memory.PERIOD_S, memory.MIN_CONNECTIONS)
+    assert not trimmer.maybe_trim(memory.MIN_CONNECTIONS - 1, now=1000.0)    # a PLC that stays connected
+    assert trimmer.maybe_trim(memory.MIN_CONNECTIONS, now=1000.0)
+    assert not trimmer.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S / 2)  # not more often than the period
+    assert trimmer.maybe_trim(10 ** 6, now=1000.0 + memory.PERIOD_S)
+    s = trimmer.stats()
+    assert s["trims"] == 2 and s["seconds"] >= s["last_s"] >= 0.0
 
 
 def test_failed_handshakes_free_their_tls_state_without_the_cyclic_gc(pki):
