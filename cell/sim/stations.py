@@ -104,10 +104,16 @@ class SimStation:
     :param clock: the simulated clock (the wire's).
     :param on_position: optional hook ``(joint_index, drive_deg, t_s)`` called whenever
         the axis has moved (``Plant.update_drive``).
+    :param applied_keep: :attr:`applied` keeps at least this many of the latest set-points
+        and at most twice as many (default :data:`APPLIED_KEEP`; a small one lets a test see
+        the trimming in a few set-points).
     """
 
     def __init__(self, cfg: SimStationConfig, *, channel: str = "cell0", bitrate: int = 1_000_000,
-                 clock: VirtualClock, on_position: PositionHook | None = None):
+                 clock: VirtualClock, on_position: PositionHook | None = None,
+                 applied_keep: int = APPLIED_KEEP):
+        if applied_keep < 1:
+            raise ValueError(f"applied_keep must be at least 1, got {applied_keep}")
         self.cfg = cfg
         self.joint_index = JOINT_NAMES.index(cfg.joint)
         self._bus_args = (channel, bitrate)
@@ -123,8 +129,9 @@ class SimStation:
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
         self.bus_off = False
-        #: (t, target_inc, vel_inc_s) as applied, the latest ones (see ``APPLIED_KEEP``)
+        #: (t, target_inc, vel_inc_s) as applied, the latest ones (see ``applied_keep``)
         self.applied: list[tuple[float, int, int]] = []
+        self.applied_keep = int(applied_keep)     #: see the parameter
         self.applied_count = 0     #: set-points applied since creation
 
     # ------------------------------------------------------------------ lifecycle
@@ -421,8 +428,8 @@ class SimStation:
         self._dirty_tpdo = True
         self.applied.append((t, target, vel))
         self.applied_count += 1
-        if len(self.applied) > 2 * APPLIED_KEEP:         # amortised O(1): trim by halves
-            del self.applied[:-APPLIED_KEEP]
+        if len(self.applied) > 2 * self.applied_keep:   # amortised O(1): trim by halves
+            del self.applied[:-self.applied_keep]
 
     def _start_ramp(self, v: float) -> None:
         self._ramp_v = v

@@ -6,21 +6,19 @@ from __future__ import annotations
 import pytest
 
 import cell.sim.canbus as canbus
-import cell.sim.stations as sim_stations
-from cell.sim.stations import SimStationSet
+from cell.sim.stations import APPLIED_KEEP, SimStation, SimStationConfig, SimStationSet
 from drivers.stations.driver import JointStations
 from tests.drivers.test_stations_sim import CPU, _cell_cfg, _close, _rig, _setpoint
 
 
 @pytest.fixture
 def rig(vclock):
-    r = _rig(vclock, heartbeat=False)
+    r = _rig(vclock, heartbeat=False, applied_keep=4)
     yield r
     _close(r)
 
 
-def test_applied_set_points_keep_only_the_latest(rig, monkeypatch):
-    monkeypatch.setattr(sim_stations, "APPLIED_KEEP", 4)
+def test_applied_set_points_keep_only_the_latest(rig):
     clock, st = rig.clock, rig.st
     sent = []
     for k in range(1, 26):
@@ -32,6 +30,13 @@ def test_applied_set_points_keep_only_the_latest(rig, monkeypatch):
     assert st.applied_count == 25
     assert len(st.applied) >= 4
     assert st.applied == sent[-len(st.applied):]      # the latest ones, in order, unchanged
+
+
+def test_applied_set_points_keep_the_default_number_unless_told(vclock):
+    cfg = SimStationConfig(joint="j2", node_id=2)
+    assert SimStation(cfg, clock=vclock).applied_keep == APPLIED_KEEP
+    with pytest.raises(ValueError, match="applied_keep must be at least 1"):
+        SimStation(cfg, clock=vclock, applied_keep=0)
 
 
 def test_fault_history_keeps_only_the_latest_records():

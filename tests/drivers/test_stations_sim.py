@@ -33,11 +33,11 @@ class Rig:
     """One station (j2, node 2) and a clock-aware canopen RemoteNode on a fresh wire."""
 
 
-def _rig(clock, delay=0.0, heartbeat=True) -> Rig:
+def _rig(clock, delay=0.0, heartbeat=True, **station_kw) -> Rig:
     r = Rig()
     r.clock, r.channel, r.seen, r.tpdos = clock, unique_channel("s"), [], []
     r.st = SimStation(SimStationConfig(joint="j2", node_id=2, reception_delay_s=delay), channel=r.channel,
-                      clock=clock, on_position=lambda j, q, t: r.seen.append((j, q, t)))
+                      clock=clock, on_position=lambda j, q, t: r.seen.append((j, q, t)), **station_kw)
     r.net = canopen.Network(open_bus("virtual", r.channel, clock=clock))
     r.node = _remote_node(2, str(EDS_PATH), clock)
     r.net.add_node(r.node)
