@@ -17,6 +17,7 @@ from cell.errors import LogError
 from cell.faults import Fault
 
 from tests.cell.test_cyclelog import record
+from tests.privileges import as_unprivileged, give_to_nobody, nobody_dir
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -107,11 +108,23 @@ def test_a_log_whose_folder_cannot_be_made_is_a_clear_error(tmp_path):
         CycleLog(tmp_path / "var" / "cell.sqlite")
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes read-only files")
 def test_a_read_only_log_is_a_clear_error(sound):
-    sound.chmod(0o444)
-    with pytest.raises(LogError, match="cannot be written"):
-        CycleLog(sound)
+    """Checked as ``nobody`` (tests/privileges.py): root writes read-only files."""
+    with nobody_dir() as folder:
+        path = folder / "cell.sqlite"
+        shutil.copy(sound, path)
+        give_to_nobody(path)
+        path.chmod(0o444)
+
+        def check():
+            with pytest.raises(PermissionError):        # the condition itself, for this user
+                open(path, "r+b")
+            with pytest.raises(LogError, match="cannot be written") as err:
+                CycleLog(path)
+            return str(err.value)
+        message = as_unprivileged(check)
+        assert str(path) in message
+        assert path.read_bytes() == sound.read_bytes()   # nothing written to it
 
 
 def _serve(cfg_path, preexec=None):

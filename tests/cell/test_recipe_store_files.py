@@ -2,7 +2,9 @@
 unreadable and non-UTF-8 files, files still being written, and an audit trail that cannot
 be written. Each case reproduces a field-probe finding (see each test's doc)."""
 import os
+import shutil
 import sqlite3
+from pathlib import Path
 
 import pytest
 
@@ -10,6 +12,7 @@ from cell.clock import ManualClock
 from cell.cyclelog import CycleLog
 from cell.errors import ConfigError
 from cell.recipe_store import RecipeAuditError, RecipeStore
+from tests.privileges import as_unprivileged, give_to_nobody, nobody_dir
 
 
 class Audit(list):
@@ -78,13 +81,25 @@ def test_an_unreadable_file_is_audited_as_unreadable(rdir):
     assert audit[-1][1] == "recipe_reject"
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root reads any file whatever its mode")
 def test_a_file_without_read_permission_is_audited_as_unreadable(rdir):
-    store, _ = store_with(rdir)
-    (rdir / "pin-b.yaml").chmod(0)
-    [e] = store.refresh()
-    assert e.action == "reject" and "cannot read: Permission denied" in e.result
-    assert "pin-b" in store.active
+    """The refresh runs as ``nobody`` (tests/privileges.py): root reads any file whatever
+    its mode. The recipes are copied where ``nobody`` may go (``rdir`` may not be)."""
+    with nobody_dir() as folder:
+        rdir = Path(shutil.copytree(rdir, folder / "recipes"))
+        give_to_nobody(rdir)
+        store, audit = store_with(rdir)
+        (rdir / "pin-b.yaml").chmod(0)
+
+        def check():
+            with pytest.raises(PermissionError):        # the condition itself, for this user
+                open(rdir / "pin-b.yaml", "rb")
+            entries = store.refresh()
+            return [(e.action, e.result, e.hash) for e in entries], "pin-b" in store.active, list(audit)
+        entries, kept, audited = as_unprivileged(check)
+    [(action, result, digest)] = entries
+    assert action == "reject" and "cannot read: Permission denied" in result and digest == ""
+    assert kept                                        # the last good version stays active
+    assert [a[1] for a in audited] == ["recipe_reject"]
 
 
 def test_binary_garbage_is_rejected_naming_the_line(rdir):
