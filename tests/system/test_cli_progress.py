@@ -103,25 +103,90 @@ def test_serve_says_why_it_stopped_and_in_what_state(tmp_path):
     assert "stopped: SIGTERM received; final state " in err, err
 
 
-def test_a_run_cut_short_by_a_plc_time_out_still_prints_the_parts_before(tmp_path, capsys, monkeypatch):
-    from cell.cli import main
-    from cell.sim.plc import SimPlc, SimPlcError
-    real, calls = SimPlc.run_cycle, []
+# A recipe whose z stroke is long and slow: approach at z -5 mm, place at z -100 mm, every
+# joint at most 11 units/s (mm/s for j3). The smooth time law peaks at 1.875 times the mean
+# speed (cell/trajectory/line.py TIME_LAW_PEAK), so a 95 mm stroke takes at least
+# 95 * 1.875 / 11 = 16.2 s of simulated time.
+DEEP_RECIPE = """\
+name: deep-z
+number: 9
+description: a slow 95 mm z stroke, so that a cycle outlasts the PLC's time-out
+part:
+  nominal_xy_mm: [250.0, 930.0]
+  fiducial_radius_mm: 1.5
+  search_radius_mm: 3.0
+approach:
+  offset_mm: [-12.0, 0.0]
+  z_mm: -5.0
+  joint_speed_deg_s: 11.0
+place:
+  z_mm: -100.0
+compensation:
+  method: lattice
+  max_moves: 4
+  min_gain_mm: 0.002
+motion:
+  sync: corrected
+  segment_ms: 10
+  time_law: smooth
+verify:
+  tolerance_mm: 0.08
+"""
+PLC_WAIT_S = 30.0           # what `cellctl run`'s simulated PLC waits for done (cell/commands/run.py)
 
-    def second_times_out(self, *a, **kw):
-        calls.append(1)
-        if len(calls) == 2:
-            raise SimPlcError("SimPlc: timed out after 30 s waiting for done, error or aborted")
-        return real(self, *a, **kw)
-    monkeypatch.setattr(SimPlc, "run_cycle", second_times_out)
-    assert main(["run", "--sim", "--cycles", "3", "--db", str(tmp_path / "log.sqlite")]) == 1
+
+def _deep_stroke_config(tmp_path):
+    """A cell config for DEEP_RECIPE in which part 1 is done within the PLC's 30 s and part 2
+    is not, on the built-in simulated cell:
+
+    * part 1 starts where the drives power up, z = 0: 5 mm down to the approach height, then
+      one 95 mm stroke down to place: one stroke, at least 16.2 s;
+    * part 2 starts at the place height: 95 mm up to the approach height and 95 mm down again,
+      at least 2 * 16.2 = 32.4 s, so the PLC's wait ends while its final move is under way;
+    * ``cycle.tool_phi_deg`` is θ1 + θ2 at the approach point, so j4 stays near 0, where it
+      powers up (with the default 0 the first approach would turn j4 by 92° at 11°/s: 16 s);
+    * ``cycle.move_timeout_s`` 120: the controller itself waits for these slow moves.
+    """
+    import yaml
+
+    from cell.kinematics import Scara
+    t1, t2 = Scara.preset("seed000").ik_planar(250.0 - 12.0, 930.0, elbow="right")
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "deep-z.yaml").write_text(DEEP_RECIPE)
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump({
+        "format": "cell-config/1", "plc": {"host": "127.0.0.1"}, "recipes": {"directory": "recipes"},
+        "cycle": {"move_timeout_s": 120.0, "tool_phi_deg": round(float(t1 + t2), 3)}, "sim": {}}))
+    return path
+
+
+def test_a_run_cut_short_by_a_plc_time_out_still_prints_the_parts_before(tmp_path, capsys):
+    """A real time-out: the simulated PLC waits its 30 s of simulated time for done while
+    part 2's cycle is still moving (see :func:`_deep_stroke_config`)."""
+    from cell.cli import main
+    from cell.cyclelog import CycleLog
+    cfg = str(_deep_stroke_config(tmp_path))
+    timed_out = f"PLC: SimPlc: timed out after {PLC_WAIT_S} s waiting for done, error or aborted"
+
+    assert main(["run", "--sim", "--config", cfg, "--recipe", "deep-z", "--cycles", "3",
+                 "--db", str(tmp_path / "log.sqlite")]) == 1
     lines = capsys.readouterr().out.splitlines()
-    assert lines[1].split()[:2] == ["1", "bracket-a"] and lines[1].rstrip().endswith("-")
-    assert lines[2].split()[:2] == ["2", "bracket-a"] and "PLC: SimPlc: timed out" in lines[2]
+    assert lines[1].split()[:2] == ["1", "deep-z"] and lines[1].rstrip().endswith("-")
+    assert lines[2].split()[:2] == ["2", "deep-z"] and timed_out in lines[2]
     assert lines[3].startswith("1/2 cycles done")
 
-    calls.clear()
-    assert main(["run", "--sim", "--cycles", "3", "--json", "--db", str(tmp_path / "log2.sqlite")]) == 1
-    cycles = json.loads(capsys.readouterr().out)["cycles"]
-    assert [c["part_id"] for c in cycles] == [1, 2]
-    assert cycles[0]["fault"] is None and cycles[1]["fault"].startswith("PLC: SimPlc: timed out")
+    assert main(["run", "--sim", "--config", cfg, "--recipe", "deep-z", "--cycles", "3", "--json",
+                 "--db", str(tmp_path / "log2.sqlite")]) == 1
+    first, second = json.loads(capsys.readouterr().out)["cycles"]
+    assert (first["part_id"], first["fault"]) == (1, None)
+    assert first["plc_round_trip_s"] < PLC_WAIT_S
+    assert second["part_id"] == 2 and second["fault"].startswith(timed_out)
+    assert second["plc_round_trip_s"] >= PLC_WAIT_S           # it waited its whole time-out
+    log = CycleLog(tmp_path / "log2.sqlite", readonly=True)
+    try:
+        rows = {c.part_id: c for c in log.cycles()}
+    finally:
+        log.close()
+    assert rows[1].status == "done"
+    # the cycle the PLC gave up on was still running: the run's stop cut it short
+    assert rows[2].status == "aborted" and rows[2].fault_code == 501, (rows[2].status, rows[2].fault_text)
