@@ -36,6 +36,8 @@ import hashlib
 import os
 import pwd
 import stat
+import threading
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -97,6 +99,13 @@ class RecipeStore:
         self._pending: dict[str, tuple] = {}     # path -> (signature, clock time first seen)
         self._first = True
         self.last_rejection: str | None = None
+        #: refreshes run so far, by the name of the thread that ran them: the controller runs
+        #: the first in its start-up thread, every later one in its log worker (``cell-log``),
+        #: never in the scan task
+        self.refreshes: Counter[str] = Counter()
+        #: files opened for reading so far; a file refused from its look (too big, outside
+        #: the folder, not a regular file) is never opened
+        self.files_opened = 0
 
     @property
     def active(self) -> Mapping[str, ActiveRecipe]:
@@ -117,6 +126,7 @@ class RecipeStore:
         :raises ConfigError: the folder is gone (the last good set stays active).
         :raises RecipeAuditError: the audit trail could not be written; nothing was applied.
         """
+        self.refreshes[threading.current_thread().name] += 1
         try:
             names = sorted(e.name for e in os.scandir(self.directory)
                            if e.name.endswith(".yaml") and not e.name.startswith("."))
@@ -257,6 +267,7 @@ class RecipeStore:
             fd = os.open(open_path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
         except OSError as exc:
             return b"", f"{path}: cannot read: {exc.strerror}"
+        self.files_opened += 1
         try:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
                 return b"", f"{path}: not a regular file: refused"

@@ -22,25 +22,35 @@ class Audit(list):
         self.extend(changes)
 
 
-def store_with(rdir, **kw):
-    audit = Audit()
+class Disk(Audit):
+    """A commit sink on a disk that can be full (``full``): then it writes nothing and raises."""
+
+    full = False
+
+    def __call__(self, changes):
+        if self.full:
+            raise sqlite3.OperationalError("database or disk is full")
+        super().__call__(changes)
+
+
+def store_with(rdir, commit=None, **kw):
+    audit = commit if commit is not None else Audit()
     store = RecipeStore(rdir, commit=audit, **{"allow_examples": True, **kw})
     store.refresh()
     audit.clear()
     return store, audit
 
 
-def test_a_huge_recipe_is_refused_from_its_size_and_never_read(rdir, monkeypatch):
+def test_a_huge_recipe_is_refused_from_its_size_and_never_read(rdir):
     """Probe: a valid 50 MB recipe froze the scan loop for 139 s and was stored in the log."""
     store, audit = store_with(rdir)
     big = rdir / "pin-b.yaml"
     with open(big, "r+b") as f:                        # 50 MB: a sparse file, cheap to make
         f.truncate(50_000_000)
-    reads = []
-    real_read = os.read
-    monkeypatch.setattr(os, "read", lambda fd, n: reads.append(n) or real_read(fd, n))
+    opened = store.files_opened
+    assert opened > 0                                  # the first refresh read the recipes
     entries = store.refresh()
-    assert reads == []                                 # refused from its size alone
+    assert store.files_opened == opened                # refused from its size alone, never opened
     assert [(e.action, e.hash) for e in entries] == [("reject", "")]
     assert "50000000 bytes, over the limit of 65536 bytes (recipes.max_bytes)" in entries[0].result
     assert "pin-b" in store.active                     # the last good version stays
@@ -154,18 +164,16 @@ def test_a_file_still_being_written_is_not_activated_until_stable(rdir):
 def test_when_the_audit_cannot_be_written_nothing_is_activated_and_it_is_retried(rdir):
     """Probe: a recipe activated while the disk was full had no audit row, yet later cycles
     carried its hash."""
-    store, audit = store_with(rdir)
+    store, disk = store_with(rdir, commit=Disk())
     path = rdir / "bracket-a.yaml"
     before = store.active["bracket-a"]
     path.write_text(path.read_text().replace("tolerance_mm: 0.08", "tolerance_mm: 0.07"))
 
-    def full_disk(changes):
-        raise sqlite3.OperationalError("database or disk is full")
-    store._commit = full_disk
+    disk.full = True
     with pytest.raises(RecipeAuditError, match="not applied: the audit trail could not be written"):
         store.refresh()
-    assert store.active["bracket-a"] is before
-    store._commit = audit                              # space again: the change goes through
+    assert store.active["bracket-a"] is before and disk == []
+    disk.full = False                                  # space again: the change goes through
     [e] = store.refresh()
     assert e.action == "activate" and store.active["bracket-a"].recipe.verify.tolerance_mm == 0.07
 
