@@ -17,6 +17,7 @@ delay of its moves.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -204,6 +205,9 @@ class CycleRunner:
         self.mover = Mover(robot, motion, settings.elbow)
         self.progress: State = State.IDLE         #: the step the running cycle is in
         self.outcome: CycleOutcome | None = None  #: how the last cycle ended
+        #: the thread that ran the last cycle: the controller runs every cycle on its one
+        #: long-lived ``cell-cycle`` worker (a thread per cycle leaks OpenCV's thread state)
+        self.last_thread: threading.Thread | None = None
 
     def run_safely(self, active: ActiveRecipe | None, part_id: int, cancel: CancelToken) -> CycleOutcome:
         """:meth:`run`, keeping the outcome in :attr:`outcome` (the cycle task's target)."""
@@ -216,6 +220,7 @@ class CycleRunner:
 
     def run(self, active: ActiveRecipe, part_id: int, cancel: CancelToken) -> CycleOutcome:
         """Run one cycle; returns how it ended (never raises)."""
+        self.last_thread = threading.current_thread()
         self.progress = State.APPROACH
         r = active.recipe
         rec = CycleRecord(part_id=part_id, recipe=r.name, recipe_hash=active.hash, started_at=utc_now(),

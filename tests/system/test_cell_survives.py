@@ -4,8 +4,6 @@ what the PLC was told. Whole cell, simulated PLC, one simulated clock; each test
 a field-probe finding named in its doc."""
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
 from cell.cyclelog import CycleLog
@@ -122,14 +120,8 @@ def test_every_row_is_settled_to_what_the_plc_was_told(harness):
 def test_recipe_files_are_read_off_the_scan_task_and_a_huge_one_never(harness):
     """Probe: a valid 50 MB recipe froze the scan loop for 139 s; its text went to the log."""
     h = harness
-    threads = []
     store = h.cell.recipes
-    orig = store.refresh
-
-    def refresh():
-        threads.append(threading.current_thread().name)
-        return orig()
-    store.refresh = refresh
+    before, opened = store.refreshes.copy(), store.files_opened
     big = h.tmp_path / "recipes" / "huge.yaml"
     with open(big, "wb") as f:
         f.write(b"name: huge\nnumber: 50\npart: {nominal_xy_mm: [250, 930], fiducial_radius_mm: 1.5}\n")
@@ -137,7 +129,9 @@ def test_recipe_files_are_read_off_the_scan_task_and_a_huge_one_never(harness):
     h.wait(lambda: any(a["target"] == str(big) for a in h.cell.cyclelog.audit_rows()), what="audit of huge.yaml")
     [row] = [a for a in h.cell.cyclelog.audit_rows() if a["target"] == str(big)]
     assert row["action"] == "recipe_reject" and "over the limit" in row["result"] and row["hash"] == ""
-    assert threads and set(threads) == {"cell-log"}
+    since = store.refreshes - before                           # the refreshes that saw it
+    assert since and set(since) == {"cell-log"}
+    assert store.files_opened == opened                        # refused from its size, never opened
     assert h.cycle()["done"] == 1
 
 
@@ -145,13 +139,10 @@ def test_every_cycle_runs_on_one_long_lived_thread(harness):
     """Soak: a thread per cycle leaked OpenCV's thread-local state (~0.9 kB a thread, ~0.9 MB
     per 1000 cycles); cycles are jobs of one cell-cycle worker now."""
     h = harness
-    idents = []
-    run = h.cell.runner.run_safely
-
-    def watched(*args):
-        idents.append(threading.get_ident())
-        return run(*args)
-    h.cell.runner.run_safely = watched
+    rows, threads = len(h.cell.cyclelog.cycles()), []
     for _ in range(3):
         assert h.cycle()["done"] == 1
-    assert len(idents) == 3 and len(set(idents)) == 1
+        threads.append(h.cell.runner.last_thread)
+    assert len(h.cell.cyclelog.cycles()) == rows + 3           # three cycles ran, each its own row
+    assert threads[0] is not None and threads[0].name == "cell-cycle" and threads[0].is_alive()
+    assert all(t is threads[0] for t in threads)              # the same thread object, still running
