@@ -15,12 +15,14 @@ pile up.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from cell.clock import Clock, MonotonicClock
 from cell.faults import CellFault, Fault
 from cell.vision import VisionError
-from cell.vision.calibration import PlaneCalibration, locate
+from cell.vision.calibration import PlaneCalibration, PlaneFix, locate
 from cell.worker import Job, Worker
 
 VISION_FAULTS = {
@@ -30,17 +32,29 @@ VISION_FAULTS = {
 }
 
 
+#: the fiducial search: (image, calibration, **find_kwargs) -> fixes in mm on the work plane;
+#: raises :class:`~cell.vision.VisionError` with its ``kind``
+Locate = Callable[..., list[PlaneFix]]
+
+
 class MeasuringCamera:
-    """Camera + calibration. ``camera`` is any :class:`drivers.camera.base.Camera` (opened)."""
+    """Camera + calibration. ``camera`` is any :class:`drivers.camera.base.Camera` (opened).
+
+    :param locate: the fiducial search (default :func:`cell.vision.calibration.locate`);
+        another one lets a test make the search fail in each of its ways
+        (:data:`VISION_FAULTS`) without an image that does so.
+    """
 
     def __init__(self, camera, calibration: PlaneCalibration, tool_radius_mm: float,
-                 radius_tolerance: float = 0.3, grab_timeout_s: float = 2.0, clock: Clock | None = None):
+                 radius_tolerance: float = 0.3, grab_timeout_s: float = 2.0, clock: Clock | None = None,
+                 locate: Locate = locate):
         self.camera = camera
         self.calibration = calibration
         self.tool_radius_mm = float(tool_radius_mm)
         self.radius_tolerance = float(radius_tolerance)
         self.grab_timeout_s = float(grab_timeout_s)
         self.clock = clock or MonotonicClock()
+        self._locate = locate
         self.frames = 0
         self.last_error: str | None = None           #: the last grab's failure (health job)
         self._worker = Worker(self.clock, "camera-grab")
@@ -96,7 +110,7 @@ class MeasuringCamera:
         cal = self.calibration
         r_px = radius_mm / cal.mm_per_px(cal.width / 2, cal.height / 2)
         try:
-            fixes = locate(image, self.calibration, expected=1,
+            fixes = self._locate(image, self.calibration, expected=1,
                            min_radius_px=r_px * (1 - self.radius_tolerance),
                            max_radius_px=r_px * (1 + self.radius_tolerance))
         except VisionError as exc:

@@ -17,7 +17,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import cell.measure
 from cell.clock import ManualClock
 from cell.cycle import CancelToken, CycleCancelled, CycleRunner, CycleSettings, OffsetMemory
 from cell.cyclelog import CycleLog
@@ -103,6 +102,7 @@ class FakeCamera:
         self.bias = np.array(bias)
         self.place_shift = np.array(place_shift)      #: tool offset once lowered to the place z
         self.calls: list[str] = []
+        self.on_tool = None                           #: hook() at every tool measurement
 
     def grab(self, cancel=None):
         self.st._seen()
@@ -117,6 +117,8 @@ class FakeCamera:
     def tool(self, cancel=None):
         self.st._seen()
         self.calls.append("tool")
+        if self.on_tool:
+            self.on_tool()
         q = self.st.pos
         shift = self.place_shift if q[2] <= -40.0 else 0.0
         return ROBOT.fk_planar(q[0], q[1]) + self.bias + shift
@@ -311,15 +313,12 @@ def test_a_quick_stop_after_the_cancel_keeps_the_tokens_reason(rig):
 
 
 def test_a_cancel_after_the_last_step_keeps_the_cycle_done(rig):
-    orig = rig.cam.tool
-
-    def tool(cancel=None):
-        p = orig()
+    def on_tool():
         if rig.runner.progress is State.VERIFY:
             rig.token.cancel(0, "abort by PLC")       # too late: nothing is checked after verify
-        return p
-    rig.cam.tool = tool
+    rig.cam.on_tool = on_tool
     out = rig.run()
+    assert rig.token.cancelled                        # the cancel did come, during verify
     assert out.status == "done" and out.fault_code == 0
     assert rig.rows()[0].status == "done"
 
@@ -366,21 +365,26 @@ def test_camera_grab_failure_is_fault_301(tmp_path):
 
 
 @pytest.mark.parametrize("kind, code", sorted(VISION_FAULTS.items()))
-def test_vision_failures_map_to_their_fault_codes(tmp_path, monkeypatch, kind, code):
+def test_vision_failures_map_to_their_fault_codes(tmp_path, kind, code):
     class Driver:
         def grab(self):
             return SimpleNamespace(image=np.zeros((48, 64), np.uint8))
 
-    def locate(*args, **kwargs):
+    searches = []
+
+    def locate(image, cal, **find_kwargs):
+        searches.append(find_kwargs)
         raise VisionError(f"{kind} at (10, 12) px", kind)
-    monkeypatch.setattr(cell.measure, "locate", locate)
     cal = SimpleNamespace(width=64, height=48, mm_per_px=lambda x, y: 0.1)
-    rig = Rig(tmp_path, camera=MeasuringCamera(Driver(), cal, tool_radius_mm=2.0))
+    rig = Rig(tmp_path, camera=MeasuringCamera(Driver(), cal, tool_radius_mm=2.0, locate=locate))
     out = rig.run()
     assert (out.status, out.fault_code) == ("aborted", code)
     assert out.fault_text == f"part fiducial: {kind} at (10, 12) px"
     assert rig.rows()[0].fault_code == code
     assert list(rig.rows()[0].step_times) == ["approach", "capture"]
+    r_px = active().recipe.part.fiducial_radius_mm / 0.1                # one search, the part's size
+    assert searches == [dict(expected=1, min_radius_px=pytest.approx(r_px * 0.7),
+                             max_radius_px=pytest.approx(r_px * 1.3))]
     rig.log.close()
 
 
@@ -390,9 +394,9 @@ def test_vision_fault_codes():
 
 
 def test_camera_fault_from_the_measuring_camera_keeps_its_code(rig):
-    def tool(cancel=None):
+    def on_tool():
         raise CellFault(Fault.TARGET_CUT, "tool fiducial: touches the image edge")
-    rig.cam.tool = tool
+    rig.cam.on_tool = on_tool
     out = rig.run()
     assert (out.status, out.fault_code, out.fault_text) == (
         "aborted", 304, "tool fiducial: touches the image edge")
