@@ -111,8 +111,8 @@ class MeasuringCamera:
         r_px = radius_mm / cal.mm_per_px(cal.width / 2, cal.height / 2)
         try:
             fixes = self._locate(image, self.calibration, expected=1,
-                           min_radius_px=r_px * (1 - self.radius_tolerance),
-                           max_radius_px=r_px * (1 + self.radius_tolerance))
+                                 min_radius_px=r_px * (1 - self.radius_tolerance),
+                                 max_radius_px=r_px * (1 + self.radius_tolerance))
         except VisionError as exc:
             raise CellFault(VISION_FAULTS[exc.kind], f"{what}: {exc}") from exc
         return np.array([fixes[0].x_mm, fixes[0].y_mm])
