@@ -205,8 +205,9 @@ def test_controller_heartbeat_increments_every_step_and_wraps():
     assert beats == [2, 3, 4, 5, 6]
     assert c.core.shutdown() == []                   # not a step: no heartbeat
     assert c.scan().registers["controller_heartbeat"] == 7
-    c.core._heartbeat = 0xFFFE                        # skip 65 529 scans
-    assert [c.scan().registers["controller_heartbeat"] for _ in range(3)] == [0xFFFF, 0, 1]
+    beats = [c.scan().registers["controller_heartbeat"] for _ in range(0x10000 - 6)]   # 7 → 1
+    assert beats[-3:] == [0xFFFF, 0, 1]               # 16 bits: wraps to 0 after 65 535
+    assert beats == [(8 + k) & 0xFFFF for k in range(len(beats))]
 
 
 def test_recalibration_due_is_passed_through():
