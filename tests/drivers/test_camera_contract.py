@@ -57,10 +57,9 @@ BACKENDS = {"sim": _sim, "folder": _folder, "opencv-avi": _opencv_video,
 
 @pytest.fixture(params=list(BACKENDS))
 def camera(request, tmp_path):
+    """(camera, the ManualClock it stamps frames with)."""
     clock = ManualClock(10.0)
-    cam = BACKENDS[request.param](tmp_path, clock)
-    cam.test_clock = clock
-    return cam
+    return BACKENDS[request.param](tmp_path, clock), clock
 
 
 @pytest.fixture
@@ -68,18 +67,17 @@ def hw_camera(request):
     if not request.config.getoption("--hw", default=False):
         pytest.skip("needs a real camera: run with --hw (CELL_CAMERA_SOURCE=index or URL)")
     src = os.environ.get("CELL_CAMERA_SOURCE", "0")
-    cam = create("opencv", source=int(src) if src.isdigit() else src, clock=ManualClock(10.0))
-    cam.test_clock = cam._clock
-    return cam
+    clock = ManualClock(10.0)
+    return create("opencv", source=int(src) if src.isdigit() else src, clock=clock), clock
 
 
-def check_frames_are_grey_stamped_and_counted(cam):
+def check_frames_are_grey_stamped_and_counted(cam, clock):
     assert isinstance(cam, Camera) and cam.state is CameraState.CLOSED
     with cam:
         assert cam.state is CameraState.OPEN
         frames = []
         for i in range(3):
-            cam.test_clock.advance(0.5)
+            clock.advance(0.5)
             frames.append(cam.grab())
     assert cam.state is CameraState.CLOSED
     shapes = {f.image.shape for f in frames}
@@ -108,11 +106,11 @@ def check_lifecycle_is_enforced(cam):
 
 
 def test_contract_frames(camera):
-    check_frames_are_grey_stamped_and_counted(camera)
+    check_frames_are_grey_stamped_and_counted(*camera)
 
 
 def test_contract_lifecycle(camera):
-    check_lifecycle_is_enforced(camera)
+    check_lifecycle_is_enforced(camera[0])
 
 
 # replay backends whose frames are the files' pixels exactly (the sim renders, MJPG is lossy)
@@ -141,9 +139,9 @@ def test_end_of_stream_is_an_error_not_a_frame(backend, tmp_path):
 
 @pytest.mark.hw
 def test_hw_contract_frames(hw_camera):
-    check_frames_are_grey_stamped_and_counted(hw_camera)
+    check_frames_are_grey_stamped_and_counted(*hw_camera)
 
 
 @pytest.mark.hw
 def test_hw_contract_lifecycle(hw_camera):
-    check_lifecycle_is_enforced(hw_camera)
+    check_lifecycle_is_enforced(hw_camera[0])

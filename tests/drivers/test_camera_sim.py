@@ -113,11 +113,12 @@ def test_scene_that_is_not_a_list():
 
 
 def _check_grab_fails_cleanly(scene, match):
-    cam = SimCamera(NADIR, scene, clock=ManualClock())
+    scenes = [scene]                                  # the scene now: the bad one, then none
+    cam = SimCamera(NADIR, lambda: scenes[-1](), clock=ManualClock())
     with cam:
         with pytest.raises(CameraError, match=match):
             cam.grab()
-        cam.scene = lambda: []
+        scenes.append(lambda: [])
         assert cam.grab().index == 0
 
 
