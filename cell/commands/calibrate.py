@@ -19,7 +19,9 @@ base frame. ``--board FILE`` describes it in a small YAML file::
     angle_deg: 0.0
 
 Point (col, row) lies at origin_mm + R(angle_deg) · (col, row) · pitch (or square). No
-other key is accepted. Images come from a folder (``--images DIR``, e.g. saved by the
+other key is accepted; a mistake in the file is named with its line and field
+(``board.yaml:4: pitch: unknown field; did you mean 'pitch_mm'?``)
+before any image is read. Images come from a folder (``--images DIR``, e.g. saved by the
 camera vendor's tool) or from the configured camera (``--config deploy/cell.yaml --views
 3``). The result is the JSON file the cell loads at start-up (``vision.calibration``),
 written atomically; the command prints the reprojection error in pixels and mm.
@@ -54,16 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import yaml
-
     from cell.vision import VisionError
-    from cell.vision.calibration import board_from_dict, calibrate
-    try:
-        board = board_from_dict(yaml.safe_load(Path(args.board).read_text(encoding="utf-8")))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{args.board}: cannot read the board description: {exc}") from None
-    except ConfigError as exc:
-        raise ConfigError(f"{args.board}: {exc}") from None
+    from cell.vision.board import load_board
+    from cell.vision.calibration import calibrate
+    board = load_board(args.board)
+    out = _out_path(args.out)
     images = _images(args)
     try:
         cal = calibrate([(img, board) for _, img in images], distortion=not args.no_distortion,
@@ -71,15 +68,33 @@ def run(args: argparse.Namespace) -> int:
     except VisionError as exc:
         names = ", ".join(f"view {i} = {name}" for i, (name, _) in enumerate(images))
         raise ConfigError(f"calibration failed: {exc} ({names})") from None
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = paths.temp_beside(out)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(cal.as_dict(), f, indent=2)
-    os.replace(tmp, out)
+    tmp = None
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = paths.temp_beside(out)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(cal.as_dict(), f, indent=2)
+        os.replace(tmp, out)
+    except OSError as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        raise ConfigError(f"--out {out}: cannot write the calibration: {exc.strerror or exc}") from None
     print(f"{len(images)} view(s), {cal.n_points} board points: reprojection rms {cal.rms_px:.4f} px "
           f"(max {cal.max_px:.4f}), rms {cal.rms_mm:.5f} mm; written to {out}")
     return 0
+
+
+def _out_path(given: str) -> Path:
+    """``--out`` as a path, refused before any work when it cannot be a file: a folder, or
+    below something that is not one."""
+    out = Path(given)
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a folder; name the calibration file to write "
+                          f"(e.g. {out / 'calibration.json'})")
+    parent = next((p for p in out.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise ConfigError(f"--out {out}: {parent} is not a folder")
+    return out
 
 
 def _images(args) -> list[tuple[str, object]]:

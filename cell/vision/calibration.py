@@ -133,17 +133,11 @@ Board = Union[CircleGridBoard, ChessBoard]
 
 
 def board_from_dict(d: dict) -> Board:
-    """Inverse of ``board.as_dict()``. Raises :class:`ConfigError` naming the bad field."""
-    kinds = {"circles": CircleGridBoard, "chessboard": ChessBoard}
-    if not isinstance(d, dict) or d.get("kind") not in kinds:
-        raise ConfigError(f"board: 'kind' must be one of {sorted(kinds)}, got {d!r}")
-    args = {k: v for k, v in d.items() if k != "kind"}
-    if "origin_mm" in args:
-        args["origin_mm"] = tuple(args["origin_mm"])
-    try:
-        return kinds[d["kind"]](**args)
-    except (TypeError, VisionError) as exc:
-        raise ConfigError(f"board: {exc}") from None
+    """Inverse of ``board.as_dict()``, validated as a board file is
+    (:func:`cell.vision.board.board_from_mapping`). Raises :class:`ConfigError` naming the
+    bad field (an unknown key with the key meant)."""
+    from cell.vision.board import board_from_mapping
+    return board_from_mapping(d)
 
 
 def _h_apply(h: np.ndarray, p: np.ndarray) -> np.ndarray:

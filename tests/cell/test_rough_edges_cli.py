@@ -1,0 +1,105 @@
+"""What a new user met on bad input (issue 21, item 5), seen as they see it: the real
+``cellctl`` run as a process, its exit code, its stdout and its stderr.
+
+Bad input is one line on stderr naming the file (with the line for YAML) and the field, in
+our words, exit 2, and nothing on stdout before it.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def cellctl(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(REPO), CELL_PROGRESS="0")
+    return subprocess.run([sys.executable, "-m", "cell.cli", *args], cwd=cwd, env=env,
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=110)
+
+
+def refused(out: subprocess.CompletedProcess, command: str) -> str:
+    """The one error line of a refused command, after ``cellctl COMMAND: error: ``."""
+    assert out.returncode == 2, (out.returncode, out.stdout, out.stderr)
+    assert out.stdout == "", f"printed before refusing: {out.stdout!r}"
+    assert "Traceback" not in out.stderr
+    lines = out.stderr.splitlines()
+    assert len(lines) == 1, out.stderr
+    prefix = f"cellctl {command}: error: "
+    assert lines[0].startswith(prefix), lines[0]
+    return lines[0][len(prefix):]
+
+
+# --------------------------------------------------------------------------- calibrate-camera
+GOOD_BOARD = "kind: circles\ncols: 9\nrows: 6\npitch_mm: 4.0\nradius_mm: 1.0\norigin_mm: [234.0, 920.0]\n"
+
+
+@pytest.mark.parametrize("text, message", [
+    (GOOD_BOARD.replace("pitch_mm", "pitch"), "board.yaml:4: pitch: unknown field; did you mean 'pitch_mm'?"),
+    (GOOD_BOARD.replace("cols: 9\n", ""), "board.yaml:1: cols: required, but missing"),
+    (GOOD_BOARD.replace("kind: circles\n", ""), "board.yaml:1: kind: required, but missing"),
+    (GOOD_BOARD.replace("circles", "circle"),
+     "board.yaml:1: kind: must be 'circles' or 'chessboard', got 'circle'; did you mean 'circles'?"),
+    (GOOD_BOARD.replace("cols: 9", "cols: nine"), "board.yaml:2: cols: must be a valid integer"),
+    (GOOD_BOARD.replace("rows: 6", "rows: 2"), "board.yaml:3: rows: must be an integer in [3, 100]"),
+    (GOOD_BOARD.replace("radius_mm: 1.0", "radius_mm: 2.0"), "board.yaml:5: radius_mm: must be below 0.4 × pitch_mm"),
+    (GOOD_BOARD.replace("[234.0, 920.0]", "[234.0]"), "board.yaml:6: origin_mm: must be [x, y] in mm"),
+    (GOOD_BOARD.replace("pitch_mm: 4.0", "pitch_mm: .nan"), "board.yaml:4: pitch_mm: must be a finite number"),
+    ("- 9\n- 6\n", "board.yaml:1: (top level): the board file must be a mapping of fields"),
+    ("", "board.yaml:1: (top level): the board file is empty"),
+    ("kind: circles\ncols: 9\nrows: 6\nrows: 7\n", "board.yaml:4: rows: key given twice"),
+    (None, "board.yaml: board file not found"),
+])
+def test_a_bad_board_file_is_named_with_line_and_field(tmp_path, text, message):
+    """A wrong key printed ``CircleGridBoard.__init__() got an unexpected keyword argument
+    'pitch'``, with no line, and other mistakes Python's or PyYAML's words."""
+    if text is not None:
+        (tmp_path / "board.yaml").write_text(text)
+    (tmp_path / "imgs").mkdir()
+    out = cellctl(tmp_path, "calibrate-camera", "--board", "board.yaml", "--images", "imgs",
+                  "--out", "cal.json")
+    assert refused(out, "calibrate-camera").startswith(message)
+    assert not (tmp_path / "cal.json").exists()
+
+
+def test_the_board_in_a_cell_config_says_which_key_was_meant(tmp_path):
+    """The same board, written in the cell config's ``calibration.board``."""
+    (tmp_path / "cell.yaml").write_text(
+        "calibration:\n  board:\n    kind: circles\n    cols: 7\n    rows: 9\n    pitch: 100\n")
+    (tmp_path / "board.yaml").write_text(GOOD_BOARD)
+    out = cellctl(tmp_path, "calibrate-camera", "--board", "board.yaml", "--config", "cell.yaml",
+                  "--out", "cal.json")
+    message = refused(out, "calibrate-camera")
+    assert message.startswith("cell.yaml:") and "pitch: unknown field; did you mean 'pitch_mm'?" in message
+    assert "__init__" not in message
+
+
+def _board_images(folder: Path) -> None:
+    import cv2
+
+    from cell.sim.camera import SimCamera
+    from cell.vision.calibration import CircleGridBoard
+    from cell.vision.camera_model import CameraModel
+    board = CircleGridBoard(cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=(234.0, 920.0))
+    cam = SimCamera(CameraModel.nadir(640, 512, 0.08, centre_mm=(250.0, 930.0)), lambda: [board], seed=3)
+    cam.open()
+    folder.mkdir()
+    cv2.imwrite(str(folder / "board1.png"), cam.grab().image)
+    cam.close()
+
+
+def test_an_out_path_that_cannot_be_written_is_refused_before_the_work(tmp_path):
+    """``--out`` naming a folder: the calibration ran, then ended in IsADirectoryError's
+    traceback (and left a temporary file behind)."""
+    _board_images(tmp_path / "imgs")
+    (tmp_path / "board.yaml").write_text(GOOD_BOARD)
+    (tmp_path / "calibrations").mkdir()
+    out = cellctl(tmp_path, "calibrate-camera", "--board", "board.yaml", "--images", "imgs",
+                  "--no-distortion", "--out", "calibrations")
+    assert refused(out, "calibrate-camera").startswith("--out calibrations: is a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["board.yaml", "calibrations", "imgs"]
+    assert list((tmp_path / "calibrations").iterdir()) == []
