@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from cell import paths
-from cell.commands import open_log_readonly, png_path
+from cell.commands import open_log_readonly, png_path, preset_name
 from cell.errors import ConfigError
 
 DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
@@ -26,26 +26,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", help="cell config whose scheduler section gives the recalibration "
                                     "threshold and window (default: the built-in defaults the "
                                     "simulated cell runs with)")
-    p.add_argument("--recipes", default=str(paths.project(paths.DEFAULT_RECIPES)),
+    p.add_argument("--recipes", default=None,
                    help="recipe folder, for versions the log does not hold (default: the project's recipes/)")
     p.set_defaults(func=run_report)
     e = sub.add_parser("export", help="export logged cycles to the measurement exchange format")
     e.add_argument("out", help="campaign directory to write")
     e.add_argument("--db", default=str(paths.project(DEFAULT_DB)), help=f"cycle log (default: the project's {DEFAULT_DB})")
-    e.add_argument("--robot", default="seed000", help="robot preset of the nominal model (default seed000)")
+    e.add_argument("--robot", type=preset_name, default="seed000", metavar="PRESET",
+                   help="robot preset of the nominal model (default seed000)")
     e.add_argument("--force", action="store_true",
                    help="write into a folder that holds other files (they are kept, never deleted)")
     e.set_defaults(func=run_export)
 
 
 def run_report(args: argparse.Namespace) -> int:
+    """Every input is checked (block, config, recipes, PNG file, log) and the plot written
+    before the first line is printed: a bad input never follows a printed table."""
     import numpy as np
     if args.block < 1:
         raise ConfigError(f"--block {args.block} must be ≥ 1")
-    cycles = [c for c in open_log_readonly(args.db).cycles() if not args.recipe or c.recipe == args.recipe]
+    sched = _scheduler(args.config)
+    recipes = _recipes_dir(args.recipes)
+    png = _png(args.png)
+    log = open_log_readonly(args.db)
+    cycles = [c for c in log.cycles() if not args.recipe or c.recipe == args.recipe]
     if not cycles:
         print("no cycles logged" + (f" for recipe {args.recipe}" if args.recipe else ""))
         return 0
+    if png is not None:
+        _plot(args.db, cycles, png, recipes, sched)
     print(f"{len(cycles)} cycles in {args.db}" + (f", recipe {args.recipe}" if args.recipe else ""))
     print("| cycles | first part | initial mean mm | final mean mm | final p95 mm | final max mm "
           "| mean moves | faults |")
@@ -63,21 +72,55 @@ def run_report(args: argparse.Namespace) -> int:
         else:
             stats = "– | – | – | – | –"
         print(f"| {blk[0].id}–{blk[-1].id} | {blk[0].part_id} | {stats} | {faults} |")
-    if args.png:
-        png = png_path(args.png, "accuracy.png")
-        _plot(args, cycles, png)
+    if png is not None:
         print(f"plot written to {png}")
     return 0
 
 
-def _plot(args: argparse.Namespace, cycles, path: Path) -> None:
-    """The trend PNG (:func:`cell.trend.write_png`): tolerance of each cycle's recipe
-    version, the drift watch's recalibration threshold from ``--config`` (or the defaults)."""
+def _scheduler(config: str | None):
+    """The ``scheduler`` section of ``--config`` (None: the built-in defaults); ConfigError
+    naming file, line and field when the config is missing or bad."""
+    if not config:
+        return None
     from cell.config import CellConfig
+    return CellConfig.load(config).scheduler
+
+
+def _recipes_dir(given: str | None) -> Path:
+    """``--recipes``: the folder given (ConfigError unless it is one), else the project's."""
+    if given is None:
+        return paths.project(paths.DEFAULT_RECIPES)
+    if not Path(given).is_dir():
+        raise ConfigError(f"--recipes {given}: no such folder")
+    return Path(given)
+
+
+def _png(given: str) -> Path | None:
+    """The plot file ``--png`` means (None for ''), refused when it cannot be written: a
+    format the plotting library does not write, or a place below a file."""
+    if not given:
+        return None
+    png = png_path(given, "accuracy.png")
+    from matplotlib.figure import Figure
+    kinds = Figure().canvas.get_supported_filetypes()
+    if png.suffix[1:].lower() not in kinds:
+        raise ConfigError(f"--png {given}: cannot write a {png.suffix} plot; use one of "
+                          f"{', '.join('.' + k for k in sorted(kinds))}")
+    parent = next((p for p in png.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise ConfigError(f"--png {given}: {parent} is not a folder")
+    return png
+
+
+def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
+    """The trend PNG (:func:`cell.trend.write_png`): tolerance of each cycle's recipe
+    version, the drift watch's recalibration threshold from ``sched`` (None: the defaults)."""
     from cell.trend import write_png
-    sched = CellConfig.load(args.config).scheduler if args.config else None
-    write_png(Path(args.db), cycles, path, Path(args.recipes),
-              sched.drift_threshold_mm if sched else None, sched.drift_window if sched else None)
+    try:
+        write_png(Path(db), cycles, path, recipes, sched.drift_threshold_mm if sched else None,
+                  sched.drift_window if sched else None)
+    except OSError as exc:
+        raise ConfigError(f"--png {path}: cannot write the plot: {exc.strerror or exc}") from None
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -85,9 +128,9 @@ def run_export(args: argparse.Namespace) -> int:
     from cell.kinematics import Scara
     from cell.measurements import write_campaign
     robot = Scara.preset(args.robot)
+    cycles = open_log_readonly(args.db).cycles(status="done")
     try:
-        campaign = cycles_to_campaign(open_log_readonly(args.db).cycles(status="done"), robot.g.l1_mm, robot.g.l2_mm,
-                                      command_unit_deg=robot.g.unit[0])
+        campaign = cycles_to_campaign(cycles, robot.g.l1_mm, robot.g.l2_mm, command_unit_deg=robot.g.unit[0])
     except ValueError as exc:
         raise ConfigError(f"{args.db}: {exc}") from None
     write_campaign(campaign, args.out, force=args.force)

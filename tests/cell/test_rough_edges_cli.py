@@ -103,3 +103,65 @@ def test_an_out_path_that_cannot_be_written_is_refused_before_the_work(tmp_path)
     assert refused(out, "calibrate-camera").startswith("--out calibrations: is a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["board.yaml", "calibrations", "imgs"]
     assert list((tmp_path / "calibrations").iterdir()) == []
+
+
+# --------------------------------------------------------------------------- export, report
+@pytest.fixture
+def log(tmp_path):
+    """A cycle log of 12 done parts, each with measured moves, at ``tmp_path/cell.sqlite``."""
+    from cell.cyclelog import CycleLog, CycleRecord
+    trace = [{"joints_deg": [60.0, 30.0], "point_mm": [250.0, 933.0], "error_mm": 0.5, "moved": True},
+             {"joints_deg": [60.1, 29.98], "point_mm": [249.9, 933.1], "error_mm": 0.03, "moved": True}]
+    db = CycleLog(tmp_path / "cell.sqlite")
+    for i in range(12):
+        db.add_cycle(CycleRecord(
+            part_id=100 + i, recipe="bracket-a", recipe_hash="h", status="done",
+            started_at=f"2026-11-23T10:00:{i:02d}+00:00", finished_at=f"2026-11-23T10:00:{i:02d}+00:00",
+            cycle_time_s=1.0, method="lattice", initial_error_mm=0.5, final_error_mm=0.02,
+            moves=2, trace=trace))
+    db.close()
+    return tmp_path / "cell.sqlite"
+
+
+def test_export_names_a_missing_log_once(tmp_path):
+    """``cellctl export DIR --db missing`` printed ``missing: missing: no cycle log here``."""
+    out = cellctl(tmp_path, "export", "camp", "--db", "missing.sqlite")
+    message = refused(out, "export")
+    assert message.count("missing.sqlite") == 1 and "no cycle log" in message
+    assert not (tmp_path / "camp").exists()
+
+
+def test_export_refuses_an_unknown_robot_preset_without_a_traceback(log, tmp_path):
+    """``--robot`` was read only when the export ran: a KeyError's traceback, exit 1."""
+    out = cellctl(tmp_path, "export", "camp", "--db", str(log), "--robot", "seed999")
+    assert out.returncode == 2 and out.stdout == "" and "Traceback" not in out.stderr
+    assert "unknown robot preset 'seed999'" in out.stderr and "seed000" in out.stderr
+    assert not (tmp_path / "camp").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--config", "missing.yaml"], "missing.yaml: cell config not found"),
+    (["--config", "bad.yaml"], "bad.yaml:2: scheduler.drift_treshold_mm: unknown field; "
+                               "did you mean 'drift_threshold_mm'?"),
+    (["--recipes", "no-such-folder"], "--recipes no-such-folder: no such folder"),
+    (["--png", "notes.txt/acc.png"], "--png notes.txt/acc.png: notes.txt is not a folder"),
+    (["--png", "acc.txt"], "--png acc.txt: cannot write a .txt plot"),
+])
+def test_report_checks_every_input_before_printing_the_table(log, tmp_path, args, message):
+    """``cellctl report --config missing.yaml`` printed the whole accuracy table, then
+    refused the config; an unwritable ``--png`` ended in a traceback after the table, and
+    a mistyped ``--recipes`` folder was silently ignored."""
+    (tmp_path / "bad.yaml").write_text("scheduler:\n  drift_treshold_mm: 0.4\n")
+    (tmp_path / "notes.txt").write_text("not a folder\n")
+    png = ["--png", "acc.png"] if "--png" not in args else []
+    out = cellctl(tmp_path, "report", "--db", str(log), *png, *args)
+    assert refused(out, "report").startswith(message)
+    assert not (tmp_path / "acc.png").exists()
+
+
+def test_report_with_good_inputs_prints_the_table_and_writes_the_plot(log, tmp_path):
+    (tmp_path / "cell.yaml").write_text("scheduler:\n  drift_threshold_mm: 0.4\n")
+    out = cellctl(tmp_path, "report", "--db", str(log), "--config", "cell.yaml", "--png", "acc.png")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"12 cycles in {log}\n") and "| 1–10 | 100 |" in out.stdout
+    assert out.stdout.endswith("plot written to acc.png\n") and (tmp_path / "acc.png").stat().st_size > 1000
