@@ -1,11 +1,18 @@
 """``cellctl plan``: straight-line moves with CAN delay correction (seed 002) and time laws
 through joint way-points (seed 003).
 
-    cellctl plan line --robot seed002 --from 400,0,-50,0 --to 300,0,-20,45 \\
-        --points 20 --segment-ms 10 --sigma-ms 1 [--stations j1,j2,j3,j4] [--json]
+    cellctl plan line --from 250,930,-20,0 --to 300,900,-20,0 \\
+        [--config cell.yaml | --robot seed002] [--points 20] [--segment-ms 10] [--sigma-ms 1] \\
+        [--stations j1,j2,j3,j4] [--json]
+    cellctl plan line --robot seed002 --from 400,0,-50,0 --to 300,0,-20,45
     cellctl plan timelaw --waypoints "0,0;10,5;30,20;45,40" --duration-s 4 \\
         [--law quintic-poly|quintic-bspline|septic-bspline|all] [--timing uniform|chord]
         [--json] [--plot out.png]
+
+``plan line`` plans for the cell's own robot: the ``robot`` section of ``--config``, else
+that of the built-in cell config (:class:`cell.config.CellConfig`, preset seed000, l1 = l2 =
+500 mm: the robot the simulated cell and the recipes' part positions are for). ``--robot
+PRESET`` plans for a preset instead, e.g. seed 002's 200 mm arm.
 
 Bad input (malformed way-points, T ≤ λ, unreachable poses) raises a
 :class:`~cell.errors.CellError`; :mod:`cell.cli` prints it and exits with code 2.
@@ -24,6 +31,9 @@ if TYPE_CHECKING:
     import numpy as np
 
 DEFAULT_STATIONS = "j1,j2,j3,j4"   # the kinematic order, cell.kinematics.JOINT_NAMES
+#: what ``plan line --help`` says of its default robot (tests hold it to CellConfig().robot)
+DEFAULT_ROBOT = ("the robot section of --config, else of the built-in cell config (preset "
+                 "seed000, l1 = l2 = 500 mm, the simulated cell's)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,9 +45,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     ln = psub.add_parser("line", help="straight line with per-segment joint targets and velocities",
                          description="Split a straight move into equal steps, print each segment's "
                                      "joint targets and velocities (uncorrected Δθ/T and corrected "
-                                     "Δθ/(T−λ)), and the simulated deviation from the line.")
-    ln.add_argument("--robot", type=preset_name, default="seed002", metavar="PRESET",
-                    help="robot preset, e.g. seed000, seed002 (default seed002)")
+                                     "Δθ/(T−λ)), and the simulated deviation from the line. "
+                                     "The robot is the cell's own: " + DEFAULT_ROBOT + ".")
+    which = ln.add_mutually_exclusive_group()
+    which.add_argument("--config", metavar="CELL.yaml",
+                       help="plan for the robot (and elbow) of this cell config")
+    which.add_argument("--robot", type=preset_name, default=None, metavar="PRESET",
+                       help="plan for a robot preset instead of the cell's robot: seed002 (seed "
+                            "002's arm, l1 = l2 = 200 mm) or seed000")
     ln.add_argument("--from", dest="start", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
                     help="start pose: mm, mm, mm, deg")
     ln.add_argument("--to", dest="end", type=float_list(4), required=True, metavar="X,Y,Z,PHI",
@@ -47,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ln.add_argument("--sigma-ms", type=float, default=1.0, help="per-frame bus delay σ, ms (default 1)")
     ln.add_argument("--stations", default=DEFAULT_STATIONS, metavar="J,J,J,J",
                     help="bus order of the joint stations (default j1,j2,j3,j4)")
-    ln.add_argument("--elbow", choices=("right", "left"), default="right", help="elbow (default right)")
+    ln.add_argument("--elbow", choices=("right", "left"), default=None,
+                    help="elbow (default: the cell config's, right in the built-in one)")
     ln.add_argument("--json", action="store_true", help="print the plan as JSON")
     ln.set_defaults(func=run_line)
 
@@ -75,15 +91,28 @@ def _station_order(text: str) -> tuple[str, ...]:
     return order
 
 
+def _robot(args: argparse.Namespace):
+    """(robot, its name, elbow) of ``plan line``: the ``--robot`` preset, else the robot
+    section of ``--config``, else of the built-in cell config. Raises ConfigError naming
+    file, line and field for a bad config."""
+    from cell.kinematics import Scara
+    if args.robot:
+        return Scara.preset(args.robot), args.robot, args.elbow or "right"
+    from cell.config import CellConfig
+    section = (CellConfig.load(args.config) if args.config else CellConfig()).robot
+    robot = section.scara()
+    return robot, robot.g.name, args.elbow or section.elbow
+
+
 def run_line(args: argparse.Namespace) -> int:
-    from cell.kinematics import JOINT_NAMES, Scara
+    from cell.kinematics import JOINT_NAMES
     from cell.trajectory.line import joint_delays, max_line_deviation, plan_line, simulate_line
-    robot = Scara.preset(args.robot)
+    robot, robot_name, elbow = _robot(args)
     order = _station_order(args.stations)
     T = args.segment_ms / 1e3
     lam = joint_delays(args.sigma_ms / 1e3, order)
-    plain = plan_line(robot, args.start, args.end, args.points, T, None, args.elbow, station_order=order)
-    corr = plan_line(robot, args.start, args.end, args.points, T, lam, args.elbow, station_order=order)
+    plain = plan_line(robot, args.start, args.end, args.points, T, None, elbow, station_order=order)
+    corr = plan_line(robot, args.start, args.end, args.points, T, lam, elbow, station_order=order)
     a, b = plain.poses[0, :3], plain.poses[-1, :3]
     dev = {}
     for name, plan in (("uncorrected", plain), ("corrected", corr)):
@@ -93,7 +122,7 @@ def run_line(args: argparse.Namespace) -> int:
                      "end_s": float(sim.times_s[-1])}
     if args.json:
         print(json.dumps({
-            "robot": args.robot, "from": args.start, "to": args.end, "points": args.points,
+            "robot": robot_name, "elbow": elbow, "from": args.start, "to": args.end, "points": args.points,
             "segment_ms": args.segment_ms, "sigma_ms": args.sigma_ms, "stations": list(order),
             "delays_ms": (lam * 1e3).tolist(),
             "segments": [{"index": s.index, "start_ms": s.start_s * 1e3, "target": s.target_deg.tolist(),
@@ -102,7 +131,8 @@ def run_line(args: argparse.Namespace) -> int:
                          for s, c in zip(plain.segments, corr.segments)],
             "deviation": dev}, indent=2))
         return 0
-    print(f"line {args.robot}: {tuple(args.start)} -> {tuple(args.end)}, n = {args.points}, "
+    print(f"line {robot_name} (l1 = {robot.g.l1_mm:g} mm, l2 = {robot.g.l2_mm:g} mm, {elbow} elbow): "
+          f"{tuple(args.start)} -> {tuple(args.end)}, n = {args.points}, "
           f"T = {args.segment_ms:g} ms, σ = {args.sigma_ms:g} ms, stations {','.join(order)} "
           f"(delays j1..j4 = {', '.join(f'{v:g}' for v in lam * 1e3)} ms)")
     print("θ* = segment target (deg, j3 mm); ω = Δθ/T uncorrected; ωc = Δθ/(T−λ) corrected "

@@ -165,3 +165,53 @@ def test_report_with_good_inputs_prints_the_table_and_writes_the_plot(log, tmp_p
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith(f"12 cycles in {log}\n") and "| 1–10 | 100 |" in out.stdout
     assert out.stdout.endswith("plot written to acc.png\n") and (tmp_path / "acc.png").stat().st_size > 1000
+
+
+# --------------------------------------------------------------------------- plan line
+CELL_LINE = ["plan", "line", "--from", "250,930,-20,0", "--to", "300,900,-20,0", "--points", "5"]
+
+
+def test_plan_line_plans_for_the_cells_own_robot_by_default(tmp_path):
+    """``plan line`` took seed 002's 200 mm arm by default, so a move between the cell's own
+    part positions (near (250, 930) mm) was out of reach."""
+    import json
+
+    from cell.config import CellConfig
+    out = cellctl(tmp_path, *CELL_LINE, "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    robot = CellConfig().robot
+    assert doc["robot"] == robot.scara().g.name == robot.preset and doc["elbow"] == robot.elbow
+    assert len(doc["segments"]) == 5
+
+
+def test_plan_line_takes_the_robot_of_a_cell_config_or_a_preset(tmp_path):
+    (tmp_path / "cell.yaml").write_text(
+        "robot:\n  preset: null\n  elbow: left\n  geometry:\n    name: small-arm\n"
+        "    l1_mm: 300\n    l2_mm: 250\n")
+    out = cellctl(tmp_path, "plan", "line", "--config", "cell.yaml", "--from", "400,100,-20,0",
+                  "--to", "350,200,-20,0", "--points", "3")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("line small-arm (l1 = 300 mm, l2 = 250 mm, left elbow): ")
+    far = cellctl(tmp_path, "plan", "line", "--config", "cell.yaml", *CELL_LINE[2:])
+    assert far.returncode == 2 and "out of reach" in far.stderr and far.stdout == ""
+    seed002 = cellctl(tmp_path, "plan", "line", "--robot", "seed002", "--from", "400,0,-50,0",
+                      "--to", "300,0,-20,45", "--points", "3")
+    assert seed002.returncode == 0, seed002.stderr
+    assert seed002.stdout.startswith("line seed002 (l1 = 200 mm, l2 = 200 mm, right elbow): ")
+    both = cellctl(tmp_path, "plan", "line", "--robot", "seed002", "--config", "cell.yaml", *CELL_LINE[2:])
+    assert both.returncode == 2 and "not allowed with" in both.stderr
+
+
+def test_plan_line_help_says_which_robot_is_the_default(tmp_path):
+    from cell.config import CellConfig
+    from cell.kinematics import PRESETS
+    out = cellctl(tmp_path, "plan", "line", "--help")
+    assert out.returncode == 0
+    text = " ".join(out.stdout.split())
+    robot = CellConfig().robot
+    g = PRESETS[robot.preset]
+    assert (f"The robot is the cell's own: the robot section of --config, else of the built-in "
+            f"cell config (preset {robot.preset}, l1 = l2 = {g.l1_mm:g} mm") in text
+    assert g.l1_mm == g.l2_mm
+    assert "--robot PRESET plan for a robot preset instead of the cell's robot: seed002" in text
