@@ -8,7 +8,8 @@
 
 Any working directory will do. The virtual environment is rebuilt when pyproject.toml
 changes (its hash is kept in .venv/.cell-installed), so a clean clone and a stale checkout
-behave the same. ``test`` also installs the system tools some tests drive, from Debian's
+behave the same; a build says each step on stderr (pip's own progress too, on a terminal)
+and how long it took. ``test`` also installs the system tools some tests drive, from Debian's
 packages, when they are missing and this user may (root with apt-get): Chromium and
 ChromeDriver (the browser tests of the HMI and the reports) and mbpoll (an independent
 Modbus client). Without them those tests skip, except under CI=true, where they fail.
@@ -21,6 +22,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -34,14 +36,40 @@ MAIN_JOB = ["cellctl", "run", "--sim", "--cycles", "10"]
 TEST_TOOLS = {"chromium": "chromium", "chromedriver": "chromium-driver", "mbpoll": "mbpoll"}
 
 
+def _say(text: str) -> None:
+    """One line of what dev.py is doing, on stderr (stdout is the command's)."""
+    print(f"dev.py: {text}", file=sys.stderr, flush=True)
+
+
 def _ensure_venv() -> None:
+    """Build .venv from pyproject.toml unless its stamp says it is up to date. A build
+    takes minutes on a fresh clone, so each step says what it does on stderr, and the end
+    how long it took; pip shows its own progress when stderr is a terminal. A failed step
+    exits with its code and leaves the stamp as it was, so the next run tries again."""
     want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
     if STAMP.exists() and STAMP.read_text().strip() == want and PY.exists():
         return
+    t0 = time.monotonic()
+    why = ("first run" if not PY.exists() else "pyproject.toml changed" if STAMP.exists()
+           else "an earlier build did not finish")
+    _say(f"building {VENV} ({why}); this can take a few minutes")
     if not PY.exists():
-        subprocess.check_call([sys.executable, "-m", "venv", str(VENV)])
-    subprocess.check_call([str(PY), "-m", "pip", "install", "-q", "-e", f"{ROOT}[test]"])
+        _say(f"creating the virtual environment (python -m venv {VENV})")
+        _step([sys.executable, "-m", "venv", str(VENV)], "creating the virtual environment")
+    _say(f"installing the pinned packages of pyproject.toml (pip install -e '.[test]'); "
+         f"{time.monotonic() - t0:.0f} s so far")
+    quiet = [] if sys.stderr.isatty() else ["-q"]
+    _step([str(PY), "-m", "pip", "install", *quiet, "-e", f"{ROOT}[test]"], "pip install")
     STAMP.write_text(want)
+    _say(f"{VENV} ready in {time.monotonic() - t0:.0f} s")
+
+
+def _step(argv: list[str], what: str) -> None:
+    """Run one build step with its output on stderr; a failure ends dev.py with its code."""
+    code = _call(argv, stdout=sys.stderr)
+    if code != 0:
+        _say(f"{what} failed (exit {code}); {VENV} is not ready, the next run tries again")
+        sys.exit(code if 0 < code < 256 else 1)
 
 
 def _ensure_test_tools() -> None:
