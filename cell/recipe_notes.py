@@ -17,12 +17,17 @@ access that lets anyone change a recipe at all; the audit row keeps the file own
 too (``alice (maintenance, hmi; file owner cell)``).
 
 There is one note per recipe file, replaced at every save; ``.edits`` starts with a dot,
-so the store never takes it for a recipe.
+so the store never takes it for a recipe. Notes are written through :func:`temp_file` into
+``.edits`` opened without following a symlink, so a link planted in the folder cannot send
+the write elsewhere.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import secrets
+import stat
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -57,22 +62,59 @@ def note_path(recipe: Path) -> Path:
     return recipe.parent / NOTES_DIR / f"{recipe.name}.json"
 
 
+def temp_file(dir_fd: int, name: str, mode: int) -> tuple[int, str]:
+    """``(fd, tmp_name)``: a new file beside ``name`` in the folder open as ``dir_fd``, open
+    for writing, to rename over ``name``. Created with ``O_CREAT | O_EXCL | O_NOFOLLOW``
+    under a random dot-name: nothing planted in the folder (a symlink at any name) can make
+    it write anywhere else. The one way this module and the HMI's recipe desk make their
+    temporary files."""
+    while True:
+        tmp = f".{name}.{secrets.token_hex(8)}.tmp"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode,
+                         dir_fd=dir_fd)
+        except FileExistsError:
+            continue
+        os.fchmod(fd, mode)                     # the umask does not decide who may read it
+        return fd, tmp
+
+
 def write_note(recipe_tmp: Path, final: Path, user: str, role: str, sha256: str, tool: str = "hmi") -> EditNote:
     """Write the note for the file ``recipe_tmp`` that is about to be renamed to ``final``
     (call it before the rename: the note must exist when the controller sees the file).
-    Atomic: a temporary file in ``.edits`` renamed over the old note."""
-    st = os.stat(recipe_tmp)
+    Atomic: a temporary file (:func:`temp_file`) in ``.edits`` renamed over the old note,
+    with the recipe file's mode (the controller may run as another user).
+
+    :raises OSError: ``.edits`` is not a folder (a symlink is refused), or the write failed.
+    """
+    st = os.stat(recipe_tmp, follow_symlinks=False)
     note = EditNote(file=final.name, user=user, role=role, tool=tool, sha256=sha256, inode=st.st_ino,
                     size=st.st_size, mtime_ns=st.st_mtime_ns,
                     at=datetime.now(timezone.utc).isoformat(timespec="milliseconds"))
-    path = note_path(final)
-    path.parent.mkdir(exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(note.model_dump_json())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    name = note_path(final).name
+    rfd = os.open(final.parent, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            os.mkdir(NOTES_DIR, 0o755, dir_fd=rfd)
+        except FileExistsError:
+            pass
+        dfd = os.open(NOTES_DIR, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=rfd)
+    finally:
+        os.close(rfd)
+    try:
+        fd, tmp = temp_file(dfd, name, stat.S_IMODE(st.st_mode))
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(note.model_dump_json())
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp, dir_fd=dfd)
+            raise
+    finally:
+        os.close(dfd)
     return note
 
 

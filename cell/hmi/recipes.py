@@ -4,8 +4,8 @@ Validation is ``cellctl recipe validate``'s (:mod:`cell.recipe_validation`): the
 the cell's checks (the robot's reach; with a cell config, the joint stations) and a number
 no other file uses. Saving goes the way of every edit: the controller's
 :class:`~cell.recipe_store.RecipeStore` settles, validates, activates between cycles and
-writes the audit row; the desk only writes the file, atomically (a dot-named temporary file
-in the folder, fsync, rename over the recipe, fsync of the folder), after an edit note
+writes the audit row; the desk only writes the file, atomically (a temporary file made with
+:func:`cell.recipe_notes.temp_file`, fsync, rename over the recipe, fsync of the folder), after an edit note
 (:mod:`cell.recipe_notes`) that puts the user and role in that audit row. Nothing is written
 for text that fails validation, is too big, or for a file changed since it was loaded.
 
@@ -14,6 +14,7 @@ activated, and the audit row that decided on a saved hash.
 """
 from __future__ import annotations
 
+import contextlib
 import difflib
 import hashlib
 import os
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cell.errors import CellError, ConfigError
-from cell.recipe_notes import write_note
+from cell.recipe_notes import temp_file, write_note
 from cell.recipe_validation import check_file, check_text, field_errors, number_clashes
 
 NAME = re.compile(r"^[a-z0-9][a-z0-9_-]{0,39}$")
@@ -70,30 +71,51 @@ class RecipeDesk:
         return p
 
     def list(self) -> list[dict]:
-        """Every recipe file: name, number, sha256, valid, description or error, and whether
-        it is the version the controller last activated."""
+        """Every recipe file: name, number, sha256, valid, description or error, whether it
+        is for production (False: a shipped example, ``production: false``), and what the
+        controller made of it (``state``, ``active_sha256``: see :meth:`file_state`)."""
         files = sorted(f for f in self.directory.glob("*.yaml") if not f.name.startswith("."))
         checked = {f: check_file(f, self.cell_check) for f in files}
         clashes = number_clashes(checked, self.directory)
-        active = self._active_hashes([f.stem for f in files])
         out = []
         for f, (h, err, rec, _) in checked.items():
             err = err or clashes.get(f)
+            production = _production(rec)
             out.append({"name": f.stem, "number": rec.number if rec else None, "sha256": h,
                         "valid": err is None, "description": rec.description if rec and not err else "",
-                        "error": err, "active_sha256": active.get(f.stem)})
+                        "error": err, "production": production,
+                        **self.file_state(f.stem, h, err is None, production)})
         return out
 
     def view(self, name: str) -> dict:
-        """Recipe ``name``: its text, sha256, validation errors and the active version."""
+        """Recipe ``name``: its text, sha256, validation errors, whether it is for production
+        and what the controller made of it (:meth:`file_state`)."""
         p = self.path(name)
         data = p.read_bytes()
         text = data.decode("utf-8", errors="replace")
         h = hashlib.sha256(data).hexdigest()
+        checked = self.validate(name, text)
+        return {"name": name, "path": str(p), "text": text, "sha256": h, "errors": checked["errors"],
+                "production": checked["production"],
+                **self.file_state(name, h, checked["ok"], checked["production"])}
+
+    def file_state(self, name: str, sha256: str, valid: bool, production: bool) -> dict:
+        """``{"state", "active_sha256", "audit"}`` of the file's version ``sha256``: ``invalid``;
+        ``example`` (``production: false``: activated only where the cell allows examples);
+        ``active``; ``rejected`` by the controller (``audit``: the row with the reason);
+        ``pending`` (saved after the active version, not decided yet); ``replaced`` (activated
+        once, another version since); ``new`` (never activated, no active version)."""
         active = self.active_version(name)
-        return {"name": name, "path": str(p), "text": text, "sha256": h,
-                "errors": self.validate(name, text)["errors"],
-                "active_sha256": active[0] if active else None}
+        out = {"active_sha256": active[0] if active else None, "audit": None}
+        if not valid:
+            return {**out, "state": "invalid"}
+        if not production:
+            return {**out, "state": "example"}
+        if active and active[0] == sha256:
+            return {**out, "state": "active"}
+        dec = self.decision(name, sha256)
+        state = dec["state"] if dec["audit"] is not None or active else "new"
+        return {**out, "state": state, "audit": dec["audit"]}
 
     def diff(self, name: str, text: str | None = None) -> str:
         """Unified diff from the active version to ``text`` (default: the file), as
@@ -143,11 +165,13 @@ class RecipeDesk:
         size = len(text.encode("utf-8"))
         if size > self.max_bytes:
             msg = f"{size} bytes, over the limit of {self.max_bytes} bytes (recipes.max_bytes)"
-            return {"ok": False, "sha256": "", "errors": [{"line": None, "field": "(file)", "message": msg}]}
+            return {"ok": False, "sha256": "", "errors": [{"line": None, "field": "(file)", "message": msg}],
+                    "production": True}
         h, err, rec = check_text(text, str(p), self.cell_check)
         if err is None:
             err = number_clashes({p: (h, None, rec, text)}, self.directory).get(p)
-        return {"ok": err is None, "sha256": h, "errors": field_errors(err, str(p)) if err else []}
+        return {"ok": err is None, "sha256": h, "errors": field_errors(err, str(p)) if err else [],
+                "production": _production(rec)}
 
     def save(self, name: str, text: str, base_sha256: str, user: str, role: str) -> Saved:
         """Write ``text`` as recipe ``name`` for ``user`` (``role``), if it validates and the
@@ -169,22 +193,23 @@ class RecipeDesk:
             if sha == current:
                 return Saved(name, sha, str(p))
             mode = os.stat(p).st_mode & 0o777          # the controller may be another user: keep access
-            tmp = p.with_name(f".{p.name}.hmi-{os.getpid()}.tmp")
+            dfd = os.open(self.directory, os.O_RDONLY | os.O_DIRECTORY)
             try:
-                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, mode)
-                with os.fdopen(fd, "wb") as f:
-                    os.fchmod(f.fileno(), mode)
-                    f.write(data)
-                    f.flush()
-                    os.fsync(f.fileno())
-                write_note(tmp, p, user, role, sha)
-                os.replace(tmp, p)
-            finally:
-                if tmp.exists():
-                    tmp.unlink()
-            dfd = os.open(self.directory, os.O_RDONLY)
-            try:
+                fd, tmp = temp_file(dfd, p.name, mode)
+                try:
+                    with os.fdopen(fd, "wb") as f:
+                        f.write(data)
+                        f.flush()
+                        os.fsync(f.fileno())
+                    write_note(self.directory / tmp, p, user, role, sha)
+                    os.replace(tmp, p.name, src_dir_fd=dfd, dst_dir_fd=dfd)
+                except BaseException:
+                    with contextlib.suppress(OSError):
+                        os.unlink(tmp, dir_fd=dfd)
+                    raise
                 os.fsync(dfd)
+            except OSError as exc:
+                raise SaveRefused(500, f"{p}: cannot write it: {exc.strerror or exc}; nothing changed") from None
             finally:
                 os.close(dfd)
             return Saved(name, sha, str(p))
@@ -199,11 +224,7 @@ class RecipeDesk:
         except CellError:
             return None
 
-    def _active_hashes(self, names: list[str]) -> dict[str, str]:
-        log = self._open_log()
-        if log is None:
-            return {}
-        try:
-            return {n: v[0] for n in names if (v := log.last_recipe_version(n)) is not None}
-        finally:
-            log.close()
+
+def _production(recipe) -> bool:
+    """Whether a parsed recipe is for production (True for one that did not parse)."""
+    return recipe.production if recipe is not None else True
