@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cell.commands import float_list, preset_name
@@ -78,7 +79,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="knot times: uniform or chord-length (default uniform)")
     tl.add_argument("--samples", type=int, default=200, help="samples per knot interval for peaks (default 200)")
     tl.add_argument("--json", action="store_true", help="print the results as JSON")
-    tl.add_argument("--plot", default=None, metavar="PNG", help="write position/velocity/acceleration plots")
+    tl.add_argument("--plot", default=None, metavar="PNG",
+                    help="write position/velocity/acceleration plots to this file, or to "
+                         "timelaw.png in this folder (.png added when it has no suffix)")
     tl.set_defaults(func=run_timelaw)
 
 
@@ -171,7 +174,7 @@ def parse_waypoints(text: str) -> np.ndarray:
     return np.array(out, dtype=float)
 
 
-def _plot(path: str, trajs, samples: int) -> None:
+def _plot(path: Path, trajs, samples: int) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # Agg only; no pyplot state
     from matplotlib.figure import Figure
 
@@ -194,19 +197,23 @@ def _plot(path: str, trajs, samples: int) -> None:
     try:
         fig.savefig(path, dpi=100)
     except OSError as exc:
-        raise CellError(f"--plot {path}: cannot write the plot: {exc}") from None
+        raise CellError(f"--plot {path}: cannot write the plot: {exc.strerror or exc}") from None
 
 
 def run_timelaw(args: argparse.Namespace) -> int:
+    from cell.commands.report import plot_file
     from cell.trajectory.timelaw import plan_timelaw
     q = parse_waypoints(args.waypoints)
     if args.samples < 2:
         raise TrajectoryError(f"--samples {args.samples} must be at least 2")
+    plot = plot_file(args.plot or "", "timelaw.png", "--plot")
+    if plot is not None and not plot.parent.is_dir():
+        raise CellError(f"--plot {args.plot}: no folder {plot.parent} to write the plot in")
     laws = LAWS if args.law == "all" else (args.law,)
     trajs = [plan_timelaw(q, args.duration_s, law, args.timing) for law in laws]
     peaks = [tr.peaks(args.samples) for tr in trajs]
-    if args.plot:
-        _plot(args.plot, trajs, args.samples)
+    if plot is not None:
+        _plot(plot, trajs, args.samples)
     if args.json:
         print(json.dumps({
             "waypoints": q.tolist(), "duration_s": args.duration_s, "timing": args.timing,
@@ -224,6 +231,6 @@ def run_timelaw(args: argparse.Namespace) -> int:
                   f"{pk.acceleration[j]:>12.4f} {pk.jerk[j]:>12.4f}")
         o = pk.overall
         print(f"{tr.law:<16} {'all':>5} {o['velocity']:>12.4f} {o['acceleration']:>12.4f} {o['jerk']:>12.4f}")
-    if args.plot:
-        print(f"plot written to {args.plot}")
+    if plot is not None:
+        print(f"plot written to {plot}")
     return 0

@@ -47,7 +47,7 @@ def run_report(args: argparse.Namespace) -> int:
         raise ConfigError(f"--block {args.block} must be ≥ 1")
     sched = _scheduler(args.config)
     recipes = _recipes_dir(args.recipes)
-    png = _png(args.png)
+    png = plot_file(args.png, "accuracy.png")
     log = open_log_readonly(args.db)
     cycles = [c for c in log.cycles() if not args.recipe or c.recipe == args.recipe]
     if not cycles:
@@ -95,20 +95,21 @@ def _recipes_dir(given: str | None) -> Path:
     return Path(given)
 
 
-def _png(given: str) -> Path | None:
-    """The plot file ``--png`` means (None for ''), refused when it cannot be written: a
-    format the plotting library does not write, or a place below a file."""
+def plot_file(given: str, name: str, option: str = "--png") -> Path | None:
+    """The plot file a plot option means (:func:`cell.commands.png_path`; None for ''),
+    refused with ConfigError naming ``option`` when it cannot be written: a format the
+    plotting library does not write, or a place below a file. Call it before any output."""
     if not given:
         return None
-    png = png_path(given, "accuracy.png")
+    png = png_path(given, name)
     from matplotlib.figure import Figure
     kinds = Figure().canvas.get_supported_filetypes()
     if png.suffix[1:].lower() not in kinds:
-        raise ConfigError(f"--png {given}: cannot write a {png.suffix} plot; use one of "
+        raise ConfigError(f"{option} {given}: cannot write a {png.suffix} plot; use one of "
                           f"{', '.join('.' + k for k in sorted(kinds))}")
     parent = next((p for p in png.parents if p.exists()), None)
     if parent is not None and not parent.is_dir():
-        raise ConfigError(f"--png {given}: {parent} is not a folder")
+        raise ConfigError(f"{option} {given}: {parent} is not a folder")
     return png
 
 

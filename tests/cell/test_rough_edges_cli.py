@@ -215,3 +215,26 @@ def test_plan_line_help_says_which_robot_is_the_default(tmp_path):
             f"cell config (preset {robot.preset}, l1 = l2 = {g.l1_mm:g} mm") in text
     assert g.l1_mm == g.l2_mm
     assert "--robot PRESET plan for a robot preset instead of the cell's robot: seed002" in text
+
+
+TIMELAW = ["plan", "timelaw", "--waypoints", "0,0;10,5;30,20", "--duration-s", "4", "--law", "quintic-poly"]
+
+
+def test_plan_timelaw_names_the_plot_file_it_wrote(tmp_path):
+    """``--plot trend`` (no suffix) or ``--plot FOLDER`` wrote ``trend.png`` / ``FOLDER.png``
+    beside it and printed ``plot written to trend`` / ``FOLDER``: a file that is not there."""
+    (tmp_path / "plots").mkdir()
+    out = cellctl(tmp_path, *TIMELAW, "--plot", "plots")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.endswith("plot written to plots/timelaw.png\n")
+    assert (tmp_path / "plots" / "timelaw.png").stat().st_size > 1000
+    out = cellctl(tmp_path, *TIMELAW, "--plot", "laws")
+    assert out.returncode == 0 and out.stdout.endswith("plot written to laws.png\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["laws.png", "plots"]
+
+
+def test_plan_timelaw_refuses_a_plot_format_it_cannot_write(tmp_path):
+    """``--plot laws.txt`` ended in matplotlib's ValueError traceback, exit 1."""
+    out = cellctl(tmp_path, *TIMELAW, "--plot", "laws.txt")
+    assert refused(out, "plan").startswith("--plot laws.txt: cannot write a .txt plot; use one of")
+    assert list(tmp_path.iterdir()) == []
