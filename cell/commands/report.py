@@ -107,10 +107,17 @@ def plot_file(given: str, name: str, option: str = "--png") -> Path | None:
     if png.suffix[1:].lower() not in kinds:
         raise ConfigError(f"{option} {given}: cannot write a {png.suffix} plot; use one of "
                           f"{', '.join('.' + k for k in sorted(kinds))}")
-    parent = next((p for p in png.parents if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise ConfigError(f"{option} {given}: {parent} is not a folder")
+    blocker = file_in_the_way(png)
+    if blocker is not None:
+        raise ConfigError(f"{option} {given}: {blocker} is not a folder")
     return png
+
+
+def file_in_the_way(path: Path) -> Path | None:
+    """The nearest existing parent of ``path`` when it is not a folder (``path`` cannot be
+    written below it), else None."""
+    parent = next((p for p in Path(path).parents if p.exists()), None)
+    return parent if parent is not None and not parent.is_dir() else None
 
 
 def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
@@ -129,11 +136,17 @@ def run_export(args: argparse.Namespace) -> int:
     from cell.kinematics import Scara
     from cell.measurements import write_campaign
     robot = Scara.preset(args.robot)
+    blocker = file_in_the_way(Path(args.out))
+    if blocker is not None:
+        raise ConfigError(f"{args.out}: {blocker} is not a folder; nothing written")
     cycles = open_log_readonly(args.db).cycles(status="done")
     try:
         campaign = cycles_to_campaign(cycles, robot.g.l1_mm, robot.g.l2_mm, command_unit_deg=robot.g.unit[0])
     except ValueError as exc:
         raise ConfigError(f"{args.db}: {exc}") from None
-    write_campaign(campaign, args.out, force=args.force)
+    try:
+        write_campaign(campaign, args.out, force=args.force)
+    except OSError as exc:
+        raise ConfigError(f"{args.out}: cannot write the campaign: {exc.strerror or exc}") from None
     print(f"{len(campaign.points['sample'])} measured moves written to {args.out}")
     return 0

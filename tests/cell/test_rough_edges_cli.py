@@ -238,3 +238,15 @@ def test_plan_timelaw_refuses_a_plot_format_it_cannot_write(tmp_path):
     out = cellctl(tmp_path, *TIMELAW, "--plot", "laws.txt")
     assert refused(out, "plan").startswith("--plot laws.txt: cannot write a .txt plot; use one of")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_export_into_a_place_it_cannot_write_says_so(log, tmp_path):
+    """``cellctl export notes.txt/camp`` (a file where a folder must be) and an export into
+    a place the system refuses (/proc) ended in a FileExistsError / FileNotFoundError traceback."""
+    (tmp_path / "notes.txt").write_text("a file\n")
+    out = cellctl(tmp_path, "export", "notes.txt/camp", "--db", str(log))
+    assert refused(out, "export") == "notes.txt/camp: notes.txt is not a folder; nothing written"
+    out = cellctl(tmp_path, "export", "/proc/camp", "--db", str(log))
+    assert refused(out, "export").startswith("/proc/camp: cannot write the campaign: ")
+    assert [p.name for p in tmp_path.iterdir() if "camp" in p.name] == []
+    assert (tmp_path / "notes.txt").read_text() == "a file\n"
