@@ -7,6 +7,8 @@ import numpy as np
 from cell.cyclelog import CycleLog
 from cell.faults import Fault, station_fault
 from cell.statemachine import State
+from drivers.plc.register_map import PLC_MAP
+from tests.waiting import unchanged_over
 
 
 def drive_positions(h) -> np.ndarray:
@@ -46,16 +48,18 @@ def test_heartbeat_loss_is_seen_after_the_timeout_and_within_one_scan(harness):
     h.plc.set_command(execute=True)
     h.wait(lambda: h.controller.sm.state is State.FINAL_MOVE, what="FINAL_MOVE")
     h.plc.pause_heartbeat()
-    h.sleep(0.02)                                     # the PLC's scan in flight is over
+    h.plc.wait_scans(1)                               # a scan since: the heartbeat stands still
     last_beat = h.cell.plc.last_heartbeat_change
     h.wait(lambda: h.controller.sm.state is State.FAULT, what="FAULT")
+    assert h.cell.plc.last_heartbeat_change == last_beat          # the last change was before
     timeout, scan = h.config.plc.heartbeat_timeout_s, h.config.controller.scan_s
     seen = h.controller.core.fault_at - last_beat
     assert timeout < seen <= timeout + scan + 1e-9, seen
     assert h.controller.fault_code == Fault.PLC_HEARTBEAT_LOST
     drives = h.cell.motion.drive_states()
     assert {s.name for s in drives.values()} == {"QUICK_STOP_ACTIVE"}
-    h.sleep(0.1)                                      # the quick-stop ramp (a category 2 stop)
+    h.wait(lambda: unchanged_over(lambda: drive_positions(h), h.sleep, 0.01),
+           what="the quick-stop ramp (a category 2 stop) over")
     q = drive_positions(h)
     h.sleep(0.5)
     np.testing.assert_array_equal(drive_positions(h), q)          # nothing moves
@@ -84,13 +88,15 @@ def test_station_silent_faults_within_its_watchdog_time_and_reset_needs_it_back(
            what="fault code 201 (station heartbeat lost) at the PLC")
     seen = h.controller.core.fault_at - watchdog._last[2]
     assert watchdog.timeout_s < seen <= watchdog.timeout_s + watchdog.period_s + h.config.controller.scan_s
+    resets = lambda: [a for a in h.cell.cyclelog.audit_rows() if a["action"] == "reset"]  # noqa: E731
     h.plc.set_command(reset=True)
-    h.sleep(0.3)
+    h.wait(lambda: resets() and h.controller.sm.state is State.FAULT, what="the reset tried")
     h.plc.set_command(reset=False)
-    h.sleep(0.05)
-    assert h.controller.sm.state is State.FAULT                  # cause persists
+    h.plc.wait_until(lambda i: not PLC_MAP.bits("command_word", i["command_word"])["reset"], 1.0,
+                     "reset written low")                # so that the next pulse is an edge
+    assert resets()[-1]["result"] == "accepted" and h.controller.sm.state is State.FAULT   # cause persists
     h.cell.devices.sim_stations.by_joint("j2").power_cycle()    # cable back in, drive rebooted
-    h.sleep(0.3)
+    h.wait(lambda: not watchdog.silent(), what="j2's heartbeat heard again")
     h.plc.reset(timeout_s=10)
     assert h.cycle()["done"] == 1
 
@@ -126,7 +132,7 @@ def test_abort_mid_cycle_and_retrigger_refused(harness):
     h.plc.set_command(execute=True)
     h.wait(lambda: h.controller.sm.state.busy, what="busy")
     h.plc.set_command(execute=False)
-    h.sleep(0.05)
+    h.plc.wait_until(lambda i: not i["command_word"] & 1, 1.0, "execute written low")
     h.plc.set_command(execute=True)                   # retrigger while busy: refused visibly
     h.wait(lambda: h.status()["execute_refused"], what="execute_refused")
     h.plc.set_command(execute=False, abort=True)
@@ -185,7 +191,8 @@ def test_restart_comes_up_safe_with_execute_held_high(harness):
     h.cell.stop()                                     # the controller goes down (crash, update)...
     h.plc.select_recipe(7)
     h.plc.set_command(execute=True)                   # ... while the PLC raises and holds execute
-    h.sleep(0.5)
+    errors = h.plc.link_errors
+    h.wait(lambda: h.plc.link_errors > errors, what="the PLC finding the link down")
     h.cell = h.new_cell(port=h.port)
     h.cell.start()                                    # the PLC reconnects and rewrites its outputs
     h.wait(lambda: h.status()["plc_link_ok"], what="link ok after restart")
@@ -199,16 +206,18 @@ def test_restart_comes_up_safe_with_execute_held_high(harness):
 
 
 def test_kill_9_during_a_run_leaves_a_clean_log(tmp_path):
+    """Killed inside a cycle (the log's open-cycle row says one is running) after 3 whole
+    ones: the log is sound, holds only whole cycles, and names the one cut short."""
     import os
     import signal
     import sqlite3
     import subprocess
     import sys
-    import time
 
     import yaml
 
     from tests.system.conftest import REPO, make_config
+    from tests.waiting import wait_for
     cfg = make_config(tmp_path)
     path = tmp_path / "cell.yaml"
     path.write_text(yaml.safe_dump(cfg.model_dump(mode="json")))
@@ -216,21 +225,24 @@ def test_kill_9_during_a_run_leaves_a_clean_log(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "cell.cli", "run", "--sim", "--config", str(path),
                              "--recipe", "fast-a", "--cycles", "500"], cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    # another process's simulation: its log is all we can watch, in wall time
+
+    def running_after_three():
+        """The part of the cycle running now, once 3 are logged (another process's
+        simulation: its log is all we can watch)."""
+        if not os.path.exists(db):
+            return None
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+        try:
+            if con.execute("SELECT COUNT(*) FROM cycles").fetchone()[0] < 3:
+                return None
+            row = con.execute("SELECT part_id FROM open_cycle WHERE stage = 'running'").fetchone()
+            return row and row[0]
+        except sqlite3.OperationalError:                # file created, schema not yet
+            return None
+        finally:
+            con.close()
     try:
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline:
-            if os.path.exists(db):
-                con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-                try:
-                    if con.execute("SELECT COUNT(*) FROM cycles").fetchone()[0] >= 3:
-                        break
-                except sqlite3.OperationalError:        # file created, schema not yet
-                    pass
-                finally:
-                    con.close()
-            time.sleep(0.05)
-        time.sleep(0.13)                                # land somewhere inside a cycle
+        running = wait_for(running_after_three, 300, "a cycle running after 3 logged", every=0.002)
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
@@ -244,6 +256,9 @@ def test_kill_9_during_a_run_leaves_a_clean_log(tmp_path):
         assert c.status == "done" and c.finished_at and c.moves >= 1 and c.trace
         assert c.verify_error_mm is not None and "verify" in c.step_times
     assert [c.part_id for c in cycles] == list(range(1, len(cycles) + 1))
+    cut = log.recover_interrupted()                     # the kill landed inside a cycle ...
+    assert cut is not None and cut.part_id >= running   # ... the one seen running (or the next)
+    log.close()
 
 
 def test_health_job_sees_drives_and_camera(harness):

@@ -169,7 +169,8 @@ def test_kill_9_during_motion_then_restart_reports_the_cycle_and_moves_nothing(t
                        60.0, "ready")
         plc.set_command(execute=True)
         plc.wait_until(lambda i: i["state_code"] == 14, 60.0, "final move")   # FINAL_MOVE: joints moving
-        time.sleep(0.3)
+        plc.wait_scans(3)                                   # a few PLC scans into the 2 s move ...
+        assert plc.inputs()["state_code"] == 14, "the final move ended before the kill"   # ... still in it
         first.send_signal(signal.SIGKILL)
         first.wait()
         plc.stop()
@@ -182,13 +183,14 @@ def test_kill_9_during_motion_then_restart_reports_the_cycle_and_moves_nothing(t
         img = plc.wait_until(lambda i: i["fault_code"] != 0, 60.0, "the restart's fault")
         assert img["fault_code"] == 503 and img["part_id_echo"] == 31337
         assert img["state_code"] == 40                      # FAULT: nothing moves until reset
-        time.sleep(0.5)
         plc.set_command(execute=False)
-        plc.wait_scans(3)
-        plc.set_command(execute=True)                        # even a fresh edge is refused
-        time.sleep(0.5)
+        plc.wait_scans(3)                                   # execute written low (and read back)
         img = plc.inputs()
-        assert img["state_code"] == 40 and PLC_MAP.bits("status_word", img["status_word"])["execute_refused"]
+        assert img["command_word"] == 0 and not PLC_MAP.bits("status_word", img["status_word"])["execute_refused"]
+        plc.set_command(execute=True)                        # even a fresh edge is refused:
+        img = plc.wait_until(lambda i: PLC_MAP.bits("status_word", i["status_word"])["execute_refused"],
+                             30.0, "the fresh execute edge refused")   # set by this edge, not before
+        assert img["command_word"] & 1 and img["state_code"] == 40 and img["fault_code"] == 503
         plc.stop()
     finally:
         second.terminate()

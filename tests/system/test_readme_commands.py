@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from tests.system.conftest import REPO
+from tests.waiting import wait_for
 
 
 def cellctl(cwd, *args, timeout=300):
@@ -98,6 +99,16 @@ def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
     assert (tmp_path / "j4.png").stat().st_mode & 0o777 == _umask_mode()
 
 
+def _catches(pid: int, sig: int) -> bool:
+    """Process ``pid`` has a handler for ``sig`` (its SigCgt mask in /proc)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next(int(line.split()[1], 16) for line in status.splitlines() if line.startswith("SigCgt:"))
+    return bool(mask >> (sig - 1) & 1)
+
+
 def _children(pid: int) -> list[int]:
     out = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
@@ -124,7 +135,10 @@ def test_dev_py_bench_stopped_by_sigterm_stops_its_benchmark(tmp_path):
                 break
             time.sleep(0.05)
         assert kids, "dev.py bench started no benchmark"
-        time.sleep(0.5)
+        # dev.py passes SIGTERM on once its handler is in place (just after it starts the
+        # child): wait for that state, as /proc shows it, not for a guessed time
+        wait_for(lambda: _catches(p.pid, signal.SIGTERM) or p.poll() is not None, 60,
+                 "dev.py catching SIGTERM")
         p.send_signal(signal.SIGTERM)
         p.wait(timeout=60)
         for _ in range(300):
