@@ -15,12 +15,12 @@ import difflib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, AllowInfNan, BaseModel, ConfigDict, Field, Strict, ValidationError, \
-    ValidationInfo, field_validator
+from pydantic import (AfterValidator, AllowInfNan, BaseModel, ConfigDict, Field, Strict,
+                      ValidationError, ValidationInfo, field_validator)
 
 from cell.errors import ConfigError
-from cell.yamlio import error_text, field_name, node_line, parse_yaml, read_text, \
-    validation_message
+from cell.yamlio import (error_text, field_name, node_line, parse_yaml, read_text,
+                         validation_message)
 
 #: a board file larger than this is refused unread (a board is described in a few lines)
 MAX_BYTES = 64 * 1024
@@ -125,7 +125,8 @@ def board_from_mapping(data: Any, source: str = "board", root=None):
     except ValidationError as exc:
         if root is not None:
             raise ConfigError(validation_message(source, exc, root, model)) from None
-        raise ConfigError("; ".join(f"{source}: {_mapping_error(e, model)}" for e in exc.errors())) from None
+        raise ConfigError("; ".join(f"{source}: {_mapping_error(e, model)}"
+                                    for e in exc.errors())) from None
     return spec.board()
 
 
