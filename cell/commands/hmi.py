@@ -3,7 +3,9 @@
 It shows the cell's status and last cycles live, the accuracy trend, the recipes (view,
 diff against the active version, edit with validation as you type; saving needs a login
 with an editing role, and the controller activates the edit between cycles and audits it
-with that user and role) and the diagnosis reports under ``--reports``.
+with that user and role) and the diagnosis reports under ``--reports``. Requests must name
+an allowed host (``--allowed-host``); behind a TLS proxy (``--trusted-proxy``, loopback by
+default) the forwarded scheme and host are honoured.
 ``cellctl hmi passwd USER --role maintenance`` adds a user (or sets a new password).
 """
 from __future__ import annotations
@@ -32,6 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"users file (default: the project's {DEFAULT_USERS})")
     p.add_argument("--reports", default=str(paths.project(DEFAULT_REPORTS)),
                    help=f"folder of HTML reports (default: the project's {DEFAULT_REPORTS})")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a host name (or address) clients may use in the URL, besides the listen address, "
+                        "localhost, 127.0.0.1 and [::1]; repeat for more (others get 400: DNS rebinding)")
+    p.add_argument("--trusted-proxy", action="append", default=None, metavar="ADDR",
+                   help="address (or network) of a TLS proxy whose X-Forwarded-Proto and X-Forwarded-Host "
+                        "are honoured; repeat for more (default: loopback, 127.0.0.1 and ::1; 'none': no proxy)")
     p.add_argument("--plc", metavar="HOST:PORT", help="read the controller's status registers from this "
                                                       "Modbus TCP link (read-only); default: the log only")
     p.add_argument("--dir", help="recipe folder (default: the config's recipes.directory)")
@@ -63,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
     import ipaddress
 
     from cell.hmi.server import listen, serve, settings_from
-    settings = settings_from(args.config, args.users, args.reports, _plc(args.plc), args.dir, args.db)
+    proxies = ("127.0.0.1", "::1") if args.trusted_proxy is None else \
+        tuple(p for p in args.trusted_proxy if p.lower() != "none")
+    settings = settings_from(args.config, args.users, args.reports, _plc(args.plc), args.dir, args.db,
+                             listen_host=args.host, allowed_hosts=tuple(args.allowed_host), trusted_proxies=proxies)
     if not len(settings.users):
         print(f"cellctl hmi: no users in {args.users}: viewing only; add one with "
               "'cellctl hmi passwd USER --role maintenance'", file=sys.stderr)
@@ -73,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         local = args.host == "localhost"
     if not local:
         print(f"cellctl hmi: listening on {args.host}: other machines can reach it over plain HTTP "
-              "(passwords and sessions unencrypted); prefer 127.0.0.1 behind a TLS proxy", file=sys.stderr)
+              "(passwords and sessions unencrypted); prefer 127.0.0.1 behind a TLS proxy. Clients must "
+              f"name it as {args.host}, localhost or an --allowed-host", file=sys.stderr)
     sock = listen(args.host, args.port)
     host, port = sock.getsockname()[:2]
     url_host = f"[{host}]" if ":" in host else host

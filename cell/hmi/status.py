@@ -5,16 +5,22 @@ holds the writer's lock): how many cycles, the last ones, the cycle in flight, t
 audit rows. :func:`plc_status` reads the whole register map once over Modbus TCP as a
 read-only client (the link serves reads to every allowed client and refuses any write from
 a client that does not own it; this one never writes): the controller's state, fault code,
-status bits, active recipe and its status, cycle count. :func:`trend_png` draws the
-accuracy trend ``cellctl report`` writes.
+status bits, active recipe and its status (in words, from the register map's own text),
+cycle count. :func:`trend_png` draws the accuracy trend ``cellctl report`` writes;
+:class:`TrendCache` draws it once per state of the log (:func:`trend_key`: the file's
+identity, how many cycles, the last one's id, and the recipe files the tolerances come
+from), however many pages ask at once.
 """
 from __future__ import annotations
 
+import os
+import re
 import tempfile
 import threading
 from pathlib import Path
 
 from cell.errors import CellError
+from cell.hmi.work import SingleFlight, WorkPool
 
 _plot_lock = threading.Lock()        # matplotlib's pyplot is not thread-safe
 
@@ -83,8 +89,24 @@ def plc_status(host: str, port: int, timeout_s: float = 1.0) -> dict:
     out.update(reachable=True, state=state, fault_code=image["fault_code"],
                status=PLC_MAP.bits("status_word", image["status_word"]),
                recipe_ack=image["recipe_ack"], recipe_status=image["recipe_status"],
+               recipe_line=recipe_line(image["recipe_ack"], image["recipe_status"]),
                cycle_count=image["cycle_count"], controller_heartbeat=image["controller_heartbeat"])
     return out
+
+
+def recipe_status_words() -> dict[int, str]:
+    """``recipe_status`` code → words, read from the register map's meaning of the register
+    ("0 ok (...), 1 unknown recipe, ..."), the one place the codes are defined."""
+    from drivers.plc.register_map import PLC_MAP
+    return {int(n): w.strip().rstrip(".") for n, w in re.findall(r"(\d+) ([a-z][^,(]*)", PLC_MAP["recipe_status"].meaning)}
+
+
+def recipe_line(ack: int, status: int) -> str:
+    """The PLC recipe registers in words: "no recipe selected" for recipe 0, else
+    "recipe 3: ok" (the status in words; an unknown code as "status 7")."""
+    if not ack:
+        return "no recipe selected"
+    return f"recipe {ack}: {recipe_status_words().get(status, f'status {status}')}"
 
 
 def trend_png(path: Path, recipes_dir: Path | None = None) -> bytes | None:
@@ -108,3 +130,65 @@ def trend_png(path: Path, recipes_dir: Path | None = None) -> bytes | None:
         png = Path(d) / "accuracy.png"
         write_png(Path(path), cycles, png, recipes_dir)   # the very plot `cellctl report` writes
         return png.read_bytes()
+
+
+def trend_key(path: Path, recipes_dir: Path | None = None) -> tuple | None:
+    """What the trend picture depends on: the log file's identity (device, inode), its
+    number of cycles and last cycle id, and the recipe files (name, size, mtime) the
+    tolerances come from. None when there is no cycle to draw (or no readable log)."""
+    from cell.cyclelog import CycleLog
+    try:
+        st = os.stat(path)
+        log = CycleLog(path, readonly=True)
+        try:
+            count = log.count()
+            last = log.cycles(limit=1)
+        finally:
+            log.close()
+    except (OSError, CellError):
+        return None
+    if not count or not last:
+        return None
+    recipes: tuple = ()
+    if recipes_dir is not None:
+        try:
+            recipes = tuple(sorted((e.name, e.stat().st_size, e.stat().st_mtime_ns) for e in os.scandir(recipes_dir)
+                                   if e.name.endswith(".yaml") and not e.name.startswith(".")))
+        except OSError:
+            pass
+    return (st.st_dev, st.st_ino, count, last[-1].id, recipes)
+
+
+class TrendCache:
+    """The trend PNG of one log, drawn once per :func:`trend_key`: concurrent requests share
+    one look at the key and one drawing (:class:`~cell.hmi.work.SingleFlight`); a request for
+    the same state again gets the picture already drawn. ``renders`` counts drawings.
+
+    :param keys: the pool the key is read in (the log); ``draw``: the pool that draws.
+    """
+
+    def __init__(self, log_path: Path, recipes_dir: Path | None, keys: WorkPool, draw: WorkPool):
+        self.log_path, self.recipes_dir = Path(log_path), recipes_dir
+        self.keys, self.draw = keys, draw
+        self.renders = 0
+        self._key: tuple | None = None
+        self._png: bytes | None = None
+        self._key_flight, self._draw_flight = SingleFlight(), SingleFlight()
+
+    async def png(self) -> bytes | None:
+        """The picture for the log as it is now; None without cycles.
+
+        :raises cell.hmi.work.Busy: a pool is full (the request answers 503).
+        """
+        key = await self._key_flight(lambda: self.keys.run(trend_key, self.log_path, self.recipes_dir))
+        if key is None:
+            return None
+        if key == self._key:
+            return self._png
+        return await self._draw_flight(lambda: self._render(key))
+
+    async def _render(self, key: tuple) -> bytes | None:
+        png = await self.draw.run(trend_png, self.log_path, self.recipes_dir)
+        self.renders += 1
+        self._key, self._png = key, png
+        return png

@@ -4,22 +4,28 @@ Format (``cell-hmi-users/1``), written by ``cellctl hmi passwd USER --role ROLE`
 
     {"format": "cell-hmi-users/1",
      "users": {"alice": {"role": "maintenance",
-                         "password": "scrypt$16384$8$1$<salt b64>$<hash b64>"}}}
+                         "password": "scrypt$16384$8$1$<salt b64>$<hash b64>",
+                         "generation": "<16 hex digits, new at every passwd>"}}}
 
 Passwords are hashed with :func:`hashlib.scrypt` (n = 2**14, r = 8, p = 1, a 16-byte random
 salt, 32-byte key) and compared in constant time. Roles: ``maintenance`` and ``engineer``
 may edit recipes; ``viewer`` may only log in and look. The file is validated at load
-(pydantic, unknown keys refused): a damaged file stops the HMI with the field named. It is
-written atomically with mode 0600.
+(pydantic, unknown keys refused): a damaged file stops the HMI with the field named at
+start; damaged later, it counts as no users until fixed. It is written atomically with mode
+0600, and read again whenever it changes (:class:`Users`).
 """
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import hmac
 import json
 import os
+import re
 import secrets
+import tempfile
+import threading
 from pathlib import Path
 from typing import Literal
 
@@ -41,6 +47,8 @@ class User(BaseModel):
     role: Role
     password: str = Field(pattern=r"^scrypt\$\d+\$\d+\$\d+\$[A-Za-z0-9+/=]+\$[A-Za-z0-9+/=]+$",
                           description="scrypt$n$r$p$salt$key, salt and key base64")
+    generation: str = Field(default="", pattern=r"^[0-9a-f]{0,32}$",
+                            description="renewed by every passwd: sessions made before it end")
 
 
 class UsersFile(BaseModel):
@@ -75,19 +83,72 @@ _DUMMY = hash_password(secrets.token_hex(16))
 
 
 class Users:
-    """The users of one file. :meth:`authenticate` → (name, role) or None."""
+    """The users of one file, read again whenever it changes (its stat signature is looked
+    at on each use, which costs one ``stat``), so ``cellctl hmi passwd`` takes effect at once.
+
+    Sessions: :meth:`stamp` is what a session remembers of its user at login; the session is
+    valid while the stamp is the same. It changes when ``passwd`` writes the user again (a
+    new ``generation`` in the file) and when :meth:`end_sessions` is called (logout), so
+    either ends every session of that user. A file that cannot be read or is damaged counts
+    as no users (everyone logged out, nobody can log in) until it is fixed; :attr:`error`
+    says why.
+    """
 
     def __init__(self, path: Path | str):
         self.path = Path(path)
-        self.file = load(self.path)
+        self.error: str | None = None
+        self._sig: tuple | None = None
+        self._lock = threading.Lock()
+        self._ended: dict[str, int] = {}          # user -> sessions ended in memory (logouts)
+        self.file = load(self.path)               # a damaged file stops the HMI at start
+        self._sig = _signature(self.path)
 
-    def authenticate(self, name: str, password: str) -> tuple[str, str] | None:
-        user = self.file.users.get(name)
+    def current(self) -> UsersFile:
+        """The users as the file says now."""
+        sig = _signature(self.path)
+        with self._lock:
+            if sig != self._sig:
+                try:
+                    self.file, self.error = load(self.path), None
+                except ConfigError as exc:
+                    self.file, self.error = UsersFile(), str(exc)
+                self._sig = sig
+            return self.file
+
+    def authenticate(self, name: str, password: str) -> tuple[str, str, str] | None:
+        """(name, role, stamp) when ``password`` is ``name``'s, else None. A name no user
+        can have is refused without hashing; any other costs one scrypt hash, known or not."""
+        if not re.match(USER_NAME, name):
+            return None
+        user = self.current().users.get(name)
         ok = check_password(password, user.password if user else _DUMMY)
-        return (name, user.role) if (ok and user is not None) else None
+        return (name, user.role, self._stamp(name, user)) if (ok and user is not None) else None
+
+    def role(self, name: str, stamp: str) -> str | None:
+        """``name``'s role if a session stamped ``stamp`` is still valid, else None."""
+        user = self.current().users.get(name)
+        if user is None or not hmac.compare_digest(self._stamp(name, user).encode(), str(stamp).encode("utf-8", "replace")):
+            return None
+        return user.role
+
+    def end_sessions(self, name: str) -> None:
+        """Every session of ``name`` ends (logout)."""
+        with self._lock:
+            self._ended[name] = self._ended.get(name, 0) + 1
+
+    def _stamp(self, name: str, user: User) -> str:
+        return f"{user.generation}.{self._ended.get(name, 0)}"
 
     def __len__(self) -> int:
-        return len(self.file.users)
+        return len(self.current().users)
+
+
+def _signature(path: Path) -> tuple | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_dev, st.st_size, st.st_mtime_ns, st.st_ctime_ns
 
 
 def load(path: Path) -> UsersFile:
@@ -107,11 +168,13 @@ def load(path: Path) -> UsersFile:
 
 
 def set_user(path: Path | str, name: str, role: str, password: str) -> None:
-    """Add ``name`` or replace its role and password; writes the file atomically, mode 0600.
+    """Add ``name`` or replace its role and password, with a new session ``generation``
+    (every session of the user ends); writes the file atomically, mode 0600, through a
+    temporary file made by :func:`tempfile.mkstemp` (``O_CREAT | O_EXCL | O_NOFOLLOW``, a
+    random name: a symlink planted beside the file cannot redirect the write).
 
     :raises ConfigError: bad name, role or a password shorter than 8 characters.
     """
-    import re
     path = Path(path)
     if not re.match(USER_NAME, name):
         raise ConfigError(f"user name {name!r}: use 1-40 letters, digits, '_', '.' or '-'")
@@ -121,56 +184,17 @@ def set_user(path: Path | str, name: str, role: str, password: str) -> None:
         raise ConfigError(f"the password must have at least {MIN_PASSWORD} characters")
     current = load(path)
     users = dict(current.users)
-    users[name] = User(role=role, password=hash_password(password))
+    users[name] = User(role=role, password=hash_password(password), generation=secrets.token_hex(8))
     doc = UsersFile(users=users).model_dump(mode="json")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(json.dumps(doc, indent=2) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-class LoginThrottle:
-    """Failed logins slow guessing down: after ``limit`` failures for one user name, or
-    from one client address, within ``window_s``, further attempts for it are refused
-    unchecked until ``window_s`` has passed since the oldest of them (times from ``clock``,
-    wall time in the product). A successful login clears the user's count."""
-
-    def __init__(self, clock=None, limit: int = 5, window_s: float = 300.0):
-        from cell.clock import MonotonicClock
-        self.clock = clock or MonotonicClock()
-        self.limit, self.window_s = int(limit), float(window_s)
-        self._fails: dict[str, list[float]] = {}
-
-    def _recent(self, key: str) -> list[float]:
-        now = self.clock.now()
-        times = [t for t in self._fails.get(key, []) if now - t < self.window_s]
-        if times:
-            self._fails[key] = times
-        else:
-            self._fails.pop(key, None)
-        return times
-
-    def blocked(self, user: str, client: str) -> float:
-        """Seconds until ``user`` from ``client`` may try again (0: now)."""
-        now, wait = self.clock.now(), 0.0
-        for key in (f"u:{user}", f"c:{client}"):
-            times = self._recent(key)
-            if len(times) >= self.limit:
-                wait = max(wait, times[-self.limit] + self.window_s - now)
-        return wait
-
-    def failed(self, user: str, client: str) -> None:
-        now = self.clock.now()
-        for key in (f"u:{user}", f"c:{client}"):
-            self._fails.setdefault(key, []).append(now)
-            del self._fails[key][:-self.limit]          # bounded memory per key
-        if len(self._fails) > 10_000:                   # many names guessed: forget the oldest
-            for key in sorted(self._fails, key=lambda k: self._fails[k][-1])[:5_000]:
-                del self._fails[key]
-
-    def succeeded(self, user: str) -> None:
-        self._fails.pop(f"u:{user}", None)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(json.dumps(doc, indent=2) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise

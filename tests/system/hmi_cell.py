@@ -4,11 +4,23 @@ simulated clock; recipe edits settle on wall time, as in the product) on a priva
 the recipes and a private log, and ``cellctl hmi`` on a free loopback port reading the same
 folder and log. Used by the browser test and ``docs/screenshot_hmi.py``.
 
+:class:`HmiProcess` runs the HMI alone, as a process of its own (``python -m
+tests.system.hmi_cell serve ...``: the product's :func:`cell.hmi.server.serve` on a free
+loopback port), for attacks on the network level: a lower descriptor limit, its own TMPDIR,
+limits of :class:`cell.hmi.server.ServeLimits`, and optionally recipe checks that block
+until the process ends (a check is the desk's injected ``cell_check``; each one entered
+leaves a file in a folder, so a test waits on that state). :func:`hmi_server` runs the
+product's server in a thread of the test process.
+
 Another process's simulation can only be watched from outside, in wall time: every wait
 here is a bounded poll of state (the log, the HMI's port), never a sleep that asserts timing.
 """
 from __future__ import annotations
 
+import argparse
+import contextlib
+import inspect
+import json
 import os
 import queue
 import sqlite3
@@ -16,6 +28,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import yaml
@@ -122,3 +135,130 @@ class SimCellWithHmi:
                 p.wait()
         if getattr(self, "cell_log", None):
             self.cell_log.close()
+
+
+class HmiProcess:
+    """``with HmiProcess(tmp, recipes=..., db=..., users=...) as h: h.url ...``: the HMI as a
+    process of its own (module doc), stopped (SIGTERM, then SIGKILL) and waited for on exit.
+
+    :param nofile: the process's descriptor limit (soft and hard), or None.
+    :param block_checks: a folder: every recipe check leaves a file in it and then blocks.
+    :param limits: :class:`cell.hmi.server.ServeLimits` fields, where the code has them.
+    :param env: extra environment (e.g. TMPDIR).
+    """
+
+    def __init__(self, workdir: Path, recipes: Path, db: Path, users: Path, nofile: int | None = None,
+                 block_checks: Path | None = None, limits: dict | None = None, env: dict | None = None):
+        self.workdir = Path(workdir)
+        self.args = ["--dir", str(recipes), "--db", str(db), "--users", str(users),
+                     "--reports", str(self.workdir / "reports")]
+        if block_checks is not None:
+            self.args += ["--block-checks", str(block_checks)]
+        if limits:
+            self.args += ["--limits", json.dumps(limits)]
+        self.nofile, self.env = nofile, env or {}
+        self.output: list[str] = []
+
+    def __enter__(self) -> "HmiProcess":
+        import resource
+        nofile = self.nofile
+
+        def limit() -> None:
+            if nofile is not None:
+                resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+        self.proc = subprocess.Popen([sys.executable, "-m", "tests.system.hmi_cell", "serve", *self.args], cwd=REPO,
+                                     env=dict(os.environ, PYTHONUNBUFFERED="1", **self.env), stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, preexec_fn=limit)
+        lines: queue.Queue = queue.Queue()
+
+        def read() -> None:
+            for line in self.proc.stdout:
+                self.output.append(line)
+                lines.put(line)
+        threading.Thread(target=read, name="hmi-output", daemon=True).start()
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
+            except queue.Empty:
+                self.__exit__(None, None, None)
+                raise AssertionError(f"the HMI did not start: {''.join(self.output)}") from None
+            if "serving http://" in line:
+                self.url = line.split("serving ")[1].split()[0].rstrip("/")
+                self.port = int(self.url.rsplit(":", 1)[1])
+                return self
+
+    def log(self) -> str:
+        return "".join(self.output)
+
+    def __exit__(self, *exc) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+@contextlib.contextmanager
+def hmi_server(settings, **limits):
+    """``with hmi_server(settings) as (url, server):``: the product's server for ``settings``
+    on a free loopback port, in a thread of this process (``limits``: ServeLimits fields;
+    ``server.config.app`` is the application)."""
+    from cell.hmi import server as srv
+    sock = srv.listen("127.0.0.1", 0)
+    port = sock.getsockname()[1]
+    if hasattr(srv, "make_server"):
+        server = srv.make_server(settings, srv.ServeLimits(**limits))
+    else:                                   # the code before ServeLimits
+        import uvicorn
+        server = uvicorn.Server(uvicorn.Config(srv.create_app(settings), log_level="warning", lifespan="off"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="hmi-server", daemon=True)
+    thread.start()
+    try:
+        poll(lambda: server.started, 60, "the HMI server started")
+        yield f"http://127.0.0.1:{port}", server
+    finally:
+        server.should_exit = True
+        thread.join(60)
+
+
+def _serve_main(argv: list[str]) -> int:
+    """``serve``: the HMI for :class:`HmiProcess` (see its parameters)."""
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--dir", required=True)
+    ap.add_argument("--db", required=True)
+    ap.add_argument("--users", required=True)
+    ap.add_argument("--reports", required=True)
+    ap.add_argument("--block-checks")
+    ap.add_argument("--limits")
+    args = ap.parse_args(argv)
+    import dataclasses
+
+    from cell.hmi import server as srv
+    from cell.hmi.recipes import RecipeDesk
+    settings = srv.settings_from(None, args.users, args.reports, None, args.dir, args.db)
+    if args.block_checks:
+        markers = Path(args.block_checks)
+        never = threading.Event()
+
+        def blocking_check(recipe, text, source) -> None:
+            (markers / uuid.uuid4().hex).touch()
+            never.wait()
+        desk = settings.desk
+        settings = dataclasses.replace(settings, desk=RecipeDesk(desk.directory, blocking_check, desk.log_path,
+                                                                  desk.max_bytes))
+    sock = srv.listen("127.0.0.1", 0)
+    print(f"serving http://127.0.0.1:{sock.getsockname()[1]}/", flush=True)
+    if args.limits and "limits" in inspect.signature(srv.serve).parameters:
+        srv.serve(settings, sock, srv.ServeLimits(**json.loads(args.limits)))
+    else:
+        srv.serve(settings, sock)
+    return 0
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["serve"]:
+        sys.exit(_serve_main(sys.argv[2:]))
+    sys.exit("usage: python -m tests.system.hmi_cell serve --dir D --db DB --users U --reports R [...]")

@@ -1,17 +1,20 @@
 """End to end in a real headless Chromium: the maintenance HMI beside a running simulated
 cell (two real processes, see :mod:`tests.system.hmi_cell`). A maintenance user logs in,
 a bad edit is refused with its field named and changes nothing, a good edit is activated
-by the controller between cycles, the next cycles run the new version, and the audit row
-of the activation names the user and role."""
+by the controller between cycles (then the page shows it active with no pending diff), the
+next cycles run the new version, and the audit row of the activation names the user and
+role. Every time on the pages reads ``YYYY-MM-DD HH:MM:SS``, local, 24-hour."""
 from __future__ import annotations
 
 import hashlib
+import re
 
 import pytest
 
 from tests.browser import chromium, require_browser
 from tests.system.hmi_cell import PASSWORD, ROLE, USER, SimCellWithHmi, poll, query
 
+TIME = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d")
 WAIT_S = 120          # bounded waits for state, in wall time (never asserted as timing)
 pytestmark = pytest.mark.timeout(600)   # two processes and a browser on a loaded 2-core host
 
@@ -46,6 +49,12 @@ def test_login_bad_edit_refused_good_edit_activated_between_cycles(tmp_path):
         driver.get(cell.url + "/")
         poll(lambda: driver.find_elements("css selector", "#cycles tbody tr"), WAIT_S, "cycles on the status page")
         assert "fast-a" in text_of(driver, "cycles")
+        # every time on the page is local, 24-hour, YYYY-MM-DD HH:MM:SS
+        poll(lambda: TIME.search(text_of(driver, "updated")), WAIT_S, "the page's update time")
+        finished = driver.execute_script("return [...document.querySelectorAll('#cycles tbody tr')]"
+                                         ".map((tr) => tr.lastElementChild.textContent)")
+        assert finished and all(TIME.fullmatch(t) for t in finished), finished
+        assert not re.search(r"\b[AP]M\b", driver.find_element("tag name", "main").text)
 
         # log in as the maintenance user
         driver.get(cell.url + "/login?next=/recipes/fast-a")
@@ -82,12 +91,19 @@ def test_login_bad_edit_refused_good_edit_activated_between_cycles(tmp_path):
         poll(lambda: "activated" in text_of(driver, "save-state"), WAIT_S, "the controller's activation")
         assert path.read_bytes() == good.encode()
         assert f"{USER} ({ROLE}, hmi" in text_of(driver, "save-state")
+        # once active, nothing is left pending: the page says so and shows no diff
+        assert text_of(driver, "active-state") == "active" and text_of(driver, "diff") == "no differences"
+        assert TIME.search(text_of(driver, "save-state"))
+        driver.refresh()
+        poll(lambda: text_of(driver, "active-state") == "active", WAIT_S, "the reloaded page saying active")
+        assert text_of(driver, "diff") == "no differences"
 
         # the audit row of the activation names user and role; the bad edit left no row
         [(audit_id, who, result)] = query(cell.db, "SELECT id, who, result FROM audit WHERE action = "
                                                    "'recipe_activate' AND hash = ?", (new_sha,))
         assert who.startswith(f"{USER} ({ROLE}, hmi; file owner ") and result == "ok"
-        assert query(cell.db, "SELECT COUNT(*) FROM audit WHERE action = 'recipe_reject'")[0][0] == 0
+        assert query(cell.db, "SELECT COUNT(*) FROM audit WHERE action = 'recipe_reject' "
+                              "AND target LIKE '%fast-a.yaml'")[0][0] == 0
         # cycles go on, and a cycle after the activation runs the new version
         poll(lambda: query(cell.db, "SELECT id FROM cycles WHERE recipe_hash = ?", (new_sha,)), WAIT_S,
              "a cycle with the new version")
