@@ -135,6 +135,10 @@ class CalibrationSection(_Section):
         try:
             return board_from_dict(dict(self.board))
         except (CellError, TypeError, ValueError) as exc:
+            if hasattr(exc, "loc"):               # a field of the board: point at its line
+                err = ValueError(exc.detail)
+                err.loc = ("board", *exc.loc)
+                raise err from None
             raise ValueError(f"calibration.board: {exc}") from None
 
 

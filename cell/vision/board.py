@@ -125,8 +125,10 @@ def board_from_mapping(data: Any, source: str = "board", root=None):
     except ValidationError as exc:
         if root is not None:
             raise ConfigError(validation_message(source, exc, root, model)) from None
-        raise ConfigError("; ".join(f"{source}: {_mapping_error(e, model)}"
-                                    for e in exc.errors())) from None
+        err = ConfigError("; ".join(f"{source}: {_mapping_error(e, model)}" for e in exc.errors()))
+        first = exc.errors()[0]
+        err.loc, err.detail = tuple(first["loc"]), error_text(first, model)   # for a caller with lines
+        raise err from None
     return spec.board()
 
 
