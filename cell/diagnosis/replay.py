@@ -177,6 +177,10 @@ def prepare(c: Campaign, lines: dict[str, Sequence[int]] | None = None) -> DiagD
                  points=pts, moves=moves, split_source=split_source, source=c.source)
     n_fit = (int(pts.fit.sum()) if pts else 0) + sum(len(m.t) for m in moves if m.fit)
     n_hold = (int((~pts.fit).sum()) if pts else 0) + sum(len(m.t) for m in moves if not m.fit)
+    if (n_fit < 4 or n_hold < 1) and src.is_file():        # a cycle log: no CSV to name
+        raise CampaignFormatError(src, f"its done cycles give {n_fit} fit and {n_hold} holdout "
+                                  "measurements; the diagnosis needs at least 4 fit and 1 holdout: "
+                                  "log more cycles")
     if n_fit < 4 or n_hold < 1:
         bad = "points.csv" if pts is not None else "paths.csv"
         raise CampaignFormatError(src / bad, f"the split leaves {n_fit} fit and {n_hold} holdout "
