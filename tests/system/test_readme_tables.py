@@ -1,0 +1,64 @@
+"""The README's tables are what their commands print (bench/check_readme_tables.py).
+
+Every command that takes under a minute is run here; the slower ones (bench_cell,
+bench_calibration, the storm, soak and load benches) only by the script:
+``.venv/bin/python bench/check_readme_tables.py``. Deterministic tables (simulated time,
+counts, accuracy) must match cell for cell outside their wall-time columns; wall-time
+tables must keep their columns (from a short run of the command). A failure shows the
+table's diff and the one command that re-prints it into the README.
+"""
+from __future__ import annotations
+
+import importlib.util
+import sys
+
+import pytest
+
+from tests.system.conftest import REPO
+
+_spec = importlib.util.spec_from_file_location("check_readme_tables", REPO / "bench" / "check_readme_tables.py")
+check = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = check            # dataclasses look their module up there
+_spec.loader.exec_module(check)
+
+
+def readme_lines() -> list[str]:
+    return check.README.read_text().splitlines()
+
+
+def test_every_readme_table_has_its_command_or_is_written_by_hand():
+    lines = readme_lines()
+    for source in check.SOURCES:                   # each command still above its tables
+        check.readme_tables(source, lines)
+    left = check.uncovered(lines)
+    assert not left, "README tables no command in bench/check_readme_tables.py prints:\n" + "\n".join(
+        f"README.md:{t.start + 1}: {t.lines[0]}" for t in left)
+
+
+def test_a_changed_figure_is_found_and_shown():
+    """The check itself: a README whose figure differs from the printed one is reported
+    with a diff naming both; a wall-time cell that differs is not."""
+    source = check.Source("demo", "demo cmd", ("demo",), 1, (check.cols("ms"),))
+    readme = ["`demo cmd` printed:", "", "| case | error mm | ms |", "|---|---:|---:|",
+              "| a | 0.0265 | 0.44 |", "| b | 5.7e-14 | 0.50 |"]
+    same = ["| case | error mm | ms |", "|---|---:|---:|", "| a | 0.0265 | 9.99 |", "| b | 0.0e+00 | 1 |"]
+    [ok] = check.compare(source, same, readme, full=True)
+    assert ok.problem == ""                        # wall time and float noise are not figures
+    changed = ["| case | error mm | ms |", "|---|---:|---:|", "| a | 0.0300 | 0.44 |", "| b | 0 | 1 |"]
+    [bad] = check.compare(source, changed, readme, full=True)
+    assert bad.problem == "figures differ" and bad.readme_line == 3
+    assert "-| a | 0.0265 | 0.44 |" in bad.diff and "+| a | 0.0300 | 0.44 |" in bad.diff
+    other = ["| case | error |", "|---|---|", "| a | 1 |"]
+    [gone] = check.compare(source, other, readme, full=True)
+    assert gone.problem == "the command prints no table with these columns"
+
+
+@pytest.mark.timeout(900)
+@pytest.mark.parametrize("name", [s.name for s in check.SOURCES if not s.slow])
+def test_readme_tables_match_what_their_command_prints(name):
+    source = next(s for s in check.SOURCES if s.name == name)
+    findings, _, ran = check.check(source, readme_lines(), use_probe=True, timeout=800)
+    bad = [f for f in findings if f.problem]
+    assert not bad, "\n\n".join(f"README.md:{f.readme_line}: {f.problem} (`{' '.join(ran)}`)\n{f.diff}"
+                                for f in bad) + \
+        f"\n\nIf the change is meant, re-print: .venv/bin/python bench/check_readme_tables.py --only {name} --update"
