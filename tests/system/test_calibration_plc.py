@@ -25,7 +25,13 @@ def test_kinematic_calibration_from_the_plc_is_written_applied_and_recorded(harn
     assert h.plc.inputs()["calibration_version"] == 0
     res = h.plc.run_calibration(0)
     assert res["done"] == 1 and res["fault_code"] == 0
-    assert res["calibration_version"] == 1 and 0 < res["calibration_residual_um"] < 100
+    # held-out residual: what is left is the arm's repeatability, σ per axis on each arrival
+    # (the hand camera's own centre error is ~0.5 µm), so a 2-D rms of √2·σ = 14 µm here
+    # (this run: 13). Over 6 held-out poses an rms scatters by ~1/√12 ≈ 30 %: a window of 2×
+    # either side.
+    noise_um = 1000 * math.sqrt(2) * h.cell.devices.plant.config.repeatability_mm
+    assert res["calibration_version"] == 1
+    assert 0.5 * noise_um < res["calibration_residual_um"] < 2 * noise_um
     assert h.cell.runner.robot.calibration.startswith("v1-")
     assert h.cycle()["done"] == 1
     log = CycleLog(h.config.log.path, readonly=True)
