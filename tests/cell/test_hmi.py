@@ -230,8 +230,9 @@ def test_an_edit_the_controller_rejects_is_shown_rejected_with_its_reason_and_us
     """The HMI without --config cannot know the stations: the controller's own check (here:
     drives without SYNC support) refuses the saved version; the editor learns why."""
     from cell.recipes import motion_check
-    store, log = cell
-    store.check = motion_check(False, [0.001] * 4)
+    _, log = cell
+    store = RecipeStore(rdir, commit=log.record_recipe_changes, check=motion_check(False, [0.001] * 4))
+    store.refresh()                                    # the controller, on drives without SYNC
     path = rdir / "bracket-a.yaml"
     active = store.active["bracket-a"].hash
     text = path.read_text().replace("sync: corrected", "sync: sync")

@@ -11,6 +11,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from cell.cyclelog import CycleLog, CycleRecord
+from cell.recipe_store import RecipeStore
 from cell.recipes import motion_check
 from tests.cell.test_hmi import cell, client, editor, hmi, login  # noqa: F401 -- fixtures
 
@@ -45,8 +46,10 @@ def test_the_recipe_page_says_what_the_controller_made_of_a_save(hmi, rdir, cell
     page = c.get("/recipes/bracket-a").text
     assert state_of(page) == "active" and diff_of(page) == ("Diff against the active version", "no differences")
     assert "active" in re.search(r'<tr[^>]*id="row-bracket-a".*?</tr>', c.get("/recipes").text, re.S).group(0)
-    # a version the controller rejects: said so, with its reason; the diff is the rejected change
-    store.check = motion_check(False, [0.001] * 4)
+    # a version the controller rejects (on drives without SYNC): said so, with its reason; the
+    # diff is the rejected change
+    store = RecipeStore(rdir, commit=log.record_recipe_changes, check=motion_check(False, [0.001] * 4))
+    store.refresh()
     token, sha = editor(c, "bracket-a")
     rejected = text.replace("sync: corrected", "sync: sync")
     assert c.post("/api/recipes/bracket-a/save", json={"text": rejected, "base_sha256": sha},
