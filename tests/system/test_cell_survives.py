@@ -80,7 +80,8 @@ def test_a_cycle_cut_by_a_restart_is_reported_once_and_nothing_moves_without_a_f
     assert h.cycle()["done"] == 1
     part = start_cycle(h, "slow-a")                            # a 2 s final move
     h.wait(lambda: h.controller.sm.state is State.FINAL_MOVE, what="final move")
-    h.sleep(0.5)
+    before = h.joints()
+    h.wait(lambda: abs(h.joints() - before).max() > 0.1, what="the final move under way")
     h.cell.stop()                                              # the controller goes down mid-motion
     h.sleep(0.5)
     h.cell = h.new_cell(port=h.port)
@@ -112,8 +113,7 @@ def test_every_row_is_settled_to_what_the_plc_was_told(harness):
     h = harness
     for _ in range(3):
         assert h.cycle()["done"] == 1
-    h.sleep(0.1)
-    assert h.cell.cyclelog.open_cycle() is None
+    h.wait(lambda: h.cell.cyclelog.open_cycle() is None, what="the last cycle settled")
     assert [c.status for c in h.cell.cyclelog.cycles()] == ["done"] * 3
 
 

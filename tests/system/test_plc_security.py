@@ -63,7 +63,8 @@ def test_rogue_clients_can_neither_drive_the_cell_nor_keep_its_link_alive(guarde
     h.plc.resume_heartbeat()
     h.wait(lambda: h.status()["plc_link_ok"], 5.0, "link back")
     h.plc.reset()
-    h.sleep(11.0)                                           # refusals are audited every 10 s
+    h.wait(lambda: any(r["action"] == "plc_write_refused" for r in h.cell.cyclelog.audit_rows()), 15.0,
+           "the refusals' audit row (written every 10 s)")
     h.wait(lambda: any(r["action"] == "reset" for r in h.cell.cyclelog.audit_rows()), 5.0, "reset row")
     rows = h.cell.cyclelog.audit_rows()
     refused = [r for r in rows if r["action"] == "plc_write_refused"]
