@@ -38,8 +38,8 @@ async def refuse(send: Send, status: int, text: str, headers: Iterable[tuple[byt
     """Answer ``status`` with ``text`` and close the connection."""
     body = (text.rstrip("\n") + "\n").encode("utf-8")
     await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"text/plain; charset=utf-8"), (b"content-length", str(len(body)).encode()),
-                            (b"connection", b"close"), *headers]})
+                "headers": [(b"content-type", b"text/plain; charset=utf-8"),
+                            (b"content-length", str(len(body)).encode()), (b"connection", b"close"), *headers]})
     await send({"type": "http.response.body", "body": body})
 
 

@@ -7,8 +7,9 @@ version, edit with validation as you type: ``POST /api/recipes/{name}/validate``
 ``/save``, then ``GET /api/recipes/{name}/decision?sha256=`` until the controller decides),
 ``/reports`` (the HTML reports under the reports folder, served sandboxed).
 
-Times are shown by :func:`local_time`. Every blocking call runs in one of the :class:`~cell.hmi.app.Hmi` pools; a full pool
-raises :class:`~cell.hmi.work.Busy`, which the application answers 503.
+Times are shown by :func:`local_time`. Every blocking call runs in one of the
+:class:`~cell.hmi.app.Hmi` pools; a full pool raises :class:`~cell.hmi.work.Busy`, which
+the application answers 503.
 """
 from __future__ import annotations
 

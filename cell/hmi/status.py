@@ -98,7 +98,8 @@ def recipe_status_words() -> dict[int, str]:
     """``recipe_status`` code → words, read from the register map's meaning of the register
     ("0 ok (...), 1 unknown recipe, ..."), the one place the codes are defined."""
     from drivers.plc.register_map import PLC_MAP
-    return {int(n): w.strip().rstrip(".") for n, w in re.findall(r"(\d+) ([a-z][^,(]*)", PLC_MAP["recipe_status"].meaning)}
+    pairs = re.findall(r"(\d+) ([a-z][^,(]*)", PLC_MAP["recipe_status"].meaning)
+    return {int(n): w.strip().rstrip(".") for n, w in pairs}
 
 
 def recipe_line(ack: int, status: int) -> str:

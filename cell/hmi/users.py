@@ -127,7 +127,9 @@ class Users:
     def role(self, name: str, stamp: str) -> str | None:
         """``name``'s role if a session stamped ``stamp`` is still valid, else None."""
         user = self.current().users.get(name)
-        if user is None or not hmac.compare_digest(self._stamp(name, user).encode(), str(stamp).encode("utf-8", "replace")):
+        if user is None:
+            return None
+        if not hmac.compare_digest(self._stamp(name, user).encode(), str(stamp).encode("utf-8", "replace")):
             return None
         return user.role
 

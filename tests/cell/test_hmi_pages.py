@@ -10,7 +10,7 @@ import subprocess
 from datetime import datetime, timezone
 from pathlib import Path
 
-from cell.cyclelog import CycleLog, CycleRecord
+from cell.cyclelog import CycleRecord
 from cell.recipe_store import RecipeStore
 from cell.recipes import motion_check
 from tests.cell.test_hmi import cell, client, editor, hmi, login  # noqa: F401 -- fixtures

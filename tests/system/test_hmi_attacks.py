@@ -104,7 +104,8 @@ def test_a_flood_of_recipe_checks_is_refused_busy_and_the_pages_stay_up(tmp_path
 
         def check() -> None:
             try:
-                answers.append(request(h.port, "POST", "/api/recipes/bracket-a/validate", json.dumps({"text": text}).encode(),
+                answers.append(request(h.port, "POST", "/api/recipes/bracket-a/validate",
+                                       json.dumps({"text": text}).encode(),
                                        {"Cookie": cookie, "X-CSRF-Token": token, "Content-Type": "application/json"},
                                        timeout=None)[0])
             except OSError:
