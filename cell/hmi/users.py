@@ -162,9 +162,10 @@ def load(path: Path) -> UsersFile:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the HMI users file: {exc.strerror}") from None
     except ValidationError as exc:
+        from cell.yamlio import error_text
         e = exc.errors()[0]
         where = ".".join(str(p) for p in e["loc"])
-        raise ConfigError(f"{path}: {where}: {e['msg']}") from None
+        raise ConfigError(f"{path}: {where}: {error_text(e, UsersFile)}") from None
     except ValueError as exc:
         raise ConfigError(f"{path}: not a JSON users file: {exc}") from None
 

@@ -199,3 +199,17 @@ def test_the_throttle_keeps_a_bounded_number_of_records():
 def test_a_trusted_proxy_that_is_no_address_is_refused_naming_it(tmp_path, capsys):
     assert main(["hmi", "--users", str(tmp_path / "u.json"), "--port", "0", "--trusted-proxy", "proxy.example"]) == 2
     assert "--trusted-proxy 'proxy.example'" in capsys.readouterr().err
+
+
+def test_a_users_file_with_a_mistyped_key_is_named_in_our_words(tmp_path):
+    import json
+
+    from cell.errors import ConfigError
+    from cell.hmi.users import load
+    path = tmp_path / "users.json"
+    path.write_text(json.dumps({"format": "cell-hmi-users/1",
+                                "users": {"al": {"role": "viewer", "pasword": "x"}}}))
+    with pytest.raises(ConfigError) as exc:
+        load(path)
+    assert str(exc.value).startswith(f"{path}: users.al.")
+    assert "Field required" not in str(exc.value) and "Extra inputs" not in str(exc.value)
