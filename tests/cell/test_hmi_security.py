@@ -11,6 +11,7 @@ import json
 import os
 import tracemalloc
 
+import pytest
 from starlette.testclient import TestClient
 
 from cell.cli import main
