@@ -18,12 +18,14 @@ import contextlib
 import os
 import pickle
 import shutil
+import signal
 import tempfile
 import traceback
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 NOBODY = 65534          #: uid and gid of ``nobody`` on Debian
+CHILD_LIMIT_S = 60      #: the child is killed (SIGALRM) if its check has not ended by then
 
 
 def is_root() -> bool:
@@ -69,6 +71,11 @@ def as_unprivileged(check: Callable[..., Any], *args: Any) -> Any:
         code = 0
         try:
             os.close(read)
+            # a fork of a threaded process: should it ever block on a lock another thread
+            # held at the fork, it dies (the parent then reports an empty answer) instead
+            # of hanging the test run
+            signal.signal(signal.SIGALRM, signal.SIG_DFL)
+            signal.alarm(CHILD_LIMIT_S)
             try:
                 os.setgroups([])
                 os.setgid(NOBODY)
