@@ -22,7 +22,9 @@ README), so what changed is plain; exit 1.
 
 ``--fast`` (what ``tests/system/test_readme_tables.py`` runs in the test suite) leaves out
 the commands that take more than a minute (``slow``: bench_cell, bench_calibration, the
-storm, soak and load benches); run them with this script.
+storm); without it they run too (about 5 minutes more). Two wall-time sources have no
+short run and are checked only with ``--full``: the soak (60 minutes) and the load
+harness's second phase (the whole test suite three times).
 ``--update`` rewrites only the README tables whose compared cells differ, with the cells
 this run printed; wall-time cells keep the README's measured values, which the text around
 the table quotes (re-measure those by hand, text and table together). The text around the
@@ -92,7 +94,8 @@ SOURCES: tuple[Source, ...] = (
            ("bench/bench_startup.py", "--runs", "8"), 1, (ALL,), probe=("bench/bench_startup.py", "--runs", "1")),
     Source("registers", "cellctl registers --format md", ("cellctl", "registers", "--format", "md"), 3),
     Source("storm", ".venv/bin/python bench/bench_link_storm.py --quick --rounds 3",
-           ("bench/bench_link_storm.py", "--quick", "--rounds", "3"), 1, (ALL,), slow=True),
+           ("bench/bench_link_storm.py", "--quick", "--rounds", "3"), 1, (ALL,),
+           probe=("bench/bench_link_storm.py", "--quick", "--rounds", "1"), slow=True),
     Source("compensation", ".venv/bin/python bench/bench_compensation.py",
            ("bench/bench_compensation.py",), 2, (cols(), cols("ms per target"))),
     Source("line-delay", ".venv/bin/python bench/bench_line_delay.py", ("bench/bench_line_delay.py",), 1),
@@ -337,12 +340,14 @@ def main(argv=None) -> int:
     ap.add_argument("--fast", action="store_true", help="leave out the commands that take over a minute")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="these sources only (see --list)")
     ap.add_argument("--full", action="store_true",
-                    help="wall-time sources too as the README runs them, not their short probe")
+                    help="run wall-time sources as the README does, not their short probe; this adds "
+                         "the soak (60 min) and the load harness's test phase (the suite 3 times)")
     ap.add_argument("--update", action="store_true", help="write the tables that differ into README.md")
     ap.add_argument("--list", action="store_true", help="list the sources and their README tables")
     args = ap.parse_args(argv)
     lines = README.read_text().splitlines()
-    chosen = [s for s in SOURCES if (not args.only or s.name in args.only) and not (args.fast and s.slow)]
+    chosen = [s for s in SOURCES if (not args.only or s.name in args.only) and not (args.fast and s.slow)
+              and (args.full or s.deterministic or s.probe)]
     if args.only and (unknown := set(args.only) - {s.name for s in SOURCES}):
         ap.error(f"unknown source(s) {sorted(unknown)}; known: {[s.name for s in SOURCES]}")
     if args.list:
@@ -376,9 +381,10 @@ def main(argv=None) -> int:
         findings += got
     if args.update:
         print(f"updated {update(findings)} table(s) in README.md")
-    left_out = [s.name for s in SOURCES if s not in chosen]
-    if left_out:
-        print(f"not run here: {', '.join(left_out)}")
+    for s in SOURCES:
+        if s not in chosen and (not args.only or s.name in args.only):
+            why = "slow: run without --fast" if args.fast and s.slow else "needs --full (no short run)"
+            print(f"not run: {s.name} ({why})")
     return 1 if bad else 0
 
 
