@@ -28,13 +28,10 @@ tests' classes, and patching what we do not own (``sys.stderr``, ``os``, environ
 variables, ``can.bus.time``). The scan infers no types: a callable *object* put in place of
 a method, or a mutation through a method call (``module.table.clear()``), is not seen.
 
-:data:`ALLOWED` lists what files other engineers are still reworking may do until they are
-done; an entry that no longer matches only warns, so its owner can drop it.
 """
 from __future__ import annotations
 
 import ast
-import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -44,20 +41,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
 OURS = ("cell", "drivers")
-
-#: (file or file-name prefix, the flagged target as written) -> why it is still there. Only
-#: files other engineers own while they rework them; each entry goes when its owner is done.
-ALLOWED: dict[tuple[str, str], str] = {
-    ("tests/cell/test_hmi", "store.check"):
-        "the HMI tests' owner is reworking them (test_hmi.py, test_hmi_pages.py): the "
-        "controller's check is swapped on a store the fixture built; RecipeStore(check=...) "
-        "at construction is the seam to use",
-}
-#: the files ALLOWED may name (owned by other engineers while the rule is brought in)
-OTHERS_FILES = ("tests/cell/test_hmi", "tests/system/test_hmi", "tests/system/test_cli_progress.py",
-                "tests/system/test_cli.py", "tests/system/test_cell.py", "tests/cell/test_cyclelog_guard.py",
-                "tests/cell/test_sim_clock.py", "tests/cell/test_vision_", "tests/system/test_calibration_plc.py",
-                "tests/cell/test_report_pages.py")
 
 PATCH_CALLS = {"patch", "object", "dict", "multiple"}       # mock.patch and its variants
 MOCKS = {"Mock", "MagicMock", "AsyncMock", "NonCallableMock", "create_autospec", "partial",
@@ -344,21 +327,10 @@ def scan_tests() -> list[Finding]:
 
 
 # ---------------------------------------------------------------------------- the rule
-def _allowed(f: Finding) -> tuple[str, str] | None:
-    return next((key for key in ALLOWED if f.file.startswith(key[0]) and f.target == key[1]), None)
-
-
 def test_no_test_patches_our_code():
     found = scan_tests()
-    left = [f for f in found if _allowed(f) is None]
-    assert not left, ("tests patch the project's own code (issue 21); give the code a seam "
-                      "instead:\n" + "\n".join(map(str, left)))
-    for key in ALLOWED.keys() - {_allowed(f) for f in found}:
-        warnings.warn(f"tests/test_no_patching.py: ALLOWED entry {key} matches nothing any more: drop it")
-
-
-def test_the_allow_list_names_only_files_others_are_reworking():
-    assert all(file.startswith(OTHERS_FILES) and why for (file, _), why in ALLOWED.items())
+    assert not found, ("tests patch the project's own code (issue 21); give the code a seam "
+                       "instead:\n" + "\n".join(map(str, found)))
 
 
 # ---------------------------------------------------------------------------- the scan itself
