@@ -27,7 +27,6 @@ a dataclass the test built: ``campaign.model.camera = None``), ``self.``/``cls.`
 tests' classes, and patching what we do not own (``sys.stderr``, ``os``, environment
 variables, ``can.bus.time``). The scan infers no types: a callable *object* put in place of
 a method, or a mutation through a method call (``module.table.clear()``), is not seen.
-
 """
 from __future__ import annotations
 
