@@ -21,8 +21,10 @@ README), so what changed is plain; exit 1.
   compared, from a short run of the command (``probe``) where a full run would take long.
 
 ``--fast`` (what ``tests/system/test_readme_tables.py`` runs in the test suite) leaves out
-the commands that take more than a minute (``slow``: bench_cell, bench_calibration, the
-storm); without it they run too (about 5 minutes more). Two wall-time sources have no
+the ``slow`` commands: those that take more than a minute (bench_cell, bench_calibration,
+the storm) and the two diagnosis validations that repeat the plain one's code path with
+other options (``--combos``, ``--out-of-vocabulary``, 25 s each), to keep the suite short;
+without it they run too (about 6 minutes more). Two wall-time sources have no
 short run and are checked only with ``--full``: the soak (60 minutes) and the load
 harness's second phase (the whole test suite three times).
 ``--update`` rewrites only the README tables whose compared cells differ, with the cells
@@ -58,7 +60,7 @@ class Source:
     ``argv``: what to run (``cellctl`` and ``.venv/bin/python`` are this interpreter).
     ``wall``: per table, the columns that are wall time (:data:`ALL`: every one).
     ``probe``: a shorter argv printing the same columns, for wall-time-only sources.
-    ``slow``: takes more than a minute (left out by ``--fast``).
+    ``slow``: left out by ``--fast`` and the test suite (module doc).
     """
 
     name: str
@@ -128,10 +130,10 @@ SOURCES: tuple[Source, ...] = (
            3, VALIDATE_WALL),
     Source("validate-combos", "cellctl diagnose validate --trials 200 --seed 0 --points 300 --combos",
            ("cellctl", "diagnose", "validate", "--trials", "200", "--seed", "0", "--points", "300", "--combos"),
-           3, VALIDATE_WALL),
+           3, VALIDATE_WALL, slow=True),
     Source("validate-oov", "cellctl diagnose validate --trials 200 --seed 0 --points 300 --out-of-vocabulary 1",
            ("cellctl", "diagnose", "validate", "--trials", "200", "--seed", "0", "--points", "300",
-            "--out-of-vocabulary", "1"), 3, VALIDATE_WALL),
+            "--out-of-vocabulary", "1"), 3, VALIDATE_WALL, slow=True),
     Source("diagnosis-speed", ".venv/bin/python bench/bench_diagnosis_speed.py",
            ("bench/bench_diagnosis_speed.py",), 1, (ALL,), probe=("bench/bench_diagnosis_speed.py", "--points", "100")),
     Source("chain", "cellctl diagnose validate --chain --trials 100 --seed 0",

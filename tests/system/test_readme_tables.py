@@ -1,7 +1,8 @@
 """The README's tables are what their commands print (bench/check_readme_tables.py).
 
-Every command that takes under a minute is run here; the slower ones (bench_cell,
-bench_calibration, the storm, soak and load benches) only by the script:
+Every command not marked ``slow`` is run here; the slow ones (bench_cell,
+bench_calibration, the storm, soak and load benches, the ``--combos`` and
+``--out-of-vocabulary`` diagnosis validations) only by the script:
 ``.venv/bin/python bench/check_readme_tables.py``. Deterministic tables (simulated time,
 counts, accuracy) must match cell for cell outside their wall-time columns; wall-time
 tables must keep their columns (from a short run of the command). A failure shows the
