@@ -7,6 +7,7 @@ import pytest
 
 from cell.clock import ManualClock
 from drivers.plc.server import PlcLink
+from tests import waiting
 
 PLC_THREADS = ("plc-modbus-server", "plc-modbus-tls-server", "sim-plc-scan", "bare-pymodbus", "controller-stand-in")
 
@@ -31,12 +32,8 @@ def link():
 
 
 def wait_for(pred, timeout=2.0, what="condition"):
-    """Poll ``pred`` every 2 ms until true; AssertionError naming ``what`` after ``timeout`` s."""
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.002)
+    """:func:`tests.waiting.wait_for` polling every 2 ms (the PLC link answers in microseconds)."""
+    return waiting.wait_for(pred, timeout, what, every=0.002)
 
 
 def server_closed(s: socket.socket, timeout: float = 10.0) -> bool:

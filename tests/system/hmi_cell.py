@@ -34,20 +34,14 @@ from pathlib import Path
 import yaml
 
 from tests.system.conftest import REPO, make_config
+from tests.waiting import wait_for
 
 USER, ROLE, PASSWORD = "alice", "maintenance", "correct horse battery"
 
 
 def poll(pred, timeout_s: float, what: str, step_s: float = 0.05):
     """``pred()``'s first true value, polled every ``step_s`` for at most ``timeout_s`` wall s."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = pred()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(step_s)
+    return wait_for(pred, timeout_s, what, every=step_s)
 
 
 def query(db: Path, sql: str, args: tuple = ()) -> list[tuple]:
