@@ -44,6 +44,29 @@ def poll(pred, timeout_s: float, what: str, step_s: float = 0.05):
     return wait_for(pred, timeout_s, what, every=step_s)
 
 
+def serving_url(proc: subprocess.Popen, output: list[str], timeout_s: float = 60.0) -> str:
+    """The URL an HMI process prints (``serving http://...``) once it listens; every line it
+    writes, then and later, is appended to ``output`` by a reader thread.
+
+    :raises AssertionError: with what it printed, if no such line comes within ``timeout_s``.
+    """
+    lines: queue.Queue = queue.Queue()
+
+    def read() -> None:
+        for line in proc.stdout:
+            output.append(line)
+            lines.put(line)
+    threading.Thread(target=read, name="hmi-output", daemon=True).start()
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
+        except queue.Empty:
+            raise AssertionError(f"the HMI did not start: {''.join(output)}") from None
+        if "serving http://" in line:
+            return line.split("serving ")[1].split()[0].rstrip("/")
+
+
 def query(db: Path, sql: str, args: tuple = ()) -> list[tuple]:
     """Rows of ``sql`` on the log, read-only ([] while the log or its tables do not exist)."""
     if not db.exists():
@@ -95,23 +118,8 @@ class SimCellWithHmi:
              "--reports", str(self.reports)], cwd=REPO, env=env, stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
         self.procs.append(hmi)
-        lines: queue.Queue = queue.Queue()
         self.hmi_output: list[str] = []
-
-        def read() -> None:
-            for line in hmi.stdout:
-                self.hmi_output.append(line)
-                lines.put(line)
-        threading.Thread(target=read, name="hmi-stdout", daemon=True).start()
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
-            except queue.Empty:
-                raise AssertionError(f"the HMI did not start: {''.join(self.hmi_output)}") from None
-            if "serving http://" in line:
-                self.url = line.split("serving ")[1].split()[0].rstrip("/")
-                break
+        self.url = serving_url(hmi, self.hmi_output)
         poll(lambda: query(self.db, "SELECT COUNT(*) FROM cycles") and
              query(self.db, "SELECT COUNT(*) FROM cycles")[0][0] >= 1, 120, "the first logged cycle")
         if self.procs[0].poll() is not None:
@@ -163,24 +171,13 @@ class HmiProcess:
         self.proc = subprocess.Popen([sys.executable, "-m", "tests.system.hmi_cell", "serve", *self.args], cwd=REPO,
                                      env=dict(os.environ, PYTHONUNBUFFERED="1", **self.env), stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, preexec_fn=limit)
-        lines: queue.Queue = queue.Queue()
-
-        def read() -> None:
-            for line in self.proc.stdout:
-                self.output.append(line)
-                lines.put(line)
-        threading.Thread(target=read, name="hmi-output", daemon=True).start()
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                line = lines.get(timeout=max(0.1, deadline - time.monotonic()))
-            except queue.Empty:
-                self.__exit__(None, None, None)
-                raise AssertionError(f"the HMI did not start: {''.join(self.output)}") from None
-            if "serving http://" in line:
-                self.url = line.split("serving ")[1].split()[0].rstrip("/")
-                self.port = int(self.url.rsplit(":", 1)[1])
-                return self
+        try:
+            self.url = serving_url(self.proc, self.output)
+        except AssertionError:
+            self.__exit__(None, None, None)
+            raise
+        self.port = int(self.url.rsplit(":", 1)[1])
+        return self
 
     def log(self) -> str:
         return "".join(self.output)
