@@ -67,6 +67,23 @@ def serving_url(proc: subprocess.Popen, output: list[str], timeout_s: float = 60
             return line.split("serving ")[1].split()[0].rstrip("/")
 
 
+@contextlib.contextmanager
+def idle_cell(config_path: Path, port: int, seconds: float, wait_s: float = 90.0):
+    """``with idle_cell(cfg, port, 240) as status:``: ``cellctl serve --sim --config cfg`` on
+    ``port`` with no PLC, yielded once its registers say idle (``status``: that first
+    :func:`cell.hmi.status.plc_status` read); terminated and waited for on exit."""
+    from cell.hmi.status import plc_status
+    proc = subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(config_path),
+                             "--port", str(port), "--seconds", str(seconds)], cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield poll(lambda: (st := plc_status("127.0.0.1", port))["reachable"] and st["state"] == "idle" and st,
+                   wait_s, "the controller idle on its link")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
 def query(db: Path, sql: str, args: tuple = ()) -> list[tuple]:
     """Rows of ``sql`` on the log, read-only ([] while the log or its tables do not exist)."""
     if not db.exists():

@@ -6,16 +6,13 @@ are bounded polls of state."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 
 import pytest
 
 from cell.hmi.server import settings_from
-from cell.hmi.status import plc_status
 from tests.browser import chromium, require_browser
-from tests.system.hmi_cell import hmi_server, poll
-from tests.system.test_cli import REPO, free_port, write_config
+from tests.system.hmi_cell import hmi_server, idle_cell, poll
+from tests.system.test_cli import free_port, write_config
 
 TIME = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d")
 WAIT_S = 90
@@ -26,12 +23,7 @@ def test_an_idle_controller_is_shown_in_words_without_a_broken_picture(tmp_path)
     require_browser()
     cfg, path = write_config(tmp_path)
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(path),
-                             "--port", str(port), "--seconds", "240"], cwd=REPO,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        poll(lambda: (s := plc_status("127.0.0.1", port))["reachable"] and s["state"] == "idle", WAIT_S,
-             "the controller idle on its link")
+    with idle_cell(path, port, 240, WAIT_S):
         settings = settings_from(str(path), str(tmp_path / "users.json"), str(tmp_path / "reports"),
                                  ("127.0.0.1", port))
         with hmi_server(settings) as (url, _), chromium(tmp_path, 1400, 900) as driver:
@@ -47,6 +39,3 @@ def test_an_idle_controller_is_shown_in_words_without_a_broken_picture(tmp_path)
             assert driver.execute_script("return [...document.images].every((i) => i.complete && i.naturalWidth > 0)")
             poll(lambda: TIME.search(text("updated")), WAIT_S, "the page's update time")
             assert not re.search(r"\b[AP]M\b", driver.find_element("tag name", "main").text)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)

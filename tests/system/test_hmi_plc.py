@@ -2,35 +2,24 @@
 beside ``cellctl serve --sim`` (a real process; waits are bounded polls of state)."""
 from __future__ import annotations
 
-import subprocess
-import sys
-
 from starlette.testclient import TestClient
 
 from cell.hmi.app import create_app
 from cell.hmi.server import settings_from
 from cell.hmi.status import plc_status
-from tests.system.hmi_cell import poll
-from tests.system.test_cli import REPO, free_port, write_config
+from tests.system.hmi_cell import idle_cell
+from tests.system.test_cli import free_port, write_config
 
 
 def test_status_registers_are_read_without_taking_the_link(tmp_path):
     cfg, path = write_config(tmp_path)
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "cell.cli", "serve", "--sim", "--config", str(path),
-                             "--port", str(port), "--seconds", "120"], cwd=REPO,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        s = poll(lambda: (st := plc_status("127.0.0.1", port))["reachable"] and st["state"] == "idle" and st,
-                 90, "the controller idle on its link")
+    with idle_cell(path, port, 120) as s:
         assert s["fault_code"] == 0 and s["status"]["auto"] and not s["status"]["plc_link_ok"]   # no PLC yet
         app = create_app(settings_from(str(path), str(tmp_path / "users.json"), str(tmp_path / "reports"),
                                        ("127.0.0.1", port)))
         out = TestClient(app, base_url="http://127.0.0.1:8080", client=("127.0.0.1", 5000)).get("/api/status").json()
         assert out["plc"]["reachable"] and out["plc"]["state"] == "idle"
         assert not plc_status("127.0.0.1", port)["status"]["plc_link_ok"]   # reads never feed the watchdog
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
     gone = plc_status("127.0.0.1", port)
     assert not gone["reachable"] and gone["error"]
