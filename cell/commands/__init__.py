@@ -55,3 +55,31 @@ def png_path(given: str, name: str):
     if p.is_dir() or given.endswith(("/", "\\")):
         p = p / name
     return p if p.suffix else p.with_suffix(".png")
+
+
+def plot_file(given: str, name: str, option: str = "--png"):
+    """The plot file a plot option means (:func:`png_path`; None for ''),
+    refused with ConfigError naming ``option`` when it cannot be written: a format the
+    plotting library does not write, or a place below a file. Call it before any output."""
+    if not given:
+        return None
+    png = png_path(given, name)
+    from matplotlib.figure import Figure
+
+    from cell.errors import ConfigError
+    kinds = Figure().canvas.get_supported_filetypes()
+    if png.suffix[1:].lower() not in kinds:
+        raise ConfigError(f"{option} {given}: cannot write a {png.suffix} plot; use one of "
+                          f"{', '.join('.' + k for k in sorted(kinds))}")
+    blocker = file_in_the_way(png)
+    if blocker is not None:
+        raise ConfigError(f"{option} {given}: {blocker} is not a folder")
+    return png
+
+
+def file_in_the_way(path):
+    """The nearest existing parent of ``path`` when it is not a folder (``path`` cannot be
+    written below it), else None."""
+    from pathlib import Path
+    parent = next((p for p in Path(path).parents if p.exists()), None)
+    return parent if parent is not None and not parent.is_dir() else None

@@ -34,6 +34,7 @@ import os
 from pathlib import Path
 
 from cell import paths
+from cell.commands import file_in_the_way
 from cell.errors import ConfigError
 
 
@@ -91,9 +92,9 @@ def _out_path(given: str) -> Path:
     if out.is_dir():
         raise ConfigError(f"--out {out}: is a folder; name the calibration file to write "
                           f"(e.g. {out / 'calibration.json'})")
-    parent = next((p for p in out.parents if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise ConfigError(f"--out {out}: {parent} is not a folder")
+    blocker = file_in_the_way(out)
+    if blocker is not None:
+        raise ConfigError(f"--out {out}: {blocker} is not a folder")
     return out
 
 

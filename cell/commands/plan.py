@@ -201,7 +201,7 @@ def _plot(path: Path, trajs, samples: int) -> None:
 
 
 def run_timelaw(args: argparse.Namespace) -> int:
-    from cell.commands.report import plot_file
+    from cell.commands import plot_file
     from cell.trajectory.timelaw import plan_timelaw
     q = parse_waypoints(args.waypoints)
     if args.samples < 2:

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from cell import paths
-from cell.commands import open_log_readonly, png_path, preset_name
+from cell.commands import file_in_the_way, open_log_readonly, plot_file, preset_name
 from cell.errors import ConfigError
 
 DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
@@ -93,31 +93,6 @@ def _recipes_dir(given: str | None) -> Path:
     if not Path(given).is_dir():
         raise ConfigError(f"--recipes {given}: no such folder")
     return Path(given)
-
-
-def plot_file(given: str, name: str, option: str = "--png") -> Path | None:
-    """The plot file a plot option means (:func:`cell.commands.png_path`; None for ''),
-    refused with ConfigError naming ``option`` when it cannot be written: a format the
-    plotting library does not write, or a place below a file. Call it before any output."""
-    if not given:
-        return None
-    png = png_path(given, name)
-    from matplotlib.figure import Figure
-    kinds = Figure().canvas.get_supported_filetypes()
-    if png.suffix[1:].lower() not in kinds:
-        raise ConfigError(f"{option} {given}: cannot write a {png.suffix} plot; use one of "
-                          f"{', '.join('.' + k for k in sorted(kinds))}")
-    blocker = file_in_the_way(png)
-    if blocker is not None:
-        raise ConfigError(f"{option} {given}: {blocker} is not a folder")
-    return png
-
-
-def file_in_the_way(path: Path) -> Path | None:
-    """The nearest existing parent of ``path`` when it is not a folder (``path`` cannot be
-    written below it), else None."""
-    parent = next((p for p in Path(path).parents if p.exists()), None)
-    return parent if parent is not None and not parent.is_dir() else None
 
 
 def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
