@@ -47,11 +47,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import f as f_dist
-from scipy.stats import t as t_dist
 
 from cell.calibration.joint_result import Estimate, Harmonic, HarmonicTest, JointResult, Row, plot
 from cell.errors import CalibrationError
+from cell.stats import f_sf, t_ppf
 
 ALPHA = 0.05            # 95 % intervals; family-wise level of the harmonic F-tests
 MAX_COND = 100.0        # column-scaled design condition beyond which a harmonic is not
@@ -348,7 +347,7 @@ def _select(sw, base, theta, e, harmonics, max_harmonic, period):
         if math.sqrt(ssr0 / n) < ROUNDOFF_DEG:
             tests.append(HarmonicTest(k, per, "rejected", "the model already fits to round-off"))
             continue
-        p = float(f_dist.sf((ssr0 - ssr1) / 2 / (ssr1 / dof1), 2, dof1)) if ssr1 > 0 else 0.0
+        p = float(f_sf((ssr0 - ssr1) / 2 / (ssr1 / dof1), 2, dof1)) if ssr1 > 0 else 0.0
         level = ALPHA / len(ks)
         if ok := p < level:
             accepted.append(k)
@@ -422,12 +421,12 @@ def analyse(sweep: JointSweep, *, sense: int = -1, harmonics="auto", max_harmoni
     if np.all(np.isfinite(circle.cov)):
         pg = pinv @ grad.reshape(-1, 2)
         cov = cov + pg @ circle.cov[:2, :2] @ pg.T
-    tq = float(t_dist.ppf(1 - ALPHA / 2, dof))
+    tq = float(t_ppf(1 - ALPHA / 2, dof))
     hw = tq * np.sqrt(np.maximum(np.diag(cov), 0.0))
     est = lambda i, unit: Estimate(float(beta[i]), float(beta[i] - hw[i]), float(beta[i] + hw[i]), unit)
     offs = beta[:R]
     if R > 1:
-        h = float(t_dist.ppf(1 - ALPHA / 2, R - 1) * np.std(offs, ddof=1) / math.sqrt(R))
+        h = float(t_ppf(1 - ALPHA / 2, R - 1) * np.std(offs, ddof=1) / math.sqrt(R))
     else:  # the zero image's own noise (σ², as any image's) is in c_1 but not in the residuals
         h = tq * math.sqrt(cov[0, 0] + res @ res / dof)
     offset = Estimate(float(offs.mean()), float(offs.mean() - h), float(offs.mean() + h), "deg")

@@ -33,10 +33,10 @@ from typing import Sequence
 
 import numpy as np
 import scipy.linalg as sla
-from scipy import stats
 
 from cell.calibration.dh import D2R, DHChain, check_measured, error_jacobian
 from cell.errors import CalibrationError
+from cell.stats import t_ppf
 
 RANK_TOL = 1e-4        # σ_min/σ_max of the column-scaled J a kept set must exceed (cond < 1e4)
 ZERO_TOL = 1e-9        # column norm / largest column norm below which a parameter is unseen
@@ -382,7 +382,7 @@ def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None
     sv, Vt = sla.svd(J / norms, full_matrices=False)[1:]
     cov = (Vt.T / sv ** 2) @ Vt / np.outer(norms, norms) * s2
     se = np.sqrt(np.diag(cov))
-    half = stats.t.ppf(0.975, dof) * se
+    half = t_ppf(0.975, dof) * se
     est = p[idx]
     s_xy, s_phi = _sigmas(r, len(idx))
     if position_only:

@@ -8,5 +8,4 @@ models, registration, the sim-to-real diagnosis and the kinematic calibration of
 * :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision
 * :mod:`.report`    the ``cell-diagnosis/1`` report for chains
 * :mod:`.calibrate` seed 001's differential model fitted, checked on holdout, written back
-* :mod:`.stats`     t quantile and Wilcoxon test without importing scipy.stats
 """

@@ -25,8 +25,8 @@ import numpy as np
 
 from cell.chain import kin
 from cell.chain.model import Chain
-from cell.chain.stats import t_quantile
 from cell.measurements import CampaignFormatError
+from cell.stats import t_quantile
 
 STRUCTURAL_TOL = 1e-6     # a unit column this close to the others' span adds nothing
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.chain import fit as F
-from cell.chain.stats import wilcoxon_greater
+from cell.stats import wilcoxon_greater
 
 ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out poses better
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening

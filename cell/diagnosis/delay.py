@@ -24,12 +24,12 @@ from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2
 
 from cell import effects as fx
 from cell.diagnosis.fit import Z95, subset
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
+from cell.stats import chi2_sf
 
 LAG_BOUNDS_MS = (-20.0, 200.0)
 
@@ -77,7 +77,7 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
     sigma = float(np.sum(w * k * lam) / np.sum(w * k * k))
     dev = lam - sigma * k
     stat = float(np.sum(dev ** 2 * w))
-    p = float(chi2.sf(stat, 1))
+    p = float(chi2_sf(stat, 1))
     max_dev = float(np.max(np.abs(dev)))
     prop = None
     if detected:

@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2
+
+from cell.stats import chi2_ppf
 
 NEIGHBOURS = 8
 MIN_POINTS = 20
@@ -66,7 +67,7 @@ def upper95(sigma: float, dof: float) -> float:
     """95 % upper confidence bound of a σ estimated with ``dof`` degrees of freedom."""
     if not math.isfinite(dof) or dof <= 0:
         return math.inf
-    return sigma * math.sqrt(dof / float(chi2.ppf(0.05, dof)))
+    return sigma * math.sqrt(dof / float(chi2_ppf(0.05, dof)))
 
 
 def mad(v: np.ndarray) -> float:

@@ -57,7 +57,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from cell import effects as fx
 from cell.diagnosis import robust, screen
@@ -66,6 +65,7 @@ from cell.diagnosis.candidates import merge, single_candidates
 from cell.diagnosis.fit import (MAX_CORR, FitResult, TableStats, fit_candidate, hold_residuals,
                                 label, nominal_result, subset)
 from cell.diagnosis.replay import DiagData
+from cell.stats import chi2_ppf, chi2_sf
 
 ALPHA = 1e-3
 REFINE = 4
@@ -77,7 +77,7 @@ MAX_POINT_NOISE_RATIO_GIVEN = 3.0
 MAX_POINT_NOISE_RATIO_PATHS = 5.0
 BIC_STRONG = 10.0
 RIVAL_FULL_FIT = 10 * BIC_STRONG
-CHI2_95_1 = float(chi2.ppf(0.95, 1))     # 3.84: 95 % likelihood set of one parameter
+CHI2_95_1 = float(chi2_ppf(0.95, 1))     # 3.84: 95 % likelihood set of one parameter
 OUTLIER_ROUNDS = 3
 METHODS = ("screened", "exhaustive")
 _CONSTANTS = {name: tuple(p.stem for p in e.params if not p.fitted)   # e.g. cyclic period
@@ -306,7 +306,7 @@ class Decision:
 def _lr_p(null: FitResult, alt: FitResult, m: int) -> float:
     stat = max(null.neg2ll - alt.neg2ll, 0.0)
     dof = max(alt.k - null.k, 1)
-    return min(1.0, float(chi2.sf(stat, dof)) * max(m, 1))
+    return min(1.0, float(chi2_sf(stat, dof)) * max(m, 1))
 
 
 def decide(s: Search) -> Decision:

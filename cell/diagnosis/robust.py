@@ -41,13 +41,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2
 
 from cell.diagnosis import noise as noise_mod
 from cell.diagnosis import where as where_mod
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 from cell.kinematics import planar_xy
+from cell.stats import chi2_isf
 
 ALPHA = 0.01
 MAX_SHARE = 0.25
@@ -125,7 +125,7 @@ def flag(fit_d: DiagData, hold_d: DiagData, effects, path_temp_c=None) -> Outlie
         if len(a) < MIN_ROWS or len(a) + len(b) <= NEIGHBOURS + 1:
             continue
         r = np.vstack([a, b])
-        q = math.sqrt(float(chi2.isf(ALPHA / len(r), 2)))
+        q = math.sqrt(float(chi2_isf(ALPHA / len(r), 2)))
         far = np.zeros(len(r), bool)
         for _ in range(PASSES):   # a spike spoils its neighbours' planes: leave it out of them
             z = _local_residual(coords[t], r, ~far)
