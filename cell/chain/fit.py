@@ -25,6 +25,7 @@ import numpy as np
 
 from cell.chain import kin
 from cell.chain.model import Chain
+from cell.diagnosis.crossval import places
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 
@@ -65,6 +66,12 @@ def vocabulary(chain: Chain) -> list[Param]:
     return out
 
 
+def _levers(chain: Chain, readings: np.ndarray) -> np.ndarray:
+    tips, starts = kin.forward(chain, readings, keep=True)
+    load = tips[:, :3, :3] @ chain.tool_mm + tips[:, :3, 3]
+    return kin.gravity_levers(chain, starts, load)
+
+
 @dataclass
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
@@ -79,17 +86,27 @@ class Data:
     sensor: bool
     known_markers: np.ndarray | None
     levers: np.ndarray
+    place: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.place is None:
+            self.place = places(self.readings)
 
     @classmethod
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
         """From a :class:`~cell.chain.campaign.ChainCampaign`, keeping the poses of ``pose_mask``."""
-        chain = cc.chain
-        tips, starts = kin.forward(chain, cc.readings, keep=True)
-        load = tips[:, :3, :3] @ chain.tool_mm + tips[:, :3, 3]
-        levers = kin.gravity_levers(chain, starts, load)
-        d = cls(chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
-                cc.spec.measurement_frame == "sensor", cc.known_markers, levers)
+        d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
+                cc.spec.measurement_frame == "sensor", cc.known_markers,
+                _levers(cc.chain, cc.readings))
         return d if pose_mask is None else d.subset(pose_mask)
+
+    def at(self, readings: np.ndarray) -> "Data":
+        """The same arm, markers and frame at other joint ``readings`` (P, J), every marker
+        on every pose, nothing measured (``xyz`` zero): for predicting, not fitting."""
+        P, m = len(readings), max(self.n_markers, 1)
+        return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
+                    np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
+                    _levers(self.chain, readings))
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -103,6 +120,15 @@ class Data:
     @property
     def n_poses(self) -> int:
         return len(self.readings)
+
+    def folds(self) -> tuple[np.ndarray, int]:
+        """(fold of every measured point, number of folds) for leave-out prediction: the
+        poses' places when some poses share one (a station revisited: leaving out one
+        visit would leave its twins in), else every pose on its own."""
+        n = int(self.place.max()) + 1 if len(self.place) else 0
+        if n < self.n_poses:
+            return self.place[self.obs_pose], n
+        return self.obs_pose, self.n_poses
 
 
 @dataclass
@@ -389,7 +415,7 @@ def leave_one_pose_out(J: np.ndarray, r: np.ndarray, obs_pose: np.ndarray, n_pos
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()
-    f.cv_rms, f.cv_pose, Ainv, scale = leave_one_pose_out(f.J, r, d.obs_pose, d.n_poses)
+    f.cv_rms, f.cv_pose, Ainv, scale = leave_one_pose_out(f.J, r, *d.folds())
     Js = f.J / scale
     idx = _by_pose(d.obs_pose, d.n_poses)
     pad = idx < 0

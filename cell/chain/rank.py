@@ -34,6 +34,7 @@ ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out p
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
+RIVAL_RATIO = 1.25    # a tied candidate's leave-out rms is within this factor of the best's
 
 
 @dataclass
@@ -76,11 +77,12 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ())
     def cv(params: list[F.Param]) -> tuple[float, np.ndarray]:
         J = np.column_stack([base] + [cols[p.name] for p in params]) if params else base
         if J.shape[1] == 0:
-            per = np.bincount(d.obs_pose, np.sum(f0.resid ** 2, 1), d.n_poses)
-            return F.rms3(f0.resid), per / np.maximum(np.bincount(d.obs_pose, minlength=d.n_poses), 1)
+            grp, n = d.folds()
+            per = np.bincount(grp, np.sum(f0.resid ** 2, 1), n)
+            return F.rms3(f0.resid), per / np.maximum(np.bincount(grp, minlength=n), 1)
         Js, _ = F._scaled(J)
         beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, d.obs_pose, d.n_poses)
+        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, *d.folds())
         return total, per
 
     best, best_pose = cv(chosen)
@@ -157,7 +159,7 @@ def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
     r0 = f0.resid.ravel()
     Js, _ = F._scaled(J2)
     beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-    total, per, *_ = F.leave_one_pose_out(J2, r0 - Js @ beta, d.obs_pose, d.n_poses)
+    total, per, *_ = F.leave_one_pose_out(J2, r0 - Js @ beta, *d.folds())
     return total, per
 
 
@@ -171,31 +173,74 @@ class Decision:
     reasons: list[str]
     notes: list[str]
     warnings: list[str] = field(default_factory=list)
+    rivals: list = field(default_factory=list)
+    tied: list = field(default_factory=list)
 
     @property
     def confidence(self) -> str:
-        """``high``, or ``low`` when :attr:`warnings` says the named cause has a rival the
-        poses do not rule out (a consumer should check before acting)."""
-        return "low" if self.warnings else "high"
+        """``ambiguous`` when :attr:`rivals` predict left-out poses as well as the named
+        cause (the campaign cannot tell them apart), ``low`` when :attr:`warnings` says
+        something else to check before acting, or the cause leaves most of the gap
+        unexplained, else ``high``."""
+        if self.rivals:
+            return "ambiguous"
+        return "low" if self.warnings or self.unexplained else "high"
+
+
+def _components(c: Candidate) -> set:
+    return {(p.effect, p.joint) for p in c.fit.params}
+
+
+def tied_with(s: Search, best: Candidate) -> list[Candidate]:
+    """The candidates that predict left-out folds as well as ``best``: not worse by the
+    one-sided Wilcoxon test over folds at :data:`ALPHA`, and within :data:`RIVAL_RATIO`
+    of its prediction rms (a fold count too small for the test must not make a poor
+    candidate a rival). ``best`` first."""
+    out = [best]
+    for c in s.ranking:
+        if c is best:
+            continue
+        if wilcoxon_p(c.fit.cv_pose, best.fit.cv_pose) >= ALPHA \
+                and c.fit.cv_rms <= RIVAL_RATIO * best.fit.cv_rms:
+            out.append(c)
+    return out
 
 
 def decide(s: Search, noise_mm: float | None) -> Decision:
-    """Name the best candidate, ``none``, and whether most of the gap is left unexplained.
-    ``noise_mm`` is σ per axis of one point measurement (None: unknown)."""
+    """Name a cause, ``none``, and whether most of the gap is left unexplained.
+    ``noise_mm`` is σ per axis of one point measurement (None: unknown).
+
+    The candidate with the lowest leave-out error is tested against registration alone;
+    if it passes, the simplest candidate (fewest parameters) among those it cannot be told
+    from (:func:`tied_with`) that also passes is named: a cause with more parameters must
+    predict left-out poses better, not fit the fit poses better. Tied candidates that are
+    neither the named cause nor a larger model containing it are its ``rivals``; so is a
+    scale error of the measuring instrument that predicts as well."""
     f0 = s.nominal.fit
     notes: list[str] = []
     best = s.ranking[0] if s.ranking else None
     p = wilcoxon_p(f0.cv_pose, best.fit.cv_pose) if best else 1.0
-    chosen = best if best is not None and p < ALPHA else None
-    runner = s.ranking[1] if chosen is not None and len(s.ranking) > 1 else None
+    chosen, rivals, tied = None, [], []
+    if best is not None and p < ALPHA:
+        tied = tied_with(s, best)
+        passing = [c for c in tied if wilcoxon_p(f0.cv_pose, c.fit.cv_pose) < ALPHA]
+        chosen = min(passing, key=lambda c: (len(c.fit.params), c.fit.cv_rms))
+        p = wilcoxon_p(f0.cv_pose, chosen.fit.cv_pose)
+        mine = _components(chosen)
+        rivals = [c for c in tied if c is not chosen and not _components(c) >= mine]
+        if chosen is not best:
+            notes.append(f"{best.label} predicts left-out poses best, but not significantly "
+                         f"better than the simpler {chosen.label} ({len(best.fit.params)} "
+                         f"parameters against {len(chosen.fit.params)}): the simpler is named")
+    runner = next((c for c in s.ranking if c is not chosen), None) if chosen is not None else None
     rp = wilcoxon_p(runner.fit.cv_pose, chosen.fit.cv_pose) if runner else None
     warnings: list[str] = []
-    if runner is not None and rp >= ALPHA and not set(runner.effects) >= set(chosen.effects) \
-            and not set(chosen.effects) >= set(runner.effects):
-        warnings.append(f"the runner-up {runner.label} predicts left-out poses almost as well "
-                        f"(p = {rp:.2g}); the data do not tell the two apart firmly")
+    if rivals:
+        warnings.append("the campaign cannot tell the cause from " + ", ".join(
+            c.label for c in rivals) + ": they predict left-out poses as well (cause.rivals; "
+            "cause.separating_poses says where to measure next)")
     if chosen is not None:
-        _, scale_pose = instrument_scale(s.fit_d, f0)
+        scale_rms, scale_pose = instrument_scale(s.fit_d, f0)
         sp = wilcoxon_p(scale_pose, chosen.fit.cv_pose)
         if sp >= ALPHA:
             warnings.append(f"a scale error of the measuring instrument predicts left-out poses "
@@ -208,7 +253,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm 3-D); the named cause is small")
-        return Decision(chosen, p, runner, rp, False, reasons, notes, warnings)
+        return Decision(chosen, p, runner, rp, False, reasons, notes, warnings, rivals, tied)
     before = s.nominal.hold_rms
     after = chosen.hold_rms if chosen else before
     shrink = 1 - after / before if before > 0 else 0.0
@@ -228,4 +273,54 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     if noise3 is not None and chosen.fit.rms > NOISE_FACTOR * noise3:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
                        f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D)")
-    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings)
+    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied)
+
+
+N_POSES = 5           # separating poses proposed
+POSE_DRAWS = 4000     # configurations drawn inside the limits to choose them from
+
+
+def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
+                     noise_mm: float | None, seed: int = 0) -> list[dict]:
+    """Up to :data:`N_POSES` joint configurations where ``chosen`` and its ``rivals``
+    (each with its own registration) predict the measured points most differently:
+    drawn inside each joint's limits (the campaign's own range where the model gives
+    none), the pose whose smallest difference to any rival is largest first, then the
+    next at least a fifth of the joints' ranges away. Per pose the readings (``jK``), the
+    expected largest point difference (mm) per rival and, with a noise reference, that
+    difference over σ per axis."""
+    if not rivals or chosen is None:
+        return []
+    d = s.fit_d
+    rng = np.random.default_rng(seed)
+    lo = d.readings.min(axis=0).astype(float)
+    hi = d.readings.max(axis=0).astype(float)
+    for k, j in enumerate(d.chain.joints):
+        if j.lower is not None and j.upper is not None:
+            lo[k], hi[k] = j.lower, j.upper
+    span = np.where(hi > lo, hi - lo, 1.0)
+    q = lo + rng.random((POSE_DRAWS, len(lo))) * (hi - lo)
+    syn = d.at(q)
+    m = max(d.n_markers, 1)
+
+    def predict(c: Candidate) -> np.ndarray:
+        y, _ = F.model(syn, c.fit.reg, c.fit.params, c.fit.values)
+        return y.reshape(len(q), m, 3)
+    base = predict(chosen)
+    diffs = np.stack([np.linalg.norm(base - predict(c), axis=2).max(axis=1) for c in rivals], 1)
+    score = diffs.min(axis=1)
+    picked: list[int] = []
+    for i in np.argsort(-score):
+        if all(np.linalg.norm((q[i] - q[j]) / span) >= 0.2 for j in picked):
+            picked.append(int(i))
+        if len(picked) == N_POSES:
+            break
+    out = []
+    for i in picked:
+        e = {"readings": {j.column: round(float(v), 3) for j, v in zip(d.chain.joints, q[i])},
+             "difference_mm": {c.label: round(float(v), 6) for c, v in zip(rivals, diffs[i])}}
+        if noise_mm:
+            e["difference_over_noise"] = {c.label: round(float(v / noise_mm), 2)
+                                          for c, v in zip(rivals, diffs[i])}
+        out.append(e)
+    return out

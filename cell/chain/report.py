@@ -24,6 +24,7 @@ from cell.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
                               rigid_noise_mm)
 from cell.chain.campaign import ChainCampaign
 from cell.measurements import CampaignFormatError
+from cell.diagnosis.page import describe_cause
 
 FORMAT = "cell-diagnosis/1"
 SPLIT_SEED = 20260501
@@ -162,8 +163,23 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
         cause = {"effect": "none", "joints": [], "params": {}, "ci95": {}, "subsystem": "none",
                  "components": []}
         subsystem, depends, joints = "none", "position", []
-    cause["confidence"] = dec.confidence if dec.chosen is not None else "high"
+    cause["confidence"] = dec.confidence
     cause["warnings"] = dec.warnings
+    cause["label"] = dec.chosen.label if dec.chosen is not None else "none"
+    cause["selection"] = {
+        "method": "leave-one-out prediction over "
+                  + ("places (poses that share one are left out together)"
+                     if fit_d.folds()[1] < fit_d.n_poses else "poses")
+                  + ", then fewest parameters",
+        "folds": fit_d.folds()[1], "alpha": rank.ALPHA, "rival_ratio": rank.RIVAL_RATIO,
+        "named": cause["label"],
+        "table": [{"label": c.label, "k": len(c.fit.params), "cv_rms_mm": _r(c.fit.cv_rms),
+                   "tied": any(c is t for t in dec.tied)} for c in s.ranking]}
+    cause["rivals"] = [{"label": c.label, "effects": list(c.effects), "joints": c.joints,
+                        "k": len(c.fit.params), "cv_rms_mm": _r(c.fit.cv_rms),
+                        "holdout_rms_mm": _r(c.hold_rms), "params": _params(c)[0]}
+                       for c in dec.rivals]
+    cause["separating_poses"] = rank.separating_poses(s, dec.chosen, dec.rivals, noise_mm)
     cause["test"] = {"p_value": _r(dec.p_value, 8), "alpha": rank.ALPHA,
                      "method": "one-sided Wilcoxon signed-rank over fit poses of the "
                                "leave-one-pose-out error, vs registration alone",
@@ -175,8 +191,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     if cause["effect"] == "none":
         summary += "; no effect of the chain vocabulary is supported"
     else:
-        summary += (f"; it {_VAR_TEXT[depends]} and the best-supported cause is {cause['effect']} "
-                    f"on {', '.join(joints)}")
+        summary += f"; it {_VAR_TEXT[depends]} and the best-supported cause is {describe_cause(cause)}"
     summary += (", but most of it is left unexplained." if dec.unexplained else ".")
     n_reg = F.n_registration(fit_d)
     return ChainDiagnosis({
@@ -245,13 +260,22 @@ def render_chain_text(rep: dict) -> str:
     if c["effect"] == "none":
         out.append(f"cause: none (best candidate not supported: p = {c['test']['p_value']:.3g})")
     else:
-        out.append(f"cause: {c['effect']} on {', '.join(c['joints'])} ({c['subsystem']}), "
-                   f"p = {c['test']['p_value']:.3g}, confidence {c.get('confidence', 'high')}")
+        out.append(f"cause: {describe_cause(c)} ({c['subsystem']}), "
+                   f"p = {c['test']['p_value']:.3g}, confidence {c['confidence']}")
         for w in c.get("warnings", []):
             out.append(f"  warning: {w}")
         for n, v in c["params"].items():
             lo, hi = c["ci95"][n]
             out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")
+        for r in c.get("rivals", []):
+            out.append(f"  rival: {r['label']} on {', '.join(r['joints'])} (k {r['k']}, leave-out "
+                       f"rms {r['cv_rms_mm']:.4f} mm, holdout rms {r['holdout_rms_mm']:.4f} mm)")
+        for pz in c.get("separating_poses", []):
+            where = ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
+            diff = ", ".join(f"{k} {v:.3f} mm" for k, v in pz["difference_mm"].items())
+            out.append(f"  measure next: {where}: differs from {diff}")
+    if c["effect"] == "none" and c["confidence"] != "high":
+        out.append(f"confidence {c['confidence']}")
     out.append(f"holdout ({h['poses']} poses, {h['n']} points): rms {h['rms_before_mm']:.4f} -> "
                f"{h['rms_after_mm']:.4f} mm, shrink {h['shrink']:.3f}")
     nz = rep["noise"]

@@ -16,6 +16,8 @@ not the answer), then none, then the cause's effect:
 - gravity compliance (chain): the joint gives way under load: check its drive and payload.
 
 A ``low`` confidence keeps the action and adds a caveat: confirm on a second campaign.
+An ``ambiguous`` answer (the campaign cannot tell the cause from its ``cause.rivals``)
+changes nothing on the robot: measure the ``cause.separating_poses`` first.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ CALIBRATABLE_JOINTS = ("j1", "j2", "j4")
 @dataclass(frozen=True)
 class Action:
     """``kind`` (calibrate_joint, calibrate_kinematics, thermal, camera, comms,
-    compliance, none, investigate), ``text`` (one short sentence for a person), ``commands``
+    compliance, none, investigate, measure_more), ``text`` (one short sentence for a person), ``commands``
     (shell commands to run, may be empty), ``caveat`` (or ''), ``detail`` (or '': what
     follows the headline)."""
 
@@ -59,6 +61,13 @@ def recommend(rep: dict) -> Action:
                       (), caveat, f"{best}See where it lies{lies} in the plots below.")
     if effect == "none":
         return Action("none", "No action: the gap is within noise.", (), "")
+    if cause.get("confidence") == "ambiguous":
+        rivals = [cause.get("label", effect)] + [r.get("label", "?") for r in cause.get("rivals", [])]
+        n = len(cause.get("separating_poses", []))
+        return Action("measure_more", "Measure more before acting: the campaign cannot tell "
+                      + " from ".join(rivals[:2]) + (" and others" if len(rivals) > 2 else "") + ".",
+                      (), "", f"Add the {n} separating poses listed below to the campaign and "
+                      "diagnose again." if n else "Add poses at places the campaign did not visit.")
     on = f" on {', '.join(joints)}" if joints else ""
     if effect in JOINT_LEVEL and not chain:
         js = [j for j in joints if j in CALIBRATABLE_JOINTS] or joints

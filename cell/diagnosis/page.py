@@ -98,6 +98,17 @@ def num(v, nd: int = 4) -> str:
     return f"{v:.{nd}f}" if abs(v) >= 10 ** -nd or v == 0 else f"{v:.3g}"
 
 
+def describe_cause(c: dict) -> str:
+    """The named cause in words, every fitted component: ``backlash on j2``,
+    ``joint_offset on j1 + link_length on j1`` (text, page and action say the same)."""
+    comps = c.get("components") or []
+    if not comps:
+        on = f" on {', '.join(c.get('joints', []))}" if c.get("joints") else ""
+        return f"{c.get('effect', 'none')}{on}"
+    return " + ".join(f"{x['effect']}" + (f" on {', '.join(x['joints'])}" if x.get("joints") else "")
+                      for x in comps)
+
+
 def _cause_card(rep: dict) -> str:
     c = rep["cause"]
     eff = c["effect"]
@@ -118,10 +129,14 @@ def _cause_card(rep: dict) -> str:
         cls, head, sub_line = "cause-none", "None: within noise", "no effect of the vocabulary is supported"
         badge = ""
     else:
-        cls, head, sub_line, badge = "", f"{esc(eff)}{esc(on)}", esc(sub.strip(" ()")), ""
+        cls, head, sub_line, badge = "", esc(describe_cause(c)), esc(sub.strip(" ()")), ""
     conf = c.get("confidence")
     if conf and not rep["unexplained"] and eff != "none":
         badge = f'<span class="badge b-{esc(conf)}">confidence {esc(conf)}</span>'
+    rivals = c.get("rivals") or []
+    if rivals:
+        sub_line += (" — or, as the campaign sees it, "
+                     + " or ".join(esc(r.get("label", "?")) for r in rivals))
     rows = []
     for n in list(c.get("params", {}))[:CARD_PARAMS]:
         v, ci = c["params"][n], c.get("ci95", {}).get(n)
@@ -131,9 +146,27 @@ def _cause_card(rep: dict) -> str:
     extra = f"<p class='small'>+{more} more parameters in the table below</p>" if more > 0 else ""
     plist = (f"<p class='small'>estimate [95 % interval]</p><ul>{''.join(rows)}</ul>{extra}"
              if rows else "")
+    poses = _separating(c)
     return (f'<section class="card {cls}" id="cause"><h3>What is wrong</h3>'
             f'<p class="big">{head}</p><p>{sub_line} {badge}</p>'
-            f'{plist}<p class="small">{esc(ptxt)}</p></section>')
+            f'{plist}{poses}<p class="small">{esc(ptxt)}</p></section>')
+
+
+def _separating(c: dict) -> str:
+    """The separating poses (planar joints and directions, or chain readings) as a list."""
+    items = []
+    for pz in c.get("separating_poses") or []:
+        if "readings" in pz:
+            where = ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
+        else:
+            where = (f"j1 {pz['j1_deg']:g}° ({pz['j1_dir']:+d}), "
+                     f"j2 {pz['j2_deg']:g}° ({pz['j2_dir']:+d})")
+        diff = ", ".join(f"{esc(k)} {num(v)} mm" for k, v in pz["difference_mm"].items())
+        items.append(f"<li>{esc(where)}: differs from {diff}</li>")
+    if not items:
+        return ""
+    return ("<p class='small' id='separating'>measure next, where the causes differ most:</p>"
+            f"<ul class='small'>{''.join(items)}</ul>")
 
 
 def _shrink_card(rep: dict, fit: FitRms) -> str:

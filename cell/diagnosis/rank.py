@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
-from cell.diagnosis import robust, screen
+from cell.diagnosis import crossval, robust, screen
 from cell.diagnosis import where as where_mod
 from cell.diagnosis.candidates import merge, single_candidates
 from cell.diagnosis.fit import (MAX_CORR, FitResult, TableStats, fit_candidate, hold_residuals,
@@ -91,7 +91,10 @@ class Search:
     ``approx`` were only screened (:mod:`.screen`). ``outliers`` the flags the fits left
     out (:mod:`.robust`), ``spread`` the fit rows' places, ``order_layout`` {joint: (largest
     canonical correlation between two harmonic orders, those orders)}, ``tries`` the
-    number of single / pair variants weighed (harmonic orders counted), ``stats`` counts."""
+    number of single / pair variants weighed (harmonic orders counted), ``stats`` counts;
+    ``basis`` / ``screened`` the screening's columns (with the cross-validation folds) and
+    its linearised fits {candidate: Screened}, ``n_places`` the fit poses' places
+    (:mod:`.crossval`)."""
 
     nominal: FitResult
     singles: list[FitResult]
@@ -105,6 +108,9 @@ class Search:
     order_layout: dict = field(default_factory=dict)
     tries: tuple[int, int] = (0, 0)
     stats: dict = field(default_factory=dict)
+    basis: screen.Basis | None = None
+    screened: dict = field(default_factory=dict)
+    n_places: int = 0
 
 
 def _key(r: FitResult):
@@ -206,7 +212,8 @@ def _screened(fit_d, hold_d, cands, skipped, out: robust.Outliers, jac) -> Searc
     keep = out.keep_fit
     n_total = 2 * int(keep.sum())
     nominal = nominal_result(fit_d, hold_d, keep)
-    B = screen.basis(fit_d, hold_d, cands, keep, None)
+    fold_of, _, n_places = crossval.folds(fit_d)
+    B = screen.basis(fit_d, hold_d, cands, keep, None, fold_of)
     hold_rows = (hold_d.n_points, hold_d.n_path)
     pcands = _pairs_of(cands)
     scs = screen.screen_all(B, cands + pcands)
@@ -231,6 +238,7 @@ def _screened(fit_d, hold_d, cands, skipped, out: robust.Outliers, jac) -> Searc
             n_full += 1
     s.order_layout = _order_layout(B, cands)
     s.stats = {"screened": len(scs), "full_fits": n_full}
+    s.basis, s.screened, s.n_places = B, scs, n_places
     return s
 
 
@@ -340,6 +348,40 @@ def decide(s: Search) -> Decision:
     return Decision(chosen, p, s.nominal.bic - chosen.bic, pair_p,
                     rival.label if rival else None, (rival.bic - chosen.bic) if rival else None,
                     touched, rival)
+
+
+def judge(s: Search, dec: Decision, jac: str = "analytic") -> tuple[Decision, "crossval.Judgement | None"]:
+    """The out-of-sample choice of :mod:`.crossval` on top of :func:`decide`: when the
+    decision names a cause, the simplest candidate that predicts left-out places as well
+    as the best is named instead (fitted in full if it was only screened), and the
+    candidates the places cannot tell from it are its rivals. ``none`` stays ``none``.
+    Returns the (possibly new) decision and the judgement (None without folds, e.g. the
+    exhaustive search)."""
+    B = s.basis
+    if B is None or not B.folds:
+        return dec, None
+    ref = s.screened.get(dec.chosen.candidate) if dec.chosen is not None else None
+    w = ref.weights if ref is not None else (1.0, 1.0)
+    j = crossval.judge(B, s.screened, dec.chosen.candidate if dec.chosen else None, w,
+                       s.n_places, lambda c: label(c))
+    if dec.chosen is None or j.named is None or j.named == dec.chosen.candidate:
+        return dec, j
+    new = next((r for r in s.ranking if r.candidate == j.named and not r.approx), None)
+    if new is None:
+        sc = s.screened[j.named]
+        keep = s.outliers.keep_fit if s.outliers is not None else None
+        n_total = 2 * int(np.sum(keep)) if keep is not None else s.basis.n_total
+        new = fit_candidate(j.named, s.fit_d, s.hold_d, n_total, rounds=2,
+                            x0=screen.start_params(B, sc), jac=jac, keep=keep,
+                            weights=sc.weights)
+        new.extras["order_dev"] = sc.order_dev
+        s.stats["full_fits"] = s.stats.get("full_fits", 0) + 1
+    if not (new.identifiable and new.success):
+        return dec, j
+    m = s.tries[0] if len(j.named) == 1 else s.tries[1]
+    rival = j.rivals[0].label if j.rivals else dec.runner_up
+    return Decision(new, _lr_p(s.nominal, new, m or 1), s.nominal.bic - new.bic, None, rival,
+                    None, dec.touched + [new]), j
 
 
 def _nested(single, pair) -> bool:
@@ -479,4 +521,5 @@ def unexplained(d: DiagData, s: Search, dec: Decision, shrink: float,
     return rem
 
 
-__all__ = ["ALPHA", "Decision", "Remainder", "Search", "decide", "label", "search", "unexplained"]
+__all__ = ["ALPHA", "Decision", "Remainder", "Search", "decide", "judge", "label", "search",
+           "unexplained"]

@@ -33,7 +33,8 @@ import numpy as np
 
 from cell.diagnosis import delay as delay_mod
 from cell.diagnosis import noise as noise_mod
-from cell.diagnosis import rank, robust, where as where_mod
+from cell.diagnosis import crossval, rank, robust, where as where_mod
+from cell.diagnosis.page import describe_cause
 from cell.diagnosis.fit import (FitResult, TableStats, combined, component_sizes,
                                 hold_residuals)
 from cell.diagnosis.replay import DiagData, path_noise_mm, prepare, residuals
@@ -165,7 +166,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
     s = rank.search(d, method, jac)
     keep = robust.keep_all(d, s.outliers)
     wh = where_mod.analyse(d, rp, rq, keep)
-    dec = rank.decide(s)
+    dec, judged = rank.judge(s, rank.decide(s), jac)
     before = s.nominal.holdout
     after = dec.chosen.holdout if dec.chosen else before
     shrink = 1.0 - after.rms / before.rms if before.rms > 0 else 0.0
@@ -174,6 +175,16 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
     pn, estimates = point_noise(d, dec.chosen, keep[0], noise_mm, sigma_q)
     rem = rank.unexplained(d, s, dec, inl["shrink"], sigma_q, pn)
     confidence, warnings = rank.assess(s, dec)
+    if judged is not None and judged.rivals:
+        confidence = "ambiguous"
+        warnings.insert(0, "the campaign cannot tell the cause from "
+                        + ", ".join(r.label for r in judged.rivals)
+                        + ": they predict the left-out places as well (cause.rivals; "
+                        "cause.separating_poses says where to measure next)")
+    if rem.unexplained and confidence == "high":
+        confidence = "low"
+        warnings.append("the named cause leaves most of the gap unexplained: it is the best "
+                        "candidate, not a diagnosis")
     # the lags are fitted with the cause's static part only when the cause explains the gap
     trusted = dec.chosen is not None and not rem.unexplained
     static = [e for e in dec.chosen.effects if e.spec.stage != "comms"] if trusted else []
@@ -207,6 +218,14 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
                      ("linearised" if dec.rival.approx else "full")}
     cause["confidence"] = confidence
     cause["warnings"] = warnings
+    cause["label"] = dec.chosen.label if dec.chosen is not None else "none"
+    cause["selection"] = _selection(judged, dec)
+    cause["rivals"] = _rivals(judged, s)
+    cause["separating_poses"] = (
+        crossval.separating_poses(s.basis, s.screened, dec.chosen.candidate, judged.rivals,
+                                  s.fit_d, d.geometry.limits[:2],
+                                  pn.sigma_mm if pn is not None else None)
+        if judged is not None and judged.rivals and dec.chosen is not None else [])
     where = {"subsystem": subsystem, "joints": joints, "depends_on": wh.depends_on,
              "summary": _summary(gap, wh, cause, rem),
              "depends_on_joint": wh.joint,
@@ -270,6 +289,43 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
     return Diagnosis(d, s, dec, wh, rem, dl, report)
 
 
+def _scored(x: "crossval.Scored") -> dict:
+    return {"label": x.label, "k": x.k, "cv_rms": _r(x.cv_rms, 4),
+            "p_worse_than_best": _r(x.p_worse, 6), "tied": x.tied}
+
+
+def _selection(j: "crossval.Judgement | None", dec: rank.Decision) -> dict:
+    """How the cause was chosen out of sample (:mod:`.crossval`): folds, the rule and the
+    comparison table (prediction rms in noise units, 1 ≈ noise)."""
+    if j is None:
+        return {"method": "in-sample (BIC)", "folds": 0}
+    return {"method": "leave-one-place-out prediction, then fewest parameters",
+            "folds": j.n_folds, "places": j.n_places, "alpha": crossval.ALPHA,
+            "rival_ratio": crossval.RIVAL_RATIO, "testable": j.testable,
+            "best": j.best.label if j.best else None,
+            "named": dec.chosen.label if dec.chosen is not None else "none",
+            "nominal_cv_rms": _r(j.nominal.cv_rms, 4) if j.nominal else None,
+            "table": [_scored(x) for x in j.table[:12]], "notes": j.notes}
+
+
+def _rivals(j: "crossval.Judgement | None", s: rank.Search) -> list[dict]:
+    """The tied candidates that are other explanations, with their evidence."""
+    if j is None:
+        return []
+    out = []
+    for x in j.rivals:
+        sc = s.screened[x.candidate]
+        comps = [{"effect": e, "joints": list(js)} for e, js in x.candidate]
+        out.append(_scored(x) | {
+            "effects": [e for e, _ in x.candidate],
+            "joints": sorted({jn for _, js in x.candidate for jn in js}),
+            "components": comps,
+            "holdout_rms_mm": _r(math.sqrt((sc.hold_rss[0] + sc.hold_rss[1])
+                                           / max(s.nominal.holdout.n, 1) / 2)),
+            "fit": "linearised"})
+    return out
+
+
 _VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angle",
              "direction": "depends on the approach direction", "time": "drifts with time",
              "temperature": "follows the temperature", "position": "varies over the workspace",
@@ -284,8 +340,7 @@ def _summary(gap: TableStats, wh: where_mod.Where, cause: dict, rem: rank.Remain
     if cause["effect"] == "none":
         s += "; no effect of the vocabulary is supported beyond noise"
     else:
-        j = f" on {', '.join(cause['joints'])}" if cause["joints"] else ""
-        s += f"; the best-supported cause is {cause['effect']}{j}"
+        s += f"; the best-supported cause is {describe_cause(cause)}"
     if rem.unexplained:
         s += ", but most of the gap is left unexplained"
         if rem.where is not None:
@@ -317,8 +372,7 @@ def render_text(rep: dict) -> str:
     if c["effect"] == "none":
         out.append(f"cause: none (best candidate not significant: p = {c['test']['p_value']:.3g})")
     else:
-        j = f" on {', '.join(c['joints'])}" if c["joints"] else ""
-        out.append(f"cause: {c['effect']}{j} ({c['subsystem']}), p = {c['test']['p_value']:.3g}, "
+        out.append(f"cause: {describe_cause(c)} ({c['subsystem']}), p = {c['test']['p_value']:.3g}, "
                    f"ΔBIC vs nominal {c['test']['delta_bic']:.1f}")
         for n, v in c["params"].items():
             lo, hi = c["ci95"][n]
@@ -332,6 +386,20 @@ def render_text(rep: dict) -> str:
     out.append(f"confidence: {c.get('confidence', 'high')}")
     for w in c.get("warnings", []):
         out.append(f"  warning: {w}")
+    sel = c.get("selection", {})
+    if sel.get("folds"):
+        out.append(f"chosen by predicting left-out places ({sel['folds']} folds, "
+                   f"{sel['places']} places): prediction rms in noise units, 1 ≈ noise")
+        for x in sel["table"][:6]:
+            mark = "tied" if x["tied"] else f"worse, p = {x['p_worse_than_best']:.2g}"
+            out.append(f"  {x['label']:<40} k {x['k']}  {x['cv_rms']:.3f}  ({mark})")
+    for r in c.get("rivals", []):
+        out.append(f"  rival: {r['label']} (k {r['k']}, prediction rms {r['cv_rms']:.3f}, "
+                   f"holdout rms {r['holdout_rms_mm']:.4f} mm)")
+    for pz in c.get("separating_poses", []):
+        diff = ", ".join(f"{k} {v:.4f} mm" for k, v in pz["difference_mm"].items())
+        out.append(f"  measure next: j1 {pz['j1_deg']:.1f}° ({pz['j1_dir']:+d}), j2 "
+                   f"{pz['j2_deg']:.1f}° ({pz['j2_dir']:+d}): differs from {diff}")
     out.append(f"holdout ({h['n']} rows): rms {h['rms_before_mm']:.4f} -> {h['rms_after_mm']:.4f} mm, "
                f"shrink {h['shrink']:.3f}")
     inl = h.get("inliers")

@@ -68,7 +68,8 @@ class Basis:
     """Response columns of every single candidate's parameters at the nominal model:
     ``cols`` key -> column indices; ``fit`` / ``hold`` (points, paths) Tables; ``lo`` /
     ``hi`` bounds per column; ``nuisance`` columns left out of the identifiability
-    check."""
+    check; ``folds`` one Table per cross-validation fold of the fit rows and
+    ``fold_table`` its table (0 points, 1 path samples)."""
 
     cols: dict
     fit: tuple[Table, Table]
@@ -80,6 +81,8 @@ class Basis:
     t_ref: float = 20.0
     point_temp_mean: float | None = None
     has_paths: bool = False
+    folds: list = field(default_factory=list)
+    fold_table: list = field(default_factory=list)
 
 
 def _instances(name: str, joint: str | None, order: int | None):
@@ -114,18 +117,21 @@ def keys_of(c) -> list[list[Key]]:
     return out
 
 
-def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=None) -> Basis:
-    """The :class:`Basis` of candidates ``cands`` on the fit and holdout rows; ``keep_*``
-    (n_rows,) bool masks of the rows that count (None = all). All columns come from one
-    evaluation per row set: every linearisation point (all at zero effect) in one list."""
+def _keys(cands) -> list[Key]:
     keys: list[Key] = []
     for c in cands:
         for var in keys_of(c):
             for k in var:
                 if k not in keys:
                     keys.append(k)
-    rf, rh = rows_of(fit_d), rows_of(hold_d)
-    has_paths = rf.n_path > 0
+    return keys
+
+
+def responses(row_sets, keys: list[Key], has_paths: bool):
+    """Response columns of parameters ``keys`` at the nominal model on each of ``row_sets``
+    (:class:`~cell.diagnosis.jacobian.Rows`): ([(n, 2, ncol) per row set], cols {key: column
+    indices}, lo, hi, nuisance columns, t_ref). One evaluation per row set: every
+    linearisation point (all at zero effect) in one list."""
     insts, where_col = [], []          # where_col: (key, position of the response column)
     pos, t_ref = 0, 20.0
     for key in keys:
@@ -136,10 +142,10 @@ def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=Non
             if key[0] == "thermal_drift":
                 t_ref = inst.params["thermal_ref_temp_c"]
     tp = t_ref + 1.0      # a path temperature 1 K above the reference: β's column
-    _, Jf = evaluate(rf, insts, tp, jac=True)
-    _, Jh = evaluate(rh, insts, tp, jac=True)
+    Js = [evaluate(rows, insts, tp, jac=True)[1] for rows in row_sets]
     cols: dict = {}
-    lo, hi, take_f, take_h, nuis = [], [], [], [], set()
+    lo, hi, nuis = [], [], set()
+    takes: list[list] = [[] for _ in row_sets]
     for key, p in where_col:
         name = key[0]
         spec = fx.EFFECTS[name].params[0]
@@ -147,22 +153,35 @@ def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=Non
         if name == "thermal_drift":
             parts = ["points", "paths"] if has_paths else ["points"]
         for part in parts:
-            f, h = Jf[:, :, p], Jh[:, :, p]
-            if part == "points":
-                f, h = f.copy(), h.copy()
-                f[rf.n_points:], h[rh.n_points:] = 0.0, 0.0
-            elif part == "paths":
-                f, h = f.copy(), h.copy()
-                f[:rf.n_points], h[:rh.n_points] = 0.0, 0.0
+            if part == "paths":
                 nuis.add(len(lo))
             cols.setdefault(key, []).append(len(lo))
-            take_f.append(f)
-            take_h.append(h)
+            for take, J, rows in zip(takes, Js, row_sets):
+                a = J[:, :, p]
+                if part == "points":
+                    a = a.copy()
+                    a[rows.n_points:] = 0.0
+                elif part == "paths":
+                    a = a.copy()
+                    a[:rows.n_points] = 0.0
+                take.append(a)
             b = (-math.inf, math.inf) if name == "cyclic_error" or part == "paths" else spec.bounds
             lo.append(b[0])
             hi.append(b[1])
-    Af = np.stack(take_f, axis=2) if take_f else np.zeros((rf.n, 2, 0))
-    Ah = np.stack(take_h, axis=2) if take_h else np.zeros((rh.n, 2, 0))
+    As = [np.stack(take, axis=2) if take else np.zeros((rows.n, 2, 0))
+          for take, rows in zip(takes, row_sets)]
+    return As, cols, np.array(lo, float), np.array(hi, float), nuis, t_ref
+
+
+def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=None,
+          fit_folds=None) -> Basis:
+    """The :class:`Basis` of candidates ``cands`` on the fit and holdout rows; ``keep_*``
+    (n_rows,) bool masks of the rows that count (None = all); ``fit_folds`` (n_fit_rows,)
+    int fold of each fit row for cross-validation (:mod:`.crossval`; −1 = in no fold),
+    or None."""
+    rf, rh = rows_of(fit_d), rows_of(hold_d)
+    has_paths = rf.n_path > 0
+    (Af, Ah), cols, lo, hi, nuis, t_ref = responses((rf, rh), _keys(cands), has_paths)
     r0f = rf.meas - evaluate(rf, [])[0]
     r0h = rh.meas - evaluate(rh, [])[0]
 
@@ -178,8 +197,16 @@ def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=Non
     tf = tables(Af, r0f, rf, keep_fit)
     th = tables(Ah, r0h, rh, keep_hold)
     pt = fit_d.points.temp if fit_d.points is not None and fit_d.points.temp is not None else None
-    return Basis(cols, tf, th, np.array(lo, float), np.array(hi, float), nuis,
-                 tf[0].n + tf[1].n, t_ref, None if pt is None else float(np.mean(pt)), has_paths)
+    B = Basis(cols, tf, th, lo, hi, nuis, tf[0].n + tf[1].n, t_ref,
+              None if pt is None else float(np.mean(pt)), has_paths)
+    if fit_folds is not None:
+        kp = np.ones(rf.n, bool) if keep_fit is None else np.asarray(keep_fit, bool)
+        folds = np.where(kp, np.asarray(fit_folds), -1)
+        B.folds = [Table.of(Af[folds == g].reshape(-1, Af.shape[2]), r0f[folds == g].ravel())
+                   for g in range(int(folds.max()) + 1)]
+        B.fold_table = [int(np.any(np.flatnonzero(folds == g) >= rf.n_points))
+                        for g in range(len(B.folds))]
+    return B
 
 
 @dataclass

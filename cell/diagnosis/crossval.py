@@ -1,0 +1,260 @@
+"""Which cause predicts places it was not fitted on, and can the campaign tell the leading
+causes apart? Pure numerics.
+
+A diagnosis that chooses by how well a cause fits the rows it was fitted on rewards
+parameters: on a campaign whose poses sit at a handful of places, two parameters of any
+effect fit a handful of places. Here every candidate is judged by **leave-one-place-out
+prediction** of the fit rows:
+
+* **places** (:func:`folds`): fit poses closer than :data:`LINK_DEG` in joint space (a
+  station revisited with jitter) are one place; when there are more than
+  :data:`MAX_FOLDS` places they are gathered into that many blocks of neighbouring places
+  (farthest-point centres), so a fold is a region of the workspace. Every fit move is a
+  fold of its own.
+* **prediction error** (:func:`cv_errors`): for each fold, the candidate's linearised fit
+  (the screening's response columns at the nominal model, :mod:`.screen`) on all other
+  folds predicts the fold's residual; its weighted mean square per scalar residual
+  (each table weighed by 1/its noise, so 1 ≈ noise) is the fold's error. Nothing is
+  refitted: the fold's Gram pieces are subtracted from the whole fit's.
+* **the choice** (:func:`judge`): the candidates whose errors are not worse than the best's
+  by a one-sided Wilcoxon signed-rank test over folds at :data:`ALPHA` (and whose
+  prediction rms is within :data:`RIVAL_RATIO` of the best's: a fold count too small for
+  the test to reach :data:`ALPHA` must not make a poor candidate a rival) are **tied**; of
+  those, the one with the fewest parameters is named (then the lowest error). A tied
+  candidate that is neither the named cause nor a larger model containing it is a
+  **rival**: the campaign cannot tell the two apart, the answer is ``ambiguous``.
+* **separating poses** (:func:`separating_poses`): configurations inside the joint limits
+  where the named cause and its rivals predict most differently, each with the expected
+  difference in mm against the campaign's point noise.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell.diagnosis import screen
+from cell.diagnosis.jacobian import Rows, rows_of
+from cell.diagnosis.replay import DiagData
+from cell.stats import wilcoxon_greater
+
+LINK_DEG = 2.0        # fit poses closer than this (deg, joint space) are one place
+MAX_FOLDS = 24        # more places are gathered into this many regions
+MIN_FOLDS = 3         # fewer: nothing can be predicted out of sample
+ALPHA = 0.01          # one-sided test over folds: a candidate predicts worse than the best
+RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
+MAX_RIVALS = 4
+N_POSES = 5
+POSE_SPACING_DEG = 20.0
+
+
+def places(q: np.ndarray, block: int = 512) -> np.ndarray:
+    """Place index of every pose (rows of joint readings ``q``, deg or mm): connected
+    components of poses closer than :data:`LINK_DEG` (union-find over the close pairs,
+    found block by block)."""
+    q = np.asarray(q, float)
+    n = len(q)
+    parent = np.arange(n)
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+    for s0 in range(0, n, block):
+        d2 = np.sum((q[s0:s0 + block, None, :] - q[None, :, :]) ** 2, axis=2)
+        ii, jj = np.nonzero(d2 < LINK_DEG ** 2)
+        for i, j in zip(ii + s0, jj):
+            if i < j:
+                ri, rj = find(int(i)), find(int(j))
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    roots = np.array([find(i) for i in range(n)], int)
+    return np.unique(roots, return_inverse=True)[1] if n else roots
+
+
+def folds(fit_d: DiagData) -> tuple[np.ndarray, int, int]:
+    """(fold of every fit row (n_rows,), number of point folds, number of places): see the
+    module docstring."""
+    rows = rows_of(fit_d)
+    out = np.full(rows.n, -1, int)
+    n_pf, n_places = 0, 0
+    if rows.n_points:
+        q = rows.cmd[:rows.n_points]
+        place = places(q)
+        n_places = int(place.max()) + 1
+        if n_places > MAX_FOLDS:
+            cent = np.array([q[place == p].mean(axis=0) for p in range(n_places)])
+            chosen = [int(np.argmin(cent[:, 0]))]
+            dist = np.hypot(*(cent - cent[chosen[0]]).T)
+            while len(chosen) < MAX_FOLDS:
+                chosen.append(int(np.argmax(dist)))
+                dist = np.minimum(dist, np.hypot(*(cent - cent[chosen[-1]]).T))
+            region = np.argmin(np.stack([np.hypot(*(cent - cent[c]).T) for c in chosen]), axis=0)
+            place = region[place]
+        out[:rows.n_points] = place
+        n_pf = int(place.max()) + 1
+    k = n_pf
+    for start, t, _, _ in rows.moves:
+        out[start:start + len(t)] = k
+        k += 1
+    return out, n_pf, n_places
+
+
+def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float]) -> np.ndarray:
+    """(F,) leave-one-fold-out mean square (weighted, per scalar residual) of the linear fit
+    on columns ``S`` with table weights ``w``; ``S`` empty = the nominal model."""
+    F = len(B.folds)
+    wf = np.array([w[t] ** 2 for t in B.fold_table])
+    n = np.array([max(f.n, 1) for f in B.folds], float)
+    c = np.array([f.c for f in B.folds]) * wf
+    if not S:
+        return c / n
+    ix = np.ix_(S, S)
+    G = w[0] ** 2 * B.fit[0].G[ix] + w[1] ** 2 * B.fit[1].G[ix]
+    b = w[0] ** 2 * B.fit[0].b[S] + w[1] ** 2 * B.fit[1].b[S]
+    Gg = np.stack([f.G[ix] for f in B.folds]) * wf[:, None, None]
+    bg = np.stack([f.b[S] for f in B.folds]) * wf[:, None]
+    Gm = G[None] - Gg
+    ridge = 1e-10 * np.max(np.abs(np.diagonal(Gm, axis1=1, axis2=2)), axis=1) + 1e-300
+    Gm = Gm + ridge[:, None, None] * np.eye(len(S))
+    beta = np.linalg.solve(Gm, (b[None] - bg)[:, :, None])[:, :, 0]
+    e = c - 2.0 * np.einsum("fi,fi->f", beta, bg) + np.einsum("fi,fij,fj->f", beta, Gg, beta)
+    return np.maximum(e, 0.0) / n if F else e
+
+
+@dataclass
+class Scored:
+    """One candidate's out-of-sample record: ``label``, ``candidate``, ``k`` parameters,
+    ``errors`` (F,) per fold, ``cv_rms`` (√ of the mean error: 1 ≈ the noise), ``p_worse``
+    the one-sided p that it predicts worse than the best, ``tied``."""
+
+    label: str
+    candidate: tuple
+    k: int
+    errors: np.ndarray
+    cv_rms: float
+    p_worse: float = 1.0
+    tied: bool = False
+
+
+@dataclass
+class Judgement:
+    """The out-of-sample choice: ``named`` (candidate tuple, None = keep the decision's
+    ``none``), ``best`` the lowest prediction error, ``rivals`` the tied candidates that
+    are other explanations, ``table`` every scored candidate best first, ``n_folds`` /
+    ``n_places``, ``nominal`` the nominal model's record, ``testable`` False when the
+    folds are too few for the test to reach :data:`ALPHA`, ``notes``."""
+
+    named: tuple | None
+    best: Scored | None
+    rivals: list[Scored]
+    table: list[Scored]
+    n_folds: int
+    n_places: int
+    nominal: Scored | None
+    testable: bool
+    notes: list[str] = field(default_factory=list)
+
+
+def _components(c: tuple) -> set:
+    return {(e, j) for e, js in c for j in (js or (None,))}
+
+
+def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[float, float],
+          n_places: int, label) -> Judgement:
+    """Score every identifiable screened candidate (``screened`` {candidate: Screened}) out
+    of sample and apply the rule of the module docstring. ``chosen`` the in-sample
+    decision's candidate (None: ``none``, kept); ``label`` candidate → text."""
+    F = len(B.folds)
+    nom_e = cv_errors(B, [], weights)
+    nominal = Scored("nominal", (), 0, nom_e, math.sqrt(float(nom_e.mean())) if F else math.nan)
+    testable = F >= MIN_FOLDS and 0.5 ** F < ALPHA
+    if F < MIN_FOLDS:
+        return Judgement(chosen, None, [], [], F, n_places, nominal, False,
+                         [f"the fit rows lie at {F} place(s): no cause can be checked on "
+                          "places it was not fitted on"])
+    table = []
+    for c, sc in screened.items():
+        if not sc.identifiable:
+            continue
+        e = cv_errors(B, list(sc.S), weights)
+        table.append(Scored(label(c), c, sc.k, e, math.sqrt(float(e.mean()))))
+    if not table:
+        return Judgement(chosen, None, [], [], F, n_places, nominal, testable)
+    table.sort(key=lambda s: s.cv_rms)
+    best = table[0]
+    for s in table:
+        s.p_worse = 1.0 if s is best else wilcoxon_greater(s.errors - best.errors)
+        s.tied = s is best or (s.p_worse >= ALPHA and s.cv_rms <= RIVAL_RATIO * best.cv_rms)
+    if chosen is None:
+        return Judgement(None, best, [], table, F, n_places, nominal, testable)
+    tied = [s for s in table if s.tied]
+    named = min(tied, key=lambda s: (s.k, s.cv_rms))
+    mine = _components(named.candidate)
+    rivals = [s for s in tied if s is not named and not _components(s.candidate) >= mine]
+    notes = []
+    if not testable:
+        notes.append(f"the fit rows lie at {F} folds: too few for a test over places to "
+                     f"reach p < {ALPHA:g}; every cause within {RIVAL_RATIO:g}× the best "
+                     "prediction error is a rival")
+    return Judgement(named.candidate, best, rivals[:MAX_RIVALS], table, F, n_places, nominal,
+                     testable, notes)
+
+
+def _grid(limits, n1: int = 25, n2: int = 12) -> np.ndarray:
+    (a1, b1), (a2, b2) = limits
+    t1 = np.linspace(a1, b1, n1 + 2)[1:-1]
+    pos = np.linspace(max(15.0, 0.0), min(150.0, b2 - 1.0), n2)
+    neg = -np.linspace(max(15.0, 0.0), min(150.0, -a2 - 1.0), n2)
+    t2 = np.concatenate([neg[::-1], pos])
+    g = np.array([(x, y) for x in t1 for y in t2 if a2 < y < b2])
+    return g
+
+
+def separating_poses(B: screen.Basis, screened: dict, named: tuple, rivals: list[Scored],
+                     fit_d: DiagData, limits, sigma_mm: float | None) -> list[dict]:
+    """Up to :data:`N_POSES` joint configurations inside ``limits`` (both approach
+    directions, the campaign's mean temperature) where the named cause and each rival
+    predict most differently, at least :data:`POSE_SPACING_DEG` apart: per pose the joints,
+    the directions and, per rival, the expected difference (mm) and that difference over
+    the point noise σ (per axis) when known."""
+    if not rivals:
+        return []
+    q = _grid(limits)
+    dirs = np.array([(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)])
+    qq = np.repeat(q, len(dirs), axis=0)
+    dd = np.tile(dirs, (len(q), 1))
+    rf = rows_of(fit_d)
+    temp = None if rf.temp is None else np.full(len(qq), float(np.mean(rf.temp)))
+    rows = Rows(len(qq), qq, dd, temp, np.zeros_like(qq), [], rf.order, rf.links, rf.center)
+    keys = [k for k in B.cols]
+    (A,), cols, *_ = screen.responses((rows,), keys, B.has_paths)
+
+    def predict(c) -> np.ndarray:
+        sc = screened[c]
+        idx = [i for k in sc.keys for i in cols[k]]
+        return np.einsum("nak,k->na", A[:, :, idx], sc.x)
+    base = predict(named)
+    diffs = np.stack([np.linalg.norm(base - predict(r.candidate), axis=1) for r in rivals], axis=1)
+    score = diffs.min(axis=1)
+    picked: list[int] = []
+    for i in np.argsort(-score):
+        if score[i] <= 0:
+            break
+        if all(np.hypot(*(qq[i] - qq[j])) >= POSE_SPACING_DEG for j in picked):
+            picked.append(int(i))
+        if len(picked) == N_POSES:
+            break
+    out = []
+    for i in picked:
+        entry = {"j1_deg": round(float(qq[i, 0]), 3), "j2_deg": round(float(qq[i, 1]), 3),
+                 "j1_dir": int(dd[i, 0]), "j2_dir": int(dd[i, 1]), "difference_mm": {}}
+        for r, v in zip(rivals, diffs[i]):
+            entry["difference_mm"][r.label] = round(float(v), 6)
+        if sigma_mm:
+            entry["difference_over_noise"] = {r.label: round(float(v / sigma_mm), 2)
+                                              for r, v in zip(rivals, diffs[i])}
+        out.append(entry)
+    return out
