@@ -381,8 +381,9 @@ def render_text(rep: dict) -> str:
             out.append(f"  {j}: {o['order']} cycle(s) per revolution (orders in the 95 % "
                        f"likelihood set: {', '.join(map(str, o['set95']))})")
         if c["test"]["runner_up"]:
-            out.append(f"  runner-up: {c['test']['runner_up']} "
-                       f"(BIC {c['test']['runner_up_margin_bic']:+.1f} worse)")
+            m = c["test"]["runner_up_margin_bic"]
+            out.append(f"  runner-up: {c['test']['runner_up']}"
+                       + (f" (BIC {m:+.1f} worse)" if m is not None else ""))
     out.append(f"confidence: {c.get('confidence', 'high')}")
     for w in c.get("warnings", []):
         out.append(f"  warning: {w}")
