@@ -25,7 +25,7 @@ import numpy as np
 
 from cell.chain import kin
 from cell.chain.model import Chain
-from cell.diagnosis.crossval import places
+from cell.diagnosis.places import places
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 

@@ -25,8 +25,8 @@ from cell.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
 from cell.chain.campaign import ChainCampaign
 from cell.measurements import CampaignFormatError
 from cell.diagnosis.page import describe_cause
+from cell.diagnosis.page import FORMAT, FORMAT_VERSION
 
-FORMAT = "cell-diagnosis/1"
 SPLIT_SEED = 20260501
 HOLDOUT_SHARE = 0.3
 _VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angles",
@@ -196,6 +196,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     n_reg = F.n_registration(fit_d)
     return ChainDiagnosis({
         "format": FORMAT,
+        "format_version": FORMAT_VERSION,
         "source": cc.source,
         "chain": {"kinematics": chain.kind, "convention": chain.convention or None,
                   "joints": {j.column: {"name": j.name, "type": j.type, "unit": j.unit}

@@ -8,6 +8,7 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.screen`     linearised screening of every candidate (harmonic orders included)
 * :mod:`.fit`        one candidate fitted on the fit rows (least_squares, BIC, 95 % CI)
 * :mod:`.rank`       search over singles and pairs, none / pair / unexplained decisions
+* :mod:`.crossval`   the cause that predicts left-out places; rivals; separating poses
 * :mod:`.robust`     outliers set aside, and how many places the fit rows cover
 * :mod:`.noise`      the point noise: given, from revisited poses or from the remainder
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
@@ -16,6 +17,13 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
 """
-from cell.diagnosis.report import FORMAT, Diagnosis, diagnose, render_text
-
 __all__ = ["FORMAT", "Diagnosis", "diagnose", "render_text"]
+
+
+def __getattr__(name: str):
+    """The planar diagnosis on first use only: the chain side imports small modules of this
+    package (:mod:`.crossval`, :mod:`.page`) without loading the whole planar search."""
+    if name in __all__:
+        from cell.diagnosis import report
+        return getattr(report, name)
+    raise AttributeError(f"module 'cell.diagnosis' has no attribute {name!r}")

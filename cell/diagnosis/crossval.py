@@ -36,10 +36,10 @@ import numpy as np
 
 from cell.diagnosis import screen
 from cell.diagnosis.jacobian import Rows, rows_of
+from cell.diagnosis.places import LINK_DEG, places
 from cell.diagnosis.replay import DiagData
 from cell.stats import wilcoxon_greater
 
-LINK_DEG = 2.0        # fit poses closer than this (deg, joint space) are one place
 MAX_FOLDS = 24        # more places are gathered into this many regions
 MIN_FOLDS = 3         # fewer: nothing can be predicted out of sample
 ALPHA = 0.01          # one-sided test over folds: a candidate predicts worse than the best
@@ -47,31 +47,6 @@ RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor 
 MAX_RIVALS = 4
 N_POSES = 5
 POSE_SPACING_DEG = 20.0
-
-
-def places(q: np.ndarray, block: int = 512) -> np.ndarray:
-    """Place index of every pose (rows of joint readings ``q``, deg or mm): connected
-    components of poses closer than :data:`LINK_DEG` (union-find over the close pairs,
-    found block by block)."""
-    q = np.asarray(q, float)
-    n = len(q)
-    parent = np.arange(n)
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-    for s0 in range(0, n, block):
-        d2 = np.sum((q[s0:s0 + block, None, :] - q[None, :, :]) ** 2, axis=2)
-        ii, jj = np.nonzero(d2 < LINK_DEG ** 2)
-        for i, j in zip(ii + s0, jj):
-            if i < j:
-                ri, rj = find(int(i)), find(int(j))
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
-    roots = np.array([find(i) for i in range(n)], int)
-    return np.unique(roots, return_inverse=True)[1] if n else roots
 
 
 def folds(fit_d: DiagData) -> tuple[np.ndarray, int, int]:

@@ -24,6 +24,11 @@ from dataclasses import dataclass
 from cell.diagnosis.action import recommend
 
 #: parameters shown in the answer card; the rest are in the parameters table below
+FORMAT = "cell-diagnosis/1"
+#: additive revisions of the report format (cell/measurements.md), planar and chain alike:
+#: 1.0 the v1 report, 1.1 chains, 1.2 the out-of-sample choice (cause.label, selection,
+#: rivals, separating_poses, and confidence "ambiguous")
+FORMAT_VERSION = "1.2"
 CARD_PARAMS = 3
 #: ranking rows shown (the rest are in report.json)
 TABLE_ROWS = 15

@@ -34,13 +34,12 @@ import numpy as np
 from cell.diagnosis import delay as delay_mod
 from cell.diagnosis import noise as noise_mod
 from cell.diagnosis import crossval, rank, robust, where as where_mod
-from cell.diagnosis.page import describe_cause
+from cell.diagnosis.page import FORMAT, FORMAT_VERSION, describe_cause
 from cell.diagnosis.fit import (FitResult, TableStats, combined, component_sizes,
                                 hold_residuals)
 from cell.diagnosis.replay import DiagData, path_noise_mm, prepare, residuals
 from cell.measurements import Campaign
 
-FORMAT = "cell-diagnosis/1"
 
 
 @dataclass
@@ -249,6 +248,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
     noise_rep["estimates"] = {k: v.as_dict() for k, v in estimates.items()}
     report = {
         "format": FORMAT,
+        "format_version": FORMAT_VERSION,
         "source": c.source,
         "gap": {"rms_mm": _r(gap.rms), "max_mm": _r(gap.max), "n": gap.n, "where": where,
                 "points": _stats(gap_p), "paths": _stats(gap_q)},

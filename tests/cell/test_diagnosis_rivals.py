@@ -13,6 +13,7 @@ import pytest
 
 from cell import effects as fx
 from cell.diagnosis import crossval, diagnose, render_text
+from cell.diagnosis.places import places
 from cell.diagnosis.synth import Design, effect_dicts
 from cell.kinematics import PRESETS
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
@@ -57,7 +58,7 @@ def test_places_join_revisits_and_keep_distinct_stations_apart():
     rng = np.random.default_rng(1)
     centers = np.array([[0.0, 30.0], [40.0, 30.0], [0.0, -60.0]])
     q = centers[np.repeat(np.arange(3), 20)] + rng.normal(0, 0.2, (60, 2))
-    p = crossval.places(q)
+    p = places(q)
     assert len(np.unique(p)) == 3
     assert all(len(np.unique(p[i * 20:(i + 1) * 20])) == 1 for i in range(3))
 
