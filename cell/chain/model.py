@@ -206,14 +206,11 @@ def urdf_chain(file: Path, urdf_path: Path, base: str, tip: str, names: list[str
         if link not in links:
             raise CampaignFormatError(file, f"{key} {link!r} is not a link of {urdf_path.name}",
                                       column=key)
-    try:
-        path = robot.get_chain(base, tip, links=False)
-    except Exception:
-        path = None
-    # get_chain walks up from the tip; a tip that is not below the base yields a wrong path
-    if not path or robot.joint_map[path[0]].parent != base or robot.joint_map[path[-1]].child != tip:
+    path = _path_down(robot, base, tip)
+    if path is None:
         raise CampaignFormatError(file, f"no path from base_link {base!r} to tip_link {tip!r} in "
-                                        f"{urdf_path.name}", column="tip_link")
+                                        f"{urdf_path.name}: {_where_tip_hangs(robot, base, tip)}",
+                                  column="tip_link")
     moving = [j for j in path if robot.joint_map[j].type not in ("fixed",)]
     for j in moving:
         js = robot.joint_map[j]
@@ -237,6 +234,8 @@ def urdf_chain(file: Path, urdf_path: Path, base: str, tip: str, names: list[str
     if [j for j in moving if j in names] != list(names):
         raise CampaignFormatError(file, f"joints must follow the chain order base to tip: {moving}",
                                   column="joints")
+    for jname in path:
+        _check_finite(urdf_path, text, robot.joint_map[jname])
     ops: list[Op] = []
     joints: list[Joint] = []
     geometric: dict[str, int] = {}
@@ -259,7 +258,7 @@ def urdf_chain(file: Path, urdf_path: Path, base: str, tip: str, names: list[str
         joints.append(Joint(col, jname, "prismatic" if prism else "revolute", lo, hi))
         axis = np.asarray(js.axis if js.axis is not None else [1, 0, 0], float)
         if not np.linalg.norm(axis) > 0:
-            raise CampaignFormatError(urdf_path, f"joint {jname!r}: zero axis")
+            raise CampaignFormatError(urdf_path, f"joint {jname!r}: zero axis", line=_line_of(text, jname))
         ops.append(Op("F", matrix=pending))
         pending = np.eye(4)
         for stem, kind, ax in (("x_mm", "T", "x"), ("y_mm", "T", "y"), ("z_mm", "T", "z"),
@@ -271,6 +270,56 @@ def urdf_chain(file: Path, urdf_path: Path, base: str, tip: str, names: list[str
     return Chain("urdf", ops, joints, np.zeros((len(joints), len(joints))),
                  np.asarray(tool_mm, float), np.asarray(gravity, float), "", geometric,
                  _joint_ops(ops, len(joints)))
+
+
+def _path_down(robot, base: str, tip: str) -> list[str] | None:
+    """Joint names from ``base`` down to ``tip``, or None when ``tip`` is not below ``base``."""
+    path, link = [], tip
+    while link != base:
+        if link not in robot.parent_map:
+            return None
+        joint, link = robot.parent_map[link]
+        path.append(joint)
+    return path[::-1] or None
+
+
+def _where_tip_hangs(robot, base: str, tip: str) -> str:
+    """Why ``tip`` is not below ``base``, in words: its own chain up to its root, and what
+    hangs below ``base`` (the links a tip_link could name)."""
+    up, link = [tip], tip
+    while link in robot.parent_map and len(up) <= len(robot.links):
+        link = robot.parent_map[link][1]
+        up.append(link)
+    below, todo = [], [base]
+    while todo:
+        for _, child in robot.child_map.get(todo.pop(), []):
+            below.append(child)
+            todo.append(child)
+    hangs = (f"{tip!r} is attached to no joint" if len(up) == 1 else
+             f"{tip!r} hangs from {' → '.join(reversed(up))}")
+    return (f"{hangs}; below {base!r} are " + (", ".join(repr(b) for b in below[:8])
+                                               + (", …" if len(below) > 8 else "")
+                                               if below else "no links"))
+
+
+def _line_of(text: str, joint: str) -> int | None:
+    """1-based line of ``<joint name="joint"`` in the URDF text, if found."""
+    import re
+    m = re.search(r"<joint\b[^>]*\bname\s*=\s*[\"']" + re.escape(joint) + r"[\"']", text)
+    return text.count("\n", 0, m.start()) + 1 if m else None
+
+
+def _check_finite(urdf_path: Path, text: str, js) -> None:
+    """Refuse a joint on the path whose origin, axis or limits hold a NaN or an inf."""
+    o = js.origin
+    fields = {"origin xyz": o.xyz if o else None, "origin rpy": o.rpy if o else None, "axis": js.axis}
+    if js.limit is not None and js.type != "continuous":
+        fields["limit lower/upper"] = [js.limit.lower, js.limit.upper]
+    for what, values in fields.items():
+        if values is not None and not np.all(np.isfinite(np.asarray(values, float))):
+            raise CampaignFormatError(urdf_path, f"joint {js.name!r}: {what} "
+                                                 f"{' '.join(f'{v:g}' for v in values)} is not finite",
+                                      line=_line_of(text, js.name))
 
 
 def _joint_ops(ops: list[Op], n: int) -> list[int]:
