@@ -6,6 +6,21 @@ A campaign directory holds ``model.yaml`` (required), ``points.csv`` and/or ``pa
 the column, and nothing is returned half-read. :func:`write_campaign` writes the same layout
 atomically (a temporary directory renamed into place), so a reader never sees a half-written
 campaign. Export then import round-trips exactly (floats are written with ``repr``).
+
+What the readers refuse as unusable, and why (the line between refusing and answering):
+
+* a value that is not a finite number (NaN, inf), in a CSV cell or in ``model.yaml``: it
+  is not a measurement, and one of it turns every fitted number into NaN;
+* a campaign whose poses all have the same joint readings, one pose included
+  (:func:`check_places`): nothing that depends on the joints can be learned from one
+  configuration, however often it is measured, and no pose is left to check a fit on.
+  Whatever a consumer asks, the answer would be made up, so it is refused.
+
+A campaign at two or more places is a valid one even when it cannot tell causes apart
+(poses at a few clustered places, a joint that never moves): it is read, and the
+consumer answers with what it can and cannot tell (for a joint that never moves, its
+angle-dependent effects are not identifiable). The readers judge the data, never a
+diagnosis.
 """
 from __future__ import annotations
 
@@ -22,7 +37,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.errors import CellError
-from cell.yamlio import error_text
+from cell.yamlio import error_text, node_line
 
 FORMAT = "cell-measurements/1"
 CHAIN_KINEMATICS = ("dh", "urdf")
@@ -44,24 +59,25 @@ PATH_COLUMNS = {
 
 
 class CampaignFormatError(CellError, ValueError):
-    """Bad campaign input; ``file``, ``line`` and ``column`` locate it (line/column may be None)."""
+    """Bad campaign input; ``file``, ``line`` and ``column`` locate it (line/column may be
+    None), ``message`` says what is wrong."""
 
     def __init__(self, file: Path | str, message: str, line: int | None = None,
                  column: str | None = None):
-        self.file, self.line, self.column = str(file), line, column
+        self.file, self.line, self.column, self.message = str(file), line, column, message
         where = self.file + (f", line {line}" if line else "") + (f", column {column!r}" if column else "")
         super().__init__(f"{where}: {message}")
 
 
 class CameraSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     center_mm: tuple[float, float]
 
 
 class ModelSpec(BaseModel):
-    """``model.yaml``: the nominal model the simulation uses."""
+    """``model.yaml``: the nominal model the simulation uses (every number finite)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     format: str
     kinematics: str = "scara"
     l1_mm: float = Field(gt=0)
@@ -187,18 +203,45 @@ def _load_model(path: Path) -> ModelSpec:
     return model
 
 
+def yaml_loc(loc) -> tuple:
+    """A pydantic error location without its union tags (``joints.list[DHRow].1.a_mm`` is
+    ``joints.1.a_mm``): the path of keys and list indices in the YAML file."""
+    return tuple(p for p in loc if not (isinstance(p, str) and "[" in p))
+
+
 def _yaml_line(path: Path, loc) -> int | None:
-    """1-based line of the key at ``loc`` (first element) in a YAML mapping, if found."""
+    """1-based line of the deepest key or list item along ``loc`` in a YAML mapping, if found."""
     try:
         node = yaml.compose(path.read_text(encoding="utf-8"))
     except yaml.YAMLError:
         return None
+    loc = yaml_loc(loc)
     if not isinstance(node, yaml.MappingNode) or not loc:
         return None
-    for key, value in node.value:
-        if key.value == str(loc[0]):
-            return key.start_mark.line + 1
-    return None
+    if not any(k.value == str(loc[0]) for k, _ in node.value):
+        return None
+    return node_line(node, loc)
+
+
+def check_places(path: Path, readings: np.ndarray, ids, lines: list[int], columns: list[str],
+                 id_column: str = "sample") -> None:
+    """Refuse a campaign whose poses all share one set of joint readings (one pose included).
+
+    ``readings`` (N, J) per pose in file order, ``ids`` their ``id_column`` values,
+    ``lines`` their file lines, ``columns`` the joint columns. Exact equality, no tolerance:
+    poses a hair apart are a valid (if weak) campaign, and saying how weak is the
+    consumer's job."""
+    if len(readings) == 0 or np.ptp(readings, axis=0).any():
+        return
+    at = ", ".join(f"{c} {v:g}" for c, v in zip(columns, readings[0]))
+    if len(readings) == 1:
+        what = f"one pose ({id_column} {ids[0]}, {at})"
+    else:
+        what = f"all {len(readings)} poses at one place ({at} in every row)"
+    raise CampaignFormatError(path, f"{what}: nothing that depends on the joints can be told "
+                                    "from one configuration, however often it is measured; measure "
+                                    "poses spread over the joints' ranges", line=lines[0],
+                              column=columns[0])
 
 
 def _chain_kind(path: Path) -> bool:
@@ -230,7 +273,7 @@ def read_campaign(directory: Path | str, model_path: Path | str | None = None):
         raise CampaignFormatError(model_path, "a replacement nominal model is for chain campaigns "
                                               "(kinematics dh or urdf)", column="kinematics")
     model = _load_model(model_path)
-    points = paths = None
+    points = paths = lines = path_lines = None
     if (d / "points.csv").is_file():
         points, lines = _read_table(d / "points.csv", POINT_COLUMNS)
         seen: set[int] = set()
@@ -240,9 +283,15 @@ def read_campaign(directory: Path | str, model_path: Path | str | None = None):
                                           line=line, column="sample")
             seen.add(sample)
     if (d / "paths.csv").is_file():
-        paths, _ = _read_table(d / "paths.csv", PATH_COLUMNS)
+        paths, path_lines = _read_table(d / "paths.csv", PATH_COLUMNS)
     if points is None and paths is None:
         raise CampaignFormatError(d, "neither points.csv nor paths.csv is present")
+    tables = [(d / "points.csv", points, lines, "sample", ["j1_deg", "j2_deg"]),
+              (d / "paths.csv", paths, path_lines, "move", ["j1_cmd_deg", "j2_cmd_deg"])]
+    tables = [(f, t, ln, ids, [t[c] for c in cols], cols) for f, t, ln, ids, cols in tables if t is not None]
+    if not np.ptp(np.concatenate([np.column_stack(q) for *_, q, _ in tables]), axis=0).any():
+        f, t, ln, ids, q, cols = tables[0]   # every table at the same one place: say so on the first
+        check_places(f, np.column_stack(q), t[ids].tolist(), ln, cols, ids)
     return Campaign(model=model, points=points, paths=paths, source=str(d))
 
 

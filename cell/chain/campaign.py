@@ -8,7 +8,10 @@
 * joint columns that do not match ``joints`` (missing ``jK``, or a column past the last);
 * a reading outside its joint's limits (a prismatic value typed in degrees or metres);
 * rows of one ``sample`` that disagree on the joints or the split, a repeated marker;
-* with ``markers: unknown``, a marker seen in too few fit poses to place it.
+* with ``markers: unknown``, a marker seen in too few fit poses to place it;
+* a number in ``model.yaml`` (or the URDF) that is not finite, and a campaign whose poses
+  all share one set of joint readings (:func:`cell.measurements.check_places`, which says
+  why that is refused while a joint that never moves is not).
 
 Poses are the unit of everything downstream: markers of one pose share its joints and its
 split. :func:`write_chain_campaign` writes the same layout atomically.
@@ -24,7 +27,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.chain.model import Chain, dh_chain, urdf_chain
-from cell.measurements import FORMAT, CampaignFormatError, _read_table, _yaml_line, staged_dir
+from cell.measurements import (FORMAT, CampaignFormatError, _read_table, _yaml_line, check_places,
+                               staged_dir, yaml_loc)
 from cell.yamlio import error_text
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
@@ -32,7 +36,7 @@ LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (oversh
 
 
 class DHRow(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str
     type: Literal["revolute", "prismatic"] = "revolute"
     a_mm: float
@@ -43,7 +47,7 @@ class DHRow(BaseModel):
 
 
 class Coupling(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
     joint: str
     from_: str = Field(alias="from")
     factor: float
@@ -52,9 +56,9 @@ class Coupling(BaseModel):
 class ChainSpec(BaseModel):
     """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
     direction of gravity in the base frame, default −z; it only matters for the
-    gravity-compliance effect."""
+    gravity-compliance effect. Every number must be finite."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     format: str
     kinematics: Literal["dh", "urdf"]
     dh_convention: Literal["standard", "modified"] = "standard"
@@ -118,10 +122,14 @@ def load_spec(path: Path) -> ChainSpec:
     try:
         spec = ChainSpec.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        raise CampaignFormatError(path, error_text(err, ChainSpec), line=_yaml_line(path, err["loc"]),
-                                  column=loc) from None
+        # of a union's errors the deepest names the field best (markers.1.0, not markers)
+        err = max(exc.errors(), key=lambda e: len(yaml_loc(e["loc"])))
+        loc = yaml_loc(err["loc"])
+        msg = error_text(err, ChainSpec)
+        if len(loc) > 2 and loc[0] == "joints" and isinstance(loc[1], int):
+            msg = f"joint {loc[1] + 1} (column j{loc[1] + 1}): {msg}"
+        raise CampaignFormatError(path, msg, line=_yaml_line(path, loc),
+                                  column=".".join(str(p) for p in loc)) from None
     if spec.kinematics == "dh" and not all(isinstance(j, DHRow) for j in spec.joints):
         raise CampaignFormatError(path, "kinematics dh: every joint needs name, type, a_mm, "
                                         "alpha_deg, d_mm, theta_deg", column="joints")
@@ -143,6 +151,19 @@ def load_spec(path: Path) -> ChainSpec:
 
 
 def build_chain(spec: ChainSpec, model_path: Path) -> Chain:
+    """The :class:`Chain` of ``spec``; an error about a key of ``model_path`` gets its line."""
+    try:
+        return _build_chain(spec, model_path)
+    except CampaignFormatError as exc:
+        if exc.file == str(model_path) and exc.column and not exc.line:
+            line = _yaml_line(model_path, exc.column.split("."))
+            if line:
+                raise CampaignFormatError(model_path, exc.message, line=line,
+                                          column=exc.column) from None
+        raise
+
+
+def _build_chain(spec: ChainSpec, model_path: Path) -> Chain:
     g = np.asarray(spec.gravity, float)
     g = g / np.linalg.norm(g)
     coupling = [{"joint": c.joint, "from": c.from_, "factor": c.factor} for c in spec.coupling]
@@ -232,6 +253,8 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
             raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on the split",
                                       line=lines[i], column="split")
     _check_limits(pp, chain, q, lines)
+    check_places(pp, readings, ids[order].tolist(), [lines[int(first[o])] for o in order],
+                 [j.column for j in chain.joints])
     pose_split = None if split is None else np.array([split[first[o]] for o in order], dtype=object)
     markers = sorted(set(marker.tolist()))
     if spec.markers != "unknown":

@@ -97,9 +97,9 @@ def test_a_sensor_frame_with_too_few_non_collinear_points(tmp_path):
     d = chainsim.make(tmp_path / "c", {}, poses=12, markers=[[0.0, 0.0, 0.0]])
     lines = (d / "points.csv").read_text().splitlines()
     out = [lines[0]]
-    for ln in lines[1:]:                      # every pose only moves j1 ... all at j1 = 0: one point
+    for ln in lines[1:]:                      # poses differ in j6 only, the marker on its axis: one point
         c = ln.split(",")
-        c[1:7] = ["0.0", "-90.0", "0.0", "0.0", "0.0", "0.0"]
+        c[1:7] = ["0.0", "-90.0", "0.0", "0.0", "0.0", f"{10.0 * int(c[0]):.1f}"]
         c[8:11] = ["1.0", "2.0", "3.0"]
         out.append(",".join(c))
     (d / "points.csv").write_text("\n".join(out) + "\n")
