@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 import numpy as np
-from scipy.optimize import least_squares
 
 from cell import effects as fx
 from cell.diagnosis.jacobian import evaluate, rows_of
@@ -199,6 +198,7 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
     ``identifiable=False``; raises ValueError for an unknown ``jac`` or ``orders`` that are
     not cycles per revolution of :data:`.screen.ORDERS` on the candidate's cyclic joints.
     """
+    from scipy.optimize import least_squares   # scipy.optimize: ~0.3 s CPU to import
     if jac not in JACOBIANS:
         raise ValueError(f"jac {jac!r}: choose from {', '.join(JACOBIANS)}")
     cyc = [j for name, joints in c if name == "cyclic_error" for j in joints]
