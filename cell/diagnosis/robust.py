@@ -40,7 +40,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from cell.diagnosis import noise as noise_mod
 from cell.diagnosis import where as where_mod
@@ -90,6 +89,7 @@ def _local_residual(coords: np.ndarray, r: np.ndarray, use: np.ndarray) -> np.nd
     """r (n,2) minus its leave-one-out local plane through :data:`NEIGHBOURS` neighbours
     at ``coords`` taken among the rows ``use`` marks, scaled to the noise's σ
     (÷ √(1 + ΣW²))."""
+    from scipy.spatial import cKDTree   # scipy.spatial: only when flagging
     idx = np.flatnonzero(use)
     k = min(NEIGHBOURS, len(idx) - 1)
     _, nb = cKDTree(coords[idx]).query(coords, k=k + 1)
