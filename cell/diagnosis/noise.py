@@ -36,7 +36,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from cell.stats import chi2_ppf
 
@@ -130,6 +129,7 @@ def local_plane(coords: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Leave-one-out local planes: for each of n points at ``coords`` (n,d), its ``k``
     nearest other points ``nb`` (n,k) and their weights ``W`` (n,k) (:func:`plane_weights`).
     For independent noise of σ, v_i − v̂_i has σ²·(1 + Σ_k W_ik²)."""
+    from scipy.spatial import cKDTree   # scipy.spatial: only when needed
     _, nb = cKDTree(coords).query(coords, k=k + 1)
     nb = nb[:, 1:]
     return nb, plane_weights(coords, nb)
