@@ -34,7 +34,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
 from cell import effects as fx
 from cell.diagnosis.replay import DiagData
@@ -95,6 +94,7 @@ def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
     below 1e-12 of the largest eigenvalue left out. (numpy's lstsq hands such a matrix to a
     threaded BLAS whose idle threads then spin, as does numpy's eigh from 26 columns on:
     twice the CPU time for nothing at these sizes.)"""
+    import scipy.linalg
     s = np.sqrt(np.einsum("ij,ij->j", X, X))
     s = np.where(s > 0, s, 1.0)
     Xs = X / s
