@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.abc
+import importlib.util
 import os
 import sys
 
@@ -47,11 +49,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _LogSetUp(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Configures structlog (:func:`cell.log.configure`) with the command line's options at
+    the moment something first imports :mod:`cell.log`, not before: structlog costs about
+    50 ms of CPU to import, and most commands (``diagnose``, ``report``, ``plan`` …) never
+    log. Installed on ``sys.meta_path`` by :func:`main`; it leaves it at the first import."""
+
+    def __init__(self, fmt: str, level: str):
+        self.fmt, self.level, self.loader = fmt, level, None
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "cell.log":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)        # the ordinary finders, without this one
+        self.loader, spec.loader = spec.loader, self
+        return spec
+
+    def create_module(self, spec):
+        return self.loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self.loader.exec_module(module)
+        module.configure(self.fmt, self.level)
+
+
+def configure_logging(fmt: str, level: str) -> None:
+    """structlog set up with ``fmt`` and ``level`` now if :mod:`cell.log` is loaded, else
+    when it is (:class:`_LogSetUp`)."""
+    if "cell.log" in sys.modules:
+        sys.modules["cell.log"].configure(fmt, level)
+    else:
+        sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _LogSetUp)]
+        sys.meta_path.insert(0, _LogSetUp(fmt, level))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from cell import log          # structlog: only once a command runs, not for --help
-    log.configure(args.log_format, args.log_level)
+    configure_logging(args.log_format, args.log_level)
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()
