@@ -164,7 +164,7 @@ def test_calibrate_refuses_a_scara_campaign(tmp_path):
     d = tmp_path / "scara"
     d.mkdir()
     (d / "model.yaml").write_text("format: cell-measurements/1\nkinematics: scara\nl1_mm: 325\nl2_mm: 275\n")
-    (d / "points.csv").write_text("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,10,20,400,200\n")
+    (d / "points.csv").write_text("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,10,20,400,200\n1,1,30,40,300,200\n")
     r = _cellctl("calibrate", "kinematics", str(d))
     assert r.returncode == 2 and "a SCARA campaign; CAMPAIGN must be a chain" in r.stderr
     assert not (tmp_path / "scara-calibrated").exists()
