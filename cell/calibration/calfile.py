@@ -100,13 +100,16 @@ def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
 
 
 def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: dict,
-                 created_at: str) -> dict:
+                 created_at: str, warning: str | None = None) -> dict:
     """A calibration document (version and checksum are set by :func:`write`).
     ``parameters``: name → {value, se, low, high, unit}; ``report``: identifiability,
-    held-out check and fit figures; ``data``: the poses and measurements."""
+    held-out check and fit figures; ``data``: the poses and measurements; ``warning``: why
+    a calibration whose check failed was written anyway (``--accept-worse``), stored with
+    ``accept_worse: true`` (None: the check passed, ``accept_worse: false``)."""
     return {"format": FORMAT, "version": 0, "created_at": created_at, "cell": cell,
             "robot": {"name": robot.g.name, "fingerprint": robot_fingerprint(robot)},
-            "applied": sorted(APPLIED), "parameters": parameters, "report": report, "data": data}
+            "applied": sorted(APPLIED), "parameters": parameters, "report": report, "data": data,
+            "accept_worse": warning is not None, "warning": warning}
 
 
 def write(path, doc: dict) -> dict:

@@ -9,8 +9,10 @@ and the controller's CALIBRATING state call it:
   choice of the fit poses, held-out poses drawn from the rest, a few anchor poses where the
   cell's fixed camera sees the tool (they tie the board's frame, rotation included, to
   the cell's: without them θ1's zero absorbs the board's rotation), measure all, identify,
-  check on the held-out poses; only a passing result is written (versioned, see
-  :mod:`cell.calibration.calfile`) and applied (``on_applied``);
+  check on the held-out poses (:func:`cell.calibration.kinematic.holdout_check`); only a
+  passing result is written (versioned, see :mod:`cell.calibration.calfile`) and applied
+  (``on_applied``), or a failing one the caller accepts (``accept_worse``, the command's
+  ``--accept-worse``: never from the PLC), with the warning in the file;
 * :meth:`CellCalibrator.run_safely` — the PLC's entry: never raises, returns a
   :class:`~cell.cycle.CycleOutcome` whose ``calibration`` holds the residuals.
 
@@ -192,9 +194,11 @@ class CellCalibrator:
         return plan, result
 
     def kinematics(self, *, poses: int | None = None, holdout: int | None = None, cancel=None,
-                   progress=None, write: bool = True, seed: int = 0) -> KinematicOutcome:
+                   progress=None, write: bool = True, seed: int = 0,
+                   accept_worse: bool = False) -> KinematicOutcome:
         """Seed 001 over the board. Writes and applies the calibration only if ``write`` and
-        the held-out check passes (see the module doc). Raises CalibrationError (board not
+        the held-out check passes, or ``accept_worse`` (the check's failures are then the
+        file's ``warning``; see the module doc). Raises CalibrationError (board not
         found, a point not seen, singular design, ...); a failed held-out check is returned
         (``holdout.passed`` False, ``document`` None), not raised."""
         from cell.calibration.dh import scara_chain
@@ -240,8 +244,9 @@ class CellCalibrator:
                                [cands[i].point for i in fit] + [-1] * len(anchors),
                                [cands[i].point for i in hold])
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
-        if write and check.passed:
-            self._write(out)
+        if write and (check.passed or accept_worse):
+            self._write(out, None if check.passed else
+                        f"written with --accept-worse although its check failed: {check.reason}")
         return out
 
     def _measuring_camera(self):
@@ -253,7 +258,7 @@ class CellCalibrator:
                                                     v.grab_timeout_s, clock=self.devices.clock)
         return self.measuring_camera
 
-    def _write(self, out: KinematicOutcome) -> None:
+    def _write(self, out: KinematicOutcome, warning: str | None = None) -> None:
         data = {"board": board_of(self.config).as_dict(),
                 "fit": [{"q": q.tolist(), "measured_mm": m.tolist(), "point": k}
                         for q, m, k in zip(out.q_fit, out.m_fit, out.points_fit)],
@@ -261,12 +266,12 @@ class CellCalibrator:
                             for q, m, k in zip(out.q_hold, out.m_hold, out.points_hold)]}
         doc = calfile.new_document(self.nominal, self.config.name, out.parameters(self.nominal),
                                    json_safe(out.report()), data,
-                                   datetime.now(timezone.utc).isoformat(timespec="seconds"))
+                                   datetime.now(timezone.utc).isoformat(timespec="seconds"), warning)
         doc = calfile.write(self.path, doc)
         out.document = doc
         self.version = int(doc["version"])
         log.info("robot_calibration_written", path=str(self.path), version=self.version,
-                 id=calfile.calibration_id(doc))
+                 id=calfile.calibration_id(doc), warning=warning)
         self.robot = calfile.calibrated_robot(self.nominal, doc)
         if self.on_applied is not None:
             self.on_applied(self.robot, doc)

@@ -9,24 +9,37 @@ named (:func:`cell.chain.fit.identifiability`). Of the rest, the ones that impro
 leave-one-pose-out prediction are kept (:func:`cell.chain.rank.screen`): with tens of
 poses, fitting all 40-odd identifiable parameters of a 7-joint arm would fit noise.
 
-The check: the held-out poses (the campaign's split, or the diagnosis's generated one)
-must be predicted better than by the nominal model with its own registration. A failed
-check writes nothing.
+The check (:mod:`cell.calibration.check`): the held-out poses (the campaign's split, or
+the diagnosis's generated one) must be predicted better in rms than by the nominal model
+with its own registration, and neither their rms nor their max may get worse; and the
+fit's residual σ per axis must not be far above the measurement noise, estimated apart
+from the fit: from revisited poses when there are some and they agree with the sensor
+noise (they then hold the arm's repeatability too), else from the markers' rigid
+constellation within each pose (:mod:`cell.chain.noise`). A failed check writes nothing,
+unless the caller accepts it (``accept_worse``): the written directory then holds the
+warning in ``calibration.json`` and in ``model.yaml``'s ``source``.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
+import json
+import math
+
 import numpy as np
 
+from cell.calibration import check as C
 from cell.chain import fit as F
 from cell.chain import rank
 from cell.chain.campaign import ChainCampaign, ChainSpec, write_chain_campaign
+from cell.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
 from cell.chain.model import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.chain.report import split_poses
+from cell.jsonsafe import json_safe
 
 FORMAT = "cell-chain-calibration/1"
+CALIBRATION_FILE = "calibration.json"   #: the report, written beside model.yaml
 
 
 @dataclass
@@ -41,10 +54,18 @@ class ChainCalibration:
     fit_poses: int
     hold_poses: int
     split_source: str
+    noise: C.Noise
+
+    @property
+    def verdict(self) -> C.Verdict:
+        (b, bmax), (a, amax) = self.hold_before, self.hold_after
+        other = () if a < b else (f"held-out rms {b:.4g} → {a:.4g} mm: not better than the nominal model",)
+        return C.Verdict((C.Figure("rms", b, a, "mm"), C.Figure("max", bmax, amax, "mm")),
+                         (self.noise,), other)
 
     @property
     def passed(self) -> bool:
-        return self.hold_after[0] < self.hold_before[0]
+        return self.verdict.passed
 
     def report(self) -> dict:
         f, (b, bmax), (a, amax) = self.fit, self.hold_before, self.hold_after
@@ -67,10 +88,7 @@ class ChainCalibration:
             "holdout": {"rms_before_mm": round(b, 6), "rms_after_mm": round(a, 6),
                         "max_before_mm": round(bmax, 6), "max_after_mm": round(amax, 6),
                         "shrink": round(1 - a / b, 4) if b > 0 else 0.0},
-            "check": {"passed": self.passed,
-                      "reason": ("held-out poses are predicted better than by the nominal model"
-                                 if self.passed else "the calibrated model does not predict the "
-                                 "held-out poses better than the nominal one")},
+            "check": self.verdict.as_dict(),
         }
 
 
@@ -88,7 +106,21 @@ def calibrate_chain(cc: ChainCampaign) -> ChainCalibration:
     before = F.predict_rms(hold_d, f0)
     after = F.predict_rms(hold_d, f)
     return ChainCalibration(cc, f0, f, ident.dropped, [p.name for p in ident.kept if p not in chosen],
-                            before, after, fit_d.n_poses, hold_d.n_poses, src)
+                            before, after, fit_d.n_poses, hold_d.n_poses, src, _noise(cc, fit_d, f))
+
+
+def _noise(cc: ChainCampaign, fit_d: F.Data, f: F.Fit) -> C.Noise:
+    """The fit's residual σ per axis against the measurement noise (see the module doc)."""
+    dof = f.J.shape[0] - f.J.shape[1]
+    resid = math.sqrt(float(np.sum(f.resid ** 2)) / dof) if dof > 0 else math.nan
+    rep, groups, rep_dof = repeat_noise_mm(cc)
+    rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f.reg.markers,
+                                  fit_d.known_markers is None)
+    if rep is not None and (rig is None or revisits_disagree(rep, rep_dof, rig, rig_dof) >= DRIFT_ALPHA):
+        return C.noise_check(resid, dof, rep, rep_dof, f"revisited poses ({groups} groups)", "mm")
+    if rig is not None:
+        return C.noise_check(resid, dof, rig, rig_dof, "markers' rigid constellation within each pose", "mm")
+    return C.noise_check(resid, dof, None, 0, "no revisited poses, fewer than 3 markers per pose", "mm")
 
 
 def _dh_rows(spec: ChainSpec, values: dict[str, float]) -> list[dict]:
@@ -123,10 +155,18 @@ def _urdf_text(cc: ChainCampaign, values: dict[str, float]) -> str:
     return robot.to_xml_string()
 
 
-def write_calibrated(cal: ChainCalibration, out_dir: Path | str) -> dict:
+def write_calibrated(cal: ChainCalibration, out_dir: Path | str, accept_worse: bool = False) -> dict:
     """Write the calibrated model with the campaign's points to ``out_dir`` (a campaign
     directory: ``cellctl diagnose OUT_DIR`` runs on it; ``cellctl diagnose CAMPAIGN
-    --model OUT_DIR/model.yaml`` too). Returns the written paths."""
+    --model OUT_DIR/model.yaml`` too) and the report as ``calibration.json``. Returns the
+    written paths and the ``warning`` (None when the check passed).
+    Raises ValueError when the check failed and ``accept_worse`` is not set (nothing is
+    written); with it, the warning goes into ``calibration.json`` (``accept_worse``,
+    ``warning``) and into ``model.yaml``'s ``source``."""
+    verdict = cal.verdict
+    if not verdict.passed and not accept_worse:
+        raise ValueError(f"held-out check failed, nothing written: {verdict.reason()}")
+    warn = None if verdict.passed else C.warning(verdict)
     cc, values = cal.campaign, cal.fit.named()
     files: dict[str, str] = {}
     if cc.spec.kinematics == "dh":
@@ -136,6 +176,11 @@ def write_calibrated(cal: ChainCalibration, out_dir: Path | str) -> dict:
         files[name] = _urdf_text(cc, values)
         spec = cc.spec.model_copy(update={"urdf": name})
     note = f"calibrated by cellctl calibrate kinematics from {cc.directory}"
+    note += f"; WARNING: {warn}" if warn else ""
     spec = spec.model_copy(update={"source": f"{spec.source} [{note}]" if spec.source else note})
+    urdf = {"urdf": n for n in files}
+    report = cal.report() | {"accept_worse": warn is not None, "warning": warn}
+    files[CALIBRATION_FILE] = json.dumps(json_safe(report), indent=2, allow_nan=False) + "\n"
     d = write_chain_campaign(cc, out_dir, spec, files)
-    return {"dir": str(d), "model": str(d / "model.yaml"), **({"urdf": str(d / n) for n in files})}
+    return {"dir": str(d), "model": str(d / "model.yaml"), "report": str(d / CALIBRATION_FILE),
+            **{k: str(d / n) for k, n in urdf.items()}, "warning": warn}

@@ -10,8 +10,16 @@
   ``--holdout`` more for the check. Prints the held-out error before/after, the identified
   parameters with 95 % intervals and what the measurement cannot tell apart; writes the
   versioned calibration file (``calibration.file``, or ``--out``) only if the held-out
-  check passes (exit 2 otherwise, nothing written). The cell loads it at its next start
-  (a cell running under the PLC applies a PLC-started calibration at once).
+  check passes: the held-out rms improves, no held-out figure (rms, max) gets worse, and
+  the residual is not far above the noise (:mod:`cell.calibration.check`); exit 2
+  otherwise, nothing written, ``--dry-run`` included. ``--accept-worse`` writes a failing
+  one anyway, with ``accept_worse: true`` and the ``warning`` in the file and a row in the
+  audit trail (the config's cycle log, or ``--db``). The cell loads it at its next start
+  (a cell running under the PLC applies a PLC-started calibration at once; the PLC never
+  accepts a failed check).
+* ``calibrate kinematics CAMPAIGN`` — the same fit and check on a chain campaign
+  (:mod:`cell.chain.calibrate`); writes the calibrated model directory (``--out``) with
+  ``calibration.json``; ``--db`` adds a row to that cycle log's audit trail.
 
 ``--sim`` runs on the simulated cell (``--plant FILE``: a plant with effects the
 calibration is not told); without it, on the hardware of ``--config`` (stop the cell
@@ -58,6 +66,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--out", help="calibration file to write (default: calibration.file); with "
                                  "CAMPAIGN, the directory of the calibrated model")
     k.add_argument("--dry-run", action="store_true", help="measure and report; write nothing")
+    k.add_argument("--accept-worse", action="store_true",
+                   help="write the calibration even when its check fails (a held-out figure got "
+                        "worse, or the residual is far above the noise); the warning goes into "
+                        "the written file and the audit trail")
+    k.add_argument("--db", help="cycle log whose audit trail records the write (default: the cell "
+                                "config's log.path; with CAMPAIGN, none unless given)")
     _common(k)
     k.set_defaults(func=run_kinematics)
 
@@ -205,21 +219,24 @@ def run_kinematics(args: argparse.Namespace) -> int:
     with progress.bar("calibrate kinematics", unit="pose") as bar:
         cal, out = _session(args, lambda cal: (cal, cal.kinematics(
             poses=args.poses, holdout=args.holdout, write=not args.dry_run,
-            progress=progress.callback(bar))))
+            accept_worse=args.accept_worse, progress=progress.callback(bar))))
+    doc = out.document
     report = {"parameters": out.parameters(cal.nominal), **out.report(),
-              "written": None if out.document is None else
-              {"path": str(cal.path), "version": out.document["version"],
-               "id": calfile.calibration_id(out.document)}}
+              "written": None if doc is None else
+              {"path": str(cal.path), "version": doc["version"], "id": calfile.calibration_id(doc)},
+              "accept_worse": bool(doc and doc["accept_worse"]), "warning": doc["warning"] if doc else None}
+    if doc is not None:
+        db = args.db or (None if args.sim else cal.config.log.path)
+        if db:
+            audit_calibration(db, "calibration_write", cal.path,
+                              f"{calfile.calibration_id(doc)}: " + (doc["warning"] or "check passed"),
+                              str(doc.get("sha256", "")))
     from cell.jsonsafe import json_safe
     if args.json:
         print(json.dumps(json_safe(report), indent=2, allow_nan=False))
     else:
         _print_kinematics(out, report)
-    if not out.holdout.passed:
-        print(f"cellctl calibrate kinematics: error: held-out check failed, nothing written: "
-              f"{out.holdout.reason}", file=sys.stderr)
-        return 2
-    return 0
+    return _verdict_exit(out.holdout.passed, out.holdout.reason, doc is not None)
 
 
 def run_chain(args: argparse.Namespace) -> int:
@@ -241,21 +258,55 @@ def run_chain(args: argparse.Namespace) -> int:
     cal = calibrate_chain(c)
     report = cal.report()
     written = None
-    if cal.passed and not args.dry_run:
+    if (cal.passed or args.accept_worse) and not args.dry_run:
         try:
-            written = write_calibrated(cal, out)
+            written = write_calibrated(cal, out, accept_worse=args.accept_worse)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write: {exc}") from None
+        if args.db:
+            audit_calibration(args.db, "chain_calibration_write", written["report"],
+                              written["warning"] or "written; check passed")
     report["written"] = written
+    report["accept_worse"] = written is not None and written["warning"] is not None
+    report["warning"] = written["warning"] if written else None
     if args.json:
         print(json.dumps(json_safe(report), indent=2, allow_nan=False))
     else:
         _print_chain(report)
-    if not cal.passed:
-        print(f"cellctl calibrate kinematics: error: held-out check failed, nothing written: "
-              f"{report['check']['reason']}", file=sys.stderr)
-        return 2
-    return 0
+    return _verdict_exit(cal.passed, report["check"]["reason"], written is not None)
+
+
+def _verdict_exit(passed: bool, reason: str, written: bool) -> int:
+    """0 when the check passed; when it failed, 0 if the calibration was written anyway
+    (``--accept-worse``, warned on stderr), else 2 with the reason on stderr."""
+    if passed:
+        return 0
+    if written:
+        print(f"cellctl calibrate kinematics: warning: written with --accept-worse although the "
+              f"check failed: {reason}", file=sys.stderr)
+        return 0
+    print(f"cellctl calibrate kinematics: error: check failed, nothing written: {reason}"
+          + ("" if "--accept-worse" in reason else " (--accept-worse writes it anyway, with a warning)"),
+          file=sys.stderr)
+    return 2
+
+
+def audit_calibration(db, action: str, written, result: str, hash_: str | None = None) -> None:
+    """One row in the audit trail of the cycle log ``db`` (created if missing): ``action`` on
+    the ``written`` file (its SHA-256 unless ``hash_`` is given), ``result`` in words
+    (the warning of a calibration written with ``--accept-worse``)."""
+    import hashlib
+    from cell.cyclelog import CycleLog
+    from cell.errors import LogError
+    try:
+        log = CycleLog(db)
+    except LogError as exc:
+        raise ConfigError(f"--db {db}: cannot record the calibration in the audit trail: {exc}") from None
+    try:
+        log.audit("cellctl", action, str(written), hash_ or hashlib.sha256(Path(written).read_bytes()).hexdigest(),
+                  result)
+    finally:
+        log.close()
 
 
 def _print_chain(r: dict) -> None:
@@ -282,10 +333,28 @@ def _print_chain(r: dict) -> None:
         if "registration" not in why:
             print(f"  {n}: {why} (kept nominal)")
     print()
-    print(f"check: {r['check']['reason']}: {'PASSED' if r['check']['passed'] else 'FAILED'}")
+    _print_check(r["check"])
     if r["written"]:
         print(f"written: {r['written']['model']}; diagnose on it with "
               f"'cellctl diagnose {r['written']['dir']}'")
+        if r["warning"]:
+            print(f"WARNING: {r['warning']}")
+
+
+def _print_check(check: dict) -> None:
+    """The check's verdict: PASSED with the held-out figures, or FAILED with each failed rule."""
+    for n in check["noise"]:
+        if n["sigma"] is not None:
+            print(f"noise: residual σ {n['residual_sigma']:.4g} {n['unit']} per axis, measured noise σ "
+                  f"{n['sigma']:.4g} {n['unit']} ({n['source']}): {n['ratio']:.3g}×")
+        else:
+            print(f"noise: unknown ({n['source']}); residual σ {n['residual_sigma']:.4g} {n['unit']} per axis")
+    if check["passed"]:
+        print(f"check: {check['reason']}: PASSED")
+        return
+    print("check: FAILED")
+    for line in check["failures"]:
+        print(f"  {line}")
 
 
 def _print_kinematics(out, report: dict) -> None:
@@ -309,9 +378,16 @@ def _print_kinematics(out, report: dict) -> None:
     if unseen:
         print(f"  not observable from x, y over the board (fixed at nominal): {', '.join(unseen)}")
     print()
-    print(f"check: {h.reason}: {'PASSED' if h.passed else 'FAILED'}")
+    if h.passed:
+        print(f"check: {h.reason}: PASSED")
+    else:
+        print("check: FAILED")
+        for line in h.reason.split("; "):
+            print(f"  {line}")
     w = report["written"]
     if w:
         print(f"written: {w['path']} (version {w['version']}, id {w['id']}); the cell uses it from its next start")
+        if report["warning"]:
+            print(f"WARNING: {report['warning']}")
     elif h.passed:
         print("not written (--dry-run)")
