@@ -25,6 +25,14 @@ before any image is read. Images come from a folder (``--images DIR``, e.g. save
 camera vendor's tool) or from the configured camera (``--config deploy/cell.yaml --views
 3``). The result is the JSON file the cell loads at start-up (``vision.calibration``),
 written atomically; the command prints the reprojection error in pixels and mm.
+
+The check: a calibration whose reprojection residual is far above the measurement noise
+(over 2x and significant, see cell/calibration/check.py) is refused (exit 2, nothing
+written), naming the views that disagree most. The noise is measured twice, apart from
+the joint fit: each view fitted alone (with two or more views: a board bumped between
+views, or a swapped or re-scaled image, shows here) and the circle detector's own centre
+uncertainty. ``--accept-worse`` writes it anyway, with ``accept_worse: true`` and the
+``warning`` in the file and, with ``--db``, a row in that cycle log's audit trail.
 """
 from __future__ import annotations
 
@@ -36,6 +44,7 @@ from pathlib import Path
 from cell import paths
 from cell.commands import file_in_the_way
 from cell.errors import ConfigError
+from cell.jsonsafe import json_safe
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="rough direction of the image +u axis in the base frame, ±45° (default 0)")
     p.add_argument("--no-distortion", action="store_true", help="fit a plain homography")
     p.add_argument("--out", required=True, help="calibration JSON to write")
+    p.add_argument("--accept-worse", action="store_true",
+                   help="write it even when its residual is far above the noise (warning in the file)")
+    p.add_argument("--db", help="cycle log whose audit trail records the write (default: the "
+                                "config's log.path with --config, else none)")
     p.set_defaults(func=run)
 
 
@@ -69,20 +82,46 @@ def run(args: argparse.Namespace) -> int:
     except VisionError as exc:
         names = ", ".join(f"view {i} = {name}" for i, (name, _) in enumerate(images))
         raise ConfigError(f"calibration failed: {exc} ({names})") from None
+    check = cal.check
+    worst = ", ".join(f"view {v['view']} = {images[v['view']][0]} (rms {v['rms_px']:.3g} px)"
+                      for v in check["views"][:2]) if len(images) > 1 else ""
+    summary = (f"{len(images)} view(s), {cal.n_points} board points: reprojection rms {cal.rms_px:.4f} px "
+               f"(max {cal.max_px:.4f}), rms {cal.rms_mm:.5f} mm")
+    if not check["passed"]:
+        failed = "; ".join(check["failures"]) + (f"; the views that disagree most: {worst}" if worst else "")
+        if not args.accept_worse:
+            print(f"{summary}\ncheck: FAILED: {failed}")
+            raise ConfigError(f"calibration refused, nothing written: {failed} "
+                              "(--accept-worse writes it anyway, with a warning)")
+        warning = f"written with --accept-worse although its check failed: {failed}"
+    else:
+        warning = None
+    doc = cal.as_dict() | {"accept_worse": warning is not None, "warning": warning}
     tmp = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = paths.temp_beside(out)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(cal.as_dict(), f, indent=2)
+            json.dump(json_safe(doc), f, indent=2, allow_nan=False)
         os.replace(tmp, out)
     except OSError as exc:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         raise ConfigError(f"--out {out}: cannot write the calibration: {exc.strerror or exc}") from None
-    print(f"{len(images)} view(s), {cal.n_points} board points: reprojection rms {cal.rms_px:.4f} px "
-          f"(max {cal.max_px:.4f}), rms {cal.rms_mm:.5f} mm; written to {out}")
+    db = args.db or (_config_log(args.config) if args.config else None)
+    if db:
+        from cell.commands.robotcal import audit_calibration
+        audit_calibration(db, "camera_calibration_write", out,
+               warning or "written; check passed")
+    print(f"{summary}; written to {out}")
+    print(f"check: {check['reason']}: PASSED" if warning is None else f"WARNING: {warning}")
     return 0
+
+
+def _config_log(config: str) -> str:
+    """The cycle log of the cell config ``config`` (its audit trail)."""
+    from cell.config import CellConfig
+    return str(CellConfig.load(config).with_paths().log.path)
 
 
 def _out_path(given: str) -> Path:

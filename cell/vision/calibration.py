@@ -22,6 +22,7 @@ shrinks); a view that is not is rejected.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Sequence, Union
@@ -191,6 +192,13 @@ def detect_board(image: np.ndarray, board: Board, *, u_axis_deg: float = 0.0,
     Raises :class:`VisionError` if the image is not 8-bit grey, the board (of exactly this
     size) is not found, a circle cannot be refined, or the orientation is ambiguous.
     """
+    return _detect(image, board, u_axis_deg, where)[0]
+
+
+def _detect(image: np.ndarray, board: Board, u_axis_deg: float, where: str
+            ) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`detect_board`, and the detector's own 1-σ centre uncertainty (u, v) px of
+    each circle (N, 2; any order), None for a chessboard (its corner finder gives none)."""
     check_image(image, where)
     h, w = image.shape
     size = f"{board.cols}x{board.rows}"
@@ -217,10 +225,13 @@ def detect_board(image: np.ndarray, board: Board, *, u_axis_deg: float = 0.0,
                               f"larger board (or other circles) is in view; check cols x rows")
         pitch_px = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
         r_px = board.radius_mm / board.pitch_mm * pitch_px
-        for idx in np.ndindex(grid.shape[:2]):
+        sigma = np.empty((board.rows * board.cols, 2))
+        for n, idx in enumerate(np.ndindex(grid.shape[:2])):
             fix = refine_fiducial(image, *grid[idx], r_px, polarity="dark", min_contrast=15.0)
             grid[idx] = fix.uv
-    return _orient(grid, board, u_axis_deg, f"{where} ({board.kind} {size})")
+            sigma[n] = fix.sigma_u_px, fix.sigma_v_px
+        return _orient(grid, board, u_axis_deg, f"{where} ({board.kind} {size})"), sigma
+    return _orient(grid, board, u_axis_deg, f"{where} ({board.kind} {size})"), None
 
 
 @dataclass(frozen=True)
@@ -245,6 +256,8 @@ class PlaneCalibration:
     max_mm: float = float("nan")
     n_points: int = 0
     boards: tuple = ()
+    #: :func:`consistency_check` of the fit ({} when not made, e.g. a loaded file without one)
+    check: dict = field(default_factory=dict, compare=False)
 
     @property
     def centre_px(self) -> tuple[float, float]:
@@ -292,7 +305,7 @@ class PlaneCalibration:
                 "distortion": {k: getattr(self.distortion, k) for k in ("k1", "k2", "p1", "p2")},
                 "residuals": {"rms_px": self.rms_px, "max_px": self.max_px, "rms_mm": self.rms_mm,
                               "max_mm": self.max_mm, "n_points": self.n_points},
-                "boards": list(self.boards)}
+                "boards": list(self.boards), **({"check": self.check} if self.check else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PlaneCalibration":
@@ -327,7 +340,8 @@ class PlaneCalibration:
         res = d.get("residuals") or {}
         return cls(d["width"], d["height"], f, hom, distortion,
                    **{k: float(res.get(k, float("nan"))) for k in ("rms_px", "max_px", "rms_mm", "max_mm")},
-                   n_points=int(res.get("n_points", 0)), boards=tuple(d.get("boards") or ()))
+                   n_points=int(res.get("n_points", 0)), boards=tuple(d.get("boards") or ()),
+                   check=d.get("check") if isinstance(d.get("check"), dict) else {})
 
 
 def _points(p, what: str) -> np.ndarray:
@@ -346,10 +360,14 @@ def calibrate(views: Sequence[tuple[np.ndarray, Board]], *, distortion: bool = T
     ``focal_px`` (default: the larger image side) only normalises the distortion terms.
     Raises :class:`VisionError` naming the view if a board is not found or the images
     differ in size, or if too few points (< 8, or < 20 with distortion) are found.
+
+    The result carries its ``check`` (:func:`consistency_check`): whether its residual is far
+    above the measurement noise; the caller decides what to do with a failed one
+    (``cellctl calibrate-camera`` refuses to write it).
     """
     if not views:
         raise VisionError("calibrate: no views given")
-    px, mm, size = [], [], None
+    px, mm, sig, size = [], [], [], None
     for i, view in enumerate(views):
         try:
             image, board = view
@@ -359,14 +377,23 @@ def calibrate(views: Sequence[tuple[np.ndarray, Board]], *, distortion: bool = T
         if size is not None and image.shape != size:
             raise VisionError(f"view {i}: image shape {image.shape} differs from view 0 {size}")
         size = image.shape
-        px.append(detect_board(image, board, u_axis_deg=u_axis_deg, where=f"view {i}"))
+        p, s = _detect(image, board, u_axis_deg, f"view {i}")
+        px.append(p)
         mm.append(board.points_mm())
-    px, mm = np.concatenate(px), np.concatenate(mm)
+        sig.append(s)
     need = 20 if distortion else 8
-    if len(px) < need:
-        raise VisionError(f"calibrate: {len(px)} board points, need >= {need}")
+    n_all = sum(len(p) for p in px)
+    if n_all < need:
+        raise VisionError(f"calibrate: {n_all} board points, need >= {need}")
     h, w = size
     f = float(focal_px) if focal_px else float(max(w, h))
+    cal = _fit(np.concatenate(px), np.concatenate(mm), w, h, f, distortion)
+    return dataclasses.replace(cal, boards=tuple(b.as_dict() for _, b in views),
+                               check=consistency_check(cal, px, mm, sig, distortion))
+
+
+def _fit(px: np.ndarray, mm: np.ndarray, w: int, h: int, f: float, distortion: bool) -> PlaneCalibration:
+    """Homography (+ distortion) from pixels ``px`` of plane points ``mm``, with residuals."""
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
     norm = (px - [cx, cy]) / f
     # Condition the mm side (Hartley) so the fit is well scaled.
@@ -398,7 +425,57 @@ def calibrate(views: Sequence[tuple[np.ndarray, Board]], *, distortion: bool = T
     return PlaneCalibration(w, h, f, cal.homography, dist,
                             rms_px=float(np.sqrt(np.mean(err_px ** 2))), max_px=float(err_px.max()),
                             rms_mm=float(np.sqrt(np.mean(err_mm ** 2))), max_mm=float(err_mm.max()),
-                            n_points=len(px), boards=tuple(b.as_dict() for _, b in views))
+                            n_points=len(px))
+
+
+def consistency_check(cal: PlaneCalibration, px: list[np.ndarray], mm: list[np.ndarray],
+                      sigma: list[np.ndarray | None], distortion: bool) -> dict:
+    """Is the residual of ``cal`` (fitted on all views: pixels ``px``, plane points ``mm``
+    per view) far above the measurement noise (:mod:`cell.calibration.check`)? Two noise
+    estimates, each made apart from the joint fit:
+
+    * **each view alone** (two or more views): every view fitted with its own homography
+      (and distortion): the detector's noise and what the lens model leaves, but nothing of
+      a disagreement between views (a board bumped between views, a swapped or re-scaled
+      image): the joint fit must not leave much more;
+    * **the detector** (circle boards): the disc fit's own 1-σ centre uncertainty
+      (:func:`~cell.vision.fiducial.refine_fiducial`), pooled over the circles, taken with
+      2 dof per circle (fewer than the pixels it comes from: the test is conservative).
+
+    Returns the check as a dict: ``passed``, ``reason``, ``failures``, ``noise`` (see
+    :meth:`cell.calibration.check.Verdict.as_dict`) and ``views``: rms and max px of each
+    view in the joint fit, the worst first."""
+    from cell.calibration import check as C
+    k = 12 if distortion else 8
+    n = sum(len(p) for p in px)
+    rss = float(np.sum((cal.base_to_pixels(np.concatenate(mm)) - np.concatenate(px)) ** 2))
+    dof = 2 * n - k
+    resid = math.sqrt(rss / dof) if dof > 0 else math.nan
+    per_view, noise = [], []
+    for i, p in enumerate(px):
+        e = np.linalg.norm(cal.base_to_pixels(mm[i]) - p, axis=1)
+        per_view.append({"view": i, "rms_px": round(float(np.sqrt(np.mean(e ** 2))), 6),
+                         "max_px": round(float(e.max()), 6)})
+    if len(px) > 1:
+        ss, d = 0.0, 0
+        for p, m in zip(px, mm):
+            kv = 12 if distortion and len(p) >= 20 else 8
+            if 2 * len(p) <= kv:
+                continue
+            alone = _fit(p, m, cal.width, cal.height, cal.focal_px, kv == 12)
+            ss += float(np.sum((alone.base_to_pixels(m) - p) ** 2))
+            d += 2 * len(p) - kv
+        if d > 0:
+            noise.append(C.noise_check(resid, dof, math.sqrt(ss / d) if ss > 0 else None, d,
+                                       "each view fitted alone", "px"))
+    s = [x for x in sigma if x is not None]
+    if s:
+        s = np.concatenate(s)
+        noise.append(C.noise_check(resid, dof, float(np.sqrt(np.mean(s ** 2))), s.size,
+                                   "the detector's own centre uncertainty", "px"))
+    out = C.Verdict((), tuple(noise)).as_dict()
+    out["views"] = sorted(per_view, key=lambda v: -v["rms_px"])
+    return out
 
 
 @dataclass(frozen=True)
