@@ -11,7 +11,11 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
   gravity lever of a unit load at the tool point, taken on the nominal arm};
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
-  the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading).
+  the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading),
+  ``cyclic`` {joint: (amplitude deg, cycles per revolution, phase deg)} (a transmission
+  ripple a·sin(n·reading + φ): joint-dependent, not in the chain vocabulary),
+  ``plane_bump`` (amplitude mm, centre (3,) mm, width mm, direction (3,)) (a smooth local
+  displacement A·exp(−|p − p₀|²/(2w²)) of every measured point in the base frame).
 """
 from __future__ import annotations
 
@@ -50,6 +54,9 @@ def _chain(rows, q, modified, eff, pose_index, n_poses):
         if pose_index >= n_poses // 2:
             qk += eff.get("bump", {}).get(name, 0.0)
         qk += eff.get("_sag_dq", {}).get(name, 0.0)
+        if name in eff.get("cyclic", {}):
+            amp, cycles, phase = eff["cyclic"][name]
+            qk += amp * math.sin(cycles * q[k] * DEG + phase * DEG)
         th = r["theta_deg"] + (qk if r["type"] == "revolute" else 0.0)
         d = r["d_mm"] + eff.get("d", {}).get(name, 0.0) + (qk if r["type"] == "prismatic" else 0.0)
         a = r["a_mm"] + eff.get("a", {}).get(name, 0.0)
@@ -85,6 +92,11 @@ def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, g
     if eff.get("reach_sag"):
         reach_m = np.hypot(out[:, 0], out[:, 1]) / 1000.0
         out[:, 2] -= eff["reach_sag"] * reach_m ** 2
+    if eff.get("plane_bump"):
+        amp, at, width, direction = eff["plane_bump"]
+        r2 = ((out - np.asarray(at, float)) ** 2).sum(axis=1, keepdims=True)
+        u = np.asarray(direction, float)
+        out = out + amp * np.exp(-r2 / (2.0 * width ** 2)) * (u / np.linalg.norm(u))
     return out
 
 

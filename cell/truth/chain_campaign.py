@@ -12,9 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from cell.truth import chain as truth
+from cell.truth import files
 
 UR5 = [
     {"name": "j1", "type": "revolute", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 89.159, "theta_deg": 0.0},
@@ -43,14 +43,26 @@ def arm(joints: int) -> list[dict]:
 def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise_mm: float = 0.05,
          seed: int = 0, sensor: bool = True, markers=MARKERS, rows=UR5, modified: bool = False,
          split: bool = False, model_extra: dict | None = None, lens: float = 0.0,
-         repeats: int = 0) -> Path:
+         repeats: int = 0, places: int = 0, jitter_deg: float = 3.0, outliers: int = 0,
+         outlier_mm: tuple[float, float] = (1.0, 5.0)) -> Path:
     """Write a campaign with ``effects`` (see :mod:`cell.truth.chain`) to ``directory``:
     ``poses`` poses with readings uniform over ±150° (joint 2 in −160…−20°, the arm above
     its base), the last ``repeats`` of them revisiting earlier ones (same readings, new
-    noise: what lets a diagnosis estimate the noise); the sensor at a random pose."""
+    noise: what lets a diagnosis estimate the noise); the sensor at a random pose.
+
+    ``places`` > 0 gives a production-like layout instead: that many stations drawn as
+    above, each pose one of them at random plus a jitter uniform in ±``jitter_deg`` per
+    joint (revisits as before). ``outliers`` marker readings (a tracker's glitch) are moved
+    by ``outlier_mm`` (uniform) in a random direction, after the noise."""
     rng = np.random.default_rng(seed)
-    q = rng.uniform(-150, 150, (poses, len(rows)))
-    q[:, 1] = rng.uniform(-160, -20, poses)          # keep the arm above its base
+    if places:
+        c = rng.uniform(-150, 150, (places, len(rows)))
+        c[:, 1] = rng.uniform(-160 + jitter_deg, -20 - jitter_deg, places)
+        q = c[rng.integers(places, size=poses)] + rng.uniform(-jitter_deg, jitter_deg,
+                                                              (poses, len(rows)))
+    else:
+        q = rng.uniform(-150, 150, (poses, len(rows)))
+        q[:, 1] = rng.uniform(-160, -20, poses)          # keep the arm above its base
     if repeats:
         if not 0 < repeats < poses:
             raise ValueError(f"repeats {repeats}: 1 to poses − 1")
@@ -58,19 +70,24 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     R = truth.random_rotation(rng) if sensor else np.eye(3)
     t = rng.uniform(-800, 800, 3) if sensor else np.zeros(3)
     data = truth.campaign_rows(rows, modified, q, markers, effects or {}, R, t, noise_mm, rng, lens=lens)
-    directory.mkdir(parents=True, exist_ok=True)
+    if outliers:
+        k = len(rows) + 2                              # x_mm's index in a data row
+        for i in rng.choice(len(data), min(outliers, len(data)), replace=False):
+            u = rng.normal(size=3)
+            data[i][k:k + 3] = list(np.asarray(data[i][k:k + 3], float)
+                                    + rng.uniform(*outlier_mm) * u / np.linalg.norm(u))
+    directory = Path(directory)
     model = {"format": "cell-measurements/1", "kinematics": "dh",
              "dh_convention": "modified" if modified else "standard", "joints": rows,
              "measurement_frame": "sensor" if sensor else "base", "markers": "unknown",
              "source": "cell.truth.chain_campaign: DH arm drawn by cell.truth.chain"} | (model_extra or {})
-    (directory / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False))
     head = ["sample"] + [f"j{k + 1}" for k in range(len(rows))] + ["marker", "x_mm", "y_mm", "z_mm"]
     head += ["split"] if split else []
-    lines = [",".join(head)]
+    table = []
     for r in data:
-        cells = [str(r[0])] + [repr(float(v)) for v in r[1:1 + len(rows)]] + [str(r[1 + len(rows)])]
-        cells += [repr(float(v)) for v in r[2 + len(rows):]]
+        cells = [int(r[0])] + [float(v) for v in r[1:1 + len(rows)]] + [int(r[1 + len(rows)])]
+        cells += [float(v) for v in r[2 + len(rows):]]
         cells += (["holdout" if r[0] % 3 == 0 else "fit"] if split else [])
-        lines.append(",".join(cells))
-    (directory / "points.csv").write_text("\n".join(lines) + "\n")
-    return directory
+        table.append(cells)
+    return files.write(directory, {"model.yaml": files.yaml_text(model),
+                                   "points.csv": files.csv_text(head, table)})

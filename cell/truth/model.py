@@ -27,6 +27,8 @@ How one measured point comes about (units: deg, mm, s, °C)::
     links     L_k = L_k,nominal + e_k + a·L_k,nominal·(T − T_ref)   (thermal: ISO 1, 20 °C)
     tool      x = L1 cos θ1 + L2 cos(θ1 + θ2), y = L1 sin θ1 + L2 sin(θ1 + θ2)   (seed 000)
               − (0, g·(r / 1 m)²)                 (outside the vocabulary) reach-dependent sag
+              + A·exp(−|p − p₀|²/(2w²))·(cos β, sin β)   (outside the vocabulary) a smooth
+                                                  local bump of the work plane (a warped table)
               + repeatability of the arrival (points only)
     camera    m = c + gain·R(turn)·(p − c), c the camera centre on the work plane, then
               m = c + d·(1 + K·|d|²), d = m − c    (outside the vocabulary) radial lens
@@ -80,6 +82,17 @@ class Bump:
 
 
 @dataclass(frozen=True)
+class PlaneBump:
+    """A smooth local displacement of the tool centre: ``amp_mm`` at ``at_mm`` (base frame),
+    Gaussian fall-off of width ``width_mm``, in direction ``dir_rad`` (from +x toward +y)."""
+
+    amp_mm: float
+    at_mm: tuple[float, float]
+    width_mm: float
+    dir_rad: float
+
+
+@dataclass(frozen=True)
 class Truth:
     """How the true cell differs from the nominal one; the defaults are a perfect cell.
     Per-joint tuples hold (joint 1, joint 2). See the module docstring for each term."""
@@ -99,6 +112,7 @@ class Truth:
     sag_mm_at_1m: float = 0.0
     bump: Bump | None = None
     coupling_21: float = 0.0
+    plane_bump: PlaneBump | None = None
 
 
 # ------------------------------------------------------------------ one point
@@ -158,6 +172,11 @@ def true_xy(cell: Cell, truth: Truth, drive: tuple[float, float], dirs: tuple[fl
     x, y = tool_xy(*link_lengths_mm(cell, truth, temp_c), t1, t2)
     if truth.sag_mm_at_1m:
         y -= truth.sag_mm_at_1m * (x * x + y * y) / 1e6
+    pb = truth.plane_bump
+    if pb is not None:
+        r2 = (x - pb.at_mm[0]) ** 2 + (y - pb.at_mm[1]) ** 2
+        a = pb.amp_mm * math.exp(-r2 / (2.0 * pb.width_mm ** 2))
+        x, y = x + a * math.cos(pb.dir_rad), y + a * math.sin(pb.dir_rad)
     return x, y
 
 

@@ -20,6 +20,9 @@ A :class:`Part` is one effect on one joint (or on none) with its own parameters;
                                joint's zero by 0.02–0.2° (either sign); the moves come after
   ``joint_coupling``           joint 2's true angle gains κ·θ1 (joint 1's command),
                                |κ| 2·10⁻⁴–2·10⁻³
+  ``plane_bump``               a smooth local bump of the work plane: the tool centre moves
+                               by A·exp(−|p − p₀|²/(2w²)) in a fixed direction, A 0.1–0.4 mm,
+                               w 150–300 mm, p₀ at 300–900 mm from the base within ±150°
   ============================ ===========================================================
 
 Draw ranges of the vocabulary effects are the ``typical`` ranges of :mod:`cell.effects`,
@@ -35,11 +38,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from cell.truth.model import Bump, Ripple, Truth
+from cell.truth.model import Bump, PlaneBump, Ripple, Truth
 
 VOCABULARY = ("joint_offset", "link_length", "gear_ratio", "backlash", "cyclic_error",
               "thermal_drift", "camera_scale", "camera_rotation", "comm_delay")
-OUTSIDE = ("radial_distortion", "reach_sag", "offset_bump", "joint_coupling")
+OUTSIDE = ("radial_distortion", "reach_sag", "offset_bump", "joint_coupling", "plane_bump")
 CYCLIC_ORDERS = (1, 2, 3, 4)
 
 
@@ -79,6 +82,11 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("reach_sag", (), (Size("sag_mm_at_1m", "mm", 0.2, 0.6, False),)),
     Kind("offset_bump", (1, 2), (Size("step_deg", "deg", 0.02, 0.2),)),
     Kind("joint_coupling", (), (Size("coupling_21", "1", 2e-4, 2e-3),)),
+    Kind("plane_bump", (), (Size("amp_mm", "mm", 0.1, 0.4, False),
+                            Size("width_mm", "mm", 150.0, 300.0, False),
+                            Size("at_r_mm", "mm", 300.0, 900.0, False),
+                            Size("at_deg", "deg", 0.0, 150.0),
+                            Size("dir_deg", "deg", 0.0, 180.0))),
 )}
 
 
@@ -118,8 +126,9 @@ def draw(rng: np.random.Generator, kind: str, joint: int | None = None) -> Part:
 
 
 def scaled(p: Part, k: float) -> Part:
-    """``p`` with its size multiplied by ``k`` (order, phase and reference kept)."""
-    fixed = ("cycles", "ref_temp_c")
+    """``p`` with its size multiplied by ``k`` (order, phase, reference and a bump's place,
+    width and direction kept)."""
+    fixed = ("cycles", "ref_temp_c", "width_mm", "at_r_mm", "at_deg", "dir_deg")
     return Part(p.kind, p.joint, {n: (v if n in fixed else v * k) for n, v in p.values.items()})
 
 
@@ -157,6 +166,11 @@ def compose(parts: Sequence[Part], bump_at_s: float = 0.0) -> Truth:
             other["bump"] = Bump(int(p.joint), v["step_deg"], float(bump_at_s))
         elif p.kind == "joint_coupling":
             other["coupling_21"] = v["coupling_21"]
+        elif p.kind == "plane_bump":
+            at = math.radians(v["at_deg"])
+            other["plane_bump"] = PlaneBump(v["amp_mm"], (v["at_r_mm"] * math.cos(at),
+                                                          v["at_r_mm"] * math.sin(at)),
+                                            v["width_mm"], math.radians(v["dir_deg"]))
         else:
             raise ValueError(f"unknown kind {p.kind!r}; known: {sorted(KINDS)}")
     return Truth(zero_deg=tuple(f["zero_deg"]), link_error_mm=tuple(f["link_error_mm"]),

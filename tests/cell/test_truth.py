@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from cell import effects as fx
-from cell.diagnosis.synth import Design
 from cell.kinematics import Geometry
+from cell.measurements import read_campaign
 from cell.truth import campaign, model, parts
+from cell.truth.campaign import Design
 
 TOL_MM = 1e-9
 GEOM = Geometry(name="agreement", l1_mm=325.0, l2_mm=275.0)
@@ -98,7 +99,9 @@ def test_every_effect_at_once_agrees():
     assert gap < TOL_MM and size > 1.0
 
 
-def test_the_model_imports_neither_effects_nor_kinematics():
+def test_the_model_imports_nothing_from_the_project():
+    """The per-point model is plain ``math``; every module of cell/truth is held apart from
+    the fitter by tests/cell/test_truth_independence.py."""
     tree = ast.parse(Path(model.__file__).read_text())
     names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     names |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
@@ -172,3 +175,67 @@ def test_rows_are_shared_and_noise_is_optional():
     assert 0 < np.std(noisy - clean) < 0.05          # repeatability 0.01 + camera 0.005 mm
     assert campaign.rms_displacement([], rows, d) == 0.0
     assert campaign.bump_time(rows) == pytest.approx((rows.t[0] + rows.t[-1]) / 2)
+
+
+# ------------------------------------------------------------------ files and layouts
+def test_written_files_read_back_as_the_tables(tmp_path):
+    """The truth's own writer against the project's reader: every column the design asks
+    for, the same values, optional columns left out when the design says so."""
+    p = [parts.Part("joint_offset", 2, {"zero_deg": 0.05})]
+    for d in (Design(n_points=40, n_moves=2),
+              Design(n_points=40, n_moves=2, places=4, directions=False, temperature=False,
+                     split_column=False, outliers=2)):
+        c = read_campaign(campaign.write_campaign(tmp_path / f"c{d.places}", p, 9, d))
+        mem = campaign.make_campaign(p, 9, d)
+        assert set(c.points) == set(mem.points) and set(c.paths) == set(mem.paths)
+        for k in mem.points:
+            assert np.array_equal(c.points[k], mem.points[k]), k
+        for k in mem.paths:
+            assert np.array_equal(c.paths[k], mem.paths[k]), k
+        assert ("j1_dir" in c.points) == d.directions and ("temp_c" in c.points) == d.temperature
+        assert ("split" in c.points) == d.split_column
+        assert (c.model.l1_mm, c.model.l2_mm, c.model.command_unit_deg) == (500.0, 500.0, 0.01)
+        assert tuple(c.model.camera.center_mm) == d.camera_center_mm
+
+
+def test_clustered_layout_visits_its_stations_with_sequence_directions():
+    d = Design(n_points=120, n_moves=3, places=5, place_jitter_deg=1.0, outliers=3)
+    rows = campaign.draw_rows(4, d)
+    assert sorted(set(rows.place.tolist())) == [0, 1, 2, 3, 4]
+    for k in range(5):
+        q = rows.q[rows.place == k]
+        assert np.ptp(q, axis=0).max() <= 2.0 + 1e-9          # ±1° around the station
+    step = np.diff(rows.q, axis=0)
+    moved = step != 0
+    assert np.array_equal(rows.dirs[1:][moved], np.sign(step[moved]))
+    assert (np.hypot(*rows.outlier.T) > 0).sum() == 3
+    assert np.all(np.abs(rows.q / 0.01 - np.round(rows.q / 0.01)) < 1e-6)   # whole units
+
+
+def test_moves_start_at_rest_and_take_the_first_motion_as_approach():
+    """The format's convention for paths without directions: each joint approached the
+    start in the direction of its own first commanded motion; the recording starts before
+    the motion (pre_s), so the approach direction is what the first samples show."""
+    d = Design(n_points=10, n_moves=4)
+    for mv in campaign.draw_rows(2, d).moves:
+        pre = int(round(d.pre_s / d.path_dt_s))
+        assert np.all(mv.q[:pre + 1] == mv.q[0])
+        first = mv.q[pre + 1] - mv.q[0]
+        assert np.array_equal(mv.dirs0, np.sign(first))
+    assert campaign.approach_dirs(np.array([[0.0, 5.0], [0.0, 4.0], [1.0, 4.5]])).tolist() == [1.0, -1.0]
+    assert campaign.approach_dirs(np.zeros((3, 2))).tolist() == [0.0, 0.0]
+
+
+def test_backlash_at_a_move_start_follows_the_approach_direction():
+    """With the approach taken as the first motion, a joint with play sits at −dir·b/2
+    from the first sample on: the measured start differs from the nominal start by the
+    play's half, in the direction opposite the motion (cell/measurements.md, backlash)."""
+    d = Design(n_points=10, n_moves=1)
+    rows = campaign.draw_rows(6, d)
+    mv = rows.moves[0]
+    b = 0.2
+    _, (with_play,) = campaign.measured([parts.Part("backlash", 1, {"play_deg": b})], rows, d, False)
+    cell = campaign.nominal_cell(d)
+    want = model.camera_sees(cell, model.Truth(), *model.tool_xy(
+        500.0, 500.0, mv.q[0, 0] - mv.dirs0[0] * b / 2, mv.q[0, 1]))
+    assert with_play[0] == pytest.approx(want, abs=1e-9)
