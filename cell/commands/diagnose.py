@@ -5,20 +5,28 @@ shrinks on withheld rows (report format in ``cell/measurements.md``).
     cellctl diagnose var/cell.sqlite [--robot seed000] [--camera-center X,Y] [--json]
     cellctl diagnose validate [--trials 200] [--seed S] [--combos] [--points 300] [--json]
                               [--out-of-vocabulary SHARE] [--oov-kinds K1,K2]
+                              [--layout realistic|uniform]
     cellctl diagnose validate --chain [--trials 100] [--seed S] [--points 60] [--json]
-                              [--out-of-vocabulary SHARE] [--oov-kinds lens,reach_sag,bump,couple]
+                              [--out-of-vocabulary SHARE] [--oov-kinds lens,reach_sag,...]
+    cellctl diagnose validate --both [--trials N] [--seed S] [--out-of-vocabulary SHARE]
 
 CAMPAIGN is a campaign directory in the exchange format, or the cell's own SQLite cycle
 log (exported on the fly with :func:`cell.export.cycles_to_campaign`; the nominal link
 lengths come from ``--robot``). ``validate`` (a special first positional; write
 ``./validate`` for a directory of that name) draws campaigns with a hidden effect from the
-independent forward model (:mod:`cell.truth`) and prints the scores as Markdown tables
-(:mod:`cell.diagnosis.validate`). ``--out-of-vocabulary SHARE`` gives that share of the
-trials (0–1, default 0) an effect from outside the vocabulary instead (``--oov-kinds``:
-radial_distortion, reach_sag, offset_bump, joint_coupling; default all), which should come
+independent forward model (:mod:`cell.truth`), written as files by the truth's own writer
+and read with the project's reader, and prints the verdicts (right, ambiguous with the
+truth among the rivals, ambiguous with the truth missing, unexplained, wrong), the 95 %
+interval coverage and the earlier scores as Markdown tables (:mod:`cell.diagnosis.validate`).
+``--layout realistic`` (default) draws production-like campaigns (poses clustered at 3–12
+stations, optional columns often missing, outliers); ``uniform`` the earlier spread-out
+design. ``--out-of-vocabulary SHARE`` gives that share of the trials (0–1, default 0) an
+effect from outside the vocabulary instead (``--oov-kinds``; default all), which should come
 back unexplained or as none, never as a confident cause. ``--chain`` validates the chain
 diagnosis instead (:mod:`cell.chain.validate`: a UR5 measured by a tracker, drawn from
-:mod:`cell.truth.chain`; ``--points`` is then the poses per campaign).
+:mod:`cell.truth.chain`; ``--points`` is then the poses per campaign). ``--both`` runs the
+planar and the chain validation (default 100 trials each) and prints one verdict table for
+both before each family's tables.
 
 Bad input exits with status 2 and a message naming file, line and column
 (:class:`~cell.measurements.CampaignFormatError`, raised before anything is diagnosed).
@@ -67,6 +75,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--seed", type=int, help="validate: seed of the run (default 0)")
     v.add_argument("--chain", action="store_true",
                    help="validate: chain campaigns (a 6-joint arm and a tracker) instead of SCARA ones")
+    v.add_argument("--both", action="store_true",
+                   help="validate: planar and chain campaigns, one verdict table for both")
+    v.add_argument("--layout", choices=("realistic", "uniform"),
+                   help="validate: production-like campaigns (default) or poses spread out")
     v.add_argument("--combos", action="store_true",
                    help="validate: a main effect plus a smaller second one")
     v.add_argument("--points", type=int, help="validate: static poses per campaign (default 300)")
@@ -85,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
     given += ["--chain"] if args.chain else []
+    given += ["--both"] if args.both else []
+    given += ["--layout"] if args.layout is not None else []
     given += ["--out-of-vocabulary"] if args.oov_share is not None else []
     given += ["--oov-kinds"] if args.oov_kinds is not None else []
     if given:
@@ -221,17 +235,22 @@ def _print_scores(args: argparse.Namespace, module, ts: list, title: str) -> int
 
 
 def run_validate(args: argparse.Namespace) -> int:
+    if args.both:
+        return run_validate_both(args)
     if args.chain:
         return run_validate_chain(args)
     from cell.diagnosis import validate
     trials, seed, points, share, kinds = _validate_options(args, validate.OUTSIDE, 200, 300,
                                                            "static poses per campaign")
+    layout = args.layout or "realistic"
     with progress.bar("validate", total=trials, unit="campaign") as p:
         ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds,
-                          progress=lambda i, t: p.update(1))
-    kind = "main effect + smaller second" if args.combos else "single effect"
-    title = (f"Diagnosis validation, {kind}: {trials} campaigns, seed {seed}, {points} poses + "
-             f"6 moves each")
+                          progress=lambda i, t: p.update(1), layout=layout)
+    kind = "main effect + second" if args.combos else "one or two effects" \
+        if layout == "realistic" else "single effect"
+    moves = "0 or 4 moves" if layout == "realistic" else "6 moves"
+    title = (f"Diagnosis validation, {layout} layout, {kind}: {trials} campaigns, seed {seed}, "
+             f"{points} poses + {moves} each")
     if share:
         title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
     return _print_scores(args, validate, ts, title)
@@ -243,10 +262,44 @@ def run_validate_chain(args: argparse.Namespace) -> int:
         raise ConfigError("--combos: not available with --chain yet (single effects only)")
     trials, seed, poses, share, kinds = _validate_options(args, validate.OUTSIDE, 100, 60,
                                                           "poses per chain campaign", chain=True)
+    layout = args.layout or "realistic"
     with progress.bar("validate --chain", total=trials, unit="campaign") as p:
-        ts = validate.run(trials, seed, poses, share, kinds, progress=lambda i, t: p.update(1))
-    title = (f"Chain diagnosis validation: {trials} campaigns, seed {seed}, {poses} poses × 3 "
-             "markers each (UR5, tracker at an unknown pose)")
+        ts = validate.run(trials, seed, poses, share, kinds, progress=lambda i, t: p.update(1),
+                          layout=layout)
+    title = (f"Chain diagnosis validation, {layout} layout: {trials} campaigns, seed {seed}, "
+             f"{poses} poses × 3 markers each (UR5, tracker at an unknown pose)")
     if share:
         title += f", share {share:g} of them outside the vocabulary ({', '.join(kinds)})"
     return _print_scores(args, validate, ts, title)
+
+
+def run_validate_both(args: argparse.Namespace) -> int:
+    """Planar and chain validation with the same options; one verdict table for both."""
+    from cell.chain import validate as chain
+    from cell.diagnosis import validate as planar
+    from cell.truth import verdict
+    if args.chain or args.combos or args.points is not None or args.oov_kinds is not None:
+        raise ConfigError("--both: give only --trials, --seed, --layout and --out-of-vocabulary "
+                          "(each family keeps its own poses and kinds)")
+    trials, seed, _, share, _ = _validate_options(args, planar.OUTSIDE, 100, 300, "")
+    layout = args.layout or "realistic"
+    with progress.bar("validate --both", total=2 * trials, unit="campaign") as p:
+        tp = planar.run(trials, seed, False, 300, outside_share=share, layout=layout,
+                        progress=lambda i, t: p.update(1))
+        tc = chain.run(trials, seed, 60, share, layout=layout, progress=lambda i, t: p.update(1))
+    if args.json:
+        print(json.dumps(json_safe({"planar": planar.summarise(tp), "chain": chain.summarise(tc)}),
+                         indent=2, allow_nan=False))
+        return 0
+    cmd = (f"cellctl diagnose validate --both --trials {trials} --seed {seed}"
+           + (f" --layout {layout}" if args.layout else "")
+           + (f" --out-of-vocabulary {share:g}" if share else ""))
+    print("\n".join([f"### Validation verdicts: {trials} planar and {trials} chain campaigns, "
+                     f"{layout} layout (`{cmd}`)", "", *verdict.TABLE_HEAD,
+                     *verdict.table_lines("planar", tp, lambda t: t.outside),
+                     *verdict.table_lines("chain", tc, lambda t: t.outside), ""]))
+    print(planar.markdown(tp, f"Planar: {trials} campaigns, 300 poses each"))
+    print()
+    print(chain.markdown(tc, f"Chain: {trials} campaigns, 60 poses × 3 markers each"))
+    sys.stdout.flush()
+    return 0

@@ -1,36 +1,37 @@
-"""Validation: campaigns with a hidden effect, diagnosed and scored. The run time per
-campaign is measured with ``time.perf_counter`` and only reported; each campaign goes
-through a temporary directory in the exchange format (written, read back, diagnosed).
+"""Validation: campaigns with a hidden effect, diagnosed and judged. Each campaign is
+written as files in the exchange format by the truth's own writer
+(:func:`cell.truth.campaign.write_campaign`), read back with the project's reader
+(:func:`cell.measurements.read_campaign`) and diagnosed; the run time of the diagnosis is
+measured with ``time.process_time`` and only reported.
 
-The truth is the **independent forward model** :mod:`cell.truth`, not :mod:`cell.effects`
-(which the diagnosis fits with): ``tests/cell/test_truth.py`` holds the two to 1e-9 mm,
-so a sign, unit or composition mistake shows there instead of cancelling out here.
+The truth is the **independent forward model** :mod:`cell.truth`, which imports nothing
+from the fitter's side (``tests/cell/test_truth_independence.py`` checks every module):
+its robot numbers, poses, moves and approach directions are its own, and it follows the
+conventions of ``cell/measurements.md``, not :mod:`cell.effects`.
 
-Each trial draws the truth from ``seed``: an effect uniformly from the vocabulary plus
-``none``, a joint uniformly from those it acts on, a size uniform in the vocabulary's
-``typical`` range (:func:`cell.truth.parts.draw`; a cyclic error also gets 1–4 cycles per
-revolution). With ``combos`` the truth is a main effect plus a *smaller* second effect of
-another kind: the second is drawn the same way, then scaled down (never up) so the rms
-displacement it makes over the campaign's rows is at most 20–40 % of the main one's. The
-campaign is :func:`cell.truth.campaign.make_campaign` (the design of
-:class:`.synth.Design`: 300 poses, 6 moves by default). The diagnosis sees only the campaign.
+**Layouts.** ``realistic`` (the default) draws, per trial and from a stream of its own, a
+production-like campaign (:class:`cell.truth.campaign.Design`): the poses cluster at 3–12
+stations with ±1° jitter; points.csv carries direction columns half of the time, a
+temperature column half of the time, a split column half of the time; 4 moves in 60 % of
+the campaigns (none otherwise); 0–3 gross outliers (0.5–3 mm). ``uniform`` is the earlier
+design: poses spread over the workspace, 6 moves, every column.
 
-**Outside the vocabulary**: with ``outside_share`` > 0 that share of the trials (drawn from
-a stream of its own, so the other trials keep their truths) carries instead one effect of
-``outside_kinds`` (:data:`cell.truth.parts.OUTSIDE`: radial lens distortion, reach-dependent
-sag, a joint-offset bump halfway through, joint 2 coupled to joint 1), alone, also with
-``combos``. The right answer is ``unexplained`` or ``none``: a vocabulary cause reported
-without ``unexplained`` (and not marked ``confidence: low``) is a confident wrong cause.
+**Truths.** An effect uniformly from the vocabulary plus ``none`` (``comm_delay`` only in
+campaigns with moves: static poses cannot show it), a joint uniformly from those it acts
+on, a size uniform in the range ``cell/measurements.md`` gives (:func:`cell.truth.parts.draw`;
+a cyclic error also 1–4 cycles per revolution). A share ``two_share`` of the effect trials
+(realistic: 0.25; ``combos``: all) carries a second effect of another kind, scaled down
+(never up) so its rms displacement over the campaign is 40–100 % of the main one's. With
+``outside_share`` > 0 that share of the trials (its own stream) carries instead one effect
+outside the vocabulary (:data:`cell.truth.parts.OUTSIDE`).
 
-Scores (:func:`summarise`): confusion matrix (true effect × named effect, ``unexplained``
-as its own column since the report then names no supported cause; rows for the effects
-outside the vocabulary too), effect / joint / subsystem accuracy (a cyclic error's joint
-is right only with its true number of cycles per revolution), how often the ``where``
-analysis's ``depends_on`` matches the true effect's, median holdout shrink (effect trials),
-coverage of the true parameters by the 95 % intervals (trials named right, fitted
-parameters only; cyclic phase compared modulo 360°), and the run time per campaign. These
-are over the vocabulary trials (and ``none``); the trials outside it are counted apart: how
-many were named as a confident cause.
+**Verdicts** (:mod:`cell.truth.verdict`): ``right``, ``ambiguous`` (the truth among the
+named cause and its rivals), ``ambiguous_missing``, ``unexplained``, ``wrong``; a cause
+matches only with every true effect on its joints (a cyclic error also with its number of
+cycles per revolution). **Coverage**: share of the true fitted parameters inside the 95 %
+intervals, over the trials judged ``right`` (cyclic phase compared modulo 360°).
+:func:`summarise` also keeps the earlier scores (effect / joint / subsystem accuracy,
+``depends_on`` agreement, median holdout shrink, run time).
 """
 from __future__ import annotations
 
@@ -45,20 +46,25 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis.report import diagnose
-from cell.diagnosis.synth import Design
-from cell.measurements import read_campaign, write_campaign
+from cell.measurements import read_campaign
 from cell.truth import campaign as truth_campaign
 from cell.truth import parts as tp
+from cell.truth import verdict as vd
+from cell.truth.campaign import Design
 
 TRUTHS = tuple(fx.EFFECTS) + ("none",)
 OUTSIDE = tp.OUTSIDE
+LAYOUTS = ("realistic", "uniform")
+TWO_SHARE = 0.25            # realistic layout: share of effect trials with a second effect
 
 
 @dataclass
 class Trial:
-    """One scored trial. ``true_*`` the hidden truth (main effect for combos), ``named`` /
-    ``named_joints`` what the report's cause says, ``covered`` / ``n_params`` the interval
-    coverage count, ``seconds`` the diagnosis run time."""
+    """One judged trial. ``true_*`` the hidden truth (main effect for two), ``named`` /
+    ``named_joints`` what the report's cause says, ``verdict`` one of
+    :data:`cell.truth.verdict.VERDICTS`, ``covered`` / ``n_params`` the interval coverage
+    count (trials judged right), ``seconds`` the diagnosis CPU time, ``layout`` the
+    campaign's design choices, ``seed`` the trial's seed."""
 
     index: int
     true_effect: str           # a vocabulary effect, "none" or a kind outside the vocabulary
@@ -75,6 +81,12 @@ class Trial:
     truth_params: dict = field(default_factory=dict)
     confidence: str | None = None   # the report's cause.confidence, if it gives one
     order_ok: bool = True           # a cyclic error named with the true cycles per revolution
+    verdict: str = ""
+    truth_label: str = ""
+    answer_label: str = ""
+    rivals: tuple[str, ...] = ()
+    layout: dict = field(default_factory=dict)
+    seed: int = 0
 
     @property
     def outside(self) -> bool:
@@ -83,9 +95,10 @@ class Trial:
 
     @property
     def confident_cause(self) -> bool:
-        """The report names a vocabulary cause, does not call it unexplained and does not
-        mark it low confidence."""
-        return not self.unexplained and self.named != "none" and self.confidence != "low"
+        """The report names a vocabulary cause, does not call it unexplained and says it
+        with high confidence (or gives no confidence)."""
+        return not self.unexplained and self.named != "none" \
+            and self.confidence in (None, "high")
 
     @property
     def named_or_unexplained(self) -> str:
@@ -120,17 +133,33 @@ def expected(p: tp.Part) -> fx.EffectInstance:
     return fx.make_effect(a.effect, a.joints, a.params)
 
 
+def draw_layout(tseed: int, layout: str, points: int) -> Design:
+    """The campaign design of trial seed ``tseed`` (module docstring), its own stream."""
+    if layout == "uniform":
+        return Design(n_points=points)
+    rng = np.random.default_rng([tseed, 3])
+    return Design(n_points=points, places=int(rng.integers(3, 13)),
+                  directions=bool(rng.random() < 0.5), temperature=bool(rng.random() < 0.5),
+                  n_moves=4 if rng.random() < 0.6 else 0, outliers=int(rng.integers(0, 4)),
+                  split_column=bool(rng.random() < 0.5))
+
+
 def draw_truth(rng: np.random.Generator, combos: bool, rows: truth_campaign.Rows,
-               design: Design) -> list[tp.Part]:
+               design: Design, two_share: float = 0.0) -> list[tp.Part]:
     """The hidden vocabulary effects of one trial (see module docstring); [] for ``none``.
-    ``rows`` are the trial's campaign rows (combos size the second effect on them)."""
+    ``rows`` are the trial's campaign rows (a second effect is sized on them)."""
+    design = truth_campaign.as_design(design)
+    static = () if design.n_moves else ("comm_delay",)
     if not combos:
-        return _draw(rng)
-    main = _draw(rng, exclude=("none",))
-    second = _draw(rng, exclude=("none", main[0].kind))[0]
+        main = _draw(rng, exclude=static)
+        if not main or rng.random() >= two_share:
+            return main
+    else:
+        main = _draw(rng, exclude=("none",) + static)
+    second = _draw(rng, exclude=("none", main[0].kind) + static)[0]
     m = truth_campaign.rms_displacement(main, rows, design)
     s = truth_campaign.rms_displacement([second], rows, design)
-    target = rng.uniform(0.2, 0.4) * m
+    target = rng.uniform(0.4, 1.0) * m
     return main + [tp.scaled(second, min(1.0, target / s) if s > 0 else 1.0)]
 
 
@@ -171,60 +200,72 @@ def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
                    - truth.params[f"{j}_cyclic_period_deg"]) < 1e-6 for j in truth.joints)
 
 
-def _through_the_format(camp) -> object:
-    """``camp`` written to a temporary campaign directory and read back (the format path)."""
-    with tempfile.TemporaryDirectory(prefix="cell-validate-") as tmp:
-        return read_campaign(write_campaign(camp, Path(tmp) / "campaign"))
-
-
-def run_trial(i: int, seed: int, combos: bool = False, design: Design = Design(),
-              outside_share: float = 0.0, outside_kinds: Sequence[str] = OUTSIDE) -> Trial:
-    """Draw, measure, diagnose and score trial ``i`` of validation run ``seed``."""
+def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = None,
+              outside_share: float = 0.0, outside_kinds: Sequence[str] = OUTSIDE,
+              layout: str = "realistic", points: int = 300) -> Trial:
+    """Draw, write, read, diagnose and judge trial ``i`` of validation run ``seed``.
+    ``design`` fixes the campaign design (else :func:`draw_layout` draws it)."""
     tseed = seed * 100_003 + i
     rng = np.random.default_rng(tseed)
+    design = draw_layout(tseed, layout, points) if design is None \
+        else truth_campaign.as_design(design)
     rows = truth_campaign.draw_rows(tseed, design)
     odd = draw_outside(tseed, outside_share, outside_kinds)
-    truth = [odd] if odd is not None else draw_truth(rng, combos, rows, design)
-    camp = _through_the_format(truth_campaign.make_campaign(truth, tseed, design, rows))
-    t0 = time.perf_counter()
-    dg = diagnose(camp)
-    secs = time.perf_counter() - t0
-    rep = dg.report
+    two = 1.0 if combos else (TWO_SHARE if layout == "realistic" else 0.0)
+    truth = [odd] if odd is not None else draw_truth(rng, combos, rows, design, two)
+    with tempfile.TemporaryDirectory(prefix="cell-validate-") as tmp:
+        camp = read_campaign(truth_campaign.write_campaign(Path(tmp) / "campaign", truth,
+                                                           tseed, design, rows))
+        t0 = time.process_time()
+        rep = diagnose(camp).report
+        secs = time.process_time() - t0
     c = rep["cause"]
+    wants = [] if odd is not None else [expected(p) for p in truth]
+    want = vd.Expected(tuple((e.effect, tuple(e.joints)) for e in wants), odd is not None)
+    orders_ok = lambda cause: all(_same_order(e, cause.get("params", {})) for e in wants)  # noqa: E731
+    verdict = vd.classify(want, rep, orders_ok)
     hit = n = 0
-    order_ok = True
+    if verdict == "right":
+        for e in wants:
+            h, k = _covered(e, c.get("ci95", {}))
+            hit, n = hit + h, n + k
     if odd is not None:
         true_name, true_joints = odd.kind, ((f"j{odd.joint}",) if odd.joint else ())
         params = dict(odd.values)
-    elif truth:
-        main = expected(truth[0])
-        true_name, true_joints, params = main.effect, main.joints, dict(main.params)
-        order_ok = _same_order(main, c["params"])
-        if c["effect"] == true_name and tuple(c["joints"]) == main.joints and order_ok:
-            hit, n = _covered(main, c["ci95"])
+    elif wants:
+        true_name, true_joints, params = wants[0].effect, wants[0].joints, dict(wants[0].params)
     else:
         true_name, true_joints, params = "none", (), {}
-    return Trial(i, true_name, true_joints,
-                 truth[1].kind if len(truth) > 1 else None, c["effect"], tuple(c["joints"]),
-                 bool(rep["unexplained"]), float(rep["holdout"]["shrink"]),
-                 rep["gap"]["where"]["depends_on"], hit, n, secs, params,
-                 c.get("confidence"), order_ok)
+    named = vd.cause_components(c)
+    answer = " + ".join(f"{e}[{','.join(j)}]" if j else e for e, j in named) or "none"
+    lay = {"places": design.places, "directions": design.directions,
+           "temperature": design.temperature, "moves": design.n_moves,
+           "outliers": design.outliers, "split": design.split_column}
+    return Trial(i, true_name, tuple(true_joints), truth[1].kind if len(truth) > 1 else None,
+                 c["effect"], tuple(c["joints"]), bool(rep["unexplained"]),
+                 float(rep["holdout"]["shrink"]), rep["gap"]["where"]["depends_on"], hit, n,
+                 secs, params, c.get("confidence"), orders_ok(c) if wants else True,
+                 verdict, (odd.kind + " (outside)") if odd is not None else want.label,
+                 answer, tuple(r.get("label", "?") for r in c.get("rivals") or []), lay, tseed)
 
 
 def run(trials: int, seed: int, combos: bool = False, points: int = 300,
         progress=None, outside_share: float = 0.0,
-        outside_kinds: Sequence[str] = OUTSIDE) -> list[Trial]:
-    """``trials`` scored trials; ``progress(i, trial)`` is called after each. Raises
-    ValueError for an ``outside_share`` outside [0, 1] or an unknown kind."""
+        outside_kinds: Sequence[str] = OUTSIDE, layout: str = "realistic",
+        start: int = 0) -> list[Trial]:
+    """Trials ``start`` … ``start + trials − 1`` of run ``seed``; ``progress(i, trial)`` is
+    called after each. Raises ValueError for an ``outside_share`` outside [0, 1], an
+    unknown kind or layout."""
     if not 0.0 <= outside_share <= 1.0:
         raise ValueError(f"outside_share {outside_share} must lie in [0, 1]")
     bad = [k for k in outside_kinds if k not in OUTSIDE]
     if bad:
         raise ValueError(f"unknown kinds {bad}; known: {list(OUTSIDE)}")
-    design = Design(n_points=points)
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown layout {layout!r}; known: {list(LAYOUTS)}")
     out = []
-    for i in range(trials):
-        t = run_trial(i, seed, combos, design, outside_share, tuple(outside_kinds))
+    for i in range(start, start + trials):
+        t = run_trial(i, seed, combos, None, outside_share, tuple(outside_kinds), layout, points)
         out.append(t)
         if progress:
             progress(i, t)
@@ -232,8 +273,10 @@ def run(trials: int, seed: int, combos: bool = False, points: int = 300,
 
 
 def summarise(ts: list[Trial]) -> dict:
-    """The scores of the module docstring as a dict (JSON-ready). The vocabulary scores
-    are over the vocabulary trials (``none`` included); ``outside_*`` count the trials
+    """The scores of the module docstring as a dict (JSON-ready). ``verdicts`` /
+    ``outside_verdicts`` count the verdicts of the vocabulary trials (``none`` included)
+    and of those outside it; ``coverage`` is over the trials judged right; the other
+    vocabulary scores are over the vocabulary trials; ``outside_*`` count the trials
     outside it: all of them, named as a confident cause, unexplained, none."""
     voc = [t for t in ts if not t.outside]
     out = [t for t in ts if t.outside]
@@ -245,6 +288,11 @@ def summarise(ts: list[Trial]) -> dict:
     dep = [t for t in eff if t.effect_ok]
     return {
         "trials": len(ts),
+        "verdicts": vd.counts(t.verdict for t in voc),
+        "outside_verdicts": vd.counts(t.verdict for t in out),
+        "wrong": [{"seed": t.seed, "truth": t.truth_label, "answer": t.answer_label,
+                   "confidence": t.confidence, "layout": t.layout}
+                  for t in ts if t.verdict == "wrong"],
         "effect_accuracy": _share([t.effect_ok or (t.true_effect == "none" and t.named == "none"
                                                    and not t.unexplained) for t in voc]),
         "joint_accuracy_effects": _share([t.joint_ok for t in eff]),
@@ -278,13 +326,16 @@ def _label(name: str, spaced: bool = False) -> str:
 
 
 def markdown(ts: list[Trial], title: str) -> str:
-    """Markdown tables: summary, per-effect scores, confusion matrix. Rows for effects
-    outside the vocabulary are marked "(outside)"; their "named right" counts trials that
-    named no confident cause (unexplained or none)."""
+    """Markdown tables: verdicts (vocabulary trials and those outside it), the confident
+    wrong answers, summary, per-effect scores, confusion matrix. Rows for effects outside
+    the vocabulary are marked "(outside)"; their "named right" counts trials that named no
+    confident cause (unexplained or none)."""
     s = summarise(ts)
     outside = (f"{s['outside_named_as_cause']}/{s['outside_trials']}" if s["outside_trials"]
                else "–")
-    out = [f"### {title}", "",
+    wrong = vd.wrong_lines(ts)
+    out = [f"### {title}", "", *vd.TABLE_HEAD, *vd.table_lines("planar", ts, lambda t: t.outside),
+           "", *(["Confident wrong answers:", "", *wrong, ""] if wrong else []),
            "| trials | effect acc. | effect+joint acc. (effects) | subsystem acc. | none named as effect "
            "| effects called none | unexplained | median holdout shrink | depends_on agrees "
            "| 95 % CI coverage | s/campaign median (max) | outside vocab. named as cause |",

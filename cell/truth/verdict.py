@@ -109,10 +109,12 @@ def classify(truth: Expected, report: Mapping,
 
 
 def counts(verdicts: Iterable[str]) -> dict[str, int]:
-    """How many trials got each verdict (every verdict present, 0 if none)."""
+    """How many trials got each verdict (every verdict present, 0 if none); an empty
+    verdict (a trial not judged) is not counted, an unknown one raises KeyError."""
     out = dict.fromkeys(VERDICTS, 0)
     for v in verdicts:
-        out[v] += 1
+        if v:
+            out[v] += 1
     return out
 
 

@@ -12,12 +12,14 @@ from cell.cli import main
 
 
 def test_vocabulary_truths_are_named_with_their_joints_and_covered():
-    ts = validate.run(6, seed=0)
+    # the uniform layout (poses spread out, no outliers); the realistic one's accuracy is
+    # asserted in tests/cell/test_validation_accuracy.py
+    ts = validate.run(6, seed=0, layout="uniform")
     assert {t.truth.kind for t in ts} >= {"gravity_compliance", "link_length", "gear_ratio"}
     assert all(t.joint_ok for t in ts), [(t.truth.kind, t.answer, t.named_joints) for t in ts]
     s = validate.summarise(ts)
     assert s["effect_accuracy"] == 1.0 and s["trials"] == 6
-    assert s["coverage_n"] >= 6 and s["coverage"] >= 0.5
+    assert s["verdicts"]["right"] == 6 and s["coverage_n"] >= 6
     # each campaign went through the format and the noise came from its revisited poses
     assert all(t.seconds > 0 for t in ts)
 
@@ -25,8 +27,8 @@ def test_vocabulary_truths_are_named_with_their_joints_and_covered():
 @pytest.mark.parametrize("kind", validate.OUTSIDE)
 def test_effects_outside_the_vocabulary_are_not_a_confident_cause(kind):
     # the first trial of seed 0 whose outside draw is this kind
-    i = next(i for i in range(40) if _outside_kind(0, i) == kind)
-    t = validate.run_trial(i, 0, outside_share=1.0)
+    i = next(i for i in range(60) if _outside_kind(0, i) == kind)
+    t = validate.run_trial(i, 0, outside_share=1.0, layout="uniform")
     assert t.truth.kind == kind and t.outside
     assert not t.confident_cause, (kind, t.answer, t.named_joints)
 
