@@ -136,6 +136,8 @@ SOURCES: tuple[Source, ...] = (
             "--out-of-vocabulary", "1"), 3, VALIDATE_WALL, slow=True),
     Source("diagnosis-speed", ".venv/bin/python bench/bench_diagnosis_speed.py",
            ("bench/bench_diagnosis_speed.py",), 1, (ALL,), probe=("bench/bench_diagnosis_speed.py", "--points", "100")),
+    Source("diagnose-cpu", ".venv/bin/python bench/bench_diagnose_cpu.py", ("bench/bench_diagnose_cpu.py",), 1,
+           (ALL,), probe=("bench/bench_diagnose_cpu.py", "--runs", "1")),
     Source("chain", "cellctl diagnose validate --chain --trials 100 --seed 0",
            ("cellctl", "diagnose", "validate", "--chain", "--trials", "100", "--seed", "0"), 3, CHAIN_WALL),
     Source("chain-oov", "cellctl diagnose validate --chain --trials 60 --seed 0 --out-of-vocabulary 1",
