@@ -61,11 +61,13 @@ def board_of(config: CellConfig) -> CircleGridBoard:
 def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]:
     """The robot the cell runs with: calibrated by ``calibration.file`` if it exists (checked:
     :func:`calfile.load` raises CalibrationError for a corrupt or foreign file), else the
-    nominal one."""
+    nominal one. A file written with ``--accept-worse`` is used, and its warning logged."""
     path = Path(config.calibration.file)
     if not path.exists():
         return nominal, None
     doc = calfile.load(path, nominal, config.name)
+    if doc.get("accept_worse"):
+        log.warning("robot_calibration_accepted_worse", path=str(path), warning=doc.get("warning"))
     return calfile.calibrated_robot(nominal, doc), doc
 
 
