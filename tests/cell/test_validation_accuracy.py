@@ -1,0 +1,116 @@
+"""The validation's accuracy, asserted on enough trials to fail when it drops.
+
+Realistic campaigns (cell/truth: poses clustered at 3–12 stations, optional columns often
+missing, gross outliers; cell/diagnosis/validate.py and cell/chain/validate.py), judged
+right / ambiguous (truth among the rivals) / ambiguous, truth missing / unexplained /
+wrong. Every golden number below was measured at commit 42bde71 (plus the decision-logic
+work then in the tree) with ``.venv/bin/python`` running exactly these runs:
+
+* planar, 120 vocabulary trials (seed 1, 200 poses): right 64, ambiguous 37, ambiguous
+  with the truth missing 8, unexplained 9, wrong 2; 74 of 79 true values inside their
+  95 % intervals;
+* planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
+* chain, 80 vocabulary trials (seed 1, 60 poses): right 26, ambiguous 1, unexplained 51,
+  wrong 2; 25 of 26 intervals cover;
+* chain, 24 trials outside the vocabulary (seed 1): unexplained 19, ambiguous with the
+  truth missing 4, wrong 1.
+
+Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
+truth named or among the rivals by 5, so the decision logic can move a few answers between
+``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (they are upper
+bounds to tighten to 0 as the diagnosis is fixed; the trials are listed in the report of
+issue 22). Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
+the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
+cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
+cell/effects.py: right 56, unexplained 25; the chain's joint effects in cell/chain/kin.py
+forward(): right 7, wrong 7; the twist in cell/chain/kin.py: right 4, wrong 4).
+"""
+import math
+
+import pytest
+
+from cell.chain import validate as chain
+from cell.diagnosis import validate as planar
+
+SEED = 1
+
+
+def binomial_band(n: int, p: float = 0.95, level: float = 0.99) -> tuple[int, int]:
+    """The two-sided ``level`` band (lo, hi) of hits of a binomial(n, p): P(X < lo) and
+    P(X > hi) are each at most (1 − level)/2."""
+    tail = (1.0 - level) / 2.0
+    pmf = [math.comb(n, k) * p ** k * (1 - p) ** (n - k) for k in range(n + 1)]
+    lo, acc = 0, 0.0
+    while acc + pmf[lo] <= tail:
+        acc += pmf[lo]
+        lo += 1
+    hi, acc = n, 0.0
+    while acc + pmf[hi] <= tail:
+        acc += pmf[hi]
+        hi -= 1
+    return lo, hi
+
+
+def test_binomial_band():
+    # scipy.stats.binom.ppf(0.005, n, 0.95) and .ppf(0.995, n, 0.95) give the same bands
+    assert binomial_band(100) == (89, 100)
+    assert binomial_band(79) == (69, 79)
+    lo, hi = binomial_band(20)
+    assert lo <= 19 <= hi and hi == 20
+
+
+def _coverage_in_band(s: dict) -> None:
+    n = s["coverage_n"]
+    hits = round(s["coverage"] * n)
+    lo, hi = binomial_band(n)
+    assert n >= 20, f"only {n} intervals checked"
+    assert lo <= hits <= hi, f"{hits} of {n} intervals cover the truth; 99 % band {lo}–{hi}"
+
+
+@pytest.fixture(scope="module")
+def planar_vocab():
+    return planar.summarise(planar.run(120, SEED, points=200))
+
+
+@pytest.fixture(scope="module")
+def chain_vocab():
+    return chain.summarise(chain.run(80, SEED))
+
+
+def test_planar_vocabulary_accuracy(planar_vocab):
+    v = planar_vocab["verdicts"]
+    assert sum(v.values()) == 120
+    assert v["right"] >= 64 - 7, v
+    assert v["right"] + v["ambiguous"] >= 101 - 5, v
+    assert v["unexplained"] <= 9 + 5, v
+    assert v["wrong"] <= 2, planar_vocab["wrong"]
+
+
+def test_planar_interval_coverage_is_near_95_percent(planar_vocab):
+    _coverage_in_band(planar_vocab)
+
+
+def test_planar_outside_the_vocabulary():
+    s = planar.summarise(planar.run(30, SEED, points=200, outside_share=1.0))
+    v = s["outside_verdicts"]
+    assert sum(v.values()) == 30 and v["wrong"] == 0, s["wrong"]
+    assert v["unexplained"] >= 29 - 3, v
+
+
+def test_chain_vocabulary_accuracy(chain_vocab):
+    v = chain_vocab["verdicts"]
+    assert sum(v.values()) == 80
+    assert v["right"] >= 26 - 5, v
+    assert v["right"] + v["ambiguous"] >= 27 - 5, v
+    assert v["wrong"] <= 2, chain_vocab["wrong"]
+
+
+def test_chain_interval_coverage_is_near_95_percent(chain_vocab):
+    _coverage_in_band(chain_vocab)
+
+
+def test_chain_outside_the_vocabulary():
+    s = chain.summarise(chain.run(24, SEED, outside_share=1.0))
+    v = s["outside_verdicts"]
+    assert sum(v.values()) == 24 and v["wrong"] <= 1, s["wrong"]
+    assert v["unexplained"] >= 19 - 3, v
