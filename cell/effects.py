@@ -77,6 +77,11 @@ class Effect:
 
     ``x`` is the instance's full parameter vector (fixed ones included) in
     :meth:`param_names` order; ``jidx`` the 0-based joint indices.
+
+    ``mimics``: the effects whose fit stands in for this one when the campaign lacks what
+    identifies it (thermal drift without a temperature column looks like longer links;
+    backlash without directions like any error of its joint). Such an effect cannot be
+    tested, but it stays a rival of a cause that names one of them on its joints.
     """
 
     name: str
@@ -88,6 +93,7 @@ class Effect:
     depends_on: str
     summary: str
     fn: Callable[..., np.ndarray] = field(repr=False)
+    mimics: tuple[str, ...] = ()
 
     def param_names(self, joints: Sequence[str] = ()) -> list[str]:
         """Full parameter names for ``joints`` (joint-major, then spec order)."""
@@ -221,7 +227,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         "angle", "joint angle scaled by a wrong gear ratio", gear_ratio),
     Effect("backlash", "transmission", "joint", _J, True, (
         _PS("backlash_deg", "deg", "total lost-motion width", (0.0, 2.0), (0.01, 0.1), False),),
-        "direction", "lost motion: the joint depends on the approach direction", backlash),
+        "direction", "lost motion: the joint depends on the approach direction", backlash,
+        ("joint_offset", "gear_ratio", "cyclic_error")),
     Effect("cyclic_error", "transmission", "joint", _J, True, (
         _PS("cyclic_amp_deg", "deg", "amplitude", (0.0, 1.0), (0.01, 0.08), False),
         _PS("cyclic_phase_deg", "deg", "phase at θ = 0", (-_INF, _INF), (0.0, 360.0), False),
@@ -233,7 +240,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
             (10e-6, 30e-6), False),
         _PS("thermal_ref_temp_c", "°C", "temperature of the nominal lengths (known)",
             (-50.0, 100.0), (20.0, 20.0), False, fitted=False, default=20.0)),
-        "temperature", "both links grow with temperature", thermal_drift),
+        "temperature", "both links grow with temperature", thermal_drift, ("link_length",)),
     Effect("camera_scale", "vision", "vision", (), False, (
         _PS("camera_scale_rel", "1", "scale about the camera centre", (-0.05, 0.05), (2e-4, 2e-3)),),
         "position", "camera scale error about its centre", camera_scale),

@@ -25,7 +25,7 @@ import numpy as np
 
 from cell.chain import kin
 from cell.chain.model import Chain
-from cell.diagnosis.places import places
+from cell.diagnosis.places import folds as place_folds
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 
@@ -90,7 +90,7 @@ class Data:
 
     def __post_init__(self) -> None:
         if self.place is None:
-            self.place = places(self.readings)
+            self.place = place_folds(self.readings)[0]
 
     @classmethod
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
@@ -106,7 +106,7 @@ class Data:
         P, m = len(readings), max(self.n_markers, 1)
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, readings))
+                    _levers(self.chain, readings), np.arange(P))
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -123,12 +123,11 @@ class Data:
 
     def folds(self) -> tuple[np.ndarray, int]:
         """(fold of every measured point, number of folds) for leave-out prediction: the
-        poses' places when some poses share one (a station revisited: leaving out one
-        visit would leave its twins in), else every pose on its own."""
+        poses' places when they sit at stations (a station revisited: leaving out one
+        visit would leave its twins in), else every pose on its own
+        (:func:`cell.diagnosis.places.folds`)."""
         n = int(self.place.max()) + 1 if len(self.place) else 0
-        if n < self.n_poses:
-            return self.place[self.obs_pose], n
-        return self.obs_pose, self.n_poses
+        return self.place[self.obs_pose], n
 
 
 @dataclass
@@ -281,7 +280,9 @@ class Fit:
     """One fitted model on a :class:`Data`: ``params`` and ``values``, the registration,
     residuals ``resid`` (M, 3) = measured − predicted, the Jacobian ``J`` at the solution,
     the parameters' cluster-robust standard errors and 95 % intervals, and the
-    leave-one-pose-out prediction error ``cv_rms`` (mm, rms of the 3-D point error)."""
+    leave-out prediction error ``cv_rms`` (mm, rms of the 3-D point error) with its
+    per-fold mean squares ``cv_fold`` (folds are places when the poses sit at stations,
+    :meth:`Data.folds`) and per-pose ones ``cv_pose`` (each pose left out alone)."""
 
     params: list[Param]
     values: np.ndarray
@@ -292,6 +293,7 @@ class Fit:
     ci95: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     cv_rms: float = math.nan
     cv_pose: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cv_fold: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def rms(self) -> float:
@@ -415,7 +417,10 @@ def leave_one_pose_out(J: np.ndarray, r: np.ndarray, obs_pose: np.ndarray, n_pos
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()
-    f.cv_rms, f.cv_pose, Ainv, scale = leave_one_pose_out(f.J, r, *d.folds())
+    f.cv_rms, f.cv_fold, Ainv, scale = leave_one_pose_out(f.J, r, *d.folds())
+    f.cv_pose = f.cv_fold
+    if d.folds()[1] < d.n_poses:
+        _, f.cv_pose, *_ = leave_one_pose_out(f.J, r, d.obs_pose, d.n_poses)
     Js = f.J / scale
     idx = _by_pose(d.obs_pose, d.n_poses)
     pad = idx < 0

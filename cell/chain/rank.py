@@ -7,18 +7,22 @@
    registration-only Jacobian (forward while the leave-one-pose-out prediction error
    drops, then backward while a removal costs nothing significant over poses). Cheap:
    one linear solve per try.
-4. **Full non-linear fits** of each effect's selection, and of the best two effects
-   together (their pools screened jointly).
-5. **Decision**: the candidate with the lowest leave-one-pose-out error is named only if
-   it predicts left-out poses better than registration alone, by a one-sided Wilcoxon
-   signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. It is
-   ``unexplained`` when it leaves most of the holdout gap (shrink < :data:`MIN_SHRINK`)
-   or, with a noise reference, a fit error well above the noise.
-6. **Confidence**: ``low`` when the same test cannot tell the named cause from the
-   runner-up of another effect, or from a scale error of the measuring instrument
-   (:func:`instrument_scale`: a uniform and a radial scale of the sensor's readings, not
-   an arm effect, so never named; a tracker's scale and a uniform stretch of the arm's
-   links look alike from outside).
+4. **Full non-linear fits** of each effect's selection, and of every pair of the best
+   :data:`PAIR_TOPS` effects together (their pools screened jointly).
+5. **Decision**: an effect exists when the candidate with the lowest leave-out error
+   predicts poses left out one at a time better than registration alone, by a one-sided
+   Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
+   the candidates that predict left-out **places** (poses at one station left out
+   together, :mod:`cell.diagnosis.places`) as well as the best (:func:`tied_with`) are
+   tied, and the one with the fewest parameters is named. It is ``unexplained`` when it
+   leaves most of the holdout gap (shrink < :data:`MIN_SHRINK`) or, with a noise
+   reference, a fit error well above the noise.
+6. **Confidence**: ``ambiguous`` when a tied candidate is another explanation (its
+   ``rivals``, with :func:`separating_poses`); ``low`` when a scale error of the measuring
+   instrument (:func:`instrument_scale`: a uniform and a radial scale of the sensor's
+   readings, not an arm effect, so never named; a tracker's scale and a uniform stretch of
+   the arm's links look alike from outside) predicts as well, when the fit poses lie at
+   fewer than :data:`MIN_FOLDS` places, or when the gap is left unexplained.
 """
 from __future__ import annotations
 
@@ -34,6 +38,8 @@ ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out p
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
+PAIR_TOPS = 3         # pairs of the best this many single effects are fitted together
+MIN_FOLDS = 3         # fewer places: nothing is predicted out of sample
 RIVAL_RATIO = 1.25    # a tied candidate's leave-out rms is within this factor of the best's
 
 
@@ -77,12 +83,11 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ())
     def cv(params: list[F.Param]) -> tuple[float, np.ndarray]:
         J = np.column_stack([base] + [cols[p.name] for p in params]) if params else base
         if J.shape[1] == 0:
-            grp, n = d.folds()
-            per = np.bincount(grp, np.sum(f0.resid ** 2, 1), n)
-            return F.rms3(f0.resid), per / np.maximum(np.bincount(grp, minlength=n), 1)
+            per = np.bincount(d.obs_pose, np.sum(f0.resid ** 2, 1), d.n_poses)
+            return F.rms3(f0.resid), per / np.maximum(np.bincount(d.obs_pose, minlength=d.n_poses), 1)
         Js, _ = F._scaled(J)
         beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, *d.folds())
+        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, d.obs_pose, d.n_poses)
         return total, per
 
     best, best_pose = cv(chosen)
@@ -129,13 +134,14 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
         if picks[e]:
             ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e]))
     ranking.sort(key=lambda c: c.fit.cv_rms)
-    if len(ranking) >= 2:
-        a, b = ranking[0].effects[0], ranking[1].effects[0]
-        ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
-        both = screen(fit_d, f0, ident.kept)
-        if {p.effect for p in both} == {a, b}:
-            ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident))
-            ranking.sort(key=lambda c: c.fit.cv_rms)
+    tops = [c.effects[0] for c in ranking[:PAIR_TOPS]]
+    for i, a in enumerate(tops):
+        for b in tops[i + 1:]:
+            ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
+            both = screen(fit_d, f0, ident.kept)
+            if {p.effect for p in both} == {a, b}:
+                ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident))
+    ranking.sort(key=lambda c: c.fit.cv_rms)
     return Search(fit_d, hold_d, nominal, ranking, idents)
 
 
@@ -148,8 +154,8 @@ def wilcoxon_p(before: np.ndarray, after: np.ndarray) -> float:
 
 
 def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
-    """Leave-one-pose-out error (total rms, per-pose mean square) of registration plus a
-    scale error of the measuring instrument, linearised at the registration-only fit
+    """Leave-out error (total rms, per-fold mean square; folds of :meth:`F.Data.folds`) of
+    registration plus a scale error of the measuring instrument, linearised at the registration-only fit
     ``f0``: a uniform scale of the readings ``y`` and a radial one ``y·|y|`` (|y| in m)
     about the sensor origin. A rival hypothesis outside the arm's vocabulary: when it
     predicts left-out poses as well as a named cause, the data cannot tell the two apart."""
@@ -200,7 +206,7 @@ def tied_with(s: Search, best: Candidate) -> list[Candidate]:
     for c in s.ranking:
         if c is best:
             continue
-        if wilcoxon_p(c.fit.cv_pose, best.fit.cv_pose) >= ALPHA \
+        if wilcoxon_p(c.fit.cv_fold, best.fit.cv_fold) >= ALPHA \
                 and c.fit.cv_rms <= RIVAL_RATIO * best.fit.cv_rms:
             out.append(c)
     return out
@@ -210,9 +216,10 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     """Name a cause, ``none``, and whether most of the gap is left unexplained.
     ``noise_mm`` is σ per axis of one point measurement (None: unknown).
 
-    The candidate with the lowest leave-out error is tested against registration alone;
+    The candidate with the lowest leave-out error is tested against registration alone
+    (over poses, each left out alone: is there an effect at all);
     if it passes, the simplest candidate (fewest parameters) among those it cannot be told
-    from (:func:`tied_with`) that also passes is named: a cause with more parameters must
+    from over places (:func:`tied_with`) that also passes is named: a cause with more parameters must
     predict left-out poses better, not fit the fit poses better. Tied candidates that are
     neither the named cause nor a larger model containing it are its ``rivals``; so is a
     scale error of the measuring instrument that predicts as well."""
@@ -233,15 +240,19 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                          f"better than the simpler {chosen.label} ({len(best.fit.params)} "
                          f"parameters against {len(chosen.fit.params)}): the simpler is named")
     runner = next((c for c in s.ranking if c is not chosen), None) if chosen is not None else None
-    rp = wilcoxon_p(runner.fit.cv_pose, chosen.fit.cv_pose) if runner else None
+    rp = wilcoxon_p(runner.fit.cv_fold, chosen.fit.cv_fold) if runner else None
     warnings: list[str] = []
     if rivals:
         warnings.append("the campaign cannot tell the cause from " + ", ".join(
             c.label for c in rivals) + ": they predict left-out poses as well (cause.rivals; "
             "cause.separating_poses says where to measure next)")
+    n_folds = s.fit_d.folds()[1]
+    if chosen is not None and n_folds < MIN_FOLDS:
+        warnings.append(f"the fit poses lie at {n_folds} place(s): no cause can be checked on "
+                        "places it was not fitted on")
     if chosen is not None:
         scale_rms, scale_pose = instrument_scale(s.fit_d, f0)
-        sp = wilcoxon_p(scale_pose, chosen.fit.cv_pose)
+        sp = wilcoxon_p(scale_pose, chosen.fit.cv_fold)
         if sp >= ALPHA:
             warnings.append(f"a scale error of the measuring instrument predicts left-out poses "
                             f"as well as {chosen.label} (p = {sp:.2g}): check the sensor's scale "

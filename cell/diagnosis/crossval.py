@@ -6,11 +6,10 @@ parameters: on a campaign whose poses sit at a handful of places, two parameters
 effect fit a handful of places. Here every candidate is judged by **leave-one-place-out
 prediction** of the fit rows:
 
-* **places** (:func:`folds`): fit poses closer than :data:`LINK_DEG` in joint space (a
-  station revisited with jitter) are one place; when there are more than
-  :data:`MAX_FOLDS` places they are gathered into that many blocks of neighbouring places
-  (farthest-point centres), so a fold is a region of the workspace. Every fit move is a
-  fold of its own.
+* **places** (:func:`folds`, :mod:`.places`): fit poses at one station (closer than
+  :data:`cell.diagnosis.places.LINK_DEG` in joint space) are left out together; spread
+  poses each on their own; more than :data:`MAX_FOLDS` groups are gathered into that many
+  regions of the workspace. Every fit move is a fold of its own.
 * **prediction error** (:func:`cv_errors`): for each fold, the candidate's linearised fit
   (the screening's response columns at the nominal model, :mod:`.screen`) on all other
   folds predicts the fold's residual; its weighted mean square per scalar residual
@@ -34,9 +33,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell import effects as fx
 from cell.diagnosis import screen
 from cell.diagnosis.jacobian import Rows, rows_of
-from cell.diagnosis.places import LINK_DEG, places
+from cell.diagnosis.places import folds as place_folds
 from cell.diagnosis.replay import DiagData
 from cell.stats import wilcoxon_greater
 
@@ -50,26 +50,16 @@ POSE_SPACING_DEG = 20.0
 
 
 def folds(fit_d: DiagData) -> tuple[np.ndarray, int, int]:
-    """(fold of every fit row (n_rows,), number of point folds, number of places): see the
-    module docstring."""
+    """(fold of every fit row (n_rows,), number of point folds, number of places): the
+    points' folds of :func:`cell.diagnosis.places.folds` (at most :data:`MAX_FOLDS`), then
+    one fold per fit move."""
     rows = rows_of(fit_d)
     out = np.full(rows.n, -1, int)
     n_pf, n_places = 0, 0
     if rows.n_points:
-        q = rows.cmd[:rows.n_points]
-        place = places(q)
-        n_places = int(place.max()) + 1
-        if n_places > MAX_FOLDS:
-            cent = np.array([q[place == p].mean(axis=0) for p in range(n_places)])
-            chosen = [int(np.argmin(cent[:, 0]))]
-            dist = np.hypot(*(cent - cent[chosen[0]]).T)
-            while len(chosen) < MAX_FOLDS:
-                chosen.append(int(np.argmax(dist)))
-                dist = np.minimum(dist, np.hypot(*(cent - cent[chosen[-1]]).T))
-            region = np.argmin(np.stack([np.hypot(*(cent - cent[c]).T) for c in chosen]), axis=0)
-            place = region[place]
-        out[:rows.n_points] = place
-        n_pf = int(place.max()) + 1
+        group, n_places, _ = place_folds(rows.cmd[:rows.n_points], MAX_FOLDS)
+        out[:rows.n_points] = group
+        n_pf = int(group.max()) + 1
     k = n_pf
     for start, t, _, _ in rows.moves:
         out[start:start + len(t)] = k
@@ -103,7 +93,9 @@ def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float]) -> np.ndarr
 class Scored:
     """One candidate's out-of-sample record: ``label``, ``candidate``, ``k`` parameters,
     ``errors`` (F,) per fold, ``cv_rms`` (√ of the mean error: 1 ≈ the noise), ``p_worse``
-    the one-sided p that it predicts worse than the best, ``tied``."""
+    the one-sided p that it predicts worse than the best, ``tied``; ``untestable`` why the
+    campaign cannot fit it at all (then it has no errors: a rival by what it mimics,
+    :func:`untestable_rivals`)."""
 
     label: str
     candidate: tuple
@@ -112,6 +104,7 @@ class Scored:
     cv_rms: float
     p_worse: float = 1.0
     tied: bool = False
+    untestable: str = ""
 
 
 @dataclass
@@ -178,6 +171,25 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
                      testable, notes)
 
 
+def untestable_rivals(tied: list[tuple], skipped: dict) -> list[Scored]:
+    """Effects the campaign cannot fit (``skipped`` {label: why}) that the named cause or a
+    tied rival (candidate tuples ``tied``) can stand in for
+    (:attr:`cell.effects.Effect.mimics`, on a shared joint): rivals that no prediction can
+    rule out until the missing variable is measured."""
+    out = []
+    for lab, why in skipped.items():
+        name, _, rest = lab.partition("[")
+        joints = tuple(j for j in rest.rstrip("]").split(",") if j)
+        eff = fx.EFFECTS.get(name)
+        if eff is None:
+            continue
+        if any(e in eff.mimics and (not joints or not js or set(joints) & set(js))
+               for c in tied for e, js in c):
+            out.append(Scored(lab, ((name, joints),), len(eff.param_names(joints)),
+                              np.zeros(0), math.nan, untestable=why))
+    return out
+
+
 def _grid(limits, n1: int = 25, n2: int = 12) -> np.ndarray:
     (a1, b1), (a2, b2) = limits
     t1 = np.linspace(a1, b1, n1 + 2)[1:-1]
@@ -195,6 +207,7 @@ def separating_poses(B: screen.Basis, screened: dict, named: tuple, rivals: list
     predict most differently, at least :data:`POSE_SPACING_DEG` apart: per pose the joints,
     the directions and, per rival, the expected difference (mm) and that difference over
     the point noise σ (per axis) when known."""
+    rivals = [r for r in rivals if not r.untestable]
     if not rivals:
         return []
     q = _grid(limits)

@@ -1,11 +1,19 @@
-"""Which poses of a campaign are the same place: a station the arm revisits, with a little
-jitter, is one place for telling causes apart (leaving out one visit of it would leave its
-twins in the fit). Pure numerics, numpy only: planar and chain diagnoses both use it."""
+"""Which poses of a campaign are the same place, and the folds a cause is checked on. Pure
+numerics, numpy only: planar and chain diagnoses both use it.
+
+A station the arm revisits, with a few degrees of jitter, is one place for telling causes
+apart: leaving out one visit would leave its twins in the fit, and any cause fits a
+handful of places. :func:`places` joins poses closer than :data:`LINK_DEG` (single
+linkage in joint space). :func:`folds` leaves out whole places when the poses sit at
+stations (at least 3, none holding more than half the poses); when they are spread (the
+linkage joins most of them into one) each pose is its own place. More groups than
+``max_folds`` are gathered into that many regions (farthest-point centres)."""
 from __future__ import annotations
 
 import numpy as np
 
-LINK_DEG = 2.0        # poses closer than this (deg, or mm for a prismatic joint) are one place
+LINK_DEG = 10.0       # poses closer than this (deg, or mm for a prismatic joint) are one place
+MAX_SHARE = 0.5       # a place holding more of the poses means they are spread, not at stations
 
 
 def places(q: np.ndarray, block: int = 512) -> np.ndarray:
@@ -31,3 +39,33 @@ def places(q: np.ndarray, block: int = 512) -> np.ndarray:
                     parent[max(ri, rj)] = min(ri, rj)
     roots = np.array([find(i) for i in range(n)], int)
     return np.unique(roots, return_inverse=True)[1] if n else roots
+
+
+def regions(centres: np.ndarray, k: int) -> np.ndarray:
+    """Region (0..k-1) of every centre: ``k`` farthest-point seeds, each centre to its
+    nearest seed."""
+    chosen = [int(np.argmin(centres[:, 0]))]
+    dist = np.linalg.norm(centres - centres[chosen[0]], axis=1)
+    while len(chosen) < k:
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(centres - centres[chosen[-1]], axis=1))
+    return np.argmin(np.stack([np.linalg.norm(centres - centres[c], axis=1) for c in chosen]),
+                     axis=0)
+
+
+def folds(q: np.ndarray, max_folds: int | None = None) -> tuple[np.ndarray, int, bool]:
+    """(fold of every pose, number of places, True when the poses sit at stations): see the
+    module docstring."""
+    q = np.asarray(q, float)
+    if not len(q):
+        return np.zeros(0, int), 0, False
+    p = places(q)
+    n_places = int(p.max()) + 1
+    share = np.bincount(p).max() / len(q)
+    stations = share <= MAX_SHARE and n_places >= 3 or n_places < 3 and len(q) > n_places
+    group = p if stations else np.arange(len(q))
+    n = int(group.max()) + 1
+    if max_folds is not None and n > max_folds:
+        cent = np.array([q[group == g].mean(axis=0) for g in range(n)])
+        group = regions(cent, max_folds)[group]
+    return group, n_places, bool(stations)

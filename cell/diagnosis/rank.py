@@ -364,7 +364,10 @@ def judge(s: Search, dec: Decision, jac: str = "analytic") -> tuple[Decision, "c
     w = ref.weights if ref is not None else (1.0, 1.0)
     j = crossval.judge(B, s.screened, dec.chosen.candidate if dec.chosen else None, w,
                        s.n_places, lambda c: label(c))
-    if dec.chosen is None or j.named is None or j.named == dec.chosen.candidate:
+    if dec.chosen is None or j.named is None:
+        return dec, j
+    j.rivals += crossval.untestable_rivals([j.named] + [r.candidate for r in j.rivals], s.skipped)
+    if j.named == dec.chosen.candidate:
         return dec, j
     new = next((r for r in s.ranking if r.candidate == j.named and not r.approx), None)
     if new is None:

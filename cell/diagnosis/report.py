@@ -176,10 +176,18 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
     confidence, warnings = rank.assess(s, dec)
     if judged is not None and judged.rivals:
         confidence = "ambiguous"
-        warnings.insert(0, "the campaign cannot tell the cause from "
-                        + ", ".join(r.label for r in judged.rivals)
-                        + ": they predict the left-out places as well (cause.rivals; "
-                        "cause.separating_poses says where to measure next)")
+        tested = [r.label for r in judged.rivals if not r.untestable]
+        if tested:
+            warnings.insert(0, "the campaign cannot tell the cause from " + ", ".join(tested)
+                            + ": they predict the left-out places as well (cause.rivals; "
+                            "cause.separating_poses says where to measure next)")
+        for r in judged.rivals:
+            if r.untestable:
+                warnings.insert(0, f"the cause may be {r.label}, which this campaign cannot "
+                                f"test ({r.untestable}): measure what it lacks and diagnose again")
+    if judged is not None and judged.n_folds < crossval.MIN_FOLDS and confidence == "high":
+        confidence = "low"
+        warnings.extend(judged.notes)
     if rem.unexplained and confidence == "high":
         confidence = "low"
         warnings.append("the named cause leaves most of the gap unexplained: it is the best "
@@ -314,15 +322,21 @@ def _rivals(j: "crossval.Judgement | None", s: rank.Search) -> list[dict]:
         return []
     out = []
     for x in j.rivals:
-        sc = s.screened[x.candidate]
         comps = [{"effect": e, "joints": list(js)} for e, js in x.candidate]
+        if x.untestable:
+            out.append({"label": x.label, "k": x.k, "effects": [e for e, _ in x.candidate],
+                        "joints": sorted({jn for _, js in x.candidate for jn in js}),
+                        "components": comps, "testable": False,
+                        "why": f"not testable: {x.untestable}"})
+            continue
+        sc = s.screened[x.candidate]
         out.append(_scored(x) | {
             "effects": [e for e, _ in x.candidate],
             "joints": sorted({jn for _, js in x.candidate for jn in js}),
             "components": comps,
             "holdout_rms_mm": _r(math.sqrt((sc.hold_rss[0] + sc.hold_rss[1])
                                            / max(s.nominal.holdout.n, 1) / 2)),
-            "fit": "linearised"})
+            "fit": "linearised", "testable": True})
     return out
 
 
@@ -395,6 +409,9 @@ def render_text(rep: dict) -> str:
             mark = "tied" if x["tied"] else f"worse, p = {x['p_worse_than_best']:.2g}"
             out.append(f"  {x['label']:<40} k {x['k']}  {x['cv_rms']:.3f}  ({mark})")
     for r in c.get("rivals", []):
+        if not r.get("testable", True):
+            out.append(f"  rival: {r['label']} ({r['why']})")
+            continue
         out.append(f"  rival: {r['label']} (k {r['k']}, prediction rms {r['cv_rms']:.3f}, "
                    f"holdout rms {r['holdout_rms_mm']:.4f} mm)")
     for pz in c.get("separating_poses", []):

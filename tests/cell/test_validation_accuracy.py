@@ -3,23 +3,25 @@
 Realistic campaigns (cell/truth: poses clustered at 3–12 stations, optional columns often
 missing, gross outliers; cell/diagnosis/validate.py and cell/chain/validate.py), judged
 right / ambiguous (truth among the rivals) / ambiguous, truth missing / unexplained /
-wrong. Every golden number below was measured at commit 42bde71 (plus the decision-logic
-work then in the tree) with ``.venv/bin/python`` running exactly these runs:
+wrong. Every golden number below was measured at the commit that set them (the cause chosen
+by predicting left-out places, untestable effects as rivals, pairs of the best three chain
+effects) with ``.venv/bin/python`` running exactly these runs:
 
-* planar, 120 vocabulary trials (seed 1, 200 poses): right 64, ambiguous 37, ambiguous
-  with the truth missing 8, unexplained 9, wrong 2; 74 of 79 true values inside their
+* planar, 120 vocabulary trials (seed 1, 200 poses): right 52, ambiguous 53, ambiguous
+  with the truth missing 6, unexplained 9, wrong 0; 56 of 59 true values inside their
   95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses): right 26, ambiguous 1, unexplained 51,
-  wrong 2; 25 of 26 intervals cover;
+* chain, 80 vocabulary trials (seed 1, 60 poses): right 18, ambiguous 12, unexplained 50,
+  wrong 0; 18 of 19 intervals cover;
 * chain, 24 trials outside the vocabulary (seed 1): unexplained 19, ambiguous with the
-  truth missing 4, wrong 1.
+  truth missing 4, wrong 1 (seed 100012: a coupling between joints named
+  joint_offset[j2,j3] + gear_ratio[j1,j2,j5] at 7 stations).
 
 Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
 truth named or among the rivals by 5, so the decision logic can move a few answers between
-``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (they are upper
-bounds to tighten to 0 as the diagnosis is fixed; the trials are listed in the report of
-issue 22). Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
+``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (0, and the one chain
+answer outside the vocabulary, an upper bound to tighten to 0).
+Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
 cell/effects.py: right 56, unexplained 25; the chain's joint effects in cell/chain/kin.py
@@ -63,7 +65,7 @@ def _coverage_in_band(s: dict) -> None:
     n = s["coverage_n"]
     hits = round(s["coverage"] * n)
     lo, hi = binomial_band(n)
-    assert n >= 20, f"only {n} intervals checked"
+    assert n >= 15, f"only {n} intervals checked"
     assert lo <= hits <= hi, f"{hits} of {n} intervals cover the truth; 99 % band {lo}–{hi}"
 
 
@@ -80,10 +82,10 @@ def chain_vocab():
 def test_planar_vocabulary_accuracy(planar_vocab):
     v = planar_vocab["verdicts"]
     assert sum(v.values()) == 120
-    assert v["right"] >= 64 - 7, v
-    assert v["right"] + v["ambiguous"] >= 101 - 5, v
+    assert v["right"] >= 52 - 7, v
+    assert v["right"] + v["ambiguous"] >= 105 - 5, v
     assert v["unexplained"] <= 9 + 5, v
-    assert v["wrong"] <= 2, planar_vocab["wrong"]
+    assert v["wrong"] == 0, planar_vocab["wrong"]
 
 
 def test_planar_interval_coverage_is_near_95_percent(planar_vocab):
@@ -100,9 +102,9 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 26 - 5, v
-    assert v["right"] + v["ambiguous"] >= 27 - 5, v
-    assert v["wrong"] <= 2, chain_vocab["wrong"]
+    assert v["right"] >= 18 - 5, v
+    assert v["right"] + v["ambiguous"] >= 30 - 5, v
+    assert v["wrong"] == 0, chain_vocab["wrong"]
 
 
 def test_chain_interval_coverage_is_near_95_percent(chain_vocab):

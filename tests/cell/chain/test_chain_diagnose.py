@@ -74,14 +74,14 @@ def test_effects_outside_the_vocabulary_are_not_a_confident_cause(tmp_path, effe
     assert rep["unexplained"] or rep["cause"]["effect"] == "none", rep["cause"]
 
 
-def test_a_sensor_scale_taken_for_longer_links_is_not_a_confident_cause():
-    # trial 21 of `cellctl diagnose validate --chain --trials 60 --seed 0 --out-of-vocabulary 1`
-    # at commit 161ec53: a tracker's radial scale (2.1e-3 /m) named link_length (j2, j3, j5)
-    # with no doubt; the instrument-scale rival predicts the left-out poses as well
-    from cell.chain import validate
-    t = validate.run_trial(21, 0, 60, 1.0, ("lens",))
-    assert t.truth.kind == "lens" and t.named == "link_length" and not t.unexplained
-    assert t.low_confidence and not t.confident_cause
+def test_a_sensor_scale_taken_for_longer_links_is_not_a_confident_cause(tmp_path):
+    # a tracker's radial scale of 2.1e-3 /m was once named link_length (j2, j3, j5) with no
+    # doubt (validation trial 21 at commit 161ec53); the instrument-scale rival predicts the
+    # left-out poses as well, so whatever is named is not 'high'
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {}, seed=21, lens=2.1e-3)),
+                         NOISE)
+    c = rep["cause"]
+    assert c["effect"] == "none" or c["confidence"] != "high" or rep["unexplained"], c
 
 
 def test_the_instrument_scale_warning_names_itself(tmp_path):
