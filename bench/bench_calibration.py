@@ -59,7 +59,8 @@ from cell.calibration.service import CellCalibrator  # noqa: E402
 from cell.config import CellConfig, SimSection  # noqa: E402
 from cell.effects import EFFECTS  # noqa: E402
 from cell.sim.assembly import SimDevices  # noqa: E402
-from cell.sim.handcam import BOARD_PLACEMENT, DEFAULT_BOARD  # noqa: E402
+from cell.sim.handcam import BOARD_PLACEMENT  # noqa: E402
+from cell.vision.calibration import DEFAULT_BOARD  # noqa: E402
 from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
 
 DEFAULT = yaml.safe_load((REPO / "deploy/plants/default.yaml").read_text())

@@ -4,7 +4,7 @@ against bare Python and Python importing numpy, in the same run. Prints a Markdo
 The issue's goal: ≤ 0.3 s CPU for a 300-point planar campaign and for a 100-pose ×
 4-marker chain campaign. Campaigns, written to a temporary directory:
 
-* **planar**: :func:`cell.diagnosis.synth.make_campaign` (seed 000 robot, 300 static poses
+* **planar**: :func:`cell.sim.campaigns.make_campaign` (seed 000 robot, 300 static poses
   + 6 moves sampled at 2 ms), one per truth of :data:`PLANAR_TRUTHS`, seeded;
 * **chain**: :func:`cell.truth.chain_campaign.make` (UR5 in DH, 100 poses, 4 markers at
   unknown places on the hand, a tracker at an unknown pose, σ 0.05 mm, a joint-2 offset of
@@ -35,7 +35,7 @@ from pathlib import Path
 
 from cell import effects as fx
 from cell import progress
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 from cell.measurements import write_campaign
 from cell.truth.chain_campaign import MARKER4, MARKERS, make
 

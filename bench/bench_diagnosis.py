@@ -5,7 +5,7 @@ Runs ``cellctl diagnose validate`` three times: single hidden effects (the vocab
 outside the vocabulary only (``--out-of-vocabulary 1``: radial lens distortion, reach sag,
 an offset bump halfway through, joint coupling), which should come back unexplained. The
 truth is the independent forward model :mod:`cell.truth` (not :mod:`cell.effects`, which
-the diagnosis fits with); campaign design: :class:`cell.diagnosis.synth.Design` (seed 000
+the diagnosis fits with); campaign design: :class:`cell.sim.campaigns.Design` (seed 000
 robot, 300 static poses over an hour of warm-up, 6 straight moves sampled at 2 ms, 70/30
 fit/holdout). Scores: :mod:`cell.diagnosis.validate`. Run time per campaign is the
 diagnosis only (campaign generation and the format round trip excluded), on this machine.

@@ -9,7 +9,7 @@ Two ways, in the same run, on the same campaigns:
 * **after**: the defaults — linearised screening of every single and pair, full fits (exact
   Jacobians) of the few the decision needs.
 
-Campaigns: :func:`cell.diagnosis.synth.make_campaign` (seed 000 robot, ``n`` static poses +
+Campaigns: :func:`cell.sim.campaigns.make_campaign` (seed 000 robot, ``n`` static poses +
 6 moves sampled at 2 ms), one per truth of :data:`TRUTHS`, seeded. CPU time is
 ``time.process_time`` around ``diagnose`` only (campaign drawing excluded), the median and
 the largest over the truths; a warm-up diagnosis runs first. ``same`` counts the campaigns
@@ -28,7 +28,7 @@ import time
 from cell import effects as fx
 from cell import progress
 from cell.diagnosis import diagnose
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 
 TRUTHS = (
     ("none", []),

@@ -94,7 +94,7 @@ class CalibrationSection(_Section):
     hardware only); ``hand_calibration``: its plane calibration, origin on the tool axis
     (``cellctl calibrate-camera`` with the board centred under the tool).
     ``board``: the board of known points (``cellctl calibrate-camera`` board format; default
-    :data:`cell.sim.handcam.DEFAULT_BOARD`, 100 mm pitch, so one point is in view at a time).
+    :data:`cell.vision.calibration.DEFAULT_BOARD`, 100 mm pitch, so one point is in view at a time).
     ``z_mm``: d3 held while calibrating. ``runs``: seed 004 runs per joint. ``poses`` /
     ``holdout``: poses the kinematic fit uses / keeps back for the held-out check, which
     must cut the held-out error by ``min_gain`` (relative) for the result to be written.

@@ -36,7 +36,7 @@ from cell.faults import Fault
 from cell.jsonsafe import json_safe
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.log import get_logger
-from cell.vision.calibration import CircleGridBoard
+from cell.vision.calibration import DEFAULT_BOARD, CircleGridBoard
 
 if TYPE_CHECKING:       # the numerics (scipy) load when a calibration runs, not with the cell
     from cell.calibration.joint import JointResult
@@ -53,7 +53,6 @@ def board_of(config: CellConfig) -> CircleGridBoard:
     except ValueError as exc:
         raise CalibrationError(str(exc)) from None
     if board is None:
-        from cell.sim.handcam import DEFAULT_BOARD
         return DEFAULT_BOARD
     return board
 

@@ -13,7 +13,6 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.noise`      the point noise: given, from revisited poses or from the remainder
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
 * :mod:`.report`     :func:`diagnose`, the JSON report and its text
-* :mod:`.synth`      the validation campaign design; campaigns drawn from the plant (tests)
 * :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
 """

@@ -151,7 +151,9 @@ def _cause_card(rep: dict) -> str:
     extra = f"<p class='small'>+{more} more parameters in the table below</p>" if more > 0 else ""
     plist = (f"<p class='small'>estimate [95 % interval]</p><ul>{''.join(rows)}</ul>{extra}"
              if rows else "")
-    poses = _separating(c)
+    n = len(c.get("separating_poses") or [])
+    poses = (f"<p class='small'><a href='#separating'>{n} poses</a> would tell them apart</p>"
+             if n else "")
     return (f'<section class="card {cls}" id="cause"><h3>What is wrong</h3>'
             f'<p class="big">{head}</p><p>{sub_line} {badge}</p>'
             f'{plist}{poses}<p class="small">{esc(ptxt)}</p></section>')
@@ -170,8 +172,8 @@ def _separating(c: dict) -> str:
         items.append(f"<li>{esc(where)}: differs from {diff}</li>")
     if not items:
         return ""
-    return ("<p class='small' id='separating'>measure next, where the causes differ most:</p>"
-            f"<ul class='small'>{''.join(items)}</ul>")
+    return ("<h2 id='separating'>Measure next: where the rival causes differ most</h2>"
+            f"<ul>{''.join(items)}</ul>")
 
 
 def _shrink_card(rep: dict, fit: FitRms) -> str:
@@ -291,6 +293,7 @@ def render(rep: dict, figures: list[Figure], fit: FitRms, text: str, chain: bool
         f"{esc(rep.get('format'))} · {esc(rep.get('source') or '')}</p>"
         f"<div class='answer'>{_cause_card(rep)}{_shrink_card(rep, fit)}{_action_card(rep)}</div>"
         f"<p class='where' id='where'>{esc(rep['gap']['where']['summary'])}</p>"
+        f"{_separating(rep['cause'])}"
         f"<h2>Evidence</h2>{fig_html}"
         f"<h2>Ranking of the candidates</h2>{ranking_table(rep, chain, chosen_label)}"
         f"<p class='small'>FIT columns: rows the model was fitted on; HOLDOUT: rows it never saw. "

@@ -30,7 +30,7 @@ from cell.clock import Clock
 from cell.errors import ConfigError
 from cell.sim.camera import Fiducial, Optics, SimCamera
 from cell.sim.plant import Plant
-from cell.vision.calibration import CircleGridBoard, PlaneCalibration, calibrate
+from cell.vision.calibration import DEFAULT_BOARD, CircleGridBoard, PlaneCalibration, calibrate
 from cell.vision.camera_model import CameraModel
 from drivers.camera.base import CameraState
 
@@ -41,9 +41,6 @@ TARGET_PLACEMENT_MM = (0.8, -0.5)    #: how far off the camera axis a person lay
 J4_TARGET_OFFSET_MM = (15.0, 0.0)    #: j4 turns the camera about its own axis: target off it
 BOARD_PLACEMENT = (1.2, -0.8, 0.01)  #: true placement error (dx mm, dy mm, drz deg) of a board pinned to the base
 
-#: seed 001's board of known points: 100 mm pitch, so the hand camera sees one at a time
-DEFAULT_BOARD = CircleGridBoard(cols=7, rows=9, pitch_mm=100.0, radius_mm=TARGET_RADIUS_MM,
-                                origin_mm=(200.0, -400.0), angle_deg=0.0)
 
 
 def rot(deg: float) -> np.ndarray:

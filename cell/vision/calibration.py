@@ -107,6 +107,13 @@ class CircleGridBoard(_Board):
         return -1.0, -1.0, float(self.cols), float(self.rows)
 
 
+#: the cell's board of known points when ``calibration.board`` names none: seed 001's
+#: board, 7 x 9 discs of seed 004's 3 mm radius at 100 mm pitch (so the hand camera sees
+#: one at a time), its first disc at (200, -400) mm in the robot base frame
+DEFAULT_BOARD = CircleGridBoard(cols=7, rows=9, pitch_mm=100.0, radius_mm=3.0,
+                                origin_mm=(200.0, -400.0), angle_deg=0.0)
+
+
 @dataclass(frozen=True)
 class ChessBoard(_Board):
     """Chessboard with ``cols`` x ``rows`` inner corners, squares of ``square_mm``; the corner

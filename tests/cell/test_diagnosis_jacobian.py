@@ -9,7 +9,7 @@ from cell.diagnosis import jacobian, screen
 from cell.diagnosis.candidates import single_candidates
 from cell.diagnosis.fit import fit_candidate, subset
 from cell.diagnosis.replay import predict, prepare
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 
 EVERYTHING = [  # every effect of the vocabulary, away from any bound and from λ = 0
     fx.make_effect("joint_offset", ("j1", "j2"), {"j1_offset_deg": 0.1, "j2_offset_deg": -0.05}),

@@ -8,7 +8,7 @@ from cell.diagnosis import where
 from cell.diagnosis.candidates import merge, single_candidates
 from cell.diagnosis.fit import fit_candidate, label, subset
 from cell.diagnosis.replay import first_step_dirs, path_noise_mm, prepare, residuals
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 
 D = Design(n_points=120, n_moves=3)
 

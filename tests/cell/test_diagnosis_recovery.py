@@ -1,7 +1,7 @@
 """Diagnosis on plant campaigns: each effect recovers itself; none stays none; an effect the
 vocabulary does not hold ends unexplained; identifiability rules; per-station lags.
 
-Campaigns come from :func:`cell.diagnosis.synth.make_campaign` (the validation design, with
+Campaigns come from :func:`cell.sim.campaigns.make_campaign` (the validation design, with
 120 poses and 3 moves to keep the suite fast), seeded, sizes drawn from each ParamSpec's
 typical range.
 """
@@ -11,7 +11,7 @@ import pytest
 from cell import effects as fx
 from cell.diagnosis import diagnose
 from cell.diagnosis.fit import Z95
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 
 SMALL = Design(n_points=120, n_moves=3)
 CASES = [("joint_offset", ("j1",)), ("joint_offset", ("j2",)), ("link_length", ("j1",)),

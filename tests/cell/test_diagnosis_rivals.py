@@ -14,7 +14,7 @@ import pytest
 from cell import effects as fx
 from cell.diagnosis import crossval, diagnose, render_text
 from cell.diagnosis.places import places
-from cell.diagnosis.synth import Design, effect_dicts
+from cell.sim.campaigns import Design, effect_dicts
 from cell.kinematics import PRESETS
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.sim.plant import Plant

@@ -1,6 +1,6 @@
 """The diagnosis where blind campaigns found it weak: cyclic errors of 2–4 cycles per
 revolution, no noise reference (no paths, no --noise-mm), camera misdetections, clustered
-poses and close rivals. Campaigns from :func:`cell.diagnosis.synth.make_campaign` (the
+poses and close rivals. Campaigns from :func:`cell.sim.campaigns.make_campaign` (the
 plant) and :func:`cell.truth.campaign.make_campaign` (the independent forward model), seeded.
 """
 import numpy as np
@@ -10,7 +10,7 @@ from cell import effects as fx
 from cell.diagnosis import diagnose, noise, rank, robust
 from cell.diagnosis.fit import fit_candidate, subset
 from cell.diagnosis.replay import prepare
-from cell.diagnosis.synth import Design, make_campaign
+from cell.sim.campaigns import Design, make_campaign
 from cell.kinematics import PRESETS
 from cell.truth import campaign as truth_campaign
 from cell.truth import parts
