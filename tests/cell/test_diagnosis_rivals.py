@@ -127,3 +127,23 @@ def test_text_and_json_agree_on_the_real_tiago_campaign():
         assert comp["effect"] in text.split("cause: ")[1].splitlines()[0]
     assert {p.split("_")[0] for p in c["params"]} <= {j for comp in c["components"]
                                                       for j in comp["joints"]}
+
+
+def test_a_two_effect_cause_is_named_whole_in_json_text_and_page(tmp_path):
+    from cell.diagnosis.html import write_html
+    from cell.sim.campaigns import make_campaign
+    truth = [fx.make_effect("joint_offset", ("j1",), {"j1_offset_deg": 0.05}),
+             fx.make_effect("link_length", ("j2",), {"j2_link_delta_mm": 0.4})]
+    dg = diagnose(make_campaign(truth, 7, Design(n_points=200, n_moves=0)))
+    c = dg.report["cause"]
+    named = {(x["effect"], tuple(x["joints"])) for x in c["components"]}
+    assert named == {("joint_offset", ("j1",)), ("link_length", ("j2",))}, c["label"]
+    # every fitted parameter belongs to a named component, and every component is named
+    owners = {p: x["effect"] for x in c["components"] for p in x["params"]}
+    assert set(c["params"]) <= set(owners) | {p for p in c["params"] if "cyclic" in p}
+    line = render_text(dg.report).split("cause: ")[1].splitlines()[0]
+    page = write_html(dg, tmp_path / "html").read_text()
+    for effect, joints in named:
+        assert c["label"].count(effect) == 1
+        assert f"{effect} on {', '.join(joints)}" in line
+        assert f"{effect} on {', '.join(joints)}" in page
