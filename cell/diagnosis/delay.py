@@ -5,8 +5,8 @@ trajectory shifted by λ_j (linear interpolation, held at the first command befo
 exactly as the comm_delay stage does, with the joint's own lag in place of σ·k_j), the
 static part of the diagnosed cause stays in the model (only
 when the cause explains the gap; otherwise the nominal model is used), and
-``least_squares`` fits (λ_1, λ_2) on the fit moves (exact Jacobian, :mod:`.jacobian`;
-path samples flagged as outliers left out). Intervals come from the Jacobian as in
+:func:`cell.lsq.least_squares` fits (λ_1, λ_2) on the fit moves (exact Jacobian,
+:mod:`.jacobian`; path samples flagged as outliers left out). Intervals come from the Jacobian as in
 :mod:`.fit`.
 
 Seed 002's pattern is λ_j = σ·k_j with k_j the joint's 1-based position in the CAN station
@@ -28,6 +28,7 @@ from cell import effects as fx
 from cell.diagnosis.fit import Z95, subset
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
+from cell.lsq import least_squares
 from cell.stats import chi2_sf
 
 LAG_BOUNDS_MS = (-20.0, 200.0)
@@ -45,7 +46,6 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
     None when the campaign has no moves with motion in the fit rows. ``keep`` (fit path
     samples,) bool marks the samples to fit on (outliers left out; default all).
     """
-    from scipy.optimize import least_squares   # scipy.optimize: ~0.3 s CPU to import
     fd = subset(d, "fit")
     if not fd.moves or not any(np.ptp(m.cmd, axis=0).max() > 0 for m in fd.moves):
         return None
@@ -61,8 +61,7 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
         J = evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)[1]
         return -J[m][:, :, -2:].reshape(-1, 2)
 
-    res = least_squares(fun, np.array([0.5, 0.5]), jac=jac, bounds=LAG_BOUNDS_MS, method="trf",
-                        x_scale="jac", max_nfev=200)
+    res = least_squares(fun, np.array([0.5, 0.5]), jac, *LAG_BOUNDS_MS, max_nfev=200)
     J = res.jac
     s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - 2, 1)
     try:

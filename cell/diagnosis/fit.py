@@ -1,13 +1,13 @@
 """Fit one candidate (one or two vocabulary effects) on the fit rows. Pure numerics.
 
 A candidate is a tuple of components ``(effect name, joints)``. :func:`fit_candidate` adds
-it to the simulation and fits its parameters with ``scipy.optimize.least_squares`` (trf,
-the vocabulary's bounds, the exact Jacobian of :mod:`.jacobian`; finite differences on
-request) on the fit rows only (rows flagged as outliers left out, :mod:`.robust`). It
-starts from the linearised fit of :mod:`.screen` (so a cyclic error in anti-phase with any
-fixed guess cannot stall on the amplitude's zero bound). A cyclic error is fitted at a given
-harmonic order k (period 360°/k, a constant of the vocabulary's ``cyclic_period_deg``); the
-screening picks k.
+it to the simulation and fits its parameters with :func:`cell.lsq.least_squares` (bounded
+Levenberg–Marquardt, the vocabulary's bounds, the exact Jacobian of :mod:`.jacobian`;
+finite differences on request) on the fit rows only (rows flagged as outliers left out,
+:mod:`.robust`). It starts from the linearised fit of :mod:`.screen` (so a cyclic error
+in anti-phase with any fixed guess cannot stall on the amplitude's zero bound). A cyclic
+error is fitted at a given harmonic order k (period 360°/k, a constant of the vocabulary's
+``cyclic_period_deg``); the screening picks k.
 
 Noise model: every table (points, path samples) has its own Gaussian σ per axis, unknown.
 The fit is iteratively reweighted: each round weighs each table by 1/its rms of the round
@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
+from cell.lsq import least_squares
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
 from cell.diagnosis.screen import ORDER_COST, ORDERS
@@ -198,7 +199,6 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
     ``identifiable=False``; raises ValueError for an unknown ``jac`` or ``orders`` that are
     not cycles per revolution of :data:`.screen.ORDERS` on the candidate's cyclic joints.
     """
-    from scipy.optimize import least_squares   # scipy.optimize: ~0.3 s CPU to import
     if jac not in JACOBIANS:
         raise ValueError(f"jac {jac!r}: choose from {', '.join(JACOBIANS)}")
     cyc = [j for name, joints in c if name == "cyclic_error" for j in joints]
@@ -235,7 +235,7 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
         x0v, lo, hi = np.append(x0v, t0), np.append(lo, -50.0), np.append(hi, 150.0)
         names = names + ["path_temp_c"]
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-    x0v = np.clip(x0v, lo + 1e-9 * span, hi - 1e-9 * span)   # strictly inside: trf needs it
+    x0v = np.clip(x0v, lo + 1e-9 * span, hi - 1e-9 * span)   # none starts held on a bound
     n_eff = len(x0v) - int(has_tp)
     meas = rows.meas
 
@@ -261,18 +261,17 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
         return -np.concatenate([w[0] * J[sel_p].reshape(-1, J.shape[2]),
                                 w[1] * J[sel_q].reshape(-1, J.shape[2])])
 
-    res, ok = None, True
+    res, ok, w_res = None, True, w
     for rnd in range(rounds):
         try:
-            res = least_squares(fun, x0v, jac=jacf if jac == "analytic" else "2-point",
-                                bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=200)
+            res = least_squares(fun, x0v, jacf if jac == "analytic" else "2-point", lo, hi,
+                                max_nfev=200)
         except (ValueError, np.linalg.LinAlgError, fx.ConfigError):
             ok = False
             break
-        x0v = res.x
-        r, _ = resid_of(res.x)
-        w = 1.0 / np.maximum([TableStats.of(r[sel_p]).rms or 1.0,
-                              TableStats.of(r[sel_q]).rms or 1.0], 1e-6)
+        x0v, w_res = res.x, w
+        rp, rq = (res.fun[:n_p] / w[0]).reshape(-1, 2), (res.fun[n_p:] / w[1]).reshape(-1, 2)
+        w = 1.0 / np.maximum([TableStats.of(rp).rms or 1.0, TableStats.of(rq).rms or 1.0], 1e-6)
     if res is None or not ok:
         r0 = meas - evaluate(rows, [])[0]
         n2 = neg2_loglik(r0[sel_p], r0[sel_q])
@@ -280,8 +279,7 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
         return FitResult(c, tmpl, {}, {}, len(x0v), n2, math.inf, z, z, z, z, False,
                          "the solver failed", success=False, orders=orders)
     effs, tp = unpack(res.x)
-    r, _ = resid_of(res.x)
-    rp, rq = r[sel_p], r[sel_q]
+    rp, rq = (res.fun[:n_p] / w_res[0]).reshape(-1, 2), (res.fun[n_p:] / w_res[1]).reshape(-1, 2)
     n2 = neg2_loglik(rp, rq)
     k = len(res.x)
     n_cyc = sum(len(e.joints) for e in effs if e.effect == "cyclic_error")
@@ -290,8 +288,10 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
     out = FitResult(c, effs, {}, {}, k, n2, bic, TableStats.of(rp), TableStats.of(rq),
                     TableStats.of(hp), TableStats.of(hq), path_temp_c=tp,
                     success=bool(res.status > 0), orders=orders)
-    # weighted Jacobian of the last round -> covariance, intervals, identifiability
-    J = jacf(res.x) if jac == "analytic" else res.jac
+    # Jacobian at the solution, weighted as the next round would -> covariance, intervals,
+    # identifiability
+    J = np.concatenate([res.jac[:n_p] * (w[0] / w_res[0]), res.jac[n_p:] * (w[1] / w_res[1])]) \
+        if jac == "analytic" else res.jac
     s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - k, 1)
     raw = np.linalg.norm(J, axis=0)
     norms = np.where(raw > 1e-12 * max(raw.max(), 1e-300), raw, 1.0)  # scale; 0 columns stay 0
