@@ -91,14 +91,14 @@ def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Least-squares b of y ≈ X·b for a tall X of a few dozen columns (minimum-norm when
     the columns are dependent): the normal equations of the column-scaled X, formed with
     einsum and solved through the eigen-decomposition of the small Gram matrix, directions
-    below 1e-12 of the largest eigenvalue left out. (numpy's lstsq hands such a matrix to a
-    threaded BLAS whose idle threads then spin, as does numpy's eigh from 26 columns on:
-    twice the CPU time for nothing at these sizes.)"""
-    import scipy.linalg
+    below 1e-12 of the largest eigenvalue left out. Only the Gram matrix (at most a few
+    dozen columns square) goes to LAPACK: a tall matrix handed to numpy's lstsq runs
+    threaded BLAS kernels whose idle threads spin when more than one BLAS thread is
+    allowed (:mod:`cell` allows one unless the environment says otherwise)."""
     s = np.sqrt(np.einsum("ij,ij->j", X, X))
     s = np.where(s > 0, s, 1.0)
     Xs = X / s
-    lam, V = scipy.linalg.eigh(np.einsum("ij,ik->jk", Xs, Xs))   # MRRR: no threaded dgemm
+    lam, V = np.linalg.eigh(np.einsum("ij,ik->jk", Xs, Xs))
     keep = lam > 1e-12 * max(lam[-1], 1e-300)
     g = V.T @ np.einsum("ij,i->j", Xs, y)
     b = V[:, keep] @ (g[keep] / lam[keep])
