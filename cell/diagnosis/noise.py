@@ -125,13 +125,47 @@ def plane_weights(coords: np.ndarray, nb: np.ndarray) -> np.ndarray:
     return np.einsum("nkj,nj->nk", X, a)
 
 
+def _nearest(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
+    """(nq, m) rows of ``data`` (n,d) nearest each row of ``query`` (nq,d), nearest first,
+    Euclidean; equal distances in a fixed order (by position in ``data`` in d > 1, in
+    ``data`` sorted in d = 1). Exact: one dimension searches a window of 2m sorted values
+    around each query (O(n·m)), more dimensions compare every pair, a block of queries at
+    a time (O(nq·n), for the few hundred to few thousand rows of a campaign)."""
+    n = len(data)
+    if data.shape[1] == 1 and n > 2 * m:
+        order = np.argsort(data[:, 0], kind="stable")
+        v = data[order, 0]
+        q = query[:, 0]
+        start = np.clip(np.searchsorted(v, q) - m, 0, n - 2 * m)
+        win = start[:, None] + np.arange(2 * m)
+        pick = np.argsort(np.abs(v[win] - q[:, None]), axis=1, kind="stable")[:, :m]
+        return order[np.take_along_axis(win, pick, axis=1)]
+    out = np.empty((len(query), m), dtype=np.intp)
+    step = max(1, 2 ** 20 // max(n, 1))
+    for b in range(0, len(query), step):
+        d2 = np.einsum("qnd->qn", (query[b:b + step, None, :] - data[None, :, :]) ** 2)
+        if m < n:
+            kth = np.partition(d2, m - 1, axis=1)[:, m - 1:m]
+            d2 = np.where(d2 <= kth, d2, np.inf)       # the m nearest, and any tied with them
+        out[b:b + step] = np.argsort(d2, axis=1, kind="stable")[:, :m]
+    return out
+
+
+def neighbours(coords: np.ndarray, k: int, use: np.ndarray | None = None) -> np.ndarray:
+    """(n, k) indices of the ``k`` rows nearest each row of ``coords`` (n,d) among the
+    rows ``use`` marks (default all), the row itself left out, nearest first
+    (:func:`_nearest`). Needs at least k + 1 rows in ``use``."""
+    idx = np.arange(len(coords)) if use is None else np.flatnonzero(use)
+    nb = idx[_nearest(coords[idx], coords, min(k + 1, len(idx)))]
+    own = nb == np.arange(len(coords))[:, None]
+    return np.take_along_axis(nb, np.argsort(own, axis=1, kind="stable"), axis=1)[:, :k]
+
+
 def local_plane(coords: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Leave-one-out local planes: for each of n points at ``coords`` (n,d), its ``k``
-    nearest other points ``nb`` (n,k) and their weights ``W`` (n,k) (:func:`plane_weights`).
-    For independent noise of σ, v_i − v̂_i has σ²·(1 + Σ_k W_ik²)."""
-    from scipy.spatial import cKDTree   # scipy.spatial: only when needed
-    _, nb = cKDTree(coords).query(coords, k=k + 1)
-    nb = nb[:, 1:]
+    nearest other points ``nb`` (n,k) (:func:`neighbours`) and their weights ``W`` (n,k)
+    (:func:`plane_weights`). For independent noise of σ, v_i − v̂_i has σ²·(1 + Σ_k W_ik²)."""
+    nb = neighbours(coords, k)
     return nb, plane_weights(coords, nb)
 
 

@@ -89,13 +89,7 @@ def _local_residual(coords: np.ndarray, r: np.ndarray, use: np.ndarray) -> np.nd
     """r (n,2) minus its leave-one-out local plane through :data:`NEIGHBOURS` neighbours
     at ``coords`` taken among the rows ``use`` marks, scaled to the noise's σ
     (÷ √(1 + ΣW²))."""
-    from scipy.spatial import cKDTree   # scipy.spatial: only when flagging
-    idx = np.flatnonzero(use)
-    k = min(NEIGHBOURS, len(idx) - 1)
-    _, nb = cKDTree(coords[idx]).query(coords, k=k + 1)
-    nb = idx[nb]
-    self_hit = nb[:, 0] == np.arange(len(r))
-    nb = np.where(self_hit[:, None], np.roll(nb, -1, axis=1), nb)[:, :k]
+    nb = noise_mod.neighbours(coords, min(NEIGHBOURS, int(np.sum(use)) - 1), use)
     W = noise_mod.plane_weights(coords, nb)
     e = r - np.einsum("nk,nkc->nc", W, r[nb])
     return e / np.sqrt(1.0 + np.sum(W ** 2, axis=1))[:, None]
