@@ -25,6 +25,7 @@ diagnosis.
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import os
 import shutil
@@ -34,10 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cell.errors import CellError
-from cell.yamlio import error_text, node_line
 
 FORMAT = "cell-measurements/1"
 CHAIN_KINEMATICS = ("dh", "urdf")
@@ -69,23 +68,153 @@ class CampaignFormatError(CellError, ValueError):
         super().__init__(f"{where}: {message}")
 
 
-class CameraSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+@functools.cache
+def pydantic_models() -> tuple[type, type]:
+    """The pydantic models (ModelSpec, CameraSpec) of ``model.yaml``, built on first use:
+    they define what is valid and every error message, but importing pydantic and building
+    them costs ~0.08 s CPU, so :class:`ModelSpec` asks them only about input that is not
+    plainly valid (:func:`_plain`)."""
+    from pydantic import BaseModel, ConfigDict, Field
+
+    class CameraSpec(BaseModel):
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+        center_mm: tuple[float, float]
+
+    class ModelSpec(BaseModel):
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+        format: str
+        kinematics: str = "scara"
+        l1_mm: float = Field(gt=0)
+        l2_mm: float = Field(gt=0)
+        command_unit_deg: float | None = Field(default=None, gt=0)
+        joint_limits_deg: list[tuple[float, float]] | None = None
+        camera: CameraSpec | None = None
+        stations: list[str] | None = None
+    return ModelSpec, CameraSpec
+
+
+def _number(v, positive: bool = False) -> float | None:
+    """``v`` as a float if it is plainly a finite number (an int or float, not a bool; > 0
+    with ``positive``), else None."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    v = float(v)
+    return v if math.isfinite(v) and (v > 0 or not positive) else None
+
+
+def _pair(v) -> tuple[float, float] | None:
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        return None
+    a, b = _number(v[0]), _number(v[1])
+    return None if a is None or b is None else (a, b)
+
+
+def _plain(data: dict) -> dict | None:
+    """The fields of :class:`ModelSpec` from ``data`` (its keyword arguments or the mapping
+    of ``model.yaml``) when they are plainly valid: known keys, the types the model names
+    with no conversion beyond int → float and list → tuple, finite numbers, positive where
+    the model says so. None for anything else, which :func:`pydantic_models` then decide
+    (converting what it accepts, raising its ValidationError for the rest)."""
+    if not isinstance(data, dict) or not set(data) <= set(ModelSpec.__dataclass_fields__):
+        return None
+    out = {"format": data.get("format"), "kinematics": data.get("kinematics", "scara"),
+           "l1_mm": _number(data.get("l1_mm"), True), "l2_mm": _number(data.get("l2_mm"), True)}
+    if not isinstance(out["format"], str) or not isinstance(out["kinematics"], str) \
+            or out["l1_mm"] is None or out["l2_mm"] is None:
+        return None
+    unit, limits = data.get("command_unit_deg"), data.get("joint_limits_deg")
+    camera, stations = data.get("camera"), data.get("stations")
+    if unit is not None and (unit := _number(unit, True)) is None:
+        return None
+    if limits is not None:
+        if not isinstance(limits, list):
+            return None
+        limits = [_pair(p) for p in limits]
+        if None in limits:
+            return None
+    if isinstance(camera, CameraSpec):
+        camera = CameraSpec(camera.center_mm)
+    elif camera is not None:
+        if not isinstance(camera, dict) or set(camera) != {"center_mm"} \
+                or _pair(camera["center_mm"]) is None:
+            return None
+        camera = CameraSpec(_pair(camera["center_mm"]))
+    if stations is not None and not (isinstance(stations, list)
+                                     and all(isinstance(x, str) for x in stations)):
+        return None
+    return {**out, "command_unit_deg": unit, "joint_limits_deg": limits, "camera": camera,
+            "stations": None if stations is None else list(stations)}
+
+
+@dataclass
+class CameraSpec:
+    """``model.yaml`` ``camera``: ``center_mm`` (x, y) mm on the work plane."""
+
     center_mm: tuple[float, float]
 
+    def __post_init__(self):
+        pair = _pair(self.center_mm)
+        if pair is None:     # not plainly valid: pydantic converts it or raises
+            pair = pydantic_models()[1].model_validate({"center_mm": self.center_mm}).center_mm
+        self.center_mm = pair
 
-class ModelSpec(BaseModel):
-    """``model.yaml``: the nominal model the simulation uses (every number finite)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+@dataclass
+class ModelSpec:
+    """``model.yaml``: the nominal model the simulation uses (every number finite).
+    Validated on construction as the pydantic model :func:`pydantic_models` defines it
+    (unknown keys refused, lengths and command unit > 0, numbers finite); bad input raises
+    pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as pydantic's."""
+
     format: str
+    l1_mm: float
+    l2_mm: float
     kinematics: str = "scara"
-    l1_mm: float = Field(gt=0)
-    l2_mm: float = Field(gt=0)
-    command_unit_deg: float | None = Field(default=None, gt=0)
+    command_unit_deg: float | None = None
     joint_limits_deg: list[tuple[float, float]] | None = None
     camera: CameraSpec | None = None
     stations: list[str] | None = None
+
+    def __post_init__(self):
+        given = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        fields = _plain(given)
+        if fields is None:
+            if isinstance(given["camera"], CameraSpec):
+                given["camera"] = {"center_mm": given["camera"].center_mm}
+            fields = self._from_pydantic(pydantic_models()[0].model_validate(given))
+        self.__dict__.update(fields)
+
+    @staticmethod
+    def _from_pydantic(m) -> dict:
+        d = dict(m)
+        d["camera"] = None if m.camera is None else CameraSpec(m.camera.center_mm)
+        return d
+
+    @classmethod
+    def model_validate(cls, data) -> "ModelSpec":
+        """A ModelSpec from a mapping (as ``model.yaml`` holds it); unknown keys and bad
+        values raise pydantic's ValidationError."""
+        fields = _plain(data)
+        if fields is None:
+            fields = cls._from_pydantic(pydantic_models()[0].model_validate(data))
+        return cls(**fields)
+
+    def model_dump(self, exclude_none: bool = False, mode: str = "python") -> dict:
+        """The fields as a dict in declaration order of the format (camera as a mapping;
+        ``mode="json"``: tuples as lists)."""
+        out = {}
+        for k in ("format", "kinematics", "l1_mm", "l2_mm", "command_unit_deg",
+                  "joint_limits_deg", "camera", "stations"):
+            v = getattr(self, k)
+            if k == "camera" and v is not None:
+                v = {"center_mm": list(v.center_mm) if mode == "json" else v.center_mm}
+            elif k == "joint_limits_deg" and v is not None:
+                v = [list(p) if mode == "json" else p for p in v]
+            elif k == "stations" and v is not None:
+                v = list(v)
+            if v is not None or not exclude_none:
+                out[k] = v
+        return out
 
 
 @dataclass
@@ -190,13 +319,19 @@ def _load_model(path: Path) -> ModelSpec:
     if raw.get("format") != FORMAT:
         raise CampaignFormatError(path, f"unknown format {raw.get('format')!r}; expected {FORMAT!r}",
                                   column="format")
-    try:
-        model = ModelSpec.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        raise CampaignFormatError(path, error_text(err, ModelSpec), line=_yaml_line(path, err["loc"]),
-                                  column=loc) from None
+    fields = _plain(raw)
+    if fields is not None:
+        model = ModelSpec(**fields)
+    else:
+        from pydantic import ValidationError
+        from cell.yamlio import error_text
+        try:
+            model = ModelSpec.model_validate(raw)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            loc = ".".join(str(p) for p in err["loc"])
+            raise CampaignFormatError(path, error_text(err, pydantic_models()[0]),
+                                      line=_yaml_line(path, err["loc"]), column=loc) from None
     if model.kinematics != "scara":
         raise CampaignFormatError(path, f"unsupported kinematics {model.kinematics!r}; known: scara, "
                                         f"{', '.join(CHAIN_KINEMATICS)}", column="kinematics")
@@ -211,6 +346,7 @@ def yaml_loc(loc) -> tuple:
 
 def _yaml_line(path: Path, loc) -> int | None:
     """1-based line of the deepest key or list item along ``loc`` in a YAML mapping, if found."""
+    from cell.yamlio import node_line
     try:
         node = yaml.compose(path.read_text(encoding="utf-8"))
     except yaml.YAMLError:
