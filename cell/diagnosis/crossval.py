@@ -67,20 +67,48 @@ def folds(fit_d: DiagData) -> tuple[np.ndarray, int, int]:
     return out, n_pf, n_places
 
 
-def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float]) -> np.ndarray:
+@dataclass
+class FoldStack:
+    """The folds' Gram pieces of a Basis stacked once for every candidate's
+    :func:`cv_errors`: ``wf`` (F,) squared table weights, ``n`` (F,) scalar residuals (at
+    least 1), ``c`` (F,) weighted rᵀr, ``G`` (F, m, m) and ``b`` (F, m) unweighted, the
+    whole fit's ``G_fit`` (m, m) and ``b_fit`` (m,) weighted."""
+
+    wf: np.ndarray
+    n: np.ndarray
+    c: np.ndarray
+    G: np.ndarray
+    b: np.ndarray
+    G_fit: np.ndarray
+    b_fit: np.ndarray
+
+    @staticmethod
+    def of(B: screen.Basis, w: tuple[float, float]) -> "FoldStack":
+        wf = np.array([w[t] ** 2 for t in B.fold_table])
+        m = len(B.lo)
+        return FoldStack(wf, np.array([max(f.n, 1) for f in B.folds], float),
+                         np.array([f.c for f in B.folds]) * wf,
+                         np.stack([f.G for f in B.folds]) if B.folds else np.zeros((0, m, m)),
+                         np.stack([f.b for f in B.folds]) if B.folds else np.zeros((0, m)),
+                         w[0] ** 2 * B.fit[0].G + w[1] ** 2 * B.fit[1].G,
+                         w[0] ** 2 * B.fit[0].b + w[1] ** 2 * B.fit[1].b)
+
+
+def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float],
+              stack: FoldStack | None = None) -> np.ndarray:
     """(F,) leave-one-fold-out mean square (weighted, per scalar residual) of the linear fit
-    on columns ``S`` with table weights ``w``; ``S`` empty = the nominal model."""
+    on columns ``S`` with table weights ``w``; ``S`` empty = the nominal model. ``stack``:
+    :meth:`FoldStack.of` ``(B, w)`` made once for many calls (else made here)."""
     F = len(B.folds)
-    wf = np.array([w[t] ** 2 for t in B.fold_table])
-    n = np.array([max(f.n, 1) for f in B.folds], float)
-    c = np.array([f.c for f in B.folds]) * wf
+    st = FoldStack.of(B, w) if stack is None else stack
+    wf, n, c = st.wf, st.n, st.c
     if not S:
         return c / n
     ix = np.ix_(S, S)
-    G = w[0] ** 2 * B.fit[0].G[ix] + w[1] ** 2 * B.fit[1].G[ix]
-    b = w[0] ** 2 * B.fit[0].b[S] + w[1] ** 2 * B.fit[1].b[S]
-    Gg = np.stack([f.G[ix] for f in B.folds]) * wf[:, None, None]
-    bg = np.stack([f.b[S] for f in B.folds]) * wf[:, None]
+    G = st.G_fit[ix]
+    b = st.b_fit[S]
+    Gg = st.G[:, S][:, :, S] * wf[:, None, None]
+    bg = st.b[:, S] * wf[:, None]
     Gm = G[None] - Gg
     ridge = 1e-10 * np.max(np.abs(np.diagonal(Gm, axis1=1, axis2=2)), axis=1) + 1e-300
     Gm = Gm + ridge[:, None, None] * np.eye(len(S))
@@ -136,7 +164,8 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     of sample and apply the rule of the module docstring. ``chosen`` the in-sample
     decision's candidate (None: ``none``, kept); ``label`` candidate → text."""
     F = len(B.folds)
-    nom_e = cv_errors(B, [], weights)
+    stack = FoldStack.of(B, weights)
+    nom_e = cv_errors(B, [], weights, stack)
     nominal = Scored("nominal", (), 0, nom_e, math.sqrt(float(nom_e.mean())) if F else math.nan)
     testable = F >= MIN_FOLDS and 0.5 ** F < ALPHA
     if F < MIN_FOLDS:
@@ -147,7 +176,7 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     for c, sc in screened.items():
         if not sc.identifiable:
             continue
-        e = cv_errors(B, list(sc.S), weights)
+        e = cv_errors(B, list(sc.S), weights, stack)
         table.append(Scored(label(c), c, sc.k, e, math.sqrt(float(e.mean()))))
     if not table:
         return Judgement(chosen, None, [], [], F, n_places, nominal, testable)
