@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell import effects as fx
 from cell.chain import kin
 from cell.chain.model import Chain
 from cell.diagnosis.places import folds as place_folds
@@ -31,11 +32,10 @@ from cell.stats import t_quantile
 
 STRUCTURAL_TOL = 1e-6     # a unit column this close to the others' span adds nothing
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
-EFFECTS = ("joint_offset", "link_length", "gear_ratio", "gravity_compliance")
-SUBSYSTEM = {"joint_offset": "kinematics", "link_length": "kinematics",
-             "gear_ratio": "transmission", "gravity_compliance": "transmission"}
-DEPENDS_ON = {"joint_offset": "constant", "link_length": "position", "gear_ratio": "angle",
-              "gravity_compliance": "position"}
+# the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
+EFFECTS = tuple(fx.CHAIN_EFFECTS)
+SUBSYSTEM = {n: e.subsystem for n, e in fx.CHAIN_EFFECTS.items()}
+DEPENDS_ON = {n: e.depends_on for n, e in fx.CHAIN_EFFECTS.items()}
 
 
 @dataclass(frozen=True)
@@ -51,18 +51,22 @@ class Param:
 
 
 def vocabulary(chain: Chain) -> list[Param]:
-    """All error parameters the chain defines, offsets first (the identifiability priority)."""
+    """All error parameters the chain defines, offsets first (the identifiability priority):
+    per effect of :data:`EFFECTS`, in its order, the parameters its definition's
+    :class:`cell.effects.OnChain` names (per joint, per revolute joint, or the chain's
+    geometric parameters)."""
     out = []
-    for k, j in enumerate(chain.joints):
-        out.append(Param(f"{j.column}_offset_{j.unit}", "joint_offset", k, chain.joint_op[k], j.unit))
-    for name, op in chain.geometric.items():
-        out.append(Param(name, "link_length", int(name.split("_")[0][1:]) - 1, op, name.rsplit("_", 1)[1]))
-    for k, j in enumerate(chain.joints):
-        out.append(Param(f"{j.column}_gear_ratio_rel", "gear_ratio", k, chain.joint_op[k], "1"))
-    for k, j in enumerate(chain.joints):
-        if j.type == "revolute":
-            out.append(Param(f"{j.column}_compliance_deg_per_m", "gravity_compliance", k,
-                             chain.joint_op[k], "deg/m"))
+    for name, e in fx.CHAIN_EFFECTS.items():
+        use = e.chain
+        if use.joints == "geometric":
+            for pn, op in chain.geometric.items():
+                out.append(Param(pn, name, int(pn.split("_")[0][1:]) - 1, op, pn.rsplit("_", 1)[1]))
+            continue
+        for k, j in enumerate(chain.joints):
+            if use.joints == "revolute" and j.type != "revolute":
+                continue
+            out.append(Param(f"{j.column}_{use.stem.format(unit=j.unit)}", name, k,
+                             chain.joint_op[k], use.unit.format(unit=j.unit)))
     return out
 
 
@@ -116,6 +120,17 @@ class Data:
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
                     self.levers[keep])
+
+    def keep_points(self, keep: np.ndarray) -> "Data":
+        """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
+        if keep.all():
+            return self
+        poses = np.bincount(self.obs_pose[keep], minlength=self.n_poses) > 0
+        new = -np.ones(self.n_poses, dtype=np.int64)
+        new[poses] = np.arange(int(poses.sum()))
+        return Data(self.chain, self.readings[poses], new[self.obs_pose[keep]], self.obs_marker[keep],
+                    self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
+                    self.levers[poses])
 
     @property
     def n_poses(self) -> int:
@@ -441,10 +456,13 @@ def _t975(dof: int) -> float:
     return t_quantile(0.975, dof)
 
 
-def predict_rms(d: Data, f: Fit) -> tuple[float, float]:
-    """(rms, max) of the 3-D error of fit ``f`` on other poses ``d`` (registration kept)."""
+def predict_rms(d: Data, f: Fit, keep: np.ndarray | None = None) -> tuple[float, float]:
+    """(rms, max) of the 3-D error of fit ``f`` on other poses ``d`` (registration kept),
+    over the points ``keep`` marks (default all)."""
     y, _ = model(d, f.reg, f.params, f.values)
     e = d.xyz - y
+    if keep is not None:
+        e = e[keep]
     n = np.sqrt(np.sum(e * e, axis=1))
     return rms3(e), float(n.max()) if len(n) else math.nan
 

@@ -50,12 +50,13 @@ from typing import Sequence
 
 import numpy as np
 
+from cell.chain.fit import EFFECTS
 from cell.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth import verdict as vd
 from cell.truth.chain_campaign import MARKERS, make
 
-VOCABULARY = ("none", "joint_offset", "link_length", "gear_ratio", "gravity_compliance")
+VOCABULARY = ("none",) + EFFECTS    # the chain vocabulary, cell.chain.fit.EFFECTS
 OUTSIDE = ("lens", "reach_sag", "bump", "couple", "cyclic", "plane_bump")
 LAYOUTS = ("realistic", "uniform")
 TWO_SHARE = 0.25

@@ -4,7 +4,8 @@ the report's public keys (``unexplained``, ``cause.effect`` / ``joints`` / ``sub
 ``confidence``, ``remainder.depends_on``, ``chain``, ``source``).
 
 Order of the decision: unexplained first (a named cause that leaves most of the gap is
-not the answer), then none, then the cause's effect:
+not the answer), then none, then ambiguous, then the cause's effect: the action is the
+effect's own (``Effect.remedy``, or its chain one, in :mod:`cell.effects`). Today:
 
 - joint-level transmission (backlash, gear ratio, cyclic error) on the SCARA:
   ``cellctl calibrate joint jN`` (seed 004, the hand camera over a target);
@@ -23,9 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-#: seed 004 measures these per joint (cellctl calibrate joint)
-JOINT_LEVEL = ("backlash", "gear_ratio", "cyclic_error")
-GEOMETRIC = ("joint_offset", "link_length")
+from cell import effects as fx
+
 #: the joints ``cellctl calibrate joint`` accepts (the SCARA's rotary joints)
 CALIBRATABLE_JOINTS = ("j1", "j2", "j4")
 
@@ -69,28 +69,17 @@ def recommend(rep: dict) -> Action:
                       (), "", f"Add the {n} separating poses listed below to the campaign and "
                       "diagnose again." if n else "Add poses at places the campaign did not visit.")
     on = f" on {', '.join(joints)}" if joints else ""
-    if effect in JOINT_LEVEL and not chain:
-        js = [j for j in joints if j in CALIBRATABLE_JOINTS] or joints
-        return Action("calibrate_joint", f"Calibrate the joint: {effect.replace('_', ' ')}{on}.",
-                      tuple(f"cellctl calibrate joint {j}" for j in js), caveat)
-    if effect in GEOMETRIC or (chain and effect == "gear_ratio"):
-        cmd = f"cellctl calibrate kinematics {src}" if chain else "cellctl calibrate kinematics"
-        return Action("calibrate_kinematics", f"Calibrate the kinematics: "
-                      f"{effect.replace('_', ' ')}{on}.", (cmd,), caveat)
-    if effect == "thermal_drift":
-        return Action("thermal", "Calibrate the kinematics at working temperature, and keep the "
-                      "cell's temperature steady: the links grow with it.",
-                      ("cellctl calibrate kinematics",), caveat)
-    if cause.get("subsystem") == "vision" or effect.startswith("camera_"):
-        return Action("camera", f"Check the camera calibration ({effect.replace('_', ' ')}).",
-                      ("cellctl calibrate-camera --board board.yaml --images DIR --out cal.json",),
-                      caveat)
-    if effect == "comm_delay":
-        return Action("comms", "Check the joint stations' delays on the bus and the recipe's "
-                      "motion.sync (corrected or sync), then run a line to compare.",
-                      ("cellctl recipe show NAME",), caveat)
-    if effect == "gravity_compliance":
-        return Action("compliance", f"Check the drive and payload{on}: the joint gives way "
-                      "under the gravity load.", (), caveat)
-    return Action("investigate", f"Investigate {effect}{on}: no standard remedy is known.", (),
-                  caveat)
+    eff = fx.REGISTRY.get(effect)
+    remedy = eff.remedy_for(chain) if eff is not None else None
+    if remedy is None:
+        return Action("investigate", f"Investigate {effect}{on}: no standard remedy is known.",
+                      (), caveat)
+    cmds: list[str] = []
+    for c in remedy.commands:
+        if "{joint}" in c:
+            js = [j for j in joints if j in CALIBRATABLE_JOINTS] or joints
+            cmds += [c.format(joint=j) for j in js]
+        else:
+            cmds.append(c.format(src=src))
+    return Action(remedy.kind, remedy.text.format(what=effect.replace("_", " "), on=on),
+                  tuple(cmds), caveat)

@@ -2,15 +2,17 @@
 
 Every effect of :data:`cell.effects.EFFECTS` is tried, per joint where it acts on joints.
 An effect whose signature needs a variable the campaign does not vary is not identifiable
-and is not fitted (it is listed in the report with the reason):
+and is not fitted (it is listed in the report with the reason). What each effect needs is
+part of its definition (``Effect.needs``, requirements of :mod:`cell.effects.base`); this
+module only measures what the fit rows vary (:func:`layout`) and asks them. Today:
 
 * thermal_drift: a temp_c column whose spread (standard deviation over the fit rows) is at
-  least :data:`MIN_TEMP_SPREAD_C`; at a constant temperature thermal growth is a fixed
-  link-length error and cannot be told from link_length.
+  least 0.2 K; at a constant temperature thermal growth is a fixed link-length error and
+  cannot be told from link_length.
 * backlash on a joint: that joint must have been measured after motions in both
   directions (points' j*_dir, or moves running both ways).
 * gear_ratio / cyclic_error on a joint: the joint's commanded angle must span at least
-  :data:`MIN_ANGLE_SPAN_DEG` (a scale or periodic error over a tiny span is an offset).
+  20° (a scale or periodic error over a tiny span is an offset).
 * camera_scale / camera_rotation: model.yaml must give the camera centre.
 * comm_delay: paths.csv must hold moves in which the commands change.
 """
@@ -21,22 +23,14 @@ import numpy as np
 from cell import effects as fx
 from cell.diagnosis.fit import Candidate
 from cell.diagnosis.replay import DiagData
+from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG  # noqa: F401  (re-exported)
+from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C  # noqa: F401  (re-exported)
 
-MIN_TEMP_SPREAD_C = 0.2
-MIN_ANGLE_SPAN_DEG = 20.0
 
-
-def _fit_rows(d: DiagData):
+def layout(d: DiagData) -> fx.Layout:
+    """What the fit rows of ``d`` vary, for the effects' requirements."""
     p = d.points
-    return None if p is None else p.fit
-
-
-def single_candidates(d: DiagData) -> tuple[list[Candidate], dict[str, str]]:
-    """(candidates to fit, {label: reason} of those the data cannot identify)."""
-    out: list[Candidate] = []
-    skipped: dict[str, str] = {}
-    p = d.points
-    fit = _fit_rows(d)
+    fit = None if p is None else p.fit
     fit_moves = [m for m in d.moves if m.fit]
     angles = [p.cmd[fit] if p is not None else np.zeros((0, 2))] + [m.cmd for m in fit_moves]
     angles = np.concatenate(angles)
@@ -47,30 +41,21 @@ def single_candidates(d: DiagData) -> tuple[list[Candidate], dict[str, str]]:
     for m in fit_moves:
         for j in range(2):
             dirs_seen[j] |= set(np.unique(fx.path_directions(m.cmd, m.dirs0)[:, j]).tolist()) - {0.0}
+    temp = None if p is None or p.temp is None else np.asarray(p.temp[fit], float)
+    return fx.Layout(angles, (frozenset(dirs_seen[0]), frozenset(dirs_seen[1])), temp,
+                     d.center is not None,
+                     any(np.ptp(m.cmd, axis=0).max() > 0 for m in fit_moves))
+
+
+def single_candidates(d: DiagData) -> tuple[list[Candidate], dict[str, str]]:
+    """(candidates to fit, {label: reason} of those the data cannot identify)."""
+    out: list[Candidate] = []
+    skipped: dict[str, str] = {}
+    lay = layout(d)
     for name, eff in fx.EFFECTS.items():
         for joints in ([(j,) for j in eff.joints] if eff.per_joint else [()]):
             lab = f"{name}[{','.join(joints)}]" if joints else name
-            why = ""
-            ji = [fx.PLANAR_JOINTS.index(j) for j in joints]
-            if name == "thermal_drift":
-                if p is None or p.temp is None:
-                    why = "no temp_c column"
-                elif float(np.std(p.temp[fit])) < MIN_TEMP_SPREAD_C:
-                    why = (f"temperature spread {float(np.std(p.temp[fit])):.3f} K < "
-                           f"{MIN_TEMP_SPREAD_C} K: thermal growth cannot be told from link_length")
-            elif name == "backlash":
-                if dirs_seen[ji[0]] != {-1.0, 1.0}:
-                    why = f"{joints[0]} was never measured after motions in both directions"
-            elif name in ("gear_ratio", "cyclic_error"):
-                span = float(np.ptp(angles[:, ji[0]])) if len(angles) else 0.0
-                if span < MIN_ANGLE_SPAN_DEG:
-                    why = f"{joints[0]} spans {span:.1f}° < {MIN_ANGLE_SPAN_DEG}°"
-            elif eff.subsystem == "vision":
-                if d.center is None:
-                    why = "model.yaml gives no camera centre"
-            elif name == "comm_delay":
-                if not any(np.ptp(m.cmd, axis=0).max() > 0 for m in fit_moves):
-                    why = "no measured moves (paths.csv) in the fit rows"
+            why = eff.unidentifiable(lay, joints)
             if why:
                 skipped[lab] = why
             else:

@@ -12,8 +12,10 @@ of :mod:`cell.effects`:
     comms (λ_j = σ·k_j delay of the commanded path) → joint stage θ = a + Σ Δθ(a, dir)
     → link stage L = l + Σ Δl(T) → FK (seed 000 eq. 4) → camera similarity about c
 
-with, per effect, ∂Δθ/∂x and ∂Δθ/∂a (:data:`JOINT_DERIVS`), ∂Δl/∂x (:data:`LINK_DERIVS`)
-and the camera maps' derivatives. Backlash directions along a path follow the delayed
+with, per effect, the derivatives its definition carries (``Effect.deriv``, see
+:class:`cell.effects.Effect`): ∂Δθ/∂x and ∂Δθ/∂a (joint stage), ∂Δl/∂x and ∂Δl/∂T (link
+stage), the camera map and its derivative, the per-joint lags and theirs (comms); this
+module composes them and knows no effect by name. Backlash directions along a path follow the delayed
 command; they are piecewise constant in σ (derivative 0, as finite differences see it away
 from a reversal). The delayed command is the linear interpolation of the commanded samples,
 so ∂a/∂σ = −k_j·10⁻³·(slope of the segment that t − λ_j falls in), 0 where the command is
@@ -22,7 +24,7 @@ segment ending at t) is used. ``tests/cell/test_diagnosis_jacobian.py`` holds ev
 derivative to finite differences.
 
 Bad input is not checked here (the rows come from a validated campaign and the effects from
-:func:`cell.effects.make_effect`); an effect without a derivative raises KeyError.
+:func:`cell.effects.make_effect`); an effect without a derivative raises TypeError.
 """
 from __future__ import annotations
 
@@ -91,87 +93,9 @@ def rows_of(d: DiagData) -> Rows:
     return r
 
 
-# ------------------------------------------------------------------ per-effect derivatives
-# joint stage: f(x_full, jidx, a (n,2), dirs (n,2)) -> ([∂Δθ/∂x_i (n,2) per fitted param],
-#                                                      ∂ΣΔθ/∂a (n,2) diagonal, or None)
-def _d_offset(x, jidx, a, dirs):
-    cols = []
-    for j in jidx:
-        c = np.zeros_like(a)
-        c[:, j] = 1.0
-        cols.append(c)
-    return cols, None
-
-
-def _d_gear(x, jidx, a, dirs):
-    cols, dda = [], np.zeros_like(a)
-    for i, j in enumerate(jidx):
-        c = np.zeros_like(a)
-        c[:, j] = a[:, j]
-        cols.append(c)
-        dda[:, j] = x[i]
-    return cols, dda
-
-
-def _d_backlash(x, jidx, a, dirs):
-    cols = []
-    for j in jidx:
-        c = np.zeros_like(a)
-        c[:, j] = -0.5 * dirs[:, j]
-        cols.append(c)
-    return cols, None
-
-
-def _d_cyclic(x, jidx, a, dirs):
-    g = np.asarray(x, float).reshape(len(jidx), 3)
-    cols, dda = [], np.zeros_like(a)
-    for i, j in enumerate(jidx):
-        amp, ph, per = g[i]
-        arg = 2 * np.pi * a[:, j] / per + math.radians(ph)
-        s, c = np.sin(arg), np.cos(arg)
-        ca, cp = np.zeros_like(a), np.zeros_like(a)
-        ca[:, j] = s
-        cp[:, j] = amp * c * DEG
-        cols += [ca, cp]
-        dda[:, j] = amp * c * 2 * np.pi / per
-    return cols, dda
-
-
-JOINT_DERIVS = {"joint_offset": _d_offset, "gear_ratio": _d_gear, "backlash": _d_backlash,
-                "cyclic_error": _d_cyclic}
-
-
-# link stage: f(x_full, jidx, links (2,), temp (n,)) -> ([∂Δl/∂x_i (n,2)], ∂ΣΔl/∂T (n,2) or None)
-def _d_link(x, jidx, links, temp):
-    cols = []
-    for j in jidx:
-        c = np.zeros((len(temp), 2))
-        c[:, j] = 1.0
-        cols.append(c)
-    return cols, None
-
-
-def _d_thermal(x, jidx, links, temp):
-    alpha, t_ref = np.asarray(x, float)
-    return [(temp - t_ref)[:, None] * links[None, :]], np.tile(alpha * links, (len(temp), 1))
-
-
-LINK_DERIVS = {"link_length": _d_link, "thermal_drift": _d_thermal}
-VISION = ("camera_scale", "camera_rotation")
-COMMS = ("comm_delay",)
-
-
-def _rot(a_rad: float) -> np.ndarray:
-    return np.array([[math.cos(a_rad), -math.sin(a_rad)], [math.sin(a_rad), math.cos(a_rad)]])
-
-
 def _vision_map(e: fx.EffectInstance) -> tuple[np.ndarray, np.ndarray]:
-    """(M, ∂M/∂x) of one camera effect: m = c + M·(p − c)."""
-    v = float(e.full_vector()[0])
-    if e.effect == "camera_scale":
-        return (1.0 + v) * np.eye(2), np.eye(2)
-    a = math.radians(v)
-    return _rot(a), DEG * np.array([[-math.sin(a), -math.cos(a)], [math.cos(a), -math.sin(a)]])
+    """(M, ∂M/∂x) of one camera effect: m = c + M·(p − c) (its definition's ``deriv``)."""
+    return e.spec.deriv(e.full_vector())
 
 
 def _delay(r: Rows, lam_ms, want: bool):
@@ -228,8 +152,10 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
     if (comms or lags_ms is not None) and r.n_path:
         if len(comms) + (lags_ms is not None) > 1:
             raise ValueError("at most one comms effect (or lags)")
-        lam = (np.asarray(lags_ms, float) if lags_ms is not None
-               else float(comms[0].full_vector()[0]) * r.order)
+        if lags_ms is not None:
+            lam = np.asarray(lags_ms, float)
+        else:
+            lam, dlam_dx = comms[0].spec.deriv(comms[0].full_vector(), r.order)
         ap, dp, dd = _delay(r, lam, jac)
         a = np.vstack([r.cmd[:npt], ap])
         dirs = np.vstack([r.dirs[:npt], dp])
@@ -250,14 +176,13 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
         x = e.full_vector()
         theta += e.spec.fn(x, e.jidx, a, dirs)
         if jac:
-            cols, dda = JOINT_DERIVS[e.effect](x, e.jidx, a, dirs)
+            cols, dda = e.spec.deriv(x, e.jidx, a, dirs)
             for i, c in enumerate(cols):
                 col[k0 + i] = ("theta", c)
             if dda is not None:
                 dth_da += dda
     # stage 3: links
-    thermal = next((e for e in effects if e.effect == "thermal_drift"), None)
-    t_ref = thermal.params["thermal_ref_temp_c"] if thermal else 20.0
+    t_ref = fx.reference_temp_c(effects)
     temp = np.empty(n)
     temp[:npt] = r.temp if r.temp is not None else t_ref
     temp[npt:] = t_ref if path_temp_c is None else path_temp_c
@@ -269,7 +194,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
         x = e.full_vector()
         L += e.spec.fn(x, e.jidx, r.links, temp)
         if jac:
-            cols, dT = LINK_DERIVS[e.effect](x, e.jidx, r.links, temp)
+            cols, dT = e.spec.deriv(x, e.jidx, r.links, temp)
             for i, c in enumerate(cols):
                 col[k0 + i] = ("link", c)
             if dT is not None:
@@ -314,7 +239,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
         J[:, :, i] = c
     for e, k0 in zip(effects, starts):
         if e.spec.stage == "comms" and da_dlam is not None:
-            J[:, :, k0] = through_theta(dth_da * da_dlam * r.order)
+            J[:, :, k0] = through_theta(dth_da * da_dlam * dlam_dx)
     nxt = k
     if with_path_temp:
         dT = np.zeros((n, 2))
@@ -330,6 +255,5 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
 
 
 def coverage_check() -> list[str]:
-    """Vocabulary effects without a derivative here (a test keeps this empty)."""
-    have = set(JOINT_DERIVS) | set(LINK_DERIVS) | set(VISION) | set(COMMS)
-    return [n for n in fx.EFFECTS if n not in have]
+    """Planar vocabulary effects without a derivative (a test keeps this empty)."""
+    return [n for n, e in fx.EFFECTS.items() if e.deriv is None]

@@ -271,8 +271,7 @@ def predict(d: DiagData, effects: Sequence[fx.EffectInstance], path_temp_c: floa
     temperature of a thermal_drift effect among ``effects``, i.e. no thermal growth).
     """
     effects = list(effects)
-    thermal = next((e for e in effects if e.effect == "thermal_drift"), None)
-    t_ref = thermal.params["thermal_ref_temp_c"] if thermal else 20.0
+    t_ref = fx.reference_temp_c(effects)
     cmd, dirs, temp = [], [], []
     if d.points is not None:
         cmd.append(d.points.cmd)

@@ -9,20 +9,25 @@ computed from per-table Gram matrices (AᵀA, Aᵀr, rᵀr of the points and of 
 samples), so a candidate costs a k×k solve whatever the number of rows. The weights follow
 the profile likelihood of :mod:`.fit` (each table its own σ; three reweighting rounds).
 
-Two reparametrisations make the linearisation exact in the parameters:
+An effect is linearised by its first fitted parameter at zero size, unless its definition
+declares a linear parametrisation (:class:`cell.effects.Linear`); this module names no
+effect. Today two effects declare one, which makes the linearisation exact in the
+parameters:
 
-* cyclic error a·sin(2π·k·θ/360 + φ) = c·sin(kθ) + s·cos(kθ): two linear columns per
-  harmonic order k of :data:`ORDERS`; a = √(c² + s²), φ = atan2(s, c);
-* thermal drift with moves: α·l·(T − T_ref) on the points and β·l on the path samples
-  (β = α·(T_path − T_ref), the path temperature being a nuisance).
+* cyclic error a·sin(2π·k·θ/360 + φ) = c·sin(kθ) + s·cos(kθ): two probe columns per
+  harmonic order k of its ``orders`` (:data:`ORDERS`); a = √(c² + s²), φ = atan2(s, c);
+* thermal drift with moves (``path_nuisance``): α·l·(T − T_ref) on the points and β·l on
+  the path samples (β = α·(T_path − T_ref), the path temperature being a nuisance).
 
 Bounds (backlash width and comm delay ≥ 0, the thermal expansion's range) are kept by
-holding a parameter that leaves its bound at the bound and solving for the others.
+holding a parameter that leaves its bound at the bound and solving for the others; probe
+and nuisance columns are unbounded.
 
-Harmonic order of a cyclic error: every order of :data:`ORDERS` is screened per joint (all
-combinations when a candidate carries the error on both joints) and the best kept; the
-others' Δ(−2 ln L) is its evidence (:func:`order_evidence`). Choosing among the orders
-costs ``2·ln(len(ORDERS))`` in BIC per joint (a uniform prior over the orders).
+Harmonic order (an effect with ``orders``, today the cyclic error): every order is
+screened per joint (all combinations when a candidate carries the effect on both joints)
+and the best kept; the others' Δ(−2 ln L) is its evidence (:func:`order_evidence`).
+Choosing among the orders costs ``2·ln(number of orders)`` in BIC per joint (a uniform
+prior over the orders).
 :func:`order_separation` says from the layout alone (the angles of the fit rows) whether
 two orders can be told apart at all: the largest canonical correlation between their
 response columns, against :data:`cell.diagnosis.fit.MAX_CORR`.
@@ -39,7 +44,8 @@ from cell import effects as fx
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 
-ORDERS = (1, 2, 3, 4)
+#: the harmonic orders screened (those of the effect that declares orders: the cyclic error)
+ORDERS = next(e.linear.orders for e in fx.EFFECTS.values() if e.linear and e.linear.orders)
 ORDER_COST = 2.0 * math.log(len(ORDERS))
 ROUNDS = 3
 
@@ -85,35 +91,45 @@ class Basis:
     fold_table: list = field(default_factory=list)
 
 
+def _orders(name: str) -> tuple[int, ...]:
+    lin = fx.EFFECTS[name].linear
+    return lin.orders if lin is not None else ()
+
+
 def _instances(name: str, joint: str | None, order: int | None):
-    """Linearisation points (zero effect) whose first fitted column is the response."""
+    """Linearisation points (zero effect) whose first fitted column is the response: the
+    effect's declared probes (:class:`cell.effects.Linear`) at ``order``, else the
+    zero-sized effect."""
     eff = fx.EFFECTS[name]
     joints = (joint,) if joint else ()
-    if name == "cyclic_error":
-        out = []
-        for ph in (0.0, 90.0):       # ∂/∂amp at amp 0: J·sin(kθ), then J·cos(kθ)
-            out.append(fx.make_effect(name, joints, {f"{joint}_cyclic_amp_deg": 0.0,
-                                                     f"{joint}_cyclic_phase_deg": ph,
-                                                     f"{joint}_cyclic_period_deg": 360.0 / order}))
-        return out
-    return [eff.zero(joints)]
+    lin = eff.linear
+    if lin is None or not lin.probes:
+        return [eff.zero(joints)]
+    pre = f"{joint}_" if eff.per_joint else ""
+    base = dict(eff.zero(joints).params)
+    at = lin.at_order(order) if order is not None and lin.at_order else {}
+    out = []
+    for probe in lin.probes:
+        set_ = {pre + k: v for k, v in {**at, **probe}.items()}
+        out.append(fx.make_effect(name, joints, {**base, **set_}))
+    return out
 
 
 def keys_of(c) -> list[list[Key]]:
     """The column keys of candidate ``c`` per harmonic variant: a list (one per combination
     of orders) of key lists."""
     fixed: list[Key] = []
-    cyc: list[str] = []
+    ordered: list[tuple[str, str]] = []
     for name, joints in c:
-        if name == "cyclic_error":
-            cyc += list(joints)
+        if _orders(name):
+            ordered += [(name, j) for j in joints]
         elif joints:
             fixed += [(name, j, None) for j in joints]
         else:
             fixed.append((name, None, None))
     out = []
-    for ks in itertools.product(ORDERS, repeat=len(cyc)):
-        out.append(fixed + [("cyclic_error", j, k) for j, k in zip(cyc, ks)])
+    for ks in itertools.product(*[_orders(n) for n, _ in ordered]):
+        out.append(fixed + [(n, j, k) for (n, j), k in zip(ordered, ks)])
     return out
 
 
@@ -139,18 +155,20 @@ def responses(row_sets, keys: list[Key], has_paths: bool):
             insts.append(inst)
             where_col.append((key, pos))
             pos += len(inst.fit_names)
-            if key[0] == "thermal_drift":
-                t_ref = inst.params["thermal_ref_temp_c"]
+            lin = inst.spec.linear
+            if lin is not None and lin.path_nuisance:
+                t_ref = inst.params[lin.path_nuisance]
     tp = t_ref + 1.0      # a path temperature 1 K above the reference: β's column
     Js = [evaluate(rows, insts, tp, jac=True)[1] for rows in row_sets]
     cols: dict = {}
     lo, hi, nuis = [], [], set()
     takes: list[list] = [[] for _ in row_sets]
     for key, p in where_col:
-        name = key[0]
-        spec = fx.EFFECTS[name].params[0]
+        eff = fx.EFFECTS[key[0]]
+        spec, lin = eff.params[0], eff.linear
+        probed = lin is not None and bool(lin.probes)
         parts = [None]
-        if name == "thermal_drift":
+        if lin is not None and lin.path_nuisance:
             parts = ["points", "paths"] if has_paths else ["points"]
         for part in parts:
             if part == "paths":
@@ -165,7 +183,7 @@ def responses(row_sets, keys: list[Key], has_paths: bool):
                     a = a.copy()
                     a[:rows.n_points] = 0.0
                 take.append(a)
-            b = (-math.inf, math.inf) if name == "cyclic_error" or part == "paths" else spec.bounds
+            b = (-math.inf, math.inf) if probed or part == "paths" else spec.bounds
             lo.append(b[0])
             hi.append(b[1])
     As = [np.stack(take, axis=2) if take else np.zeros((rows.n, 2, 0))
@@ -316,11 +334,11 @@ def _batch(B: Basis, items: list[tuple]) -> list[Screened]:
     out = []
     lnn = math.log(max(B.n_total, 2))
     for v, (c, keys) in enumerate(items):
-        n_cyc = sum(1 for k in keys if k[0] == "cyclic_error")
+        cost = sum(2.0 * math.log(len(_orders(kk[0]))) for kk in keys if kk[2] is not None)
         k = S.shape[1]
         out.append(Screened(c, keys, x[v], (float(rss[v, 0]), float(rss[v, 1])), (0.0, 0.0),
-                            float(n2[v]), float(n2[v]) + k * lnn + ORDER_COST * n_cyc, k,
-                            orders={kk[1]: kk[2] for kk in keys if kk[0] == "cyclic_error"},
+                            float(n2[v]), float(n2[v]) + k * lnn + cost, k,
+                            orders={kk[1]: kk[2] for kk in keys if kk[2] is not None},
                             weights=(float(w[v, 0]), float(w[v, 1])), S=list(S[v])))
     return out
 
@@ -427,35 +445,32 @@ def params_of(B: Basis, s: Screened) -> tuple[list[tuple[str, tuple, dict]], flo
     comps, tp = [], None
     for name, joints in s.candidate:
         eff = fx.EFFECTS[name]
+        lin = eff.linear
+        fitted = [p.stem for p in eff.params if p.fitted]
         params: dict[str, float] = {}
-        if name == "cyclic_error":
-            for j in joints:
-                k = s.orders[j]
-                cs, cc = coef[(name, j, k)]
-                params[f"{j}_cyclic_amp_deg"] = math.hypot(cs, cc)
-                params[f"{j}_cyclic_phase_deg"] = math.degrees(math.atan2(cc, cs)) % 360.0
-                params[f"{j}_cyclic_period_deg"] = 360.0 / k
-        elif name == "thermal_drift":
-            v = coef[(name, None, None)]
-            alpha = float(v[0])
-            params["thermal_expansion_per_k"] = alpha
-            params["thermal_ref_temp_c"] = B.t_ref
-            if len(v) > 1:
-                t0 = B.point_temp_mean if B.point_temp_mean is not None else B.t_ref
-                tp = B.t_ref + float(v[1]) / alpha if abs(alpha) > 1e-9 else t0
-        elif joints:
-            for j in joints:
-                params[eff.param_names((j,))[0]] = float(coef[(name, j, None)][0])
-        else:
-            params[eff.param_names(())[0]] = float(coef[(name, None, None)][0])
+        for j in (joints or (None,)):
+            pre = f"{j}_" if j else ""
+            order = s.orders.get(j) if _orders(name) else None
+            v = coef[(name, j, order)]
+            if lin is not None and lin.to_params is not None:
+                stems = lin.to_params(v, order)
+            else:
+                stems = {fitted[0]: float(v[0]), **eff.constants()}
+            if lin is not None and lin.path_nuisance:
+                stems[lin.path_nuisance] = B.t_ref
+                if len(v) > 1:
+                    alpha = float(v[0])
+                    t0 = B.point_temp_mean if B.point_temp_mean is not None else B.t_ref
+                    tp = B.t_ref + float(v[1]) / alpha if abs(alpha) > 1e-9 else t0
+            params.update({pre + k: val for k, val in stems.items()})
         comps.append((name, tuple(joints), params))
     return comps, tp
 
 
 def start_params(B: Basis, s: Screened) -> tuple[list[fx.EffectInstance], float | None]:
-    """Effect instances (strictly inside their bounds; a cyclic amplitude at least the low
-    end of its typical range, so its phase has a gradient) and the path temperature from a
-    screened solution: the full fit's starting point."""
+    """Effect instances (strictly inside their bounds, or inside a parameter's declared
+    ``start`` range: e.g. a cyclic amplitude off 0, so its phase has a gradient) and the
+    path temperature from a screened solution: the full fit's starting point."""
     comps, tp = params_of(B, s)
     insts = []
     for name, joints, params in comps:
@@ -464,9 +479,7 @@ def start_params(B: Basis, s: Screened) -> tuple[list[fx.EffectInstance], float 
             ps = eff.spec_of(pn)
             if not ps.fitted:
                 continue
-            lo, hi = ps.bounds
-            if pn.endswith("cyclic_amp_deg"):
-                lo, hi = ps.typical[0], 0.9 * hi
+            lo, hi = ps.start if ps.start is not None else ps.bounds
             span = (hi - lo) if math.isfinite(hi - lo) else 1.0
             params[pn] = float(np.clip(params[pn], lo + 1e-6 * span, hi - 1e-6 * span))
         insts.append(fx.make_effect(name, joints, params))
@@ -477,13 +490,16 @@ def start_params(B: Basis, s: Screened) -> tuple[list[fx.EffectInstance], float 
 
 def order_separation(B: Basis, joint: str) -> tuple[float, tuple[int, int]]:
     """The largest canonical correlation between the response columns of two harmonic
-    orders of a cyclic error on ``joint`` over the fit rows, and that pair of orders."""
+    orders of an effect with orders (the cyclic error) on ``joint`` over the fit rows, and
+    that pair of orders."""
     tp, tq = B.fit
     G = tp.G + tq.G
     worst, pair = 0.0, (0, 0)
-    ks = [k for k in ORDERS if ("cyclic_error", joint, k) in B.cols]
-    for a, b in itertools.combinations(ks, 2):
-        ia, ib = B.cols[("cyclic_error", joint, a)], B.cols[("cyclic_error", joint, b)]
+    keys = sorted((key for key in B.cols if key[1] == joint and key[2] is not None),
+                  key=lambda key: key[2])
+    for ka, kb in itertools.combinations(keys, 2):
+        a, b = ka[2], kb[2]
+        ia, ib = B.cols[ka], B.cols[kb]
         try:
             La = np.linalg.cholesky(G[np.ix_(ia, ia)])
             Lb = np.linalg.cholesky(G[np.ix_(ib, ib)])

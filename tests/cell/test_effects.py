@@ -256,3 +256,42 @@ def test_least_squares_recovers_a_backlash_and_an_offset():
                         bounds=(np.r_[start[0].bounds()[0], start[1].bounds()[0]],
                                 np.r_[start[0].bounds()[1], start[1].bounds()[1]]))
     assert np.allclose(fit.x, [0.03, 0.07], atol=1e-7)
+
+
+# ------------------------------------------------------------------ one definition per effect
+def test_every_effect_is_one_complete_definition():
+    for name, e in fx.REGISTRY.items():
+        assert e.subsystem in fx.SUBSYSTEMS and e.remedy is not None, name
+        assert set(e.mimics) <= set(fx.EFFECTS), name
+        if e.planar:
+            assert e.deriv is not None and e.stage in fx.STAGES, name
+    assert "gravity_compliance" not in fx.EFFECTS                # chain only
+    assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio",
+                                      "gravity_compliance"]
+
+
+def test_the_chain_vocabulary_comes_from_the_registry():
+    from cell.chain import fit as chain_fit
+    assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
+    assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
+                                   "gear_ratio": "transmission",
+                                   "gravity_compliance": "transmission"}
+    assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
+                                    "gear_ratio": "angle", "gravity_compliance": "position"}
+
+
+def test_requirements_say_what_the_layout_lacks():
+    angles = np.column_stack([np.linspace(0, 10, 20), np.linspace(0, 90, 20)])
+    lay = fx.Layout(angles, (frozenset({1.0}), frozenset({-1.0, 1.0})), None, False, False)
+    E = fx.EFFECTS
+    assert E["gear_ratio"].unidentifiable(lay, ["j1"]) == "j1 spans 10.0° < 20.0°"
+    assert E["cyclic_error"].unidentifiable(lay, ["j2"]) == ""
+    assert E["backlash"].unidentifiable(lay, ["j1"]) == \
+        "j1 was never measured after motions in both directions"
+    assert E["backlash"].unidentifiable(lay, ["j2"]) == ""
+    assert E["thermal_drift"].unidentifiable(lay) == "no temp_c column"
+    assert E["camera_scale"].unidentifiable(lay) == "model.yaml gives no camera centre"
+    assert E["comm_delay"].unidentifiable(lay) == "no measured moves (paths.csv) in the fit rows"
+    steady = fx.Layout(angles, lay.directions, np.full(20, 21.0), True, True)
+    assert E["thermal_drift"].unidentifiable(steady).startswith("temperature spread 0.000 K < 0.2 K")
+    assert E["camera_rotation"].unidentifiable(steady) == E["comm_delay"].unidentifiable(steady) == ""

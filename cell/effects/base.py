@@ -1,0 +1,343 @@
+"""What one effect definition is made of: :class:`Effect` and the small declarative pieces
+it carries (:class:`ParamSpec`, the identifiability requirements, :class:`Remedy`,
+:class:`OnChain`, :class:`Linear`). Pure; no I/O.
+
+An effect is defined once, in its own module of this package (``cell/effects/<name>.py``),
+and listed in :mod:`cell.effects.vocabulary`. Everything else reads the definition: the
+plant and the replay call ``fn``; the fitter's Jacobian (:mod:`cell.diagnosis.jacobian`)
+calls ``deriv``; the candidate check (:mod:`cell.diagnosis.candidates`) asks each of
+``needs`` whether a campaign can identify it; the screening (:mod:`cell.diagnosis.screen`)
+reads ``linear``; the recommended action (:mod:`cell.diagnosis.action`) is ``remedy``; the
+chain fitter (:mod:`cell.chain.fit`) takes its vocabulary, subsystems and ``depends_on``
+from the effects with ``chain``. See ``docs/adding-an-effect.md``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+PLANAR_JOINTS = ("j1", "j2")
+SUBSYSTEMS = ("kinematics", "transmission", "thermal", "vision", "comms")
+STAGES = ("joint", "link", "vision", "comms")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of an effect.
+
+    ``stem`` is the full name for effects on no joint and gets a ``<joint>_`` prefix for
+    per-joint effects. ``bounds`` are hard limits (outside: ConfigError; a fitter can pass
+    them to least_squares). ``typical`` is the magnitude range for random draws; ``signed``
+    draws take a random sign. ``fitted=False`` marks a known constant (``default``) that a
+    fitter holds fixed. ``start`` (optional) is the range a full fit's starting value is
+    clipped into (e.g. an amplitude kept off 0 so its phase has a gradient).
+    """
+
+    stem: str
+    unit: str
+    doc: str
+    bounds: tuple[float, float]
+    typical: tuple[float, float]
+    signed: bool = True
+    fitted: bool = True
+    default: float | None = None
+    start: tuple[float, float] | None = None
+
+
+# ------------------------------------------------------------------ identifiability
+@dataclass(frozen=True)
+class Layout:
+    """What the fit rows of a campaign vary, as the requirements read it (the diagnosis
+    builds it from its data): ``angles`` (n,2) deg the commanded joint angles of the fit
+    points and fit path samples; ``directions`` per joint the signs of last motion seen
+    (−1, +1); ``temp`` (n_points,) °C of the fit points or None without a temp_c column;
+    ``has_center`` the model gives the camera centre; ``moving`` the fit rows hold moves
+    whose commands change."""
+
+    angles: np.ndarray
+    directions: tuple[frozenset, frozenset]
+    temp: np.ndarray | None
+    has_center: bool
+    moving: bool
+
+
+class Requirement:
+    """One thing a campaign must vary for an effect to be identifiable. ``why(layout,
+    jidx, joints, params)`` is '' when it holds, else the reason (one short phrase, for the
+    report's ``not_identifiable``). ``jidx`` / ``joints`` the candidate's joints (0-based /
+    names, empty for effects on no joint); ``params`` the effect's constants by stem."""
+
+    def why(self, layout: Layout, jidx: Sequence[int], joints: Sequence[str],
+            params: Mapping[str, float]) -> str:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class TempSpread(Requirement):
+    """A temp_c column whose spread (standard deviation over the fit points) is at least
+    ``min_k``; ``otherwise`` says what the effect then looks like."""
+
+    min_k: float
+    otherwise: str
+
+    def why(self, layout, jidx, joints, params):
+        if layout.temp is None:
+            return "no temp_c column"
+        sd = float(np.std(layout.temp))
+        return "" if sd >= self.min_k else \
+            f"temperature spread {sd:.3f} K < {self.min_k} K: {self.otherwise}"
+
+
+@dataclass(frozen=True)
+class BothDirections(Requirement):
+    """The joint was measured after motions in both directions (points' jK_dir, or moves
+    running both ways)."""
+
+    def why(self, layout, jidx, joints, params):
+        return "" if layout.directions[jidx[0]] == {-1.0, 1.0} else \
+            f"{joints[0]} was never measured after motions in both directions"
+
+
+@dataclass(frozen=True)
+class AngleSpan(Requirement):
+    """The joint's commanded angle spans at least ``min_deg`` over the fit rows (a scale or
+    slow periodic error over a tiny span is an offset)."""
+
+    min_deg: float
+
+    def why(self, layout, jidx, joints, params):
+        span = float(np.ptp(layout.angles[:, jidx[0]])) if len(layout.angles) else 0.0
+        return "" if span >= self.min_deg else \
+            f"{joints[0]} spans {span:.1f}° < {self.min_deg}°"
+
+
+@dataclass(frozen=True)
+class PhaseCoverage(Requirement):
+    """The joint's fit rows sample a short known period densely: with the phase
+    ψ = 2π·θ_cmd·``per_rev``/360° (``per_rev`` the stem of the constant giving the periods
+    per joint revolution), the covariance of (sin ψ, cos ψ) over the fit rows has its
+    smaller eigenvalue at least ``min_share`` × ½ (½ is what evenly spread phases give).
+    Then sin ψ and cos ψ are told from each other and from a constant (an offset). It
+    fails for a joint that stays put, for angles that all sit at the same phase or at two
+    opposite ones (a fixed step of a whole or half period, as a stepped sweep can be), and
+    for a span much shorter than one period."""
+
+    per_rev: str
+    min_share: float = 0.5
+
+    def why(self, layout, jidx, joints, params):
+        a = layout.angles[:, jidx[0]] if len(layout.angles) else np.zeros(0)
+        n = float(params[self.per_rev])
+        if len(a) < 3:
+            return f"{joints[0]} has {len(a)} fit rows: a period of {360.0 / n:.3g}° needs 3"
+        psi = np.radians(a * n)
+        lam = float(np.linalg.eigvalsh(np.cov(np.vstack([np.sin(psi), np.cos(psi)]),
+                                              bias=True))[0])
+        return "" if lam >= 0.5 * self.min_share else \
+            (f"{joints[0]}'s angles sample the {360.0 / n:.3g}° period too sparsely "
+             f"(phase spread {lam / 0.5:.2f} < {self.min_share})")
+
+
+@dataclass(frozen=True)
+class CameraCentre(Requirement):
+    """model.yaml gives the camera centre (the camera maps act about it)."""
+
+    def why(self, layout, jidx, joints, params):
+        return "" if layout.has_center else "model.yaml gives no camera centre"
+
+
+@dataclass(frozen=True)
+class MovingCommands(Requirement):
+    """The fit rows hold measured moves (paths.csv) whose commands change."""
+
+    def why(self, layout, jidx, joints, params):
+        return "" if layout.moving else "no measured moves (paths.csv) in the fit rows"
+
+
+# ------------------------------------------------------------------ what to do
+@dataclass(frozen=True)
+class Remedy:
+    """The action to recommend when the effect is the cause: ``kind`` (calibrate_joint,
+    calibrate_kinematics, thermal, camera, comms, compliance), ``text`` with ``{what}``
+    (the effect's name, spaced) and ``{on}`` (" on j1, j2" or ""), ``commands`` with
+    ``{joint}`` (one command per joint ``cellctl calibrate joint`` accepts) or ``{src}``
+    (the campaign)."""
+
+    kind: str
+    text: str
+    commands: tuple[str, ...] = ()
+
+
+CALIBRATE_JOINT = Remedy("calibrate_joint", "Calibrate the joint: {what}{on}.",
+                         ("cellctl calibrate joint {joint}",))   # seed 004, per joint
+CALIBRATE_KINEMATICS = Remedy("calibrate_kinematics", "Calibrate the kinematics: {what}{on}.",
+                              ("cellctl calibrate kinematics",))
+CALIBRATE_CHAIN = Remedy("calibrate_kinematics", "Calibrate the kinematics: {what}{on}.",
+                         ("cellctl calibrate kinematics {src}",))
+
+
+@dataclass(frozen=True)
+class OnChain:
+    """How the effect applies to a serial chain (:mod:`cell.chain.fit`): its parameters per
+    joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
+    ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
+    origin parameter names. ``unit`` the parameter's unit (``{unit}``: the joint's).
+    ``remedy`` replaces the planar one on a chain."""
+
+    joints: str
+    stem: str = ""
+    unit: str = "{unit}"
+    remedy: Remedy | None = None
+
+
+# ------------------------------------------------------------------ screening
+@dataclass(frozen=True)
+class Linear:
+    """How the screening linearises the effect, when not simply by its own (first) fitted
+    parameter at zero size.
+
+    ``probes``: per joint, one response column per probe; each probe is a zero-sized
+    instance with these parameters or constants (by stem), whose first fitted parameter's
+    derivative is the column. ``orders`` lets the screening try each harmonic order k and
+    keep the best; ``at_order(k)`` gives the constants (by stem) of order k.
+    ``to_params(coefs (ncol,), k or None) -> {stem: value}`` maps the fitted coefficients
+    back to the effect's parameters (constants included). ``path_nuisance``: the stem of a
+    reference temperature constant; the effect's response on the path samples (which carry
+    no temperature) gets a column of its own, a nuisance β = (first parameter)·(T_path −
+    reference), from which the path temperature follows."""
+
+    probes: tuple[Mapping[str, float], ...] = ()
+    to_params: Callable[[np.ndarray, int | None], dict] | None = None
+    orders: tuple[int, ...] = ()
+    at_order: Callable[[int], dict] | None = None
+    path_nuisance: str | None = None
+
+
+# ------------------------------------------------------------------ the definition
+@dataclass(frozen=True)
+class Effect:
+    """One effect of the vocabulary.
+
+    ``joints`` lists the joints it may act on (``()`` for none); ``per_joint`` effects take
+    one set of ``params`` per chosen joint. ``stage`` says which signature ``fn`` (the
+    forward function) and ``deriv`` (its analytic derivative) have:
+
+    * ``joint``:  ``fn(x, jidx, cmd_deg (N,2), dirs (N,2)) -> Δθ_deg (N,2)``;
+      ``deriv(...) -> ([∂Δθ/∂x_i (N,2) per fitted parameter], ∂Δθ/∂cmd (N,2) diagonal or None)``
+    * ``link``:   ``fn(x, jidx, links_mm (2,), temp_c (N,)) -> Δl_mm (N,2)``;
+      ``deriv(...) -> ([∂Δl/∂x_i (N,2)], ∂Δl/∂T (N,2) or None)``
+    * ``vision``: ``fn(x, xy_mm (N,2), center_mm (2,)) -> measured xy_mm (N,2)``, a linear map
+      about the centre; ``deriv(x) -> (M (2,2), ∂M/∂x (2,2))`` with m = c + M·(p − c)
+    * ``comms``:  ``fn(x, order (2,), time_s (N,), cmd_deg (N,2)) -> cmd the joints had (N,2)``;
+      ``deriv(x, order) -> (λ_ms (2,), ∂λ/∂x (2,))``: joint j runs λ_j ms late
+
+    ``x`` is the instance's full parameter vector (fixed ones included) in
+    :meth:`param_names` order; ``jidx`` the 0-based joint indices. An effect with
+    ``fn=None`` is not planar (``chain`` only).
+
+    ``needs``: the :class:`Requirement` s a campaign must meet for the effect to be fitted.
+    ``mimics``: the effects whose fit stands in for this one when the campaign lacks what
+    identifies it (thermal drift without a temperature column looks like longer links;
+    backlash without directions like any error of its joint). Such an effect cannot be
+    tested, but it stays a rival of a cause that names one of them on its joints.
+    ``remedy`` the recommended action; ``chain`` how it applies to a serial chain (None: it
+    does not); ``linear`` its screening parametrisation (None: its own parameters).
+    """
+
+    name: str
+    subsystem: str
+    stage: str
+    joints: tuple[str, ...]
+    per_joint: bool
+    params: tuple[ParamSpec, ...]
+    depends_on: str
+    summary: str
+    fn: Callable[..., np.ndarray] | None = field(default=None, repr=False)
+    deriv: Callable | None = field(default=None, repr=False)
+    mimics: tuple[str, ...] = ()
+    needs: tuple[Requirement, ...] = ()
+    remedy: Remedy | None = None
+    chain: OnChain | None = None
+    linear: Linear | None = None
+
+    @property
+    def planar(self) -> bool:
+        """Part of the planar (SCARA) vocabulary."""
+        return self.fn is not None
+
+    def remedy_for(self, chain: bool) -> Remedy | None:
+        """The remedy on a chain (its own if it gives one) or on the SCARA."""
+        if chain and self.chain is not None and self.chain.remedy is not None:
+            return self.chain.remedy
+        return self.remedy
+
+    def param_names(self, joints: Sequence[str] = ()) -> list[str]:
+        """Full parameter names for ``joints`` (joint-major, then spec order)."""
+        if not self.per_joint:
+            return [p.stem for p in self.params]
+        return [f"{j}_{p.stem}" for j in joints for p in self.params]
+
+    def spec_of(self, name: str) -> ParamSpec:
+        """The :class:`ParamSpec` behind full parameter ``name``."""
+        stem = name.split("_", 1)[1] if self.per_joint else name
+        return next(p for p in self.params if p.stem == stem)
+
+    def constants(self) -> dict[str, float]:
+        """The known constants by stem, at their default."""
+        return {p.stem: float(p.default) for p in self.params if not p.fitted}
+
+    def unidentifiable(self, layout: Layout, joints: Sequence[str] = ()) -> str:
+        """'' if a campaign of ``layout`` can identify the effect on ``joints``, else the
+        first unmet requirement's reason."""
+        jidx = [PLANAR_JOINTS.index(j) for j in joints]
+        for req in self.needs:
+            why = req.why(layout, jidx, list(joints), self.constants())
+            if why:
+                return why
+        return ""
+
+    def zero(self, joints: Sequence[str] = ()):
+        """A zero-sized instance (fitted parameters 0, constants at their default): no effect."""
+        return self._build(joints, lambda s: 0.0)
+
+    def guess(self, joints: Sequence[str] = ()):
+        """A starting point for a bounded fit: signed parameters 0, unsigned ones at the low
+        end of their typical range (strictly inside the bounds: least_squares' trf stalls
+        when x0 sits on a bound), constants at their default."""
+        return self._build(joints, lambda s: 0.0 if s.signed else s.typical[0])
+
+    def draw(self, rng: np.random.Generator, joints: Sequence[str] = ()):
+        """A random instance: each fitted parameter uniform in its ``typical`` range, with a
+        random sign if ``signed``; constants at their default."""
+        def pick(s: ParamSpec) -> float:
+            v = float(rng.uniform(*s.typical))
+            return v * float(rng.choice((-1.0, 1.0))) if s.signed else v
+        return self._build(joints, pick)
+
+    def _build(self, joints, pick):
+        from cell.effects.instances import make_effect
+        specs = {n: self.spec_of(n) for n in self.param_names(joints)}
+        return make_effect(self.name, joints,
+                           {n: (pick(s) if s.fitted else s.default) for n, s in specs.items()})
+
+
+def grid(x, jidx: Sequence[int], n_stems: int) -> np.ndarray:
+    """A per-joint effect's full vector as (joints, stems)."""
+    return np.asarray(x, dtype=float).reshape(len(jidx), n_stems)
+
+
+def unit_columns(jidx: Sequence[int], n: int) -> list[np.ndarray]:
+    """One (n,2) column per joint of ``jidx``, 1 in that joint's column: ∂/∂(a per-joint
+    additive term)."""
+    cols = []
+    for j in jidx:
+        c = np.zeros((n, 2))
+        c[:, j] = 1.0
+        cols.append(c)
+    return cols
+
+
+INF = math.inf

@@ -1,0 +1,34 @@
+"""camera_rotation: camera rotated about its centre (format: m = c + R(φ)·(p − c))."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cell.effects.base import CameraCentre, Effect, ParamSpec
+from cell.effects.camera_scale import CHECK_CAMERA
+
+
+def _rot(a_rad: float) -> np.ndarray:
+    return np.array([[math.cos(a_rad), -math.sin(a_rad)], [math.sin(a_rad), math.cos(a_rad)]])
+
+
+def camera_rotation(x, xy_mm, center_mm):
+    """Camera rotation error φ (deg) about the camera centre c: m = c + R(φ)·(p − c)."""
+    c = np.asarray(center_mm, dtype=float)
+    return c + (xy_mm - c) @ _rot(math.radians(float(x[0]))).T
+
+
+def d_camera_rotation(x):
+    """M = R(φ), ∂M/∂φ = (π/180)·[[−sin φ, −cos φ], [cos φ, −sin φ]]."""
+    a = math.radians(float(x[0]))
+    return _rot(a), (math.pi / 180.0) * np.array([[-math.sin(a), -math.cos(a)],
+                                                   [math.cos(a), -math.sin(a)]])
+
+
+EFFECT = Effect(
+    "camera_rotation", "vision", "vision", (), False,
+    (ParamSpec("camera_rotation_deg", "deg", "rotation about the camera centre", (-5.0, 5.0),
+               (0.01, 0.1)),),
+    "position", "camera rotated about its centre", camera_rotation, d_camera_rotation,
+    needs=(CameraCentre(),), remedy=CHECK_CAMERA)

@@ -1,0 +1,64 @@
+"""cyclic_error: periodic transmission error of the drive, a few cycles per joint revolution
+(format: θ_true = θ_cmd + a·sin(2π·θ_cmd/P + φ), P = 360°/n, n = 1–4)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, AngleSpan, Effect, Linear,
+                               ParamSpec, grid)
+from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG
+
+DEG = math.pi / 180.0
+ORDERS = (1, 2, 3, 4)   # cycles per joint revolution the screening tries
+
+
+def cyclic_error(x, jidx, cmd_deg, dirs):
+    """Periodic transmission error: Δθ_j = a_j·sin(2π·θ_cmd,j/P_j + φ_j), amplitude a (deg),
+    phase φ (deg), period P (joint deg). P is a known constant of the drive (default 360°:
+    once per revolution of the output gear); a and φ are fitted."""
+    g = grid(x, jidx, 3)
+    out = np.zeros_like(cmd_deg, dtype=float)
+    arg = 2 * np.pi * cmd_deg[:, list(jidx)] / g[:, 2] + np.radians(g[:, 1])
+    out[:, list(jidx)] = g[:, 0] * np.sin(arg)
+    return out
+
+
+def d_cyclic_error(x, jidx, a, dirs):
+    """∂/∂a = sin(arg), ∂/∂φ = a·cos(arg)·π/180, ∂/∂θ_cmd = a·cos(arg)·2π/P."""
+    g = grid(x, jidx, 3)
+    cols, dda = [], np.zeros_like(a)
+    for i, j in enumerate(jidx):
+        amp, ph, per = g[i]
+        arg = 2 * np.pi * a[:, j] / per + math.radians(ph)
+        s, c = np.sin(arg), np.cos(arg)
+        ca, cp = np.zeros_like(a), np.zeros_like(a)
+        ca[:, j] = s
+        cp[:, j] = amp * c * DEG
+        cols += [ca, cp]
+        dda[:, j] = amp * c * 2 * np.pi / per
+    return cols, dda
+
+
+def _from_linear(coef, order):
+    """c·sin(kθ) + s·cos(kθ) = a·sin(kθ + φ): a = √(c² + s²), φ = atan2(s, c)."""
+    cs, cc = coef
+    return {"cyclic_amp_deg": math.hypot(cs, cc),
+            "cyclic_phase_deg": math.degrees(math.atan2(cc, cs)) % 360.0,
+            "cyclic_period_deg": 360.0 / order}
+
+
+EFFECT = Effect(
+    "cyclic_error", "transmission", "joint", PLANAR_JOINTS, True,
+    (ParamSpec("cyclic_amp_deg", "deg", "amplitude", (0.0, 1.0), (0.01, 0.08), False,
+               start=(0.01, 0.9)),
+     ParamSpec("cyclic_phase_deg", "deg", "phase at θ = 0", (-INF, INF), (0.0, 360.0), False),
+     ParamSpec("cyclic_period_deg", "deg", "period in joint deg (known)", (1e-3, 3600.0),
+               (360.0, 360.0), False, fitted=False, default=360.0)),
+    "angle", "periodic transmission error of the drive", cyclic_error, d_cyclic_error,
+    needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
+    remedy=CALIBRATE_JOINT,
+    # amplitude 0, phase 0 / 90°: ∂/∂a is sin(kθ), then cos(kθ); the period per order k
+    linear=Linear(({"cyclic_phase_deg": 0.0}, {"cyclic_phase_deg": 90.0}), _from_linear,
+                  ORDERS, lambda k: {"cyclic_period_deg": 360.0 / k}))

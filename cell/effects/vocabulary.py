@@ -1,0 +1,18 @@
+"""The registry: every effect definition, in the order the diagnosis tries them (that order
+is part of its answers: keep new effects at the end). Add an effect by writing its module
+and listing it here (``docs/adding-an-effect.md``)."""
+from __future__ import annotations
+
+from cell.effects import (backlash, camera_rotation, camera_scale, comm_delay, cyclic_error,
+                          gear_ratio, gravity_compliance, joint_offset, link_length,
+                          thermal_drift)
+from cell.effects.base import Effect
+
+REGISTRY: dict[str, Effect] = {m.EFFECT.name: m.EFFECT for m in (
+    joint_offset, link_length, gear_ratio, backlash, cyclic_error, thermal_drift,
+    camera_scale, camera_rotation, comm_delay, gravity_compliance,
+)}
+#: the planar (SCARA) vocabulary: what the plant simulates and the planar diagnosis fits
+EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.planar}
+#: the chain vocabulary (:mod:`cell.chain.fit`), in registry order
+CHAIN_EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.chain is not None}
