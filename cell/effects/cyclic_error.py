@@ -57,6 +57,7 @@ EFFECT = Effect(
      ParamSpec("cyclic_period_deg", "deg", "period in joint deg (known)", (1e-3, 3600.0),
                (360.0, 360.0), False, fitted=False, default=360.0)),
     "angle", "periodic transmission error of the drive", cyclic_error, d_cyclic_error,
+    mimics=("joint_offset",),     # on a joint that never moves: a constant angle error
     needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
     remedy=CALIBRATE_JOINT,
     # amplitude 0, phase 0 / 90°: ∂/∂a is sin(kθ), then cos(kθ); the period per order k
