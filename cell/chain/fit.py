@@ -429,6 +429,43 @@ def leave_one_pose_out(J: np.ndarray, r: np.ndarray, obs_pose: np.ndarray, n_pos
     return total, per_pose, Ainv, scale
 
 
+class FoldGram:
+    """Leave-one-fold-out of the linear least-squares fits of ``r`` (3M,) on column subsets
+    of one design ``Js`` (3M, n), folds given per measured point (``fold`` (M,), ``n_folds``).
+    The folds' Gram pieces are stacked once; each subset then costs one batched solve of
+    its small normal equations with the fold taken out (no refit of the 3M rows), and the
+    held-out residual is formed explicitly, so it equals :func:`leave_one_pose_out` of
+    that subset's fit to rounding."""
+
+    def __init__(self, Js: np.ndarray, r: np.ndarray, fold: np.ndarray, n_folds: int):
+        idx = _by_pose(fold, n_folds)
+        pad = idx < 0
+        safe = np.where(pad, 0, idx)
+        self.Jg = np.where(pad[..., None], 0.0, Js[safe])            # (F, R, n)
+        self.rg = np.where(pad, 0.0, r[safe])                         # (F, R)
+        self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
+        self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
+        self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
+        self.n_pts = (~pad).sum(1) / 3
+
+    def loo(self, cols) -> tuple[float, np.ndarray]:
+        """(rms of the held-out 3-D errors, per-fold mean squared 3-D error) of the fit on
+        columns ``cols`` (indices)."""
+        cols = np.asarray(cols, dtype=np.int64)
+        e = self.rg
+        if len(cols):
+            A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
+            rhs = self.bt[cols] - self.b[:, cols]
+            try:
+                beta = np.linalg.solve(A, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                return math.inf, np.full(len(self.rg), math.inf)
+            e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
+        ss = np.sum(e * e, axis=1)
+        per = ss / np.maximum(self.n_pts, 1)
+        return float(math.sqrt(np.sum(ss) / max(self.n_pts.sum(), 1))), per
+
+
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()

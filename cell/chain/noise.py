@@ -28,9 +28,11 @@ from cell.chain.campaign import ChainCampaign
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
 
 
-def repeat_noise_mm(cc: ChainCampaign) -> tuple[float | None, int, int]:
+def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
+                    ) -> tuple[float | None, int, int]:
     """σ per axis from poses revisited with identical readings (pooled over markers), the
-    number of repeat groups and the degrees of freedom; (None, 0, 0) without repeats."""
+    number of repeat groups and the degrees of freedom; (None, 0, 0) without repeats.
+    ``keep`` (M,) marks the points to use (default all: outliers set aside are not)."""
     key: dict[bytes, list[int]] = {}
     for p, q in enumerate(np.round(cc.readings, 6)):
         key.setdefault(q.tobytes(), []).append(p)
@@ -38,7 +40,8 @@ def repeat_noise_mm(cc: ChainCampaign) -> tuple[float | None, int, int]:
     ss, dof = 0.0, 0
     for g in groups:
         for m in range(len(cc.markers)):
-            rows = np.flatnonzero(np.isin(cc.obs_pose, g) & (cc.obs_marker == m))
+            sel = np.isin(cc.obs_pose, g) & (cc.obs_marker == m)
+            rows = np.flatnonzero(sel if keep is None else sel & keep)
             if len(rows) > 1:
                 x = cc.xyz[rows]
                 ss += float(np.sum((x - x.mean(0)) ** 2))

@@ -51,6 +51,8 @@ class Candidate:
     hold_rms: float
     hold_max: float
     ident: F.Identifiability | None = None
+    hold_in_rms: float = math.nan     # the same on the holdout points not set aside
+    hold_in_max: float = math.nan
 
     @property
     def joints(self) -> list[str]:
@@ -64,62 +66,87 @@ class Search:
     nominal: Candidate
     ranking: list[Candidate]
     idents: dict[str, F.Identifiability] = field(default_factory=dict)
+    hold_keep: np.ndarray | None = None   # holdout points that are not outliers (None: all)
 
 
-def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = ()) -> list[F.Param]:
+class Screen:
+    """The linearised model at the registration-only solution ``f0`` with the columns of
+    every parameter of ``pool`` (column-scaled), stacked for leave-one-pose-out and
+    leave-one-place-out fits of any subset (:class:`cell.chain.fit.FoldGram`)."""
+
+    def __init__(self, d: F.Data, f0: F.Fit, pool: list[F.Param]):
+        _, J = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
+        self.nr = F.n_registration(d)
+        self.index = {p.name: self.nr + i for i, p in enumerate(pool)}
+        Js, _ = F._scaled(J)
+        r0 = f0.resid.ravel()
+        self.poses = F.FoldGram(Js, r0, d.obs_pose, d.n_poses)
+        fold, n = d.folds()
+        self.places = self.poses if n >= d.n_poses else F.FoldGram(Js, r0, fold, n)
+
+    def cols(self, params) -> list[int]:
+        return list(range(self.nr)) + [self.index[p.name] for p in params]
+
+
+def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = (),
+           design: Screen | None = None) -> list[F.Param]:
     """Stepwise selection on the linearised model at the registration-only solution
     ``f0``. Forward: add the parameter that most lowers the leave-one-pose-out error while
     it drops (parameters needed only together, like offsets of parallel axes, get in).
     Backward: drop the parameter whose removal costs least while that cost is not
-    significant over poses (one-sided Wilcoxon, :data:`STEP_ALPHA`). Returns the chosen
-    parameters (``start`` first)."""
+    significant over poses (one-sided Wilcoxon, :data:`STEP_ALPHA`). ``design`` holds the
+    columns of ``pool`` (and ``start``) when already built. Returns the chosen parameters
+    (``start`` first)."""
     chosen = list(start)
-    _, Jp = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
-    nr = F.n_registration(d)
-    cols = {p.name: Jp[:, nr + i] for i, p in enumerate(pool)}
-    base = Jp[:, :nr]
-    r0 = f0.resid.ravel()
+    design = design or Screen(d, f0, list(start) + [p for p in pool if p not in start])
+    folds = design.poses
 
-    def cv(params: list[F.Param]) -> tuple[float, np.ndarray]:
-        J = np.column_stack([base] + [cols[p.name] for p in params]) if params else base
-        if J.shape[1] == 0:
-            per = np.bincount(d.obs_pose, np.sum(f0.resid ** 2, 1), d.n_poses)
-            return F.rms3(f0.resid), per / np.maximum(np.bincount(d.obs_pose, minlength=d.n_poses), 1)
-        Js, _ = F._scaled(J)
-        beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-        total, per, *_ = F.leave_one_pose_out(J, r0 - Js @ beta, d.obs_pose, d.n_poses)
-        return total, per
+    def cv(params: list[F.Param]) -> float:
+        return design.poses.loo(design.cols(params))[0]
 
-    best, best_pose = cv(chosen)
+    best = cv(chosen)
     while True:                        # forward: while the left-out error still drops
         tries = [(cv(chosen + [p]), p) for p in pool if p not in chosen]
         if not tries:
             break
-        (score, per), p = min(tries, key=lambda t: t[0][0])
+        score, p = min(tries, key=lambda t: t[0])
         if not score < best:
             break
         chosen.append(p)
-        best, best_pose = score, per
+        best = score
+    best_fold = folds.loo(design.cols(chosen))[1]
     while len(chosen) > len(start):    # backward: drop what the poses do not need
-        drops = [(cv([c for c in chosen if c is not p]), p) for p in chosen[len(start):]]
+        drops = [(folds.loo(design.cols([c for c in chosen if c is not p])), p)
+                 for p in chosen[len(start):]]
         (score, per), p = min(drops, key=lambda t: t[0][0])
-        if wilcoxon_greater(per - best_pose) < STEP_ALPHA:
+        if wilcoxon_greater(per - best_fold) < STEP_ALPHA:
             break
         chosen.remove(p)
-        best, best_pose = score, per
+        best_fold = per
     return chosen
 
 
-def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None) -> Candidate:
-    f = F.fit(fit_d, params, f0.reg)
-    rms, mx = F.predict_rms(hold_d, f)
-    return Candidate(label, effects, f, rms, mx, ident)
+def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candidate:
+    y, _ = F.model(hold_d, f.reg, f.params, f.values)
+    e = hold_d.xyz - y
+    n = np.sqrt(np.sum(e * e, axis=1))
+    c = Candidate(label, effects, f, F.rms3(e), float(n.max()) if len(n) else math.nan, ident)
+    if keep is not None:
+        e, n = e[keep], n[keep]
+    c.hold_in_rms, c.hold_in_max = F.rms3(e), float(n.max()) if len(n) else math.nan
+    return c
 
 
-def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
+def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None) -> Candidate:
+    return _held(label, effects, F.fit(fit_d, params, f0.reg), hold_d, keep, ident)
+
+
+def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarray | None = None
+           ) -> Search:
+    """Screen and fit the candidates on ``fit_d`` (module docstring), predicting ``hold_d``;
+    ``hold_keep`` marks the holdout points that are not outliers (:mod:`cell.chain.robust`)."""
     f0 = F.fit(fit_d, [])
-    rms, mx = F.predict_rms(hold_d, f0)
-    nominal = Candidate("registration only", (), f0, rms, mx)
+    nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)
     idents, picks, ranking = {}, {}, []
     for e in effects:
@@ -132,7 +159,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
         idents[e].kept = [p for p in idents[e].kept if p.effect == e]
         picks[e] = screen(fit_d, f0, idents[e].kept)
         if picks[e]:
-            ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e]))
+            ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep))
     ranking.sort(key=lambda c: c.fit.cv_rms)
     tops = [c.effects[0] for c in ranking[:PAIR_TOPS]]
     for i, a in enumerate(tops):
@@ -140,9 +167,10 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS) -> Search:
             ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
             both = screen(fit_d, f0, ident.kept)
             if {p.effect for p in both} == {a, b}:
-                ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident))
+                ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident,
+                                          hold_keep))
     ranking.sort(key=lambda c: c.fit.cv_rms)
-    return Search(fit_d, hold_d, nominal, ranking, idents)
+    return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep)
 
 
 def wilcoxon_p(before: np.ndarray, after: np.ndarray) -> float:
@@ -212,6 +240,28 @@ def tied_with(s: Search, best: Candidate) -> list[Candidate]:
     return out
 
 
+def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
+    """The parameters of ``chosen`` that left-out places do not need: (name, p) where
+    removing the parameter from the linearised model does not predict left-out places
+    significantly worse (one-sided Wilcoxon over places at :data:`STEP_ALPHA`). Empty
+    when the poses do not sit at places, or at too few for the test to reach
+    :data:`STEP_ALPHA` (screening has already asked the same over poses)."""
+    d = s.fit_d
+    n = d.folds()[1]
+    if n >= d.n_poses or 0.5 ** n >= STEP_ALPHA or not chosen.fit.params:
+        return []
+    ps = chosen.fit.params
+    design = Screen(d, s.nominal.fit, ps)
+    full = design.places.loo(design.cols(ps))[1]
+    out = []
+    for p in ps:
+        per = design.places.loo(design.cols([q for q in ps if q is not p]))[1]
+        pv = wilcoxon_p(per, full)
+        if pv >= STEP_ALPHA:
+            out.append((p.name, pv))
+    return out
+
+
 def decide(s: Search, noise_mm: float | None) -> Decision:
     """Name a cause, ``none``, and whether most of the gap is left unexplained.
     ``noise_mm`` is σ per axis of one point measurement (None: unknown).
@@ -247,6 +297,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
             c.label for c in rivals) + ": they predict left-out poses as well (cause.rivals; "
             "cause.separating_poses says where to measure next)")
     n_folds = s.fit_d.folds()[1]
+    for name, pv in unsupported(s, chosen) if chosen is not None else []:
+        warnings.append(f"{name} is not needed to predict left-out places (p = {pv:.2g} over "
+                        f"{n_folds} places): the campaign cannot tell whether it is part of the cause")
     if chosen is not None and n_folds < MIN_FOLDS:
         warnings.append(f"the fit poses lie at {n_folds} place(s): no cause can be checked on "
                         "places it was not fitted on")
@@ -257,6 +310,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
             warnings.append(f"a scale error of the measuring instrument predicts left-out poses "
                             f"as well as {chosen.label} (p = {sp:.2g}): check the sensor's scale "
                             "before changing the arm's model")
+    if chosen is not None and s.hold_d.n_poses and not chosen.hold_in_rms < s.nominal.hold_in_rms:
+        warnings.append(f"{chosen.label} does not predict the holdout poses better than registration "
+                        f"alone ({s.nominal.hold_in_rms:.4f} -> {chosen.hold_in_rms:.4f} mm rms)")
     reasons: list[str] = []
     noise3 = None if noise_mm is None else noise_mm * math.sqrt(3)
     gap = f0.rms
@@ -265,8 +321,8 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm 3-D); the named cause is small")
         return Decision(chosen, p, runner, rp, False, reasons, notes, warnings, rivals, tied)
-    before = s.nominal.hold_rms
-    after = chosen.hold_rms if chosen else before
+    before = s.nominal.hold_in_rms
+    after = chosen.hold_in_rms if chosen else before
     shrink = 1 - after / before if before > 0 else 0.0
     if chosen is None:
         if noise3 is None:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cell.chain import fit as F
-from cell.chain import rank
+from cell.chain import rank, robust
 from cell.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
                               rigid_noise_mm)
 from cell.chain.campaign import ChainCampaign
@@ -52,16 +52,17 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
     return fit, f"generated ({100 * HOLDOUT_SHARE:.0f} % of poses, seed {SPLIT_SEED})"
 
 
-def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None
-           ) -> tuple[float | None, str, str | None]:
+def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None,
+           keep: np.ndarray | None = None) -> tuple[float | None, str, str | None]:
     """(σ per axis for the decision, where it came from, the reason to call the gap
     unexplained when revisited poses disagree beyond the sensor noise, or None).
 
     Given σ first. Else the revisits' scatter when it agrees with the sensor noise of the
     rigid constellation (it then also holds the arm's repeatability); the rigid estimate
     when the revisits disagree (the disagreement is not noise: it is the reason) or when
-    there are none; unknown without either (:mod:`cell.chain.noise`)."""
-    rep, groups, rep_dof = repeat_noise_mm(cc)
+    there are none; unknown without either (:mod:`cell.chain.noise`). ``keep`` (M,) marks
+    the campaign's points that are not outliers; ``fit_d`` holds only such points."""
+    rep, groups, rep_dof = repeat_noise_mm(cc, keep)
     rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
                                   fit_d.known_markers is None)
     drift = None
@@ -135,12 +136,21 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     """:func:`diagnose_chain` with the search and decision behind the report."""
     fit_mask, split_src = split_poses(cc)
     d_all = F.Data.of(cc)
-    fit_d, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
-    F.check_registrable(fit_d, str(cc.directory / "points.csv"))
-    s = rank.search(fit_d, hold_d)
+    fit_all, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
+    F.check_registrable(fit_all, str(cc.directory / "points.csv"))
+    s, outl, _ = robust.robust_search(fit_all, hold_d)
+    fit_d = s.fit_d
     f0 = s.nominal.fit
-    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm)
+    keep = np.ones(len(cc.xyz), bool)
+    keep[fit_mask[cc.obs_pose]] = ~outl.fit
+    keep[~fit_mask[cc.obs_pose]] = ~outl.hold
+    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm, keep)
     dec = rank.decide(s, noise_mm)
+    dec.warnings += outl.warnings
+    if outl.n:
+        dec.notes.append(f"{outl.n} measured point(s) lie beyond {outl.cut_mm:.3f} mm of the best "
+                         "candidate's residual and were set aside as outliers (outliers)")
+    dec.notes += outl.notes
     if drift:
         dec.reasons.append(drift)
         dec.unexplained = True
@@ -149,8 +159,11 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     not_ident = {n: why for e in s.idents.values() for n, why in e.dropped.items()}
     absorbed = {n: why for n, why in not_ident.items() if "registration" in why}
     warnings = sorted({w for c in s.ranking[:1] if c.ident for w in c.ident.warnings})
-    before, after = s.nominal.hold_rms, (dec.chosen.hold_rms if dec.chosen else s.nominal.hold_rms)
+    named = dec.chosen or s.nominal
+    before, after = s.nominal.hold_rms, named.hold_rms
     shrink = 1 - after / before if before > 0 else 0.0
+    in_before, in_after = s.nominal.hold_in_rms, named.hold_in_rms
+    in_shrink = 1 - in_after / in_before if in_before > 0 else 0.0
     if dec.chosen is not None:
         comps = _components(dec.chosen)
         main = comps[0]["effect"]
@@ -216,17 +229,22 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
         "cause": cause,
         "holdout": {"n": len(hold_d.xyz), "poses": hold_d.n_poses, "rms_before_mm": _r(before),
                     "rms_after_mm": _r(after), "shrink": _r(shrink, 4),
-                    "max_before_mm": _r(s.nominal.hold_max),
-                    "max_after_mm": _r(dec.chosen.hold_max if dec.chosen else s.nominal.hold_max)},
+                    "max_before_mm": _r(s.nominal.hold_max), "max_after_mm": _r(named.hold_max),
+                    "inliers": {"n": int((~outl.hold).sum()), "rms_before_mm": _r(in_before),
+                                "rms_after_mm": _r(in_after), "shrink": _r(in_shrink, 4),
+                                "max_before_mm": _r(s.nominal.hold_in_max),
+                                "max_after_mm": _r(named.hold_in_max)}},
         "unexplained": dec.unexplained,
         "remainder": {"reasons": dec.reasons, "notes": dec.notes},
         "not_identifiable": not_ident,
+        "outliers": robust.describe(outl, fit_all, hold_d, cc.pose_ids, np.flatnonzero(fit_mask),
+                                    np.flatnonzero(~fit_mask), cc.markers),
         "noise": {"sigma_mm": _r(noise_mm, 7), "source": noise_src,
                   "fit_rms_mm": _r((dec.chosen or s.nominal).fit.rms),
                   "cv_rms_mm": _r((dec.chosen or s.nominal).fit.cv_rms),
                   "registration_cv_rms_mm": _r(f0.cv_rms)},
-        "split": {"source": split_src, "fit_poses": fit_d.n_poses, "holdout_poses": hold_d.n_poses,
-                  "fit_rows": len(fit_d.xyz), "holdout_rows": len(hold_d.xyz)},
+        "split": {"source": split_src, "fit_poses": fit_all.n_poses, "holdout_poses": hold_d.n_poses,
+                  "fit_rows": len(fit_all.xyz), "holdout_rows": len(hold_d.xyz)},
     }, s, dec)
 
 
@@ -279,6 +297,16 @@ def render_chain_text(rep: dict) -> str:
         out.append(f"confidence {c['confidence']}")
     out.append(f"holdout ({h['poses']} poses, {h['n']} points): rms {h['rms_before_mm']:.4f} -> "
                f"{h['rms_after_mm']:.4f} mm, shrink {h['shrink']:.3f}")
+    o = rep.get("outliers") or {}
+    if o.get("n"):
+        inl = h.get("inliers") or {}
+        out.append(f"outliers set aside: {o['n']} point(s) beyond {o['cut_mm']:.4f} mm ("
+                   + ", ".join(f"sample {p['sample']} marker {p['marker']} {p['split']} "
+                               f"{p['distance_mm']:.3f} mm" for p in o["points"][:8])
+                   + (", …" if o["n"] > 8 else "") + ")")
+        if inl:
+            out.append(f"holdout without them ({inl['n']} points): rms {inl['rms_before_mm']:.4f} -> "
+                       f"{inl['rms_after_mm']:.4f} mm, shrink {inl['shrink']:.3f}")
     nz = rep["noise"]
     out.append("noise: " + (f"σ {nz['sigma_mm']:.4f} mm per axis ({nz['source']})"
                             if nz["sigma_mm"] is not None else "unknown (no repeated poses, no --noise-mm)"))

@@ -11,16 +11,17 @@ effects) with ``.venv/bin/python`` running exactly these runs:
   with the truth missing 6, unexplained 9, wrong 0; 56 of 59 true values inside their
   95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses): right 18, ambiguous 12, unexplained 50,
-  wrong 0; 18 of 19 intervals cover;
-* chain, 24 trials outside the vocabulary (seed 1): unexplained 19, ambiguous with the
-  truth missing 4, wrong 1 (seed 100012: a coupling between joints named
-  joint_offset[j2,j3] + gear_ratio[j1,j2,j5] at 7 stations).
+* chain, 80 vocabulary trials (seed 1, 60 poses): right 40, ambiguous 34, ambiguous with
+  the truth missing 3, unexplained 3, wrong 0; 36 of 38 intervals cover (measured after the
+  chain's outlier step, cell/chain/robust.py, by ``cellctl diagnose validate --chain
+  --trials 80 --seed 1``; before it: right 18, ambiguous 12, unexplained 50);
+* chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
+  13, ambiguous with the truth missing 10, right (none) 1, wrong 0 (before the outlier step:
+  unexplained 19, wrong 1; glitches had made most of them unexplained).
 
 Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
 truth named or among the rivals by 5, so the decision logic can move a few answers between
-``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (0, and the one chain
-answer outside the vocabulary, an upper bound to tighten to 0).
+``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (0 everywhere).
 Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
@@ -102,8 +103,9 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 18 - 5, v
-    assert v["right"] + v["ambiguous"] >= 30 - 5, v
+    assert v["right"] >= 40 - 5, v
+    assert v["right"] + v["ambiguous"] >= 74 - 5, v
+    assert v["unexplained"] <= 3 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 
 
@@ -114,5 +116,5 @@ def test_chain_interval_coverage_is_near_95_percent(chain_vocab):
 def test_chain_outside_the_vocabulary():
     s = chain.summarise(chain.run(24, SEED, outside_share=1.0))
     v = s["outside_verdicts"]
-    assert sum(v.values()) == 24 and v["wrong"] <= 1, s["wrong"]
-    assert v["unexplained"] >= 19 - 3, v
+    assert sum(v.values()) == 24 and v["wrong"] == 0, s["wrong"]
+    assert v["unexplained"] >= 13 - 3, v

@@ -1,0 +1,180 @@
+"""Gross outliers of a chain campaign, found on the best candidate's residual and set
+aside. Pure numerics; no I/O.
+
+A tracker now and then reports one marker millimetres off (a reflection, a marker
+swapped for its neighbour). One such point among a few hundred at a few hundredths of a
+millimetre makes every fit error look far above the noise, so without this step a
+campaign with no error at all comes back ``unexplained``.
+
+* **What is compared**: each measured point's 3-D residual (measured − predicted) under
+  the candidate that predicts left-out poses best (:func:`reference`; registration alone
+  when no candidate exists), fit and holdout points alike, against the median residual
+  of the fit points.
+* **Scale**: σ per axis = 1.4826 × the median absolute deviation of the fit points'
+  residual components about that median (unaffected by up to half the points being
+  outliers), taken at its 95 % upper bound (:func:`cell.diagnosis.noise.upper95`) so that
+  few points do not make a tight scale.
+* **Threshold**: a point is an outlier when its squared distance from the median exceeds
+  σ² × the χ²₃ quantile at :data:`ALPHA` / (points of fit and holdout), i.e. a Gaussian
+  point is flagged anywhere in the campaign with probability ≤ :data:`ALPHA` (Bonferroni;
+  about 5.2 σ for 250 points).
+* **A minority only**: when more than :data:`MAX_SHARE` of the fit (or of the holdout)
+  points lie beyond the threshold, the residual is heavy-tailed or systematic (an effect
+  the vocabulary lacks), not a few glitches; none of that set is set aside and the report
+  warns. Points of a free marker are kept when setting them aside would leave the marker
+  on fewer than :data:`cell.chain.campaign.MIN_MARKER_POSES` fit poses.
+
+:func:`robust_search` searches (:func:`cell.chain.rank.search`), flags, searches again
+without the flagged points and flags again from the new best candidate (a point set aside
+earlier can come back), until the flags no longer change, at most :data:`ROUNDS` times.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell.chain import fit as F
+from cell.chain import rank
+from cell.chain.campaign import MIN_MARKER_POSES
+from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
+from cell.stats import chi2_isf
+
+ALPHA = 0.01          # a Gaussian point is flagged anywhere in the campaign with this probability
+MAX_SHARE = 0.05      # more flagged than this share of a set: systematic, none set aside
+ROUNDS = 3            # search → flag rounds at most
+MIN_POINTS = 12       # fewer fit points: no robust scale
+
+
+@dataclass
+class Outliers:
+    """Flags over the points of ``fit_d`` / ``hold_d`` (True = outlier, set aside), their
+    distance from the median residual ``dist_fit`` / ``dist_hold`` (mm), robust ``sigma``
+    per axis (mm), the ``threshold`` in σ, ``cut_mm`` (threshold × σ's 95 % upper bound),
+    whether each set's flags were ``set_aside`` (False: too many, see :data:`MAX_SHARE`),
+    the ``rounds`` run, and ``notes`` / ``warnings`` for the report."""
+
+    fit: np.ndarray
+    hold: np.ndarray
+    dist_fit: np.ndarray | None = None
+    dist_hold: np.ndarray | None = None
+    sigma: float | None = None
+    threshold: float | None = None
+    cut_mm: float | None = None
+    set_aside: tuple[bool, bool] = (True, True)
+    rounds: int = 0
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        return int(self.fit.sum() + self.hold.sum())
+
+    def same_flags(self, other: "Outliers") -> bool:
+        return np.array_equal(self.fit, other.fit) and np.array_equal(self.hold, other.hold)
+
+
+def none_flagged(fit_d: F.Data, hold_d: F.Data) -> Outliers:
+    return Outliers(np.zeros(len(fit_d.xyz), bool), np.zeros(len(hold_d.xyz), bool))
+
+
+def reference(s: rank.Search) -> F.Fit:
+    """The fit whose residual is searched for outliers: the candidate with the lowest
+    leave-out error of search ``s``, else registration alone."""
+    return s.ranking[0].fit if s.ranking else s.nominal.fit
+
+
+def _keep_markers(d: F.Data, out: np.ndarray) -> np.ndarray:
+    """``out`` with the flags of a free marker cleared when setting them aside would
+    leave it on fewer than MIN_MARKER_POSES poses."""
+    if d.known_markers is not None or not out.any():
+        return out
+    out = out.copy()
+    for m in np.unique(d.obs_marker[out]):
+        left = np.unique(d.obs_pose[(d.obs_marker == m) & ~out])
+        if len(left) < MIN_MARKER_POSES:
+            out[d.obs_marker == m] = False
+    return out
+
+
+def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
+    """The outliers of the residual of fit ``f`` (module docstring) over every point of
+    ``fit_d`` and ``hold_d`` (``f`` may have been fitted without some of them)."""
+    out = none_flagged(fit_d, hold_d)
+    if len(fit_d.xyz) < MIN_POINTS:
+        return out
+    ef = fit_d.xyz - F.model(fit_d, f.reg, f.params, f.values)[0]
+    eh = hold_d.xyz - F.model(hold_d, f.reg, f.params, f.values)[0] if len(hold_d.xyz) else \
+        np.zeros((0, 3))
+    med = np.median(ef, axis=0)
+    s = mad(ef - med)
+    if not s > 0:
+        return out
+    su = upper95(s, MAD_EFFICIENCY * ef.size)
+    q = math.sqrt(float(chi2_isf(ALPHA / (len(ef) + len(eh)), 3)))
+    dist_f = np.linalg.norm(ef - med, axis=1)
+    dist_h = np.linalg.norm(eh - med, axis=1)
+    out.dist_fit, out.dist_hold = dist_f, dist_h
+    out.sigma, out.threshold, out.cut_mm = s, q, q * su
+    aside = [True, True]
+    for k, (dist, name) in enumerate(((dist_f, "fit"), (dist_h, "holdout"))):
+        far = dist > q * su
+        if len(far) and far.mean() > MAX_SHARE:
+            aside[k] = False
+            out.warnings.append(
+                f"{100 * far.mean():.0f} % of the {name} points lie beyond {q:.1f} σ of the best "
+                f"candidate's residual (σ {s:.4f} mm per axis): heavy tails or an effect outside the "
+                f"vocabulary, not a few glitches; none set aside (at most {100 * MAX_SHARE:.0f} % are)")
+            continue
+        if k == 0:
+            out.fit = _keep_markers(fit_d, far)
+        else:
+            out.hold = far
+    out.set_aside = (aside[0], aside[1])
+    return out
+
+
+def robust_search(fit_d: F.Data, hold_d: F.Data, **kw) -> tuple[rank.Search, Outliers, rank.Search]:
+    """(the search (:func:`cell.chain.rank.search`, ``kw`` passed on) on the points that
+    are not outliers, its :class:`Outliers`, the search on every point)."""
+    s = first = rank.search(fit_d, hold_d, **kw)
+    o = none_flagged(fit_d, hold_d)
+    for i in range(ROUNDS):
+        new = flag(fit_d, hold_d, reference(s))
+        new.rounds = i + 1
+        settled = new.same_flags(o)
+        o = new
+        if settled:
+            break
+        s = rank.search(fit_d.keep_points(~o.fit), hold_d, hold_keep=~o.hold, **kw)
+    else:
+        o.notes.append(f"the outlier flags did not settle in {ROUNDS} rounds; the last are used")
+    if o.n and first.ranking and s.ranking and first.ranking[0].label != s.ranking[0].label:
+        o.notes.append(f"with the outliers kept, {first.ranking[0].label} predicted left-out poses "
+                       f"best; without them, {s.ranking[0].label}")
+    return s, o, first
+
+
+def describe(o: Outliers, fit_d: F.Data, hold_d: F.Data, pose_ids, fit_poses, hold_poses,
+             markers) -> dict:
+    """JSON-ready summary (``cell/measurements.md``, chain ``outliers``): every flagged
+    point's ``sample``, ``marker``, ``split`` and distance from the median residual
+    (``distance_mm``); the scale, threshold and cut; per set whether its flags were set
+    aside. ``fit_poses`` / ``hold_poses`` map each set's pose index to the campaign's."""
+    pts = []
+    for d, mask, dist, poses, split in ((fit_d, o.fit, o.dist_fit, fit_poses, "fit"),
+                                        (hold_d, o.hold, o.dist_hold, hold_poses, "holdout")):
+        for i in np.flatnonzero(mask):
+            pts.append({"sample": int(pose_ids[poses[d.obs_pose[i]]]),
+                        "marker": int(markers[d.obs_marker[i]]), "split": split,
+                        "distance_mm": _r(dist[i])})
+    pts.sort(key=lambda p: (p["sample"], p["marker"]))
+    return {"n": len(pts), "points": pts, "sigma_mm": _r(o.sigma), "threshold_sigma": _r(o.threshold, 3),
+            "cut_mm": _r(o.cut_mm), "set_aside": {"fit": o.set_aside[0], "holdout": o.set_aside[1]},
+            "alpha": ALPHA, "max_share": MAX_SHARE, "rounds": o.rounds,
+            "notes": list(o.notes) + list(o.warnings)}
+
+
+def _r(v, nd: int = 6):
+    return None if v is None or not math.isfinite(v) else round(float(v), nd)
