@@ -141,6 +141,23 @@ def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None)
     return _held(label, effects, F.fit(fit_d, params, f0.reg), hold_d, keep, ident)
 
 
+def _confounded_offsets(idents: dict[str, F.Identifiability], offsets: list[F.Param]) -> None:
+    """A joint effect of joint K seen only as a sum with K's offset (K never moves, so its
+    gear ratio acts as a constant angle): the data cannot tell which of the two it is, so
+    the offset is not identifiable either and no cause is named on it."""
+    if "joint_offset" not in idents:
+        return
+    off = idents["joint_offset"]
+    for e, ident in idents.items():
+        for name, why in ident.dropped.items():
+            if e in ("joint_offset", "link_length") or not why.startswith("seen only as a sum with"):
+                continue
+            for p in offsets:
+                if p.name in why and any(q is p for q in off.kept) and name.startswith(f"j{p.joint + 1}_"):
+                    off.kept = [q for q in off.kept if q is not p]
+                    off.dropped[p.name] = f"seen only as a sum with {name}"
+
+
 def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarray | None = None
            ) -> Search:
     """Screen and fit the candidates on ``fit_d`` (module docstring), predicting ``hold_d``;
@@ -149,14 +166,20 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)
     idents, picks, ranking = {}, {}, []
+    offsets = [p for p in voc if p.effect == "joint_offset"]
     for e in effects:
         pool = [p for p in voc if p.effect == e]
         if not pool:
             continue
-        # a geometric parameter that only repeats a joint offset is the offset, not a link
-        first = [p for p in voc if p.effect == "joint_offset"] if e == "link_length" else []
+        # a parameter that only repeats a joint offset (a link along the axis, a gear ratio
+        # at a reading that never changes) is the offset, not an effect of its own
+        first = offsets if e != "joint_offset" else []
         idents[e] = F.identifiability(fit_d, pool, f0.reg, keep_first=first)
         idents[e].kept = [p for p in idents[e].kept if p.effect == e]
+    _confounded_offsets(idents, offsets)
+    for e in effects:
+        if e not in idents:
+            continue
         picks[e] = screen(fit_d, f0, idents[e].kept)
         if picks[e]:
             ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep))

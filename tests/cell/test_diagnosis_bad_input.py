@@ -241,11 +241,6 @@ def test_chain_joint_that_never_moves_is_not_named_confidently(tmp_path):
         assert not_confident(report), report["cause"]
 
 
-@pytest.mark.xfail(strict=True, reason="needs the identifiability check of cell/chain/fit.py (and the "
-                                        "not_identifiable of cell/chain/report.py) to take the per-joint effect "
-                                        "columns (jK_offset, jK_gear_ratio_rel) into its rank test, so that at a "
-                                        "constant reading jK_gear_ratio_rel is 'seen only as a sum with "
-                                        "jK_offset_deg', and cell/chain/rank.py to name no cause on such a joint")
 def test_chain_joint_that_never_moves_is_listed_not_identifiable(tmp_path):
     q = chain_poses(40)
     q[:, 2] = -30.0
