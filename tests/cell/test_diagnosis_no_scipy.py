@@ -1,0 +1,20 @@
+"""The planar diagnosis of a campaign loads no scipy (its import was most of the start-up
+CPU of ``cellctl diagnose``): fits by :mod:`cell.lsq`, neighbours and eigen-decompositions
+by numpy. Asserted on the modules loaded, never on time."""
+import subprocess
+import sys
+
+from cell import effects as fx
+from cell.measurements import write_campaign
+from cell.sim.campaigns import Design, make_campaign
+
+
+def test_planar_diagnosis_imports_no_scipy(tmp_path):
+    truth = [fx.make_effect("backlash", ("j2",), {"j2_backlash_deg": 0.04})]
+    d = write_campaign(make_campaign(truth, 7, Design(n_points=120)), tmp_path / "c")
+    code = ("import sys\nfrom cell.measurements import read_campaign\n"
+            "from cell.diagnosis import diagnose\n"
+            f"r = diagnose(read_campaign({str(d)!r})).report\n"
+            "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split(" ", 1)[1].strip() == "[]", out.stdout
