@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell.chain import drift
 from cell.chain import fit as F
 from cell.stats import wilcoxon_greater
 
@@ -232,14 +233,16 @@ class Decision:
     warnings: list[str] = field(default_factory=list)
     rivals: list = field(default_factory=list)
     tied: list = field(default_factory=list)
+    drift_rivals: list[dict] = field(default_factory=list)
 
     @property
     def confidence(self) -> str:
-        """``ambiguous`` when :attr:`rivals` predict left-out poses as well as the named
-        cause (the campaign cannot tell them apart), ``low`` when :attr:`warnings` says
-        something else to check before acting, or the cause leaves most of the gap
-        unexplained, else ``high``."""
-        if self.rivals:
+        """``ambiguous`` when :attr:`rivals` (or a drifting sensor frame,
+        :attr:`drift_rivals`) predict left-out poses as well as the named cause (the
+        campaign cannot tell them apart), ``low`` when :attr:`warnings` says something else
+        to check before acting, or the cause leaves most of the gap unexplained, else
+        ``high``."""
+        if self.rivals or self.drift_rivals:
             return "ambiguous"
         return "low" if self.warnings or self.unexplained else "high"
 
@@ -337,13 +340,24 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         warnings.append(f"{chosen.label} does not predict the holdout poses better than registration "
                         f"alone ({s.nominal.hold_in_rms:.4f} -> {chosen.hold_in_rms:.4f} mm rms)")
     reasons: list[str] = []
+    mine = _components(chosen) if chosen is not None else set()
+    smaller = [s.nominal] + [c for c in s.ranking if c is not chosen and _components(c) < mine] \
+        if chosen is not None else []
+    dr = drift.check(s.fit_d, chosen or s.nominal, smaller, ALPHA, RIVAL_RATIO)
+    if dr.present:
+        reasons.append(dr.present)
+    if dr.rivals:
+        warnings.append("the campaign cannot tell the cause from "
+                        + ", ".join(r["label"] for r in dr.rivals)
+                        + ": measure the poses in another order, or fix the sensor")
     noise3 = None if noise_mm is None else noise_mm * math.sqrt(3)
     gap = f0.rms
     if noise3 is not None and gap <= NOISE_FACTOR * noise3:
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm 3-D); the named cause is small")
-        return Decision(chosen, p, runner, rp, False, reasons, notes, warnings, rivals, tied)
+        return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals,
+                        tied, dr.rivals)
     before = s.nominal.hold_in_rms
     after = chosen.hold_in_rms if chosen else before
     shrink = 1 - after / before if before > 0 else 0.0
@@ -356,14 +370,15 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         else:
             reasons.append(f"the gap ({gap:.3f} mm) is {gap / noise3:.1f}× the noise, and no effect "
                            "of the chain vocabulary predicts left-out poses better than registration alone")
-        return Decision(None, p, None, None, True, reasons, notes)
+        return Decision(None, p, None, None, True, reasons, notes, drift_rivals=dr.rivals)
     if shrink < MIN_SHRINK:
         reasons.append(f"the best candidate ({chosen.label}) shrinks the holdout error by only "
                        f"{100 * shrink:.0f} %: most of the gap is left")
     if noise3 is not None and chosen.fit.rms > NOISE_FACTOR * noise3:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
                        f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D)")
-    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied)
+    return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied,
+                    dr.rivals)
 
 
 N_POSES = 5           # separating poses proposed

@@ -191,7 +191,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     cause["rivals"] = [{"label": c.label, "effects": list(c.effects), "joints": c.joints,
                         "k": len(c.fit.params), "cv_rms_mm": _r(c.fit.cv_rms),
                         "holdout_rms_mm": _r(c.hold_rms), "params": _params(c)[0]}
-                       for c in dec.rivals]
+                       for c in dec.rivals] + dec.drift_rivals
     cause["separating_poses"] = rank.separating_poses(s, dec.chosen, dec.rivals, noise_mm)
     cause["test"] = {"p_value": _r(dec.p_value, 8), "alpha": rank.ALPHA,
                      "method": "one-sided Wilcoxon signed-rank over fit poses of the "
@@ -287,6 +287,10 @@ def render_chain_text(rep: dict) -> str:
             lo, hi = c["ci95"][n]
             out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")
         for r in c.get("rivals", []):
+            if r.get("testable") is False:
+                out.append(f"  rival: {r['label']} (leave-out rms {r['cv_rms_mm']:.4f} mm; "
+                           f"{r['why']})")
+                continue
             out.append(f"  rival: {r['label']} on {', '.join(r['joints'])} (k {r['k']}, leave-out "
                        f"rms {r['cv_rms_mm']:.4f} mm, holdout rms {r['holdout_rms_mm']:.4f} mm)")
         for pz in c.get("separating_poses", []):

@@ -1,0 +1,89 @@
+"""A sensor frame that moves during the campaign: a tracker bumped or settling, a camera
+stand creeping. Pure numerics.
+
+Every arm effect depends on the joint readings only; a drifting sensor frame depends on
+*when* a pose was measured. Its model is the registration made linear in the sample
+order: the sensor's rotation and translation each gain a rate, 6 parameters, with
+``s`` = the pose's position in the campaign's sample order scaled to [−1, 1]. Nothing here
+is fitted in full: like :func:`cell.chain.rank.instrument_scale`, a hypothesis is the
+linearised least squares of a fit's residual on its own Jacobian plus the 6 drift columns,
+judged by leave-out prediction over the folds of :meth:`cell.chain.fit.Data.folds`
+(stations left out whole).
+
+* **present** (:func:`check`): the named cause plus drift predicts left-out folds
+  better than the named cause alone (one-sided Wilcoxon at ``alpha``): the frame moved,
+  whatever else is wrong, and the gap is not explained by the arm.
+* **a rival**: a smaller cause plus drift (the registration alone, or a candidate whose
+  effects the named cause contains) predicts left-out folds as well as the named cause:
+  when poses are walked in joint order, a drifting frame and a joint effect look alike,
+  and the campaign cannot tell them apart.
+
+Only with ``measurement_frame: sensor`` (a fixed base frame is not registered, so it has
+no frame to drift) and at least :data:`MIN_POSES` fit poses.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cell.chain import fit as F
+from cell.stats import wilcoxon_greater
+
+MIN_POSES = 12
+N_DRIFT = 6
+
+
+@dataclass
+class Drift:
+    """``present``: the reason text when drift beside the named cause is supported, else
+    ''; ``rivals``: labels of smaller causes that, with drift, predict as well."""
+
+    present: str = ""
+    rivals: list[str] = field(default_factory=list)
+
+
+def _order(d: F.Data) -> np.ndarray:
+    """Each measured point's pose position in sample order, scaled to [−1, 1]."""
+    n = max(d.n_poses - 1, 1)
+    return (2.0 * np.arange(d.n_poses) / n - 1.0)[d.obs_pose]
+
+
+def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
+    """Leave-out error (total rms, per-fold mean square) of fit ``f`` plus a sensor frame
+    drifting linearly with sample order, linearised at ``f``."""
+    s = np.repeat(_order(d), 3)
+    J2 = np.column_stack([f.J, f.J[:, :N_DRIFT] * s[:, None]])
+    r = f.resid.ravel()
+    Js, _ = F._scaled(J2)
+    beta, *_ = np.linalg.lstsq(Js, r, rcond=None)
+    total, per, *_ = F.leave_one_pose_out(J2, r - Js @ beta, *d.folds())
+    return total, per
+
+
+def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
+    """Drift against the named candidate ``named`` (a :class:`cell.chain.rank.Candidate`,
+    the registration-only one when nothing is named; ``smaller`` the nominal and the
+    candidates it contains), with the decision's ``alpha`` and rival ``ratio`` (module
+    docstring)."""
+    out = Drift()
+    if not d.sensor or d.n_poses < MIN_POSES:
+        return out
+    base = named.fit
+    total, per = with_drift(d, base)
+    p = wilcoxon_greater(base.cv_fold - per)
+    if p < alpha:
+        out.present = (f"the sensor frame moves with sample order: {named.label} plus a frame "
+                       f"drifting over the campaign predicts left-out places better than "
+                       f"{named.label} alone (leave-out rms {base.cv_rms:.4f} -> {total:.4f} mm, "
+                       f"p = {p:.2g})")
+        return out
+    for c in smaller:
+        t, pc = with_drift(d, c.fit)
+        if wilcoxon_greater(pc - base.cv_fold) >= alpha and t <= ratio * base.cv_rms:
+            out.rivals.append({"label": f"{c.label} + sensor frame drifting with sample order",
+                               "effects": list(c.effects) + ["sensor_drift"],
+                               "joints": c.joints, "cv_rms_mm": round(float(t), 6),
+                               "testable": False,
+                               "why": "a sensor frame that moves is not an arm effect"})
+    return out
