@@ -55,13 +55,15 @@ class Layout:
     points and fit path samples; ``directions`` per joint the signs of last motion seen
     (−1, +1); ``temp`` (n_points,) °C of the fit points or None without a temp_c column;
     ``has_center`` the model gives the camera centre; ``moving`` the fit rows hold moves
-    whose commands change."""
+    whose commands change; ``groups`` (n,) int the place of each row of ``angles`` (poses
+    closer than the places' linkage are one place, each move is one), None: one place."""
 
     angles: np.ndarray
     directions: tuple[frozenset, frozenset]
     temp: np.ndarray | None
     has_center: bool
     moving: bool
+    groups: np.ndarray | None = None
 
 
 class Requirement:
@@ -116,14 +118,16 @@ class AngleSpan(Requirement):
 
 @dataclass(frozen=True)
 class PhaseCoverage(Requirement):
-    """The joint's fit rows sample a short known period densely: with the phase
-    ψ = 2π·θ_cmd·``per_rev``/360° (``per_rev`` the stem of the constant giving the periods
-    per joint revolution), the covariance of (sin ψ, cos ψ) over the fit rows has its
-    smaller eigenvalue at least ``min_share`` × ½ (½ is what evenly spread phases give).
-    Then sin ψ and cos ψ are told from each other and from a constant (an offset). It
-    fails for a joint that stays put, for angles that all sit at the same phase or at two
-    opposite ones (a fixed step of a whole or half period, as a stepped sweep can be), and
-    for a span much shorter than one period."""
+    """The joint's fit rows sample a short known period densely **within each place**:
+    with the phase ψ = 2π·θ_cmd·``per_rev``/360° (``per_rev`` the stem of the constant
+    giving the periods per joint revolution), the pooled within-place covariance of
+    (sin ψ, cos ψ) (each place's mean taken off, :attr:`Layout.groups`) has its smaller
+    eigenvalue at least ``min_share`` × ½ (½ is what evenly spread phases give). Then
+    sin ψ and cos ψ are told from each other, from a constant (an offset) and from any
+    error that differs only from place to place. It fails for a joint that stays put, for
+    angles that all sit at the same phase or at two opposite ones (a fixed step of a whole
+    or half period, as a stepped sweep can be), and at stations whose jitter spans much
+    less than one period."""
 
     per_rev: str
     min_share: float = 0.5
@@ -134,8 +138,13 @@ class PhaseCoverage(Requirement):
         if len(a) < 3:
             return f"{joints[0]} has {len(a)} fit rows: a period of {360.0 / n:.3g}° needs 3"
         psi = np.radians(a * n)
-        lam = float(np.linalg.eigvalsh(np.cov(np.vstack([np.sin(psi), np.cos(psi)]),
-                                              bias=True))[0])
+        sc = np.column_stack([np.sin(psi), np.cos(psi)])
+        g = np.zeros(len(a), int) if layout.groups is None else np.asarray(layout.groups)
+        _, inv = np.unique(g, return_inverse=True)
+        means = np.zeros((inv.max() + 1, 2))
+        np.add.at(means, inv, sc)
+        sc = sc - (means / np.bincount(inv)[:, None])[inv]
+        lam = float(np.linalg.eigvalsh(sc.T @ sc / len(a))[0])
         return "" if lam >= 0.5 * self.min_share else \
             (f"{joints[0]}'s angles sample the {360.0 / n:.3g}° period too sparsely "
              f"(phase spread {lam / 0.5:.2f} < {self.min_share})")
