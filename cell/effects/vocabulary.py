@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from cell.effects import (backlash, camera_rotation, camera_scale, comm_delay, cyclic_error,
                           gear_ratio, gravity_compliance, joint_offset, link_length,
-                          thermal_drift)
+                          motor_cyclic_error, thermal_drift)
 from cell.effects.base import Effect
 
 REGISTRY: dict[str, Effect] = {m.EFFECT.name: m.EFFECT for m in (
     joint_offset, link_length, gear_ratio, backlash, cyclic_error, thermal_drift,
-    camera_scale, camera_rotation, comm_delay, gravity_compliance,
+    camera_scale, camera_rotation, comm_delay, gravity_compliance, motor_cyclic_error,
 )}
 #: the planar (SCARA) vocabulary: what the plant simulates and the planar diagnosis fits
 EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.planar}

@@ -4,11 +4,13 @@ they are drawn, and what the diagnosis should answer for each. Pure numerics.
 A :class:`Part` is one effect on one joint (or on none) with its own parameters;
 :func:`compose` turns parts into a :class:`~cell.truth.model.Truth`. Two families:
 
-* **vocabulary** (:data:`VOCABULARY`): the nine effects of ``cell/measurements.md``.
+* **vocabulary** (:data:`VOCABULARY`): the ten effects of ``cell/measurements.md``.
   :func:`answer` gives the expected answer in the vocabulary's names and units
   (effect, joints, parameters), e.g. a gear with N_true/N_nominal = 1 + g is
   ``gear_ratio_rel`` = 1/(1 + g) − 1; a ripple (c, s, n) is amplitude √(c² + s²),
-  phase atan2(c, s) and period 360°/n.
+  phase atan2(c, s) and period 360°/n; a motor-side ripple is a ripple of
+  :data:`MOTOR_GEAR_RATIO` cycles per joint revolution (the format's default N), answered
+  as amplitude, phase and N.
 * **outside the vocabulary** (:data:`OUTSIDE`): effects no candidate describes;
   :func:`answer` is None: the right diagnosis is ``unexplained`` (or no cause).
 
@@ -28,7 +30,8 @@ A :class:`Part` is one effect on one joint (or on none) with its own parameters;
 Draw ranges of the vocabulary effects are the ``typical`` ranges of :mod:`cell.effects`,
 restated here in the model's own units (so the truth does not depend on that module):
 uniform magnitude, random sign where the effect has one. A cyclic error gets
-:data:`CYCLIC_ORDERS` cycles per revolution, uniformly, and a uniform phase.
+:data:`CYCLIC_ORDERS` cycles per revolution, uniformly, and a uniform phase; a motor cyclic
+error :data:`MOTOR_GEAR_RATIO` cycles and a uniform phase.
 """
 from __future__ import annotations
 
@@ -41,9 +44,11 @@ import numpy as np
 from cell.truth.model import Bump, PlaneBump, Ripple, Truth
 
 VOCABULARY = ("joint_offset", "link_length", "gear_ratio", "backlash", "cyclic_error",
-              "thermal_drift", "camera_scale", "camera_rotation", "comm_delay")
+              "thermal_drift", "camera_scale", "camera_rotation", "comm_delay",
+              "motor_cyclic_error")
 OUTSIDE = ("radial_distortion", "reach_sag", "offset_bump", "joint_coupling", "plane_bump")
 CYCLIC_ORDERS = (1, 2, 3, 4)
+MOTOR_GEAR_RATIO = 50     # motor turns per joint turn: the format's default N
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("camera_scale", (), (Size("gain_excess", "1", 2e-4, 2e-3),)),
     Kind("camera_rotation", (), (Size("turn_rad", "rad", _R(0.01), _R(0.1)),)),
     Kind("comm_delay", (), (Size("frame_delay_s", "s", 0.5e-3, 4e-3, False),)),
+    Kind("motor_cyclic_error", (1, 2), (Size("amp_deg", "deg", 0.01, 0.05, False),)),
     Kind("radial_distortion", (), (Size("lens_k_per_mm2", "1/mm²", 0.1 / 800 ** 3,
                                         0.5 / 800 ** 3),)),
     Kind("reach_sag", (), (Size("sag_mm_at_1m", "mm", 0.2, 0.6, False),)),
@@ -93,7 +99,7 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
 @dataclass(frozen=True)
 class Part:
     """One effect of a truth: ``kind`` (a key of :data:`KINDS`), ``joint`` (1, 2 or None)
-    and its parameters ``values`` in the model's own units. A cyclic error holds
+    and its parameters ``values`` in the model's own units. A cyclic error (either) holds
     ``cycles``, ``cos_deg`` and ``sin_deg``; a thermal drift also ``ref_temp_c``."""
 
     kind: str
@@ -116,9 +122,10 @@ def draw(rng: np.random.Generator, kind: str, joint: int | None = None) -> Part:
     for s in k.sizes:
         v = float(rng.uniform(s.low, s.high))
         vals[s.name] = v * float(rng.choice((-1.0, 1.0))) if s.signed else v
-    if kind == "cyclic_error":
+    if kind in ("cyclic_error", "motor_cyclic_error"):
         amp, phase = vals.pop("amp_deg"), float(rng.uniform(0.0, 2 * math.pi))
-        vals = {"cycles": int(rng.choice(CYCLIC_ORDERS)), "cos_deg": amp * math.sin(phase),
+        cycles = int(rng.choice(CYCLIC_ORDERS)) if kind == "cyclic_error" else MOTOR_GEAR_RATIO
+        vals = {"cycles": cycles, "cos_deg": amp * math.sin(phase),
                 "sin_deg": amp * math.cos(phase)}
     if kind == "thermal_drift":
         vals["ref_temp_c"] = 20.0
@@ -148,7 +155,7 @@ def compose(parts: Sequence[Part], bump_at_s: float = 0.0) -> Truth:
             f["teeth_ratio"][j] *= 1.0 + v["teeth_excess"]
         elif p.kind == "backlash":
             f["play_deg"][j] += v["play_deg"]
-        elif p.kind == "cyclic_error":
+        elif p.kind in ("cyclic_error", "motor_cyclic_error"):
             f["ripples"][j].append(Ripple(int(v["cycles"]), v["cos_deg"], v["sin_deg"]))
         elif p.kind == "thermal_drift":
             other.update(expansion_per_k=v["expansion_per_k"], ref_temp_c=v["ref_temp_c"])
@@ -207,6 +214,10 @@ def answer(p: Part) -> Answer | None:
         phase = math.degrees(math.atan2(v["cos_deg"], v["sin_deg"])) % 360.0
         params = {"cyclic_amp_deg": math.hypot(v["cos_deg"], v["sin_deg"]),
                   "cyclic_phase_deg": phase, "cyclic_period_deg": 360.0 / v["cycles"]}
+    elif p.kind == "motor_cyclic_error":
+        phase = math.degrees(math.atan2(v["cos_deg"], v["sin_deg"])) % 360.0
+        params = {"motor_cyclic_amp_deg": math.hypot(v["cos_deg"], v["sin_deg"]),
+                  "motor_cyclic_phase_deg": phase, "motor_gear_ratio": float(v["cycles"])}
     elif p.kind == "thermal_drift":
         params = {"thermal_expansion_per_k": v["expansion_per_k"],
                   "thermal_ref_temp_c": v["ref_temp_c"]}

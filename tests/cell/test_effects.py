@@ -34,9 +34,11 @@ def test_registry_matches_the_measurement_spec_vocabulary():
     spec = {"joint_offset": "kinematics", "link_length": "kinematics",
             "gear_ratio": "transmission", "backlash": "transmission",
             "cyclic_error": "transmission", "thermal_drift": "thermal",
-            "camera_scale": "vision", "camera_rotation": "vision", "comm_delay": "comms"}
+            "camera_scale": "vision", "camera_rotation": "vision", "comm_delay": "comms",
+            "motor_cyclic_error": "transmission"}
     assert {n: e.subsystem for n, e in fx.EFFECTS.items()} == spec
-    for name in ("joint_offset", "link_length", "gear_ratio", "backlash", "cyclic_error"):
+    for name in ("joint_offset", "link_length", "gear_ratio", "backlash", "cyclic_error",
+                 "motor_cyclic_error"):
         assert fx.EFFECTS[name].joints == ("j1", "j2")
     for name in ("thermal_drift", "camera_scale", "camera_rotation", "comm_delay"):
         assert fx.EFFECTS[name].joints == ()
