@@ -21,7 +21,7 @@ Plants:
   motor-side cyclic errors (periods 360°/80 and 360°/50, the drive ratios of
   deploy/cell.yaml), j1 backlash;
 * ``random-<seed>`` — joint zeros and link lengths drawn in their typical ranges
-  (cell/effects.py), j2 backlash, warm-up.
+  (cell/effects/), j2 backlash, warm-up.
 
 Truths of the DH parameters: ``j1.theta`` / ``j2.theta`` = the joint zero (for j2 less half
 its backlash: the calibration approaches every pose from below); ``j1.a`` / ``j2.a`` = the

@@ -1,4 +1,4 @@
-"""The independent forward model (cell/truth) against cell/effects.py: the two must agree to
+"""The independent forward model (cell/truth) against cell/effects/: the two must agree to
 1e-9 mm for every vocabulary effect, on both joints, every cyclic order, alone and all
 together, on static points and on paths (comm delay, reversals, station orders). Golden
 values from seed 000 and the definitions of the four effects outside the vocabulary."""

@@ -7,9 +7,10 @@ wrong. Every golden number below was measured at the commit that set them (the c
 by predicting left-out places, untestable effects as rivals, pairs of the best three chain
 effects) with ``.venv/bin/python`` running exactly these runs:
 
-* planar, 120 vocabulary trials (seed 1, 200 poses): right 52, ambiguous 53, ambiguous
-  with the truth missing 6, unexplained 9, wrong 0; 56 of 59 true values inside their
-  95 % intervals;
+* planar, 120 vocabulary trials (seed 1, 200 poses), measured when motor_cyclic_error
+  joined the vocabulary (its station layouts cannot test it: unexplained, not wrong):
+  right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
+  78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
 * chain, 80 vocabulary trials (seed 1, 60 poses): right 40, ambiguous 34, ambiguous with
   the truth missing 3, unexplained 3, wrong 0; 36 of 38 intervals cover (measured after the
@@ -25,7 +26,7 @@ truth named or among the rivals by 5, so the decision logic can move a few answe
 Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
-cell/effects.py: right 56, unexplained 25; the chain's joint effects in cell/chain/kin.py
+cell/effects/joint_offset.py: right 56, unexplained 25; the chain's joint effects in cell/chain/kin.py
 forward(): right 7, wrong 7; the twist in cell/chain/kin.py: right 4, wrong 4).
 """
 import math
@@ -83,9 +84,9 @@ def chain_vocab():
 def test_planar_vocabulary_accuracy(planar_vocab):
     v = planar_vocab["verdicts"]
     assert sum(v.values()) == 120
-    assert v["right"] >= 52 - 7, v
-    assert v["right"] + v["ambiguous"] >= 105 - 5, v
-    assert v["unexplained"] <= 9 + 5, v
+    assert v["right"] >= 58 - 7, v
+    assert v["right"] + v["ambiguous"] >= 97 - 5, v
+    assert v["unexplained"] <= 21 + 5, v
     assert v["wrong"] == 0, planar_vocab["wrong"]
 
 
