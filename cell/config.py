@@ -15,7 +15,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cell import paths
 from cell.errors import CellError
-from cell.kinematics import PRESETS, Geometry, Scara
+from cell.kinematics import Scara
+from cell.robots import PRESETS, Geometry
 from cell.yamlio import load_model
 from drivers.plc import PlcConfig
 from drivers.stations import StationsConfig

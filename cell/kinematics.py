@@ -21,63 +21,30 @@ Every bad input raises :class:`~cell.errors.KinematicsError` naming the value.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cell.errors import KinematicsError
+
+if TYPE_CHECKING:
+    from cell.robots import Geometry
 
 Elbow = Literal["right", "left"]
 JOINT_NAMES = ("j1", "j2", "j3", "j4")
 
 
-class Geometry(BaseModel):
-    """A SCARA's geometry and joint set-up as data (robot models are data).
+@dataclass(frozen=True)
+class PlanarArm:
+    """The planar part of a SCARA (seed 000): link lengths and the limits of θ1, θ2 (deg),
+    as a campaign's model.yaml gives them; what the sim-to-real diagnosis replays. A full
+    robot is a :class:`cell.robots.Geometry` (its ``l1_mm``, ``l2_mm`` and ``limits`` serve
+    wherever a PlanarArm does)."""
 
-    ``unit`` holds one command unit per joint (deg, deg, mm, deg); ``limits`` one
-    ``[low, high]`` per joint in the same units.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    name: str = "custom"
-    source: str = ""
-    l1_mm: float = Field(gt=0, le=5000)
-    l2_mm: float = Field(gt=0, le=5000)
-    base_z_mm: float = 0.0
-    tool_z_mm: float = 0.0
-    unit: tuple[float, float, float, float] = (0.01, 0.01, 0.01, 0.01)
-    limits: tuple[tuple[float, float], ...] = ((-170, 170), (-150, 150), (-200, 0), (-360, 360))
-    singular_margin_deg: float = Field(default=0.5, ge=0, le=10)
-
-    @model_validator(mode="after")
-    def _check(self) -> "Geometry":
-        if len(self.limits) != 4:
-            raise ValueError(f"limits must hold 4 [low, high] pairs, got {len(self.limits)}")
-        for name, (lo, hi) in zip(JOINT_NAMES, self.limits):
-            if not lo < hi:
-                raise ValueError(f"limits for {name}: low {lo} must be below high {hi}")
-        for name, u in zip(JOINT_NAMES, self.unit):
-            if not (u > 0 and math.isfinite(u)):
-                raise ValueError(f"command unit for {name} must be > 0, got {u}")
-        return self
-
-
-PRESETS: dict[str, Geometry] = {
-    "seed000": Geometry(
-        name="seed000",
-        source="seed 000 (grid-model paper): l1 = l2 = 500 mm, command unit 0.01° (Δ = π/1800)",
-        l1_mm=500.0, l2_mm=500.0, unit=(0.01, 0.01, 0.01, 0.01),
-        limits=((-170, 170), (-150, 150), (-200, 0), (-360, 360)),
-    ),
-    "seed002": Geometry(
-        name="seed002",
-        source="seed 002 (CAN-station SCARA): l1 = l2 = 200 mm, tool offset (0, 0, −50) mm",
-        l1_mm=200.0, l2_mm=200.0, tool_z_mm=-50.0, unit=(0.01, 0.01, 0.01, 0.01),
-        limits=((-170, 170), (-150, 150), (0, 100), (-360, 360)),
-    ),
-}
+    l1_mm: float
+    l2_mm: float
+    limits: tuple[tuple[float, float], ...] = ((-170.0, 170.0), (-150.0, 150.0))
 
 
 def planar_xy(l1_mm, l2_mm, q_deg) -> np.ndarray:
@@ -101,13 +68,15 @@ def _finite(name: str, value: float) -> float:
 class Scara:
     """Forward/inverse kinematics, Jacobian, limits and command units for one geometry."""
 
-    def __init__(self, geometry: Geometry):
+    def __init__(self, geometry: "Geometry"):
         self.g = geometry
         self._unit = np.array(geometry.unit, dtype=float)
 
     @classmethod
     def preset(cls, name: str) -> "Scara":
-        """A robot from :data:`PRESETS`; unknown names raise ``KeyError`` listing the known ones."""
+        """A robot from :data:`cell.robots.PRESETS` (the robot files); unknown names raise
+        ``KeyError`` listing the known ones."""
+        from cell.robots import PRESETS
         try:
             return cls(PRESETS[name])
         except KeyError:

@@ -269,8 +269,11 @@ def _check_separator(path: Path, header: str) -> None:
                                             "separators", line=1)
 
 
-def _read_table(path: Path, columns: dict[str, tuple[str, bool]]) -> tuple[dict[str, np.ndarray], list[int]]:
-    """Parse one CSV table; returns the columns and the 1-based file line of every row."""
+def _read_table(path: Path, columns: dict[str, tuple[str, bool]], at_once: bool = True
+                ) -> tuple[dict[str, np.ndarray], list[int]]:
+    """Parse one CSV table; returns the columns and the 1-based file line of every row.
+    ``at_once`` converts whole columns first (falling back to the cell-by-cell reading,
+    which names the bad line and column, at the first doubt); False reads cell by cell."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -288,7 +291,7 @@ def _read_table(path: Path, columns: dict[str, tuple[str, bool]]) -> tuple[dict[
         if required and name not in header:
             raise CampaignFormatError(path, "missing required column", line=1, column=name)
     used = [(i, name, columns[name][0]) for i, name in enumerate(header) if name in columns]
-    fast = _columns_at_once(rows, len(header), used)
+    fast = _columns_at_once(rows, len(header), used) if at_once else None
     if fast is not None:
         return fast
     data: dict[str, list] = {name: [] for _, name, _ in used}

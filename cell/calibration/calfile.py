@@ -28,7 +28,8 @@ import numpy as np
 
 from cell import paths
 from cell.errors import CalibrationError, KinematicsError
-from cell.kinematics import Elbow, Geometry, Scara
+from cell.kinematics import Elbow, Scara
+from cell.robots import Geometry
 
 FORMAT = "cell-robot-calibration/1"
 #: calibration parameter → (what the calibrated robot does with it, unit)

@@ -31,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from cell.compensation.arms import NominalArm
     from cell.compensation.lattice import run_lattice
     from cell.compensation.paper import run_paper
-    from cell.kinematics import Geometry, Scara
+    from cell.kinematics import Scara
+    from cell.robots import Geometry
     if not args.unit_deg > 0:
         raise KinematicsError(f"--unit-deg {args.unit_deg} must be > 0")
     try:

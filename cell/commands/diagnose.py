@@ -178,7 +178,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
         raise CampaignFormatError(p, "neither a campaign directory nor an SQLite cycle log")
     from cell.cyclelog import CycleLog
     from cell.export import cycles_to_campaign
-    from cell.kinematics import PRESETS
+    from cell.robots import PRESETS
     if robot not in PRESETS:
         raise ConfigError(f"--robot {robot!r}: unknown preset; known: {sorted(PRESETS)}")
     g = PRESETS[robot]

@@ -45,6 +45,7 @@ MIN_FOLDS = 3         # fewer: nothing can be predicted out of sample
 ALPHA = 0.01          # one-sided test over folds: a candidate predicts worse than the best
 RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
 MAX_RIVALS = 4
+REPORTED = 12         # candidates the report's selection table lists
 N_POSES = 5
 POSE_SPACING_DEG = 20.0
 
@@ -121,9 +122,10 @@ def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float],
 class Scored:
     """One candidate's out-of-sample record: ``label``, ``candidate``, ``k`` parameters,
     ``errors`` (F,) per fold, ``cv_rms`` (√ of the mean error: 1 ≈ the noise), ``p_worse``
-    the one-sided p that it predicts worse than the best, ``tied``; ``untestable`` why the
-    campaign cannot fit it at all (then it has no errors: a rival by what it mimics,
-    :func:`untestable_rivals`)."""
+    the one-sided p that it predicts worse than the best (computed for the candidates
+    within :data:`RIVAL_RATIO` and the :data:`REPORTED` best, else 1.0), ``tied``;
+    ``untestable`` why the campaign cannot fit it at all (then it has no errors: a rival
+    by what it mimics, :func:`untestable_rivals`)."""
 
     label: str
     candidate: tuple
@@ -182,9 +184,11 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
         return Judgement(chosen, None, [], [], F, n_places, nominal, testable)
     table.sort(key=lambda s: s.cv_rms)
     best = table[0]
-    for s in table:
-        s.p_worse = 1.0 if s is best else wilcoxon_greater(s.errors - best.errors)
-        s.tied = s is best or (s.p_worse >= ALPHA and s.cv_rms <= RIVAL_RATIO * best.cv_rms)
+    for i, s in enumerate(table):
+        close = s.cv_rms <= RIVAL_RATIO * best.cv_rms
+        if s is not best and (close or i < REPORTED):   # the test only where it is read
+            s.p_worse = wilcoxon_greater(s.errors - best.errors)
+        s.tied = s is best or (close and s.p_worse >= ALPHA)
     if chosen is None:
         return Judgement(None, best, [], table, F, n_places, nominal, testable)
     tied = [s for s in table if s.tied]

@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from cell import effects as fx
-from cell.kinematics import Geometry
+from cell.kinematics import PlanarArm
 from cell.measurements import Campaign, CampaignFormatError
 
 SPLIT_SEED = 20260501      # seed of the generated 70/30 split (any fixed value: repeatable)
@@ -73,7 +73,7 @@ class Move:
 class DiagData:
     """Everything the diagnosis needs from one campaign (see module docstring)."""
 
-    geometry: Geometry
+    geometry: PlanarArm
     center: np.ndarray | None
     stations: list[str]
     order: np.ndarray
@@ -109,15 +109,13 @@ class DiagData:
             if self.moves else np.zeros(0, int)
 
 
-def _geometry(c: Campaign) -> Geometry:
+def _geometry(c: Campaign) -> PlanarArm:
+    """The campaign's nominal arm: its link lengths, and its joint limits where model.yaml
+    gives them (θ1, θ2; else the cell's defaults)."""
     m = c.model
-    unit = m.command_unit_deg or 0.01
-    try:
-        return Geometry(name="campaign", source=f"model.yaml of {c.source}", l1_mm=m.l1_mm,
-                        l2_mm=m.l2_mm, unit=(unit,) * 4)
-    except ValueError as exc:
-        raise CampaignFormatError(Path(c.source) / "model.yaml",
-                                  f"nominal model not usable: {exc}", column="l1_mm") from None
+    limits = tuple((float(lo), float(hi)) for lo, hi in (m.joint_limits_deg or [])[:2])
+    return PlanarArm(float(m.l1_mm), float(m.l2_mm), limits) if len(limits) == 2 \
+        else PlanarArm(float(m.l1_mm), float(m.l2_mm))
 
 
 def _split(table: dict, n_units: int, rng: np.random.Generator) -> tuple[np.ndarray, str]:

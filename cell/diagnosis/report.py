@@ -313,7 +313,7 @@ def _selection(j: "crossval.Judgement | None", dec: rank.Decision) -> dict:
             "best": j.best.label if j.best else None,
             "named": dec.chosen.label if dec.chosen is not None else "none",
             "nominal_cv_rms": _r(j.nominal.cv_rms, 4) if j.nominal else None,
-            "table": [_scored(x) for x in j.table[:12]], "notes": j.notes}
+            "table": [_scored(x) for x in j.table[:crossval.REPORTED]], "notes": j.notes}
 
 
 def _rivals(j: "crossval.Judgement | None", s: rank.Search) -> list[dict]:

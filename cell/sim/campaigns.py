@@ -33,7 +33,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from cell import effects as fx
-from cell.kinematics import PRESETS, planar_xy
+from cell.kinematics import planar_xy
+from cell.robots import PRESETS
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.diagnosis.replay import first_step_dirs
 from cell.sim.plant import Plant

@@ -15,7 +15,7 @@ from cell import effects as fx
 from cell.diagnosis import crossval, diagnose, render_text
 from cell.diagnosis.places import places
 from cell.sim.campaigns import Design, effect_dicts
-from cell.kinematics import PRESETS
+from cell.robots import PRESETS
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.sim.plant import Plant
 

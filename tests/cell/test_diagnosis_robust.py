@@ -11,7 +11,7 @@ from cell.diagnosis import diagnose, noise, rank, robust
 from cell.diagnosis.fit import fit_candidate, subset
 from cell.diagnosis.replay import prepare
 from cell.sim.campaigns import Design, make_campaign
-from cell.kinematics import PRESETS
+from cell.robots import PRESETS
 from cell.truth import campaign as truth_campaign
 from cell.truth import parts
 

@@ -11,7 +11,8 @@ from scipy.optimize import least_squares
 
 from cell import effects as fx
 from cell.errors import ConfigError, KinematicsError, TrajectoryError
-from cell.kinematics import PRESETS, Scara
+from cell.kinematics import Scara
+from cell.robots import PRESETS
 
 G = PRESETS["seed000"]
 ROBOT = Scara(G)

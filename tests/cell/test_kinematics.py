@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from cell.errors import KinematicsError
-from cell.kinematics import PRESETS, Geometry, Scara
+from cell.kinematics import Scara
+from cell.robots import PRESETS, Geometry
 
 
 @pytest.fixture(params=sorted(PRESETS))

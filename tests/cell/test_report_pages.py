@@ -12,7 +12,7 @@ from cell import effects as fx
 from cell.cli import main
 from cell.diagnosis import page
 from cell.sim.campaigns import Design, make_campaign
-from cell.kinematics import PRESETS
+from cell.robots import PRESETS
 from cell.measurements import write_campaign
 from tests.browser import chromium
 

@@ -205,7 +205,7 @@ def test_plan_line_takes_the_robot_of_a_cell_config_or_a_preset(tmp_path):
 
 def test_plan_line_help_says_which_robot_is_the_default(tmp_path):
     from cell.config import CellConfig
-    from cell.kinematics import PRESETS
+    from cell.robots import PRESETS
     out = cellctl(tmp_path, "plan", "line", "--help")
     assert out.returncode == 0
     text = " ".join(out.stdout.split())

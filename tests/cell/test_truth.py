@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cell import effects as fx
-from cell.kinematics import Geometry
+from cell.robots import Geometry
 from cell.measurements import read_campaign
 from cell.truth import campaign, model, parts
 from cell.truth.campaign import Design

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from cell.effects import STATION_NAMES, EffectInstance, make_effect, station_order
 from cell.errors import ConfigError
-from cell.kinematics import PRESETS, Geometry
+from cell.robots import PRESETS, Geometry
 from cell.yamlio import parse_yaml, read_text, validation_message
 
 FORMAT = "cell-plant/1"

@@ -15,7 +15,8 @@ import pytest
 from cell.calibration import dh
 from cell.calibration import kinematic as km
 from cell.errors import CalibrationError
-from cell.kinematics import PRESETS, Scara
+from cell.kinematics import Scara
+from cell.robots import PRESETS
 
 CHAIN = dh.scara_chain(PRESETS["seed000"])           # seed 000: l1 = l2 = 500 mm
 CHAIN2 = dh.scara_chain(PRESETS["seed002"])          # seed 002: l1 = l2 = 200, tool_z −50
