@@ -184,7 +184,7 @@ def check_measured(measured, n: int | None = None, what: str = "measured") -> np
 
 
 def scara_chain(geometry, *, base_nominal=(0.0, 0.0, 0.0)) -> DHChain:
-    """The cell's 4-axis SCARA (:class:`cell.kinematics.Geometry`) as a DH chain, α = 0
+    """The cell's 4-axis SCARA (:class:`cell.robots.Geometry`) as a DH chain, α = 0
     everywhere so that φ = θ1 + θ2 + θ4 and z = base_z + d3 + tool_z as in
     :mod:`cell.kinematics`::
 
@@ -201,7 +201,7 @@ def scara_chain(geometry, *, base_nominal=(0.0, 0.0, 0.0)) -> DHChain:
              DHLink(0.0, 0.0, 0.0, 0.0, "prismatic", 2),
              DHLink(0.0, g.tool_z_mm, 0.0, 0.0, "revolute", 3))
     return DHChain(links, tuple(float(v) for v in base_nominal), name=g.name,
-                   source=f"cell.kinematics.Geometry {g.name!r}: {g.source}".rstrip(": "))
+                   source=f"cell.robots.Geometry {g.name!r}: {g.source}".rstrip(": "))
 
 
 # ---------------------------------------------------------------------- kinematics

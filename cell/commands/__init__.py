@@ -18,7 +18,7 @@ def float_list(n: int | None = None):
 
 
 def preset_name(text: str) -> str:
-    """argparse type: the name of a robot preset of :data:`cell.kinematics.PRESETS`. Imported
+    """argparse type: the name of a robot preset of :data:`cell.robots.PRESETS`. Imported
     only when a value is parsed, so ``--help`` does not load the kinematics (numpy, pydantic)."""
     from cell.robots import PRESETS
     if text not in PRESETS:

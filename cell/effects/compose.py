@@ -101,7 +101,7 @@ def simulate_points(nominal_geometry, effects: Sequence[EffectInstance], cmd_deg
                     time_s=None, temp_c=None, camera_center_mm=(0.0, 0.0)) -> np.ndarray:
     """What the camera measures (x, y) mm (N,2) for static poses, through stages 2–5.
 
-    ``nominal_geometry`` is a :class:`~cell.kinematics.Geometry` (or a Scara);
+    ``nominal_geometry`` is a :class:`~cell.robots.Geometry`, a Scara or a :class:`~cell.kinematics.PlanarArm`;
     ``cmd_deg`` (N,2) commanded θ1, θ2 in deg; ``dirs`` (N,2) sign of each joint's last
     motion (−1, 0, +1); ``time_s`` (N,) s (checked, no static effect uses it yet);
     ``temp_c`` (N,) or scalar °C (required only with thermal_drift); ``camera_center_mm``

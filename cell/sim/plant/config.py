@@ -66,7 +66,7 @@ class TemperatureModel(BaseModel):
 
 class PlantConfig(BaseModel):
     """The simulated cell's true robot. Exactly one of ``robot`` (a preset name of
-    :data:`cell.kinematics.PRESETS`) or ``geometry`` (a full Geometry) gives the nominal
+    :data:`cell.robots.PRESETS`) or ``geometry`` (a full Geometry) gives the nominal
     model; ``effects`` say how the truth differs from it.
 
     Units: mm, deg, s, °C. ``repeatability_mm`` / ``measurement_noise_mm`` are Gaussian σ
