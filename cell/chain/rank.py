@@ -267,14 +267,16 @@ def tied_with(s: Search, best: Candidate) -> list[Candidate]:
 
 
 def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
-    """The parameters of ``chosen`` that left-out places do not need: (name, p) where
-    removing the parameter from the linearised model does not predict left-out places
-    significantly worse (one-sided Wilcoxon over places at :data:`STEP_ALPHA`). Empty
-    when the poses do not sit at places, or at too few for the test to reach
-    :data:`STEP_ALPHA` (screening has already asked the same over poses)."""
+    """The parameters of ``chosen`` that left-out places do not need: (name, p) where the
+    linearised model without the parameter is tied with it by the rule of
+    :func:`tied_with` (not worse by the one-sided Wilcoxon test over places at
+    :data:`ALPHA`, and within :data:`RIVAL_RATIO` of its leave-out rms): the campaign
+    cannot tell whether the parameter is part of the cause. Empty when the poses do not
+    sit at places, or at fewer than :data:`MIN_FOLDS` (screening has already asked the
+    same over poses)."""
     d = s.fit_d
     n = d.folds()[1]
-    if n >= d.n_poses or 0.5 ** n >= STEP_ALPHA or not chosen.fit.params:
+    if n >= d.n_poses or n < MIN_FOLDS or not chosen.fit.params:
         return []
     ps = chosen.fit.params
     design = Screen(d, s.nominal.fit, ps)
@@ -283,7 +285,8 @@ def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     for p in ps:
         per = design.places.loo(design.cols([q for q in ps if q is not p]))[1]
         pv = wilcoxon_p(per, full)
-        if pv >= STEP_ALPHA:
+        close = math.sqrt(float(np.mean(per)) / max(float(np.mean(full)), 1e-300)) <= RIVAL_RATIO
+        if pv >= ALPHA and close:
             out.append((p.name, pv))
     return out
 
