@@ -88,8 +88,8 @@ def cols(*names: str) -> frozenset:
 CELL_WALL = cols("wall s (measured)", "wall s (cellctl `wall_s`)", "sum of cycle `wall_s`",
                  "start-up s (measured - sum)", "of which before the cell (measured - `wall_s`)",
                  "simulated s / wall s", "parts / min (wall)", "CPU s (user+sys)", "load 1 min before")
-VALIDATE_WALL = (cols("s/campaign median (max)"), cols("median s"), cols())
-CHAIN_WALL = (cols("CPU s/campaign median (max)"), cols(), cols())
+VALIDATE_WALL = (cols(), cols("s/campaign median (max)"), cols("median s"), cols())
+CHAIN_WALL = (cols(), cols("CPU s/campaign median (max)"), cols(), cols())
 
 SOURCES: tuple[Source, ...] = (
     Source("startup", ".venv/bin/python bench/bench_startup.py --runs 8",
@@ -127,23 +127,22 @@ SOURCES: tuple[Source, ...] = (
            4, (cols(), cols("wall s"), cols(), cols()), slow=True),
     Source("validate", "cellctl diagnose validate --trials 200 --seed 0 --points 300",
            ("cellctl", "diagnose", "validate", "--trials", "200", "--seed", "0", "--points", "300"),
-           3, VALIDATE_WALL),
+           4, VALIDATE_WALL),
     Source("validate-combos", "cellctl diagnose validate --trials 200 --seed 0 --points 300 --combos",
            ("cellctl", "diagnose", "validate", "--trials", "200", "--seed", "0", "--points", "300", "--combos"),
-           3, VALIDATE_WALL, slow=True),
+           4, VALIDATE_WALL, slow=True),
     Source("validate-oov", "cellctl diagnose validate --trials 200 --seed 0 --points 300 --out-of-vocabulary 1",
            ("cellctl", "diagnose", "validate", "--trials", "200", "--seed", "0", "--points", "300",
-            "--out-of-vocabulary", "1"), 3, VALIDATE_WALL, slow=True),
+            "--out-of-vocabulary", "1"), 4, VALIDATE_WALL, slow=True),
     Source("diagnosis-speed", ".venv/bin/python bench/bench_diagnosis_speed.py",
            ("bench/bench_diagnosis_speed.py",), 1, (ALL,), probe=("bench/bench_diagnosis_speed.py", "--points", "100")),
     Source("diagnose-cpu", ".venv/bin/python bench/bench_diagnose_cpu.py", ("bench/bench_diagnose_cpu.py",), 1,
            (ALL,), probe=("bench/bench_diagnose_cpu.py", "--runs", "1")),
     Source("chain", "cellctl diagnose validate --chain --trials 100 --seed 0",
-           ("cellctl", "diagnose", "validate", "--chain", "--trials", "100", "--seed", "0"), 3, CHAIN_WALL),
+           ("cellctl", "diagnose", "validate", "--chain", "--trials", "100", "--seed", "0"), 4, CHAIN_WALL),
     Source("chain-oov", "cellctl diagnose validate --chain --trials 60 --seed 0 --out-of-vocabulary 1",
            ("cellctl", "diagnose", "validate", "--chain", "--trials", "60", "--seed", "0",
-            "--out-of-vocabulary", "1"), 3, CHAIN_WALL, skip=3,
-           note="written beside the 100-campaign command: its tables follow those"),
+            "--out-of-vocabulary", "1"), 4, CHAIN_WALL),
     Source("tiago", "cellctl diagnose tests/data/real/tiago-mocap-train",
            ("cellctl", "diagnose", "tests/data/real/tiago-mocap-train"), 1),
     Source("chain-speed", ".venv/bin/python bench/bench_chain_speed.py --repeats 3",
