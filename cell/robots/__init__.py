@@ -59,14 +59,14 @@ class Geometry(BaseModel):
         return self
 
 
-def load_scara(path: Path | str) -> Geometry:
-    """The SCARA of robot file ``path`` (``kinematics: scara``). Raises ConfigError naming
-    the file and what is wrong."""
-    path = Path(path)
+def _read(path: Path):
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read the robot file: {exc}") from None
+
+
+def _scara(raw, path: Path) -> Geometry:
     if not isinstance(raw, dict) or raw.get("kinematics") != "scara":
         raise ConfigError(f"{path}: not a SCARA robot file (kinematics: scara)")
     data = {k: v for k, v in raw.items() if k != "kinematics"}
@@ -78,16 +78,20 @@ def load_scara(path: Path | str) -> Geometry:
         raise ConfigError(f"{path}: {where}: {err['msg']}") from None
 
 
-def _kind(path: Path) -> str:
-    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    return raw.get("kinematics", "") if isinstance(raw, dict) else ""
+def load_scara(path: Path | str) -> Geometry:
+    """The SCARA of robot file ``path`` (``kinematics: scara``). Raises ConfigError naming
+    the file and what is wrong."""
+    path = Path(path)
+    return _scara(_read(path), path)
 
 
 def _scan() -> tuple[dict[str, Geometry], dict[str, Path]]:
+    """Every robot file of the folder, each read once: SCARAs checked, chains by name."""
     scaras, chains = {}, {}
     for path in sorted(FOLDER.glob("*.yaml")):
-        if _kind(path) == "scara":
-            g = load_scara(path)
+        raw = _read(path)
+        if isinstance(raw, dict) and raw.get("kinematics") == "scara":
+            g = _scara(raw, path)
             scaras[g.name] = g
         else:
             chains[path.stem] = path
