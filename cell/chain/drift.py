@@ -53,12 +53,7 @@ def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square) of fit ``f`` plus a sensor frame
     drifting linearly with sample order, linearised at ``f``."""
     s = np.repeat(_order(d), 3)
-    J2 = np.column_stack([f.J, f.J[:, :N_DRIFT] * s[:, None]])
-    r = f.resid.ravel()
-    Js, _ = F._scaled(J2)
-    beta, *_ = np.linalg.lstsq(Js, r, rcond=None)
-    total, per, *_ = F.leave_one_pose_out(J2, r - Js @ beta, *d.folds())
-    return total, per
+    return F.loo_with(d, f, f.J[:, :N_DRIFT] * s[:, None])
 
 
 def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:

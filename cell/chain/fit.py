@@ -466,6 +466,19 @@ class FoldGram:
         return float(math.sqrt(np.sum(ss) / max(self.n_pts.sum(), 1))), per
 
 
+def loo_with(d: Data, f: Fit, extra: np.ndarray) -> tuple[float, np.ndarray]:
+    """Leave-out error (total rms, per-fold mean square; folds of :meth:`Data.folds`) of
+    fit ``f`` with ``extra`` (3M, k) columns added to its Jacobian, linearised at ``f``: a
+    rival hypothesis outside the vocabulary (an instrument scale, a drifting frame) judged
+    as the candidates are."""
+    J2 = np.column_stack([f.J, extra])
+    r = f.resid.ravel()
+    Js, _ = _scaled(J2)
+    beta, *_ = np.linalg.lstsq(Js, r, rcond=None)
+    total, per, *_ = leave_one_pose_out(J2, r - Js @ beta, *d.folds())
+    return total, per
+
+
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()

@@ -211,14 +211,9 @@ def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
     ``f0``: a uniform scale of the readings ``y`` and a radial one ``y·|y|`` (|y| in m)
     about the sensor origin. A rival hypothesis outside the arm's vocabulary: when it
     predicts left-out poses as well as a named cause, the data cannot tell the two apart."""
-    y, J = F.model(d, f0.reg, [], np.zeros(0), jac=True)
+    y = F.model(d, f0.reg, [], np.zeros(0))[0]
     radius_m = np.linalg.norm(y, axis=1, keepdims=True) / 1000.0
-    J2 = np.column_stack([J, y.ravel(), (y * radius_m).ravel()])
-    r0 = f0.resid.ravel()
-    Js, _ = F._scaled(J2)
-    beta, *_ = np.linalg.lstsq(Js, r0, rcond=None)
-    total, per, *_ = F.leave_one_pose_out(J2, r0 - Js @ beta, *d.folds())
-    return total, per
+    return F.loo_with(d, f0, np.column_stack([y.ravel(), (y * radius_m).ravel()]))
 
 
 @dataclass
