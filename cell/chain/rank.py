@@ -33,6 +33,7 @@ import numpy as np
 
 from cell.chain import drift
 from cell.chain import fit as F
+from cell.diagnosis.places import spaced_best
 from cell.stats import wilcoxon_greater
 
 ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out poses better
@@ -412,12 +413,7 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
     base = predict(chosen)
     diffs = np.stack([np.linalg.norm(base - predict(c), axis=2).max(axis=1) for c in rivals], 1)
     score = diffs.min(axis=1)
-    picked: list[int] = []
-    for i in np.argsort(-score):
-        if all(np.linalg.norm((q[i] - q[j]) / span) >= 0.2 for j in picked):
-            picked.append(int(i))
-        if len(picked) == N_POSES:
-            break
+    picked = spaced_best(q / span, score, N_POSES, 0.2)
     out = []
     for i in picked:
         e = {"readings": {j.column: round(float(v), 3) for j, v in zip(d.chain.joints, q[i])},

@@ -37,6 +37,7 @@ from cell import effects as fx
 from cell.diagnosis import screen
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
+from cell.diagnosis.places import spaced_best
 from cell.diagnosis.replay import DiagData
 from cell.stats import wilcoxon_greater
 
@@ -260,14 +261,7 @@ def separating_poses(B: screen.Basis, screened: dict, named: tuple, rivals: list
     base = predict(named)
     diffs = np.stack([np.linalg.norm(base - predict(r.candidate), axis=1) for r in rivals], axis=1)
     score = diffs.min(axis=1)
-    picked: list[int] = []
-    for i in np.argsort(-score):
-        if score[i] <= 0:
-            break
-        if all(np.hypot(*(qq[i] - qq[j])) >= POSE_SPACING_DEG for j in picked):
-            picked.append(int(i))
-        if len(picked) == N_POSES:
-            break
+    picked = spaced_best(qq, score, N_POSES, POSE_SPACING_DEG)
     out = []
     for i in picked:
         entry = {"j1_deg": round(float(qq[i, 0]), 3), "j2_deg": round(float(qq[i, 1]), 3),

@@ -69,3 +69,16 @@ def folds(q: np.ndarray, max_folds: int | None = None) -> tuple[np.ndarray, int,
         cent = np.array([q[group == g].mean(axis=0) for g in range(n)])
         group = regions(cent, max_folds)[group]
     return group, n_places, bool(stations)
+
+
+def spaced_best(q: np.ndarray, score: np.ndarray, n: int, spacing: float) -> list[int]:
+    """Indices of up to ``n`` rows of ``q`` by falling ``score`` (only score > 0), each at
+    least ``spacing`` (Euclidean, in ``q``'s units) from those already taken: the poses
+    where rival causes differ most, not five neighbours of one."""
+    picked: list[int] = []
+    for i in np.argsort(-score):
+        if score[i] <= 0 or len(picked) == n:
+            break
+        if all(np.linalg.norm(q[i] - q[j]) >= spacing for j in picked):
+            picked.append(int(i))
+    return picked
