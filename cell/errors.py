@@ -1,6 +1,8 @@
 """Exception hierarchy. Every error names the offending value and where it came from."""
 from __future__ import annotations
 
+from pathlib import Path
+
 
 class CellError(Exception):
     """Base of every error the cell controller raises on purpose."""
@@ -49,3 +51,14 @@ class CalibrationError(CellError, ValueError):
             raise ValueError(f"CalibrationError fault {fault!r}; use one of {self.FAULTS}")
         super().__init__(message)
         self.fault = fault
+
+
+class CampaignFormatError(CellError, ValueError):
+    """Bad campaign input; ``file``, ``line`` and ``column`` locate it (line/column may be
+    None), ``message`` says what is wrong."""
+
+    def __init__(self, file: Path | str, message: str, line: int | None = None,
+                 column: str | None = None):
+        self.file, self.line, self.column, self.message = str(file), line, column, message
+        where = self.file + (f", line {line}" if line else "") + (f", column {column!r}" if column else "")
+        super().__init__(f"{where}: {message}")

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cell.errors import CellError
+from cell.errors import CampaignFormatError, CellError  # noqa: F401 (re-exported for the readers)
 
 FORMAT = "cell-measurements/1"
 CHAIN_KINEMATICS = ("dh", "urdf")
@@ -55,17 +55,6 @@ PATH_COLUMNS = {
     "x_mm": ("float", True), "y_mm": ("float", True),
     "split": ("split", False),
 }
-
-
-class CampaignFormatError(CellError, ValueError):
-    """Bad campaign input; ``file``, ``line`` and ``column`` locate it (line/column may be
-    None), ``message`` says what is wrong."""
-
-    def __init__(self, file: Path | str, message: str, line: int | None = None,
-                 column: str | None = None):
-        self.file, self.line, self.column, self.message = str(file), line, column, message
-        where = self.file + (f", line {line}" if line else "") + (f", column {column!r}" if column else "")
-        super().__init__(f"{where}: {message}")
 
 
 @functools.cache

@@ -1,5 +1,11 @@
 """The cell's SCARA as a standard-DH chain and its differential (first-order) error model,
-seed 001. Pure, vectorised numerics; no I/O.
+seed 001, for the hand-camera calibration. Pure, vectorised numerics; no I/O.
+
+The chain is evaluated by the one robot model, :mod:`cell.kinematics`: a :class:`DHChain`
+is a :class:`~cell.kinematics.chain.Chain` with the board placement ``B`` as its first
+three ops, and every error parameter adds to one op, so :func:`error_jacobian`'s columns
+are op twists (:mod:`cell.kinematics.evaluate`). What this module adds is the naming of
+the seed 001 parameters and the planar (x, y, φ) measurement.
 
 Chain and conventions (angles in degrees and lengths in mm at every interface)::
 
@@ -38,6 +44,7 @@ from typing import Literal, Mapping
 import numpy as np
 
 from cell.errors import CalibrationError
+from cell.kinematics import AXES, Chain, Joint, Op, forward
 
 JointType = Literal["revolute", "prismatic"]
 DH_FIELDS = ("theta", "d", "a", "alpha")
@@ -88,6 +95,8 @@ class DHChain:
     name: str = "custom"
     source: str = ""
     param_names: tuple[str, ...] = field(init=False, repr=False, compare=False)
+    ops_chain: Chain = field(init=False, repr=False, compare=False)
+    param_op: tuple[int, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.links:
@@ -97,6 +106,9 @@ class DHChain:
                                    f"got {self.base_nominal!r}")
         names = tuple(f"j{k + 1}.{f}" for k in range(len(self.links)) for f in DH_FIELDS)
         object.__setattr__(self, "param_names", names + BASE_NAMES)
+        ops_chain, param_op = _as_ops(self)
+        object.__setattr__(self, "ops_chain", ops_chain)
+        object.__setattr__(self, "param_op", param_op)
 
     # ------------------------------------------------------------------ bookkeeping
     @property
@@ -165,6 +177,29 @@ class DHChain:
         return r
 
 
+def _as_ops(chain: DHChain) -> tuple[Chain, tuple[int, ...]]:
+    """The :class:`~cell.kinematics.chain.Chain` of ``chain``: ``Tx(x0) · Ty(y0) · Rz(rz0)``
+    (the board placement ``B``) then ``Rz(θ) · Tz(d) · Tx(a) · Rx(α)`` per link; and, in
+    ``param_names`` order, the op each error parameter adds to."""
+    x, y, z = AXES["x"], AXES["y"], AXES["z"]
+    x0, y0, rz0 = chain.base_nominal
+    ops = [Op("T", x, x0), Op("T", y, y0), Op("R", z, rz0)]
+    link_ops: list[int] = []
+    for lk in chain.links:
+        rev = lk.joint_type == "revolute"
+        link_ops += range(len(ops), len(ops) + 4)
+        ops += [Op("R", z, lk.theta_deg, joint=lk.joint if rev else None),
+                Op("T", z, lk.d_mm, joint=None if rev else lk.joint),
+                Op("T", x, lk.a_mm), Op("R", x, lk.alpha_deg)]
+    types = {lk.joint: lk.joint_type for lk in chain.links}
+    n = chain.n_joints
+    joints = [Joint(f"j{k + 1}", f"j{k + 1}", types.get(k, "revolute")) for k in range(n)]
+    joint_op = [next((i for i, op in enumerate(ops) if op.joint == k), 0) for k in range(n)]
+    kc = Chain("dh", ops, joints, np.zeros((n, n)), np.zeros(3), np.array([0.0, 0.0, -1.0]),
+               "standard", {}, joint_op)
+    return kc, tuple(link_ops) + (0, 1, 2)
+
+
 def _check_finite_rows(a: np.ndarray, what: str) -> None:
     bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
     if bad.size:
@@ -184,68 +219,32 @@ def check_measured(measured, n: int | None = None, what: str = "measured") -> np
 
 
 def scara_chain(geometry, *, base_nominal=(0.0, 0.0, 0.0)) -> DHChain:
-    """The cell's 4-axis SCARA (:class:`cell.robots.Geometry`) as a DH chain, α = 0
-    everywhere so that φ = θ1 + θ2 + θ4 and z = base_z + d3 + tool_z as in
-    :mod:`cell.kinematics`::
-
-        link 1: revolute  q0 = θ1,  d = base_z, a = l1, α = 0
-        link 2: revolute  q1 = θ2,  d = 0,      a = l2, α = 0
-        link 3: prismatic q2 = d3,  θ = 0,      a = 0,  α = 0
-        link 4: revolute  q3 = θ4,  d = tool_z, a = 0,  α = 0
-
-    ``base_nominal`` (x mm, y mm, rz deg) is the nominal pose of the base in the board frame.
+    """The cell's 4-axis SCARA (:class:`cell.robots.Geometry`) as a DH chain: the rows of
+    :func:`cell.kinematics.dh_rows` (α = 0 everywhere, so φ = θ1 + θ2 + θ4 and
+    z = base_z + d3 + tool_z). ``base_nominal`` (x mm, y mm, rz deg) is the nominal pose of
+    the base in the board frame.
     """
-    g = geometry
-    links = (DHLink(0.0, g.base_z_mm, g.l1_mm, 0.0, "revolute", 0),
-             DHLink(0.0, 0.0, g.l2_mm, 0.0, "revolute", 1),
-             DHLink(0.0, 0.0, 0.0, 0.0, "prismatic", 2),
-             DHLink(0.0, g.tool_z_mm, 0.0, 0.0, "revolute", 3))
-    return DHChain(links, tuple(float(v) for v in base_nominal), name=g.name,
-                   source=f"cell.robots.Geometry {g.name!r}: {g.source}".rstrip(": "))
+    from cell.kinematics import dh_rows
+    links = tuple(DHLink(r["theta_deg"], r["d_mm"], r["a_mm"], r["alpha_deg"], r["type"], k)
+                  for k, r in enumerate(dh_rows(geometry)))
+    return DHChain(links, tuple(float(v) for v in base_nominal), name=geometry.name,
+                   source=f"cell.robots.Geometry {geometry.name!r}: {geometry.source}".rstrip(": "))
 
 
 # ---------------------------------------------------------------------- kinematics
-def _dh(theta_deg, d_mm, a_mm, alpha_deg) -> np.ndarray:
-    """Stacked A = Rz(θ)·Tz(d)·Tx(a)·Rx(α), (N, 4, 4), from (N,) arrays."""
-    t, al = np.radians(theta_deg), np.radians(alpha_deg)
-    ct, st, ca, sa = np.cos(t), np.sin(t), np.cos(al), np.sin(al)
-    A = np.zeros(t.shape + (4, 4))
-    A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, a_mm * ct
-    A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, a_mm * st
-    A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, d_mm
-    A[:, 3, 3] = 1.0
-    return A
-
-
-def frames(chain: DHChain, q, p=None) -> np.ndarray:
-    """All frames in the board frame, (N, n_links + 1, 4, 4): index 0 is the base ``B(p)``,
-    index i the frame at the end of link i (the last one is the tool).
-    q (N, n_joints) θ deg / d mm; p (n_params,) errors or None (nominal)."""
+def _forward(chain: DHChain, q, p, keep: bool = False):
+    """:func:`cell.kinematics.forward` of ``chain`` at errors ``p`` (checked)."""
     q = chain.check_joints(q)
     p = np.zeros(chain.n_params) if p is None else chain.check_errors(p)
-    n = q.shape[0]
-    x0, y0, rz0 = chain.base_nominal
-    rz = math.radians(rz0 + p[-1])
-    B = np.eye(4)
-    B[:2, :2] = [[math.cos(rz), -math.sin(rz)], [math.sin(rz), math.cos(rz)]]
-    B[0, 3], B[1, 3] = x0 + p[-3], y0 + p[-2]
-    out = np.empty((n, len(chain.links) + 1, 4, 4))
-    out[:, 0] = B
-    for i, lk in enumerate(chain.links):
-        dt, dd, da, dal = p[4 * i: 4 * i + 4]
-        qi = q[:, lk.joint]
-        zero = np.zeros(n)
-        theta = lk.theta_deg + dt + (qi if lk.joint_type == "revolute" else zero)
-        d = lk.d_mm + dd + (qi if lk.joint_type == "prismatic" else zero)
-        out[:, i + 1] = out[:, i] @ _dh(theta, d, np.full(n, lk.a_mm + da), np.full(n, lk.alpha_deg + dal))
-    return out
+    geo = {op: float(v) for op, v in zip(chain.param_op, p) if v}
+    return forward(chain.ops_chain, q, geo, keep=keep)
 
 
 def fk(chain: DHChain, q, p=None) -> np.ndarray:
     """Tool transforms in the board frame, (N, 4, 4), for joints q (N, n_joints) (θ deg,
     d mm) and errors p (n_params,) (None: nominal), base nuisance ``B(p)`` included.
     Raises CalibrationError for bad shapes or non-finite values."""
-    return frames(chain, q, p)[:, -1]
+    return _forward(chain, q, p)[0]
 
 
 def planar_pose(T) -> np.ndarray:
@@ -293,15 +292,12 @@ def error_jacobian(chain: DHChain, q, p=None) -> np.ndarray:
     The model is exact to first order at any p (it is the derivative of
     :func:`fk` → :func:`planar_pose`), so it can be relinearised (Gauss–Newton).
     """
-    F = frames(chain, q, p)
-    n = F.shape[0]
-    tool_p, r1 = F[:, -1, :3, 3], F[:, -1, :3, 0]
+    T, starts = _forward(chain, q, p, keep=True)
+    tool_p, r1 = T[:, :3, 3], T[:, :3, 0]
     cols = []
-    for i in range(len(chain.links)):
-        z_prev, o_prev = F[:, i, :3, 2], F[:, i, :3, 3]
-        x_i, o_i = F[:, i + 1, :3, 0], F[:, i + 1, :3, 3]
-        cols += [_rotation_rows(z_prev, o_prev, tool_p, r1), _translation_rows(z_prev),
-                 _translation_rows(x_i), _rotation_rows(x_i, o_i, tool_p, r1)]
-    ex, ey, ez = (np.tile(np.eye(3)[k], (n, 1)) for k in range(3))
-    cols += [_translation_rows(ex), _translation_rows(ey), _rotation_rows(ez, F[:, 0, :3, 3], tool_p, r1)]
-    return np.stack(cols, axis=-1).reshape(n * 3, len(cols))
+    for o in chain.param_op:
+        op, F = chain.ops_chain.ops[o], starts[o]
+        u = F[:, :3, :3] @ op.axis
+        cols.append(_rotation_rows(u, F[:, :3, 3], tool_p, r1) if op.kind == "R"
+                    else _translation_rows(u))
+    return np.stack(cols, axis=-1).reshape(len(T) * 3, len(cols))

@@ -1,9 +1,8 @@
 """Any serial arm, measured in 3-D (``cell/measurements.md``, Extension v1.1): chain
-models, registration, the sim-to-real diagnosis and the kinematic calibration of chains.
+registration, the sim-to-real diagnosis and the kinematic calibration of chains.
+The chain itself (dh / urdf → ops, forward kinematics, twists) is :mod:`cell.kinematics`.
 
-* :mod:`.model`     dh / urdf model → one product of elementary ops (data, mm and deg)
 * :mod:`.campaign`  chain campaigns: read, validate (file/line/joint errors), write
-* :mod:`.kin`       forward kinematics and exact Jacobians (op twists)
 * :mod:`.fit`       registration (sensor frame, markers) and parameter fits, robust errors
 * :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision
 * :mod:`.report`    the ``cell-diagnosis/1`` report for chains

@@ -34,7 +34,7 @@ from cell.chain import fit as F
 from cell.chain import rank
 from cell.chain.campaign import ChainCampaign, ChainSpec, write_chain_campaign
 from cell.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
-from cell.chain.model import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
+from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.chain.report import split_poses
 from cell.jsonsafe import json_safe
 

@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from cell.chain.model import Chain, dh_chain, urdf_chain
+from cell.kinematics.chain import Chain, dh_chain, urdf_chain
 from cell.measurements import (FORMAT, CampaignFormatError, _read_table, _yaml_line, check_places,
                                staged_dir, yaml_loc)
 from cell.yamlio import error_text

@@ -8,7 +8,7 @@ Measurement model (one measured point ``y`` of marker m on pose p)::
 positions in the tip frame, when ``markers: unknown``) are **registration**: nuisance
 fitted first and with every candidate. ``e`` are the error parameters of the chain
 vocabulary (:func:`vocabulary`). Fits are damped Gauss–Newton with exact Jacobians
-(:mod:`cell.chain.kin`); the sensor rotation is updated multiplicatively.
+(:mod:`cell.kinematics.evaluate`); the sensor rotation is updated multiplicatively.
 
 **Honest uncertainty.** The markers of one pose share its joint readings and often one
 tracked rigid body, so their errors are correlated: the covariance is the
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
-from cell.chain import kin
-from cell.chain.model import Chain
+import cell.kinematics as kin
+from cell.kinematics.chain import Chain
 from cell.diagnosis.places import folds as place_folds
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile

@@ -98,3 +98,25 @@ def test_geometry_is_validated():
         Geometry(l1_mm=1, l2_mm=1, limits=((10, -10), (0, 1), (0, 1), (0, 1)))
     with pytest.raises(KeyError, match="known"):
         Scara.preset("puma")
+
+
+def test_the_scara_is_a_chain_like_any_other(robot):
+    """One robot model: the closed form the control loop uses (fk, jacobian) is the SCARA's
+    chain (cell.kinematics.scara_chain) evaluated like a UR5's, pose for pose, and its
+    Jacobian is that chain's op twists."""
+    from cell.kinematics import forward, twist
+    rng = np.random.default_rng(11)
+    lims = np.array(robot.g.limits, float)
+    q = rng.uniform(lims[:, 0] * 0.9, lims[:, 1] * 0.9, size=(40, 4))
+    T, starts = forward(robot.chain, q, keep=True)
+    closed = np.array([robot.fk(row) for row in q])
+    np.testing.assert_allclose(T[:, :3, 3], closed[:, :3], atol=1e-9)
+    heading = np.degrees(np.arctan2(T[:, 1, 0], T[:, 0, 0]))
+    np.testing.assert_allclose((heading - closed[:, 3] + 180.0) % 360.0 - 180.0, 0.0, atol=1e-9)
+    every = np.arange(len(q))
+    for k in (0, 1):
+        col = twist(robot.chain, starts, robot.chain.joint_op[k], T[:, :3, 3], every)[:, :2]
+        want = np.array([robot.jacobian(a, b)[:, k] for a, b in q[:, :2]])
+        np.testing.assert_allclose(col, want, atol=1e-9)
+    assert [j.type for j in robot.chain.joints] == ["revolute", "revolute", "prismatic", "revolute"]
+    assert [(j.lower, j.upper) for j in robot.chain.joints] == [tuple(v) for v in robot.g.limits]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cell.chain.campaign import build_chain, load_spec
-from cell.chain.kin import forward
+from cell.kinematics import forward
 from cell.errors import ConfigError
 from cell.kinematics import Scara
 from cell.robots import CHAIN_MODELS, PRESETS, chain_model_file, load_scara

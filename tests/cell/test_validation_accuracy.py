@@ -26,8 +26,8 @@ truth named or among the rivals by 5, so the decision logic can move a few answe
 Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
-cell/effects/joint_offset.py: right 56, unexplained 25; the chain's joint effects in cell/chain/kin.py
-forward(): right 7, wrong 7; the twist in cell/chain/kin.py: right 4, wrong 4).
+cell/effects/joint_offset.py: right 56, unexplained 25; the chain's joint effects in cell/kinematics/evaluate.py
+forward(): right 7, wrong 7; the twist in cell/kinematics/evaluate.py: right 4, wrong 4).
 """
 import math
 

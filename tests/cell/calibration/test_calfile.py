@@ -1,7 +1,7 @@
 """The robot calibration file: versioned writes, refusals at load, the calibrated robot.
 
 Golden values: the constructed documents of this file; the nominal robots are the presets
-of cell/kinematics.py (seed 000: l1 = l2 = 500 mm; seed 002: 200 mm)."""
+of cell/kinematics/scara.py (seed 000: l1 = l2 = 500 mm; seed 002: 200 mm)."""
 import json
 
 import numpy as np

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from cell.chain import fit as F
-from cell.chain import kin
-from cell.chain.model import dh_chain, matrix_rpy, rpy_matrix
+import cell.kinematics as kin
+from cell.kinematics.chain import dh_chain, matrix_rpy, rpy_matrix
 from cell.measurements import read_campaign
 from cell.truth import chain as truth
 from tests.cell.chain import chainsim

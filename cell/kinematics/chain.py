@@ -9,9 +9,9 @@ Every chain, whatever its source, is the product (base to tip) of **ops**::
 
 An R/T op's value is ``nominal + Σ (its parameters) + joint terms``. Joint K's op carries
 its *model value* ``reading_K + Σ factor · reading_from`` (coupling), plus whatever error
-effects add to it (:mod:`cell.chain.params`). Because every parameter enters one op as a
+effects add to it (:mod:`cell.chain.fit`). Because every parameter enters one op as a
 plain sum, the derivative of a point with respect to any parameter is that op's twist at
-the frame it starts in: exact analytic Jacobians (:mod:`cell.chain.kin`).
+the frame it starts in: exact analytic Jacobians (:mod:`cell.kinematics.evaluate`).
 
 * **Standard DH** row K: ``Rz(θ_K + q) · Tz(d_K) · Tx(a_K) · Rx(α_K)`` (prismatic: q in Tz).
 * **Modified DH** (Craig) row K: ``Rx(α_{K−1}) · Tx(a_{K−1}) · Rz(θ_K + q) · Tz(d_K)``.
@@ -19,7 +19,7 @@ the frame it starts in: exact analytic Jacobians (:mod:`cell.chain.kin`).
   zero-valued ops are the origin's error parameters; fixed joints fold into F.
 
 Units at every interface: mm and degrees (URDF metres × 1000, radians × 180/π).
-Errors raise :class:`~cell.measurements.CampaignFormatError` naming the file and the joint.
+Errors raise :class:`~cell.errors.CampaignFormatError` naming the file and the joint.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from typing import Literal
 
 import numpy as np
 
-from cell.measurements import CampaignFormatError
+from cell.errors import CampaignFormatError
 
 D2R = math.pi / 180.0
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
@@ -139,7 +139,7 @@ def matrix_rpy(T: np.ndarray) -> tuple[list[float], list[float]]:
 
 
 # ------------------------------------------------------------------- builders
-def _check_coupling(file: Path, joints: list[Joint], coupling: list[dict]) -> np.ndarray:
+def _check_coupling(file: Path | str, joints: list[Joint], coupling: list[dict]) -> np.ndarray:
     index = {j.name: k for k, j in enumerate(joints)}
     C = np.zeros((len(joints), len(joints)))
     for i, c in enumerate(coupling):
@@ -157,7 +157,7 @@ def _check_coupling(file: Path, joints: list[Joint], coupling: list[dict]) -> np
     return C
 
 
-def dh_chain(file: Path, rows: list[dict], convention: str, coupling: list[dict],
+def dh_chain(file: Path | str, rows: list[dict], convention: str, coupling: list[dict],
              tool_mm, gravity) -> Chain:
     """Chain from DH rows (dicts with name, type, a_mm, alpha_deg, d_mm, theta_deg and
     optional limits [lo, hi]). Geometric parameters ``jK_{theta_deg,d_mm,a_mm,alpha_deg}``;

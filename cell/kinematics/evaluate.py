@@ -1,7 +1,7 @@
-"""Forward kinematics of a :class:`~cell.chain.model.Chain` and its exact Jacobians. Pure,
+"""Forward kinematics of a :class:`~cell.kinematics.chain.Chain` and its exact Jacobians. Pure,
 vectorised numerics over poses; no I/O.
 
-Every error parameter adds to the value of one op (:mod:`cell.chain.model`), so the
+Every error parameter adds to the value of one op (:mod:`cell.kinematics.chain`), so the
 derivative of a base-frame point ``x`` with respect to it is that op's twist, taken at
 the frame ``F`` the op starts in::
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.chain.model import D2R, Chain, rot, trans
+from cell.kinematics.chain import D2R, Chain, rot, trans
 
 
 def forward(chain: Chain, readings: np.ndarray, geo: dict[int, float] | None = None,

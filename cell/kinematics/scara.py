@@ -1,6 +1,12 @@
 """4-axis SCARA kinematics (θ1, θ2, z, θ4) with the planar part of seed 000 and the
 z/wrist chain of seed 002. Pure numerics, no I/O.
 
+The SCARA is a chain like any other: :func:`dh_rows` is its standard-DH model and
+:attr:`Scara.chain` the :class:`~cell.kinematics.chain.Chain` built from it, which the
+calibration (:mod:`cell.calibration.dh`) and the chain diagnosis evaluate with
+:mod:`cell.kinematics.evaluate`. The methods here are that chain's closed form (α = 0
+everywhere), for the control loop's single poses; a test holds the two equal.
+
 Conventions (all documented units, angles in degrees at the interface):
 
 * joints ``q = (θ1_deg, θ2_deg, d3_mm, θ4_deg)``; θ2 is measured from link 1.
@@ -29,6 +35,7 @@ import numpy as np
 from cell.errors import KinematicsError
 
 if TYPE_CHECKING:
+    from cell.kinematics.chain import Chain
     from cell.robots import Geometry
 
 Elbow = Literal["right", "left"]
@@ -58,6 +65,31 @@ def planar_xy(l1_mm, l2_mm, q_deg) -> np.ndarray:
                             l1_mm * np.sin(a) + l2_mm * np.sin(ab)])
 
 
+def dh_rows(geometry: "Geometry") -> list[dict]:
+    """The SCARA as standard-DH rows (the ``joints`` of a ``kinematics: dh`` model), α = 0
+    everywhere so that φ = θ1 + θ2 + θ4 and z = base_z + d3 + tool_z::
+
+        j1: revolute  θ1,  d = base_z, a = l1
+        j2: revolute  θ2,  d = 0,      a = l2
+        j3: prismatic d3,  θ = 0,      a = 0
+        j4: revolute  θ4,  d = tool_z, a = 0
+    """
+    g = geometry
+    rows = [("revolute", g.base_z_mm, g.l1_mm), ("revolute", 0.0, g.l2_mm),
+            ("prismatic", 0.0, 0.0), ("revolute", g.tool_z_mm, 0.0)]
+    return [{"name": name, "type": kind, "theta_deg": 0.0, "d_mm": float(d), "a_mm": float(a),
+             "alpha_deg": 0.0, "limits": [float(v) for v in lim]}
+            for name, (kind, d, a), lim in zip(JOINT_NAMES, rows, g.limits)]
+
+
+def scara_chain(geometry: "Geometry") -> "Chain":
+    """The SCARA of ``geometry`` as a :class:`~cell.kinematics.chain.Chain` (:func:`dh_rows`;
+    tool point at the flange, gravity along −z)."""
+    from cell.kinematics.chain import dh_chain
+    return dh_chain(f"robot {geometry.name!r}", dh_rows(geometry), "standard", [],
+                    (0.0, 0.0, 0.0), (0.0, 0.0, -1.0))
+
+
 def _finite(name: str, value: float) -> float:
     v = float(value)
     if not math.isfinite(v):
@@ -71,6 +103,14 @@ class Scara:
     def __init__(self, geometry: "Geometry"):
         self.g = geometry
         self._unit = np.array(geometry.unit, dtype=float)
+        self._chain: "Chain | None" = None
+
+    @property
+    def chain(self) -> "Chain":
+        """This robot as a chain (:func:`scara_chain`), built on first use."""
+        if self._chain is None:
+            self._chain = scara_chain(self.g)
+        return self._chain
 
     @classmethod
     def preset(cls, name: str) -> "Scara":
