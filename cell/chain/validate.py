@@ -34,10 +34,10 @@ chain vocabulary), ``plane_bump`` (a smooth local displacement of 0.1–0.4 mm, 
 150–300 mm, centred near the arm's reach). A vocabulary cause named with high confidence
 and without ``unexplained`` is a confident wrong cause.
 
-Scores (:func:`summarise`): verdict counts (in and outside the vocabulary), the confident
-wrong answers, effect and effect+joint accuracy, confusion matrix, ``none`` named as an
-effect, effects called ``none``, median holdout shrink, coverage of the true parameters by
-the 95 % intervals (trials judged right), CPU seconds per campaign.
+The trial, the scores (verdict counts, confident wrong answers, accuracy, confusion
+matrix, holdout shrink, coverage of the true parameters by the 95 % intervals, CPU seconds)
+and the tables are the one harness of both families, :mod:`cell.diagnosis.harness`; this
+module draws the chain truths and campaigns.
 """
 from __future__ import annotations
 
@@ -52,6 +52,8 @@ import numpy as np
 
 from cell.chain.fit import EFFECTS
 from cell.chain.report import diagnose_chain
+from cell.diagnosis import harness
+from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
 from cell.measurements import read_campaign
 from cell.truth import verdict as vd
 from cell.truth.chain_campaign import MARKERS, make
@@ -88,52 +90,6 @@ class Truth:
     @property
     def label(self) -> str:
         return f"{self.kind} (outside)" if self.kind in OUTSIDE else self.expected.label
-
-
-@dataclass
-class Trial:
-    index: int
-    truth: Truth
-    named: str
-    named_joints: tuple[str, ...]
-    unexplained: bool
-    low_confidence: bool
-    shrink: float
-    covered: int
-    n_params: int
-    seconds: float
-    verdict: str = ""
-    confidence: str | None = None
-    answer_label: str = ""
-    layout: dict | None = None
-    seed: int = 0
-
-    @property
-    def truth_label(self) -> str:
-        return self.truth.label
-
-    @property
-    def outside(self) -> bool:
-        return self.truth.kind in OUTSIDE
-
-    @property
-    def answer(self) -> str:
-        return "unexplained" if self.unexplained else self.named
-
-    @property
-    def effect_ok(self) -> bool:
-        if self.truth.kind == "none":
-            return self.answer == "none"
-        return self.answer == self.truth.kind
-
-    @property
-    def joint_ok(self) -> bool:
-        return self.effect_ok and (self.truth.kind == "none"
-                                   or tuple(self.named_joints) == self.truth.joints)
-
-    @property
-    def confident_cause(self) -> bool:
-        return not self.unexplained and self.named != "none" and not self.low_confidence
 
 
 def _size(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -245,17 +201,11 @@ def run_trial(i: int, seed: int, poses: int = 60, outside_share: float = 0.0,
         t0 = time.process_time()
         rep = diagnose_chain(read_campaign(d))
         secs = time.process_time() - t0
-    c = rep["cause"]
-    verdict = vd.classify(truth.expected, rep)
-    hit = n = 0
-    if verdict == "right":
-        hit, n = _covered(truth, c["ci95"])
-    named = vd.cause_components(c)
-    answer = " + ".join(f"{e}[{','.join(j)}]" if j else e for e, j in named) or "none"
-    return Trial(i, truth, c["effect"], tuple(c["joints"]), bool(rep["unexplained"]),
-                 c.get("confidence") in ("low", "ambiguous"),
-                 float(rep["holdout"]["shrink"] or 0.0), hit, n, secs, verdict,
-                 c.get("confidence"), answer, lay, tseed)
+    return harness.judge(i, tseed, rep, truth.expected, true_effect=truth.kind,
+                         true_joints=truth.joints, truth_label=truth.label, seconds=secs,
+                         covered=lambda ci95: _covered(truth, ci95), layout=lay,
+                         second=truth.components[1][0] if truth.components else None,
+                         truth_params=truth.params)
 
 
 def run(trials: int, seed: int, poses: int = 60, outside_share: float = 0.0,
@@ -263,103 +213,13 @@ def run(trials: int, seed: int, poses: int = 60, outside_share: float = 0.0,
         start: int = 0) -> list[Trial]:
     """Trials ``start`` … ``start + trials − 1``, judged. Raises ValueError for a share
     outside [0, 1], an unknown kind or layout, or fewer than 20 poses."""
-    if not 0.0 <= outside_share <= 1.0:
-        raise ValueError(f"outside_share {outside_share} must lie in [0, 1]")
-    bad = [k for k in outside_kinds if k not in OUTSIDE]
-    if bad or not outside_kinds:
-        raise ValueError(f"unknown kinds {bad}; known: {list(OUTSIDE)}")
     if poses < 20:
         raise ValueError(f"poses {poses} must be ≥ 20")
-    if layout not in LAYOUTS:
-        raise ValueError(f"unknown layout {layout!r}; known: {list(LAYOUTS)}")
-    out = []
-    for i in range(start, start + trials):
-        out.append(run_trial(i, seed, poses, outside_share, tuple(outside_kinds), layout))
-        if progress:
-            progress(i, out[-1])
-    return out
-
-
-def _share(xs) -> float:
-    xs = list(xs)
-    return sum(map(bool, xs)) / len(xs) if xs else math.nan
-
-
-def summarise(ts: list[Trial]) -> dict:
-    """The scores of the module docstring (JSON-ready)."""
-    voc = [t for t in ts if not t.outside]
-    out = [t for t in ts if t.outside]
-    eff = [t for t in voc if t.truth.kind != "none"]
-    none = [t for t in voc if t.truth.kind == "none"]
-    cov_hit, cov_n = sum(t.covered for t in voc), sum(t.n_params for t in voc)
-    secs = [t.seconds for t in ts] or [math.nan]
-    return {
-        "trials": len(ts),
-        "verdicts": vd.counts(t.verdict for t in voc),
-        "outside_verdicts": vd.counts(t.verdict for t in out),
-        "wrong": [{"seed": t.seed, "truth": t.truth_label, "answer": t.answer_label,
-                   "confidence": t.confidence, "layout": t.layout}
-                  for t in ts if t.verdict == "wrong"],
-        "effect_accuracy": _share(t.effect_ok for t in voc),
-        "joint_accuracy_effects": _share(t.joint_ok for t in eff),
-        "none_named_as_effect": sum(t.answer != "none" for t in none),
-        "none_trials": len(none),
-        "effects_called_none": sum(t.answer == "none" for t in eff),
-        "unexplained": sum(t.unexplained for t in voc),
-        "median_shrink": float(np.median([t.shrink for t in eff])) if eff else math.nan,
-        "coverage": cov_hit / cov_n if cov_n else math.nan,
-        "coverage_n": cov_n,
-        "cpu_s_median": float(np.median(secs)), "cpu_s_max": float(np.max(secs)),
-        "outside_trials": len(out),
-        "outside_named_as_cause": sum(t.confident_cause for t in out),
-        "outside_unexplained": sum(t.unexplained for t in out),
-        "outside_none": sum(t.answer == "none" for t in out),
-    }
-
-
-def _num(v: float) -> str:
-    return "–" if math.isnan(v) else f"{v:.3f}"
-
-
-def _pct(v: float) -> str:
-    return "–" if math.isnan(v) else f"{100 * v:.1f} %"
+    harness.check_outside(outside_share, outside_kinds, OUTSIDE, layout, LAYOUTS)
+    return harness.run(lambda i: run_trial(i, seed, poses, outside_share, tuple(outside_kinds),
+                                           layout), trials, start, progress)
 
 
 def markdown(ts: list[Trial], title: str) -> str:
-    """Markdown tables: verdicts, confident wrong answers, summary, per truth, confusion
-    matrix (rows outside the vocabulary marked; for them "named right" counts trials with
-    no confident cause)."""
-    s = summarise(ts)
-    wrong = vd.wrong_lines(ts)
-    out = [f"### {title}", "", *vd.TABLE_HEAD, *vd.table_lines("chain", ts, lambda t: t.outside), "",
-           *(["Confident wrong answers:", "", *wrong, ""] if wrong else []),
-           "| trials | effect acc. | effect+joint acc. (effects) | none named as effect | effects called none "
-           "| unexplained (vocab.) | median holdout shrink | 95 % CI coverage | CPU s/campaign median (max) "
-           "| outside vocab. named as cause |",
-           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-           f"| {s['trials']} | {_pct(s['effect_accuracy'])} | {_pct(s['joint_accuracy_effects'])} "
-           f"| {s['none_named_as_effect']}/{s['none_trials']} | {s['effects_called_none']} "
-           f"| {s['unexplained']} | {_num(s['median_shrink'])} | {_pct(s['coverage'])} ({s['coverage_n']}) "
-           f"| {s['cpu_s_median']:.2f} ({s['cpu_s_max']:.2f}) "
-           f"| {s['outside_named_as_cause']}/{s['outside_trials']} |", "",
-           "| true effect | trials | named right | right joints | median shrink |",
-           "|---|---:|---:|---:|---:|"]
-    kinds = [k for k in VOCABULARY + OUTSIDE if any(t.truth.kind == k for t in ts)]
-    for k in kinds:
-        g = [t for t in ts if t.truth.kind == k]
-        if k in OUTSIDE:
-            right, jr = sum(not t.confident_cause for t in g), "–"
-        else:
-            right, jr = sum(t.effect_ok for t in g), sum(t.joint_ok for t in g)
-        sh = f"{np.median([t.shrink for t in g]):.3f}" if k != "none" else "–"
-        out.append(f"| {k}{' (outside)' if k in OUTSIDE else ''} | {len(g)} | {right} | {jr} | {sh} |")
-    cols = list(VOCABULARY) + ["unexplained"]
-    out += ["", "Confusion matrix (rows: true effect, columns: answer):", "",
-            "| true \\ answer | " + " | ".join(c.replace("_", " ") for c in cols) + " |",
-            "|---|" + "---:|" * len(cols)]
-    for k in kinds:
-        g = [t for t in ts if t.truth.kind == k]
-        cells = [sum(t.answer == c for t in g) for c in cols]
-        out.append(f"| {k.replace('_', ' ')}{' (outside)' if k in OUTSIDE else ''} | "
-                   + " | ".join(str(v) if v else "·" for v in cells) + " |")
-    return "\n".join(out)
+    """The harness's four tables (:func:`cell.diagnosis.harness.markdown`) for chain trials."""
+    return harness.markdown(ts, title, "chain", VOCABULARY, OUTSIDE)

@@ -30,21 +30,21 @@ named cause and its rivals), ``ambiguous_missing``, ``unexplained``, ``wrong``; 
 matches only with every true effect on its joints (a cyclic error also with its number of
 cycles per revolution). **Coverage**: share of the true fitted parameters inside the 95 %
 intervals, over the trials judged ``right`` (cyclic phase compared modulo 360°).
-:func:`summarise` also keeps the earlier scores (effect / joint / subsystem accuracy,
-``depends_on`` agreement, median holdout shrink, run time).
+The trial, the scores and the tables are the one harness of both families,
+:mod:`cell.diagnosis.harness`; this module draws the planar truths and campaigns.
 """
 from __future__ import annotations
 
-import math
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from cell import effects as fx
+from cell.diagnosis import harness
+from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
 from cell.diagnosis.report import diagnose
 from cell.measurements import read_campaign
 from cell.truth import campaign as truth_campaign
@@ -56,63 +56,6 @@ TRUTHS = tuple(fx.EFFECTS) + ("none",)
 OUTSIDE = tp.OUTSIDE
 LAYOUTS = ("realistic", "uniform")
 TWO_SHARE = 0.25            # realistic layout: share of effect trials with a second effect
-
-
-@dataclass
-class Trial:
-    """One judged trial. ``true_*`` the hidden truth (main effect for two), ``named`` /
-    ``named_joints`` what the report's cause says, ``verdict`` one of
-    :data:`cell.truth.verdict.VERDICTS`, ``covered`` / ``n_params`` the interval coverage
-    count (trials judged right), ``seconds`` the diagnosis CPU time, ``layout`` the
-    campaign's design choices, ``seed`` the trial's seed."""
-
-    index: int
-    true_effect: str           # a vocabulary effect, "none" or a kind outside the vocabulary
-    true_joints: tuple[str, ...]
-    second: str | None
-    named: str
-    named_joints: tuple[str, ...]
-    unexplained: bool
-    shrink: float
-    depends_on: str
-    covered: int
-    n_params: int
-    seconds: float
-    truth_params: dict = field(default_factory=dict)
-    confidence: str | None = None   # the report's cause.confidence, if it gives one
-    order_ok: bool = True           # a cyclic error named with the true cycles per revolution
-    verdict: str = ""
-    truth_label: str = ""
-    answer_label: str = ""
-    rivals: tuple[str, ...] = ()
-    layout: dict = field(default_factory=dict)
-    seed: int = 0
-
-    @property
-    def outside(self) -> bool:
-        """The truth is an effect outside the vocabulary."""
-        return self.true_effect in OUTSIDE
-
-    @property
-    def confident_cause(self) -> bool:
-        """The report names a vocabulary cause, does not call it unexplained and says it
-        with high confidence (or gives no confidence)."""
-        return not self.unexplained and self.named != "none" \
-            and self.confidence in (None, "high")
-
-    @property
-    def named_or_unexplained(self) -> str:
-        return "unexplained" if self.unexplained else self.named
-
-    @property
-    def effect_ok(self) -> bool:
-        return not self.unexplained and self.named == self.true_effect
-
-    @property
-    def joint_ok(self) -> bool:
-        """Right effect on the right joints (a cyclic error: with the right order too)."""
-        return self.effect_ok and tuple(self.named_joints) == tuple(self.true_joints) \
-            and self.order_ok
 
 
 def _subsystem(name: str) -> str:
@@ -190,6 +133,11 @@ def _covered(truth: fx.EffectInstance, ci95: dict) -> tuple[int, int]:
     return hit, n
 
 
+def _covered_all(truths: Sequence[fx.EffectInstance], ci95: dict) -> tuple[int, int]:
+    pairs = [_covered(e, ci95) for e in truths]
+    return sum(h for h, _ in pairs), sum(n for _, n in pairs)
+
+
 def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
     """For a cyclic error: the report's period for each true joint is the true one (a
     report without ``jK_cyclic_period_deg`` fitted the vocabulary's default, 360°)."""
@@ -219,34 +167,28 @@ def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = N
         t0 = time.process_time()
         rep = diagnose(camp).report
         secs = time.process_time() - t0
-    c = rep["cause"]
     wants = [] if odd is not None else [expected(p) for p in truth]
     want = vd.Expected(tuple((e.effect, tuple(e.joints)) for e in wants), odd is not None)
-    orders_ok = lambda cause: all(_same_order(e, cause.get("params", {})) for e in wants)  # noqa: E731
-    verdict = vd.classify(want, rep, orders_ok)
-    hit = n = 0
-    if verdict == "right":
-        for e in wants:
-            h, k = _covered(e, c.get("ci95", {}))
-            hit, n = hit + h, n + k
     if odd is not None:
         true_name, true_joints = odd.kind, ((f"j{odd.joint}",) if odd.joint else ())
-        params = dict(odd.values)
+        params, label = dict(odd.values), odd.kind + " (outside)"
     elif wants:
         true_name, true_joints, params = wants[0].effect, wants[0].joints, dict(wants[0].params)
+        label = want.label
     else:
-        true_name, true_joints, params = "none", (), {}
-    named = vd.cause_components(c)
-    answer = " + ".join(f"{e}[{','.join(j)}]" if j else e for e, j in named) or "none"
-    lay = {"places": design.places, "directions": design.directions,
-           "temperature": design.temperature, "moves": design.n_moves,
-           "outliers": design.outliers, "split": design.split_column}
-    return Trial(i, true_name, tuple(true_joints), truth[1].kind if len(truth) > 1 else None,
-                 c["effect"], tuple(c["joints"]), bool(rep["unexplained"]),
-                 float(rep["holdout"]["shrink"]), rep["gap"]["where"]["depends_on"], hit, n,
-                 secs, params, c.get("confidence"), orders_ok(c) if wants else True,
-                 verdict, (odd.kind + " (outside)") if odd is not None else want.label,
-                 answer, tuple(r.get("label", "?") for r in c.get("rivals") or []), lay, tseed)
+        true_name, true_joints, params, label = "none", (), {}, want.label
+    voc = odd is None
+    return harness.judge(
+        i, tseed, rep, want, true_effect=true_name, true_joints=true_joints, truth_label=label,
+        seconds=secs, layout={"places": design.places, "directions": design.directions,
+                              "temperature": design.temperature, "moves": design.n_moves,
+                              "outliers": design.outliers, "split": design.split_column},
+        covered=lambda ci95: _covered_all(wants, ci95),
+        second=truth[1].kind if len(truth) > 1 else None, truth_params=params,
+        detail_ok=lambda cause: all(_same_order(e, cause.get("params", {})) for e in wants),
+        truth_subsystem=_subsystem(true_name) if voc else "",
+        truth_depends_on=fx.EFFECTS[true_name].depends_on if voc and wants else "",
+        subsystem_of=_subsystem)
 
 
 def run(trials: int, seed: int, combos: bool = False, points: int = 300,
@@ -256,131 +198,12 @@ def run(trials: int, seed: int, combos: bool = False, points: int = 300,
     """Trials ``start`` … ``start + trials − 1`` of run ``seed``; ``progress(i, trial)`` is
     called after each. Raises ValueError for an ``outside_share`` outside [0, 1], an
     unknown kind or layout."""
-    if not 0.0 <= outside_share <= 1.0:
-        raise ValueError(f"outside_share {outside_share} must lie in [0, 1]")
-    bad = [k for k in outside_kinds if k not in OUTSIDE]
-    if bad:
-        raise ValueError(f"unknown kinds {bad}; known: {list(OUTSIDE)}")
-    if layout not in LAYOUTS:
-        raise ValueError(f"unknown layout {layout!r}; known: {list(LAYOUTS)}")
-    out = []
-    for i in range(start, start + trials):
-        t = run_trial(i, seed, combos, None, outside_share, tuple(outside_kinds), layout, points)
-        out.append(t)
-        if progress:
-            progress(i, t)
-    return out
-
-
-def summarise(ts: list[Trial]) -> dict:
-    """The scores of the module docstring as a dict (JSON-ready). ``verdicts`` /
-    ``outside_verdicts`` count the verdicts of the vocabulary trials (``none`` included)
-    and of those outside it; ``coverage`` is over the trials judged right; the other
-    vocabulary scores are over the vocabulary trials; ``outside_*`` count the trials
-    outside it: all of them, named as a confident cause, unexplained, none."""
-    voc = [t for t in ts if not t.outside]
-    out = [t for t in ts if t.outside]
-    eff = [t for t in voc if t.true_effect != "none"]
-    none = [t for t in voc if t.true_effect == "none"]
-    secs = np.array([t.seconds for t in ts]) if ts else np.zeros(1)
-    cov_hit = sum(t.covered for t in voc)
-    cov_n = sum(t.n_params for t in voc)
-    dep = [t for t in eff if t.effect_ok]
-    return {
-        "trials": len(ts),
-        "verdicts": vd.counts(t.verdict for t in voc),
-        "outside_verdicts": vd.counts(t.verdict for t in out),
-        "wrong": [{"seed": t.seed, "truth": t.truth_label, "answer": t.answer_label,
-                   "confidence": t.confidence, "layout": t.layout}
-                  for t in ts if t.verdict == "wrong"],
-        "effect_accuracy": _share([t.effect_ok or (t.true_effect == "none" and t.named == "none"
-                                                   and not t.unexplained) for t in voc]),
-        "joint_accuracy_effects": _share([t.joint_ok for t in eff]),
-        "effect_accuracy_effects": _share([t.effect_ok for t in eff]),
-        "subsystem_accuracy": _share([_subsystem(t.named_or_unexplained) == _subsystem(t.true_effect)
-                                      for t in voc]),
-        "none_named_as_effect": sum(t.named != "none" for t in none),
-        "none_trials": len(none),
-        "effects_called_none": sum(t.named == "none" for t in eff),
-        "unexplained": sum(t.unexplained for t in voc),
-        "median_shrink": float(np.median([t.shrink for t in eff])) if eff else math.nan,
-        "depends_on_agreement": _share([t.depends_on == fx.EFFECTS[t.true_effect].depends_on
-                                        for t in dep]),
-        "coverage": (cov_hit / cov_n) if cov_n else math.nan,
-        "coverage_n": cov_n,
-        "seconds_median": float(np.median(secs)), "seconds_max": float(np.max(secs)),
-        "outside_trials": len(out),
-        "outside_named_as_cause": sum(t.confident_cause for t in out),
-        "outside_unexplained": sum(t.unexplained for t in out),
-        "outside_none": sum(t.named == "none" and not t.unexplained for t in out),
-    }
-
-
-def _share(xs) -> float:
-    xs = list(xs)
-    return sum(map(bool, xs)) / len(xs) if xs else math.nan
-
-
-def _label(name: str, spaced: bool = False) -> str:
-    return (name.replace("_", " ") if spaced else name) + (" (outside)" if name in OUTSIDE else "")
+    harness.check_outside(outside_share, tuple(outside_kinds) or OUTSIDE, OUTSIDE, layout, LAYOUTS)
+    return harness.run(lambda i: run_trial(i, seed, combos, None, outside_share,
+                                           tuple(outside_kinds), layout, points),
+                       trials, start, progress)
 
 
 def markdown(ts: list[Trial], title: str) -> str:
-    """Markdown tables: verdicts (vocabulary trials and those outside it), the confident
-    wrong answers, summary, per-effect scores, confusion matrix. Rows for effects outside
-    the vocabulary are marked "(outside)"; their "named right" counts trials that named no
-    confident cause (unexplained or none)."""
-    s = summarise(ts)
-    outside = (f"{s['outside_named_as_cause']}/{s['outside_trials']}" if s["outside_trials"]
-               else "–")
-    wrong = vd.wrong_lines(ts)
-    out = [f"### {title}", "", *vd.TABLE_HEAD, *vd.table_lines("planar", ts, lambda t: t.outside),
-           "", *(["Confident wrong answers:", "", *wrong, ""] if wrong else []),
-           "| trials | effect acc. | effect+joint acc. (effects) | subsystem acc. | none named as effect "
-           "| effects called none | unexplained | median holdout shrink | depends_on agrees "
-           "| 95 % CI coverage | s/campaign median (max) | outside vocab. named as cause |",
-           "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-           f"| {s['trials']} | {_pct(s['effect_accuracy'])} | {_pct(s['joint_accuracy_effects'])} "
-           f"| {_pct(s['subsystem_accuracy'])} | {s['none_named_as_effect']}/{s['none_trials']} "
-           f"| {s['effects_called_none']} | {s['unexplained']} | {_num(s['median_shrink'])} "
-           f"| {_pct(s['depends_on_agreement'])} | {_pct(s['coverage'])} ({s['coverage_n']}) "
-           f"| {s['seconds_median']:.2f} ({s['seconds_max']:.2f}) | {outside} |", "",
-           "| true effect | trials | named right | right joint | median shrink | CI coverage "
-           "| median s |", "|---|---:|---:|---:|---:|---:|---:|"]
-    rows = list(TRUTHS) + list(OUTSIDE)
-    for name in rows:
-        g = [t for t in ts if t.true_effect == name]
-        if not g:
-            continue
-        if name in OUTSIDE:
-            right, jr = sum(not t.confident_cause for t in g), "–"
-        else:
-            right = sum(t.effect_ok or (name == "none" and t.named == "none"
-                                        and not t.unexplained) for t in g)
-            jr = sum(t.joint_ok or (name == "none" and t.named == "none" and not t.unexplained)
-                     for t in g)
-        ch, cn = sum(t.covered for t in g), sum(t.n_params for t in g)
-        sh = f"{np.median([t.shrink for t in g]):.3f}" if name != "none" else "–"
-        out.append(f"| {_label(name)} | {len(g)} | {right} | {jr} | {sh} | "
-                   f"{(f'{ch}/{cn}') if cn else '–'} | {np.median([t.seconds for t in g]):.2f} |")
-    cols = list(TRUTHS) + ["unexplained"]
-    short = {c: c.replace("_", " ") for c in cols}
-    out += ["", "Confusion matrix (rows: true effect, columns: named cause):", "",
-            "| true \\ named | " + " | ".join(short[c] for c in cols) + " |",
-            "|---|" + "---:|" * len(cols)]
-    for name in rows:
-        g = [t for t in ts if t.true_effect == name]
-        if not g:
-            continue
-        cells = [sum(t.named_or_unexplained == c for t in g) for c in cols]
-        out.append(f"| {_label(name, True)} | "
-                   + " | ".join(str(v) if v else "·" for v in cells) + " |")
-    return "\n".join(out)
-
-
-def _num(v: float) -> str:
-    return "–" if math.isnan(v) else f"{v:.3f}"
-
-
-def _pct(v: float) -> str:
-    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.1f} %"
+    """The harness's four tables (:func:`cell.diagnosis.harness.markdown`) for planar trials."""
+    return harness.markdown(ts, title, "planar", TRUTHS, OUTSIDE)

@@ -89,10 +89,10 @@ def test_outside_effects_get_no_confident_cause(outside_run):
 def test_confusion_matrix_counts_add_up(outside_run):
     md = validate.markdown(outside_run, "t")
     lines = md.splitlines()
-    start = lines.index("| true \\ named | " + " | ".join(
+    start = lines.index("| true \\ answer | " + " | ".join(
         c.replace("_", " ") for c in list(validate.TRUTHS) + ["unexplained"]) + " |")
-    table = lines[lines.index("| true effect | trials | named right | right joint | median shrink "
-                              "| CI coverage | median s |") + 2:start]
+    table = lines[lines.index("| true effect | trials | named right | right joints | median shrink "
+                              "| CI coverage | median CPU s |") + 2:start]
     per_effect = {m.group(1): int(m.group(2)) for m in
                   (re.match(r"\| (\w+(?: \(outside\))?) \| (\d+) \|", ln) for ln in table) if m}
     rows = {}
@@ -129,15 +129,16 @@ def test_cyclic_error_counts_as_right_only_with_its_order():
     assert not validate._same_order(truth, {"j2_cyclic_period_deg": 90.0})
     assert validate._same_order(validate.expected(parts.Part("backlash", 1, {"play_deg": 0.05})),
                                 {})
-    t = validate.Trial(0, "cyclic_error", ("j2",), None, "cyclic_error", ("j2",), False, 0.9,
-                       "angle", 0, 0, 0.1, order_ok=False)
+    t = validate.Trial(0, "cyclic_error", ("j2",), False, "cyclic_error", ("j2",), False, "high",
+                       0.9, 0, 0, 0.1, "wrong", "cyclic_error[j2]", "cyclic_error[j2]",
+                       order_ok=False)
     assert t.effect_ok and not t.joint_ok
 
 
 def test_a_low_confidence_cause_is_not_a_confident_one():
     def trial(named, unexplained, confidence):
-        return validate.Trial(0, "reach_sag", (), None, named, (), unexplained, 0.3, "position",
-                              0, 0, 0.1, confidence=confidence)
+        return validate.Trial(0, "reach_sag", (), True, named, (), unexplained, confidence, 0.3,
+                              0, 0, 0.1, "", "reach_sag (outside)", named)
     assert trial("camera_scale", False, "high").confident_cause
     assert trial("camera_scale", False, None).confident_cause
     assert not trial("camera_scale", False, "low").confident_cause

@@ -15,8 +15,8 @@ def test_vocabulary_truths_are_named_with_their_joints_and_covered():
     # the uniform layout (poses spread out, no outliers); the realistic one's accuracy is
     # asserted in tests/cell/test_validation_accuracy.py
     ts = validate.run(6, seed=0, layout="uniform")
-    assert {t.truth.kind for t in ts} >= {"gravity_compliance", "link_length", "gear_ratio"}
-    assert all(t.joint_ok for t in ts), [(t.truth.kind, t.answer, t.named_joints) for t in ts]
+    assert {t.true_effect for t in ts} >= {"gravity_compliance", "link_length", "gear_ratio"}
+    assert all(t.joint_ok for t in ts), [(t.true_effect, t.answer, t.named_joints) for t in ts]
     s = validate.summarise(ts)
     assert s["effect_accuracy"] == 1.0 and s["trials"] == 6
     assert s["verdicts"]["right"] == 6 and s["coverage_n"] >= 6
@@ -29,7 +29,7 @@ def test_effects_outside_the_vocabulary_are_not_a_confident_cause(kind):
     # the first trial of seed 0 whose outside draw is this kind
     i = next(i for i in range(60) if _outside_kind(0, i) == kind)
     t = validate.run_trial(i, 0, outside_share=1.0, layout="uniform")
-    assert t.truth.kind == kind and t.outside
+    assert t.true_effect == kind and t.outside
     assert not t.confident_cause, (kind, t.answer, t.named_joints)
 
 
@@ -52,12 +52,17 @@ def test_summary_counts_answers_and_outside_trials():
     truth = validate.Truth("joint_offset", ("j2",), {}, 0.0, {"j2_offset_deg": 0.1})
     odd = validate.Truth("lens", (), {}, 2e-3, {"lens_per_m": 2e-3})
     none = validate.Truth("none", (), {}, 0.0, {})
-    ts = [validate.Trial(0, truth, "joint_offset", ("j2",), False, False, 0.9, 1, 1, 0.1),
-          validate.Trial(1, truth, "joint_offset", ("j3",), False, False, 0.2, 0, 0, 0.1),
-          validate.Trial(2, none, "gear_ratio", ("j2",), False, False, 0.1, 0, 0, 0.1),
-          validate.Trial(3, odd, "link_length", ("j2",), False, False, 0.7, 0, 0, 0.1),
-          validate.Trial(4, odd, "link_length", ("j2",), True, False, 0.7, 0, 0, 0.1),
-          validate.Trial(5, odd, "link_length", ("j2",), False, True, 0.7, 0, 0, 0.1)]
+
+    def trial(i, truth, named, joints, unexplained, doubt, shrink, covered, n):
+        return validate.Trial(i, truth.kind, truth.joints, truth.kind in validate.OUTSIDE, named,
+                              joints, unexplained, "low" if doubt else "high", shrink, covered, n,
+                              0.1, "", truth.label, named)
+    ts = [trial(0, truth, "joint_offset", ("j2",), False, False, 0.9, 1, 1),
+          trial(1, truth, "joint_offset", ("j3",), False, False, 0.2, 0, 0),
+          trial(2, none, "gear_ratio", ("j2",), False, False, 0.1, 0, 0),
+          trial(3, odd, "link_length", ("j2",), False, False, 0.7, 0, 0),
+          trial(4, odd, "link_length", ("j2",), True, False, 0.7, 0, 0),
+          trial(5, odd, "link_length", ("j2",), False, True, 0.7, 0, 0)]
     s = validate.summarise(ts)
     assert s["effect_accuracy"] == pytest.approx(2 / 3) and s["joint_accuracy_effects"] == 0.5
     assert s["none_named_as_effect"] == 1 and s["outside_trials"] == 3
