@@ -435,9 +435,17 @@ class FoldGram:
     The folds' Gram pieces are stacked once; each subset then costs one batched solve of
     its small normal equations with the fold taken out (no refit of the 3M rows), and the
     held-out residual is formed explicitly, so it equals :func:`leave_one_pose_out` of
-    that subset's fit to rounding."""
+    that subset's fit to rounding.
 
-    def __init__(self, Js: np.ndarray, r: np.ndarray, fold: np.ndarray, n_folds: int):
+    ``base``: the first ``base`` columns (the registration) are in every subset asked for.
+    They are eliminated once per fold (Schur complement: the held-out residual ``u`` and
+    columns ``W`` of the rest with the registration's least squares taken out, and the
+    reduced normal equations ``M β = z``), so a subset then costs a solve of the size of
+    its other columns only. A fold whose registration block is exactly singular makes
+    every subset take the full solve (which then fails as it would)."""
+
+    def __init__(self, Js: np.ndarray, r: np.ndarray, fold: np.ndarray, n_folds: int,
+                 base: int = 0):
         idx = _by_pose(fold, n_folds)
         pad = idx < 0
         safe = np.where(pad, 0, idx)
@@ -447,20 +455,52 @@ class FoldGram:
         self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
         self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
         self.n_pts = (~pad).sum(1) / 3
+        self.base = base
+        self.u, self.W, self.M, self.z = self.rg, self.Jg, None, None
+        if base:
+            self._eliminate(base)
+
+    def _eliminate(self, nb: int) -> None:
+        A = self.Gt - self.G                                          # (F, n, n) fold out
+        c = self.bt - self.b
+        try:
+            sol = np.linalg.solve(A[:, :nb, :nb],
+                                  np.concatenate([A[:, :nb, nb:], c[:, :nb, None]], axis=2))
+        except np.linalg.LinAlgError:
+            self.base = 0
+            return
+        X, x = sol[:, :, :-1], sol[:, :, -1]                          # (F, nb, m), (F, nb)
+        Apr = A[:, nb:, :nb]
+        self.M = A[:, nb:, nb:] - Apr @ X                             # (F, m, m)
+        self.z = c[:, nb:] - np.einsum("fmr,fr->fm", Apr, x)          # (F, m)
+        Jr = self.Jg[:, :, :nb]
+        self.u = self.rg - np.einsum("fRr,fr->fR", Jr, x)             # (F, R)
+        self.W = self.Jg[:, :, nb:] - Jr @ X                          # (F, R, m)
 
     def loo(self, cols) -> tuple[float, np.ndarray]:
         """(rms of the held-out 3-D errors, per-fold mean squared 3-D error) of the fit on
         columns ``cols`` (indices)."""
         cols = np.asarray(cols, dtype=np.int64)
-        e = self.rg
-        if len(cols):
-            A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
-            rhs = self.bt[cols] - self.b[:, cols]
-            try:
-                beta = np.linalg.solve(A, rhs[..., None])[..., 0]
-            except np.linalg.LinAlgError:
-                return math.inf, np.full(len(self.rg), math.inf)
-            e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
+        nb = self.base
+        if nb and len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
+            S = cols[nb:] - nb
+            e = self.u
+            if len(S):
+                try:
+                    beta = np.linalg.solve(self.M[:, S[:, None], S], self.z[:, S, None])[..., 0]
+                except np.linalg.LinAlgError:
+                    return math.inf, np.full(len(self.rg), math.inf)
+                e = self.u - np.einsum("frk,fk->fr", self.W[:, :, S], beta)
+        else:
+            e = self.rg
+            if len(cols):
+                A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
+                rhs = self.bt[cols] - self.b[:, cols]
+                try:
+                    beta = np.linalg.solve(A, rhs[..., None])[..., 0]
+                except np.linalg.LinAlgError:
+                    return math.inf, np.full(len(self.rg), math.inf)
+                e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
         ss = np.sum(e * e, axis=1)
         per = ss / np.maximum(self.n_pts, 1)
         return float(math.sqrt(np.sum(ss) / max(self.n_pts.sum(), 1))), per

@@ -82,9 +82,9 @@ class Screen:
         self.index = {p.name: self.nr + i for i, p in enumerate(pool)}
         Js, _ = F._scaled(J)
         r0 = f0.resid.ravel()
-        self.poses = F.FoldGram(Js, r0, d.obs_pose, d.n_poses)
+        self.poses = F.FoldGram(Js, r0, d.obs_pose, d.n_poses, self.nr)
         fold, n = d.folds()
-        self.places = self.poses if n >= d.n_poses else F.FoldGram(Js, r0, fold, n)
+        self.places = self.poses if n >= d.n_poses else F.FoldGram(Js, r0, fold, n, self.nr)
 
     def cols(self, params) -> list[int]:
         return list(range(self.nr)) + [self.index[p.name] for p in params]
