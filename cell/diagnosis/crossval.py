@@ -15,10 +15,9 @@ prediction** of the fit rows:
   folds predicts the fold's residual; its weighted mean square per scalar residual
   (each table weighed by 1/its noise, so 1 ≈ noise) is the fold's error. Nothing is
   refitted: the fold's Gram pieces are subtracted from the whole fit's.
-* **the choice** (:func:`judge`): the candidates whose errors are not worse than the best's
-  by a one-sided Wilcoxon signed-rank test over folds at :data:`ALPHA` (and whose
-  prediction rms is within :data:`RIVAL_RATIO` of the best's: a fold count too small for
-  the test to reach :data:`ALPHA` must not make a poor candidate a rival) are **tied**; of
+* **the choice** (:func:`judge`): the candidates the folds cannot tell from the best are
+  **tied** (the rule of both families, :mod:`cell.diagnosis.tie`: not worse by a one-sided
+  Wilcoxon test over folds, and within :data:`RIVAL_RATIO` of its prediction rms); of
   those, the one with the fewest parameters is named (then the lowest error). A tied
   candidate that is neither the named cause nor a larger model containing it is a
   **rival**: the campaign cannot tell the two apart, the answer is ``ambiguous``.
@@ -38,13 +37,12 @@ from cell.diagnosis import screen
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
 from cell.diagnosis.places import spaced_best
+from cell.diagnosis import tie
 from cell.diagnosis.replay import DiagData
-from cell.stats import wilcoxon_greater
+from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 
 MAX_FOLDS = 24        # more places are gathered into this many regions
 MIN_FOLDS = 3         # fewer: nothing can be predicted out of sample
-ALPHA = 0.01          # one-sided test over folds: a candidate predicts worse than the best
-RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
 MAX_RIVALS = 4
 REPORTED = 12         # candidates the report's selection table lists
 N_POSES = 5
@@ -170,7 +168,7 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     stack = FoldStack.of(B, weights)
     nom_e = cv_errors(B, [], weights, stack)
     nominal = Scored("nominal", (), 0, nom_e, math.sqrt(float(nom_e.mean())) if F else math.nan)
-    testable = F >= MIN_FOLDS and 0.5 ** F < ALPHA
+    testable = F >= MIN_FOLDS and tie.testable(F)
     if F < MIN_FOLDS:
         return Judgement(chosen, None, [], [], F, n_places, nominal, False,
                          [f"the fit rows lie at {F} place(s): no cause can be checked on "
@@ -186,10 +184,10 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     table.sort(key=lambda s: s.cv_rms)
     best = table[0]
     for i, s in enumerate(table):
-        close = s.cv_rms <= RIVAL_RATIO * best.cv_rms
+        close = tie.close(s.cv_rms, best.cv_rms)
         if s is not best and (close or i < REPORTED):   # the test only where it is read
-            s.p_worse = wilcoxon_greater(s.errors - best.errors)
-        s.tied = s is best or (close and s.p_worse >= ALPHA)
+            s.p_worse = tie.p_worse(s.errors, best.errors)
+        s.tied = s is best or tie.tied(s.p_worse, s.cv_rms, best.cv_rms)
     if chosen is None:
         return Judgement(None, best, [], table, F, n_places, nominal, testable)
     tied = [s for s in table if s.tied]

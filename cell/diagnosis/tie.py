@@ -1,0 +1,50 @@
+"""The one rule by which the diagnosis, planar and chain, calls a candidate cause **tied**
+with the best one: the campaign's left-out folds (places, or poses where they do not
+cluster) cannot tell the two apart. Pure numerics.
+
+A candidate is tied with the best when both hold:
+
+* it does not predict the left-out folds worse: the one-sided Wilcoxon signed-rank test
+  over folds (its per-fold error minus the best's) gives p ≥ :data:`ALPHA`;
+* its prediction rms is within :data:`RIVAL_RATIO` of the best's. A fold count too small
+  for the test to reach :data:`ALPHA` (at most 6 folds: 0.5⁶ > 0.01) must not make a poor
+  candidate a rival.
+
+Of the tied candidates the simplest (fewest parameters) is named; the others that are
+other explanations are its rivals, and the answer is ``ambiguous``. The same test, the
+other way round, says whether a candidate predicts better than the nominal model at all.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from cell.stats import wilcoxon_greater
+
+ALPHA = 0.01          # one-sided test over folds
+RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
+
+
+def p_worse(errors, best_errors) -> float:
+    """One-sided p that ``errors`` (per fold) lie above ``best_errors`` (paired); 1.0 when
+    a difference is not finite (nothing can be concluded)."""
+    diff = np.asarray(errors, dtype=float) - np.asarray(best_errors, dtype=float)
+    if not np.all(np.isfinite(diff)):
+        return 1.0
+    return wilcoxon_greater(diff)
+
+
+def close(rms: float, best_rms: float) -> bool:
+    """The prediction rms ``rms`` is within :data:`RIVAL_RATIO` of ``best_rms``."""
+    return rms <= RIVAL_RATIO * best_rms
+
+
+def tied(p: float, rms: float, best_rms: float) -> bool:
+    """Tied with the best: not worse at :data:`ALPHA` (``p`` from :func:`p_worse`) and
+    :func:`close`."""
+    return p >= ALPHA and close(rms, best_rms)
+
+
+def testable(n_folds: int) -> bool:
+    """Whether ``n_folds`` folds can reach :data:`ALPHA` at all (the smallest one-sided
+    Wilcoxon p over n folds is 0.5ⁿ)."""
+    return 0.5 ** n_folds < ALPHA

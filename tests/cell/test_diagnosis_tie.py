@@ -1,0 +1,30 @@
+"""The tie rule both diagnosis families use (cell/diagnosis/tie.py)."""
+import numpy as np
+
+from cell.diagnosis import tie
+
+
+def test_a_candidate_worse_on_every_fold_is_not_tied():
+    best = np.linspace(1.0, 2.0, 12)
+    worse = best * 1.2                      # within the rms ratio, but worse on all 12 folds
+    p = tie.p_worse(worse, best)
+    assert p < tie.ALPHA and not tie.tied(p, 1.2, 1.0)
+
+
+def test_a_candidate_the_folds_cannot_tell_apart_is_tied():
+    rng = np.random.default_rng(0)
+    best = rng.uniform(1.0, 2.0, 12)
+    other = best + rng.normal(0.0, 0.05, 12)
+    p = tie.p_worse(other, best)
+    assert p >= tie.ALPHA and tie.tied(p, 1.02, 1.0)
+
+
+def test_a_poor_candidate_is_never_tied_however_few_the_folds():
+    p = tie.p_worse([3.0, 2.0, 4.0], [1.0, 1.0, 1.0])     # 3 folds: the test cannot reach α
+    assert p >= tie.ALPHA and not tie.testable(3)
+    assert not tie.tied(p, 1.8, 1.0)                       # but 1.8× the best's rms
+
+
+def test_non_finite_errors_conclude_nothing():
+    assert tie.p_worse([np.nan, 1.0], [0.5, 0.5]) == 1.0
+    assert tie.testable(7) and not tie.testable(6)
