@@ -21,7 +21,7 @@ warning in ``calibration.json`` and in ``model.yaml``'s ``source``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import json
@@ -32,7 +32,7 @@ import numpy as np
 from cell.calibration import check as C
 from cell.chain import fit as F
 from cell.chain import rank
-from cell.chain.campaign import ChainCampaign, ChainSpec, write_chain_campaign
+from cell.chain.campaign import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
 from cell.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
 from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.chain.report import split_poses
@@ -170,14 +170,14 @@ def write_calibrated(cal: ChainCalibration, out_dir: Path | str, accept_worse: b
     cc, values = cal.campaign, cal.fit.named()
     files: dict[str, str] = {}
     if cc.spec.kinematics == "dh":
-        spec = cc.spec.model_copy(update={"joints": [type(cc.spec.joints[0])(**r) for r in _dh_rows(cc.spec, values)]})
+        spec = replace(cc.spec, joints=[DHRow(**r) for r in _dh_rows(cc.spec, values)])
     else:
         name = Path(cc.spec.urdf).stem + "_calibrated.urdf"
         files[name] = _urdf_text(cc, values)
-        spec = cc.spec.model_copy(update={"urdf": name})
+        spec = replace(cc.spec, urdf=name)
     note = f"calibrated by cellctl calibrate kinematics from {cc.directory}"
     note += f"; WARNING: {warn}" if warn else ""
-    spec = spec.model_copy(update={"source": f"{spec.source} [{note}]" if spec.source else note})
+    spec = replace(spec, source=f"{spec.source} [{note}]" if spec.source else note)
     urdf = {"urdf": n for n in files}
     report = cal.report() | {"accept_worse": warn is not None, "warning": warn}
     files[CALIBRATION_FILE] = json.dumps(json_safe(report), indent=2, allow_nan=False) + "\n"

@@ -20,58 +20,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from cell.chain.spec import ChainSpec, DHRow, _plain_spec, pydantic_models
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
 from cell.measurements import (FORMAT, CampaignFormatError, _read_table, _yaml_line, check_places,
                                staged_dir, yaml_loc)
-from cell.yamlio import error_text
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
-
-
-class DHRow(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    name: str
-    type: Literal["revolute", "prismatic"] = "revolute"
-    a_mm: float
-    alpha_deg: float
-    d_mm: float
-    theta_deg: float
-    limits: tuple[float, float] | None = None
-
-
-class Coupling(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
-    joint: str
-    from_: str = Field(alias="from")
-    factor: float
-
-
-class ChainSpec(BaseModel):
-    """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
-    direction of gravity in the base frame, default −z; it only matters for the
-    gravity-compliance effect. Every number must be finite."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    format: str
-    kinematics: Literal["dh", "urdf"]
-    dh_convention: Literal["standard", "modified"] = "standard"
-    joints: list[DHRow] | list[str] = Field(min_length=1)
-    coupling: list[Coupling] = []
-    tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    urdf: str | None = None
-    base_link: str | None = None
-    tip_link: str | None = None
-    measurement_frame: Literal["base", "sensor"] = "base"
-    markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
-    gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
-    source: str = ""
 
 
 @dataclass
@@ -119,17 +78,8 @@ def load_spec(path: Path) -> ChainSpec:
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise CampaignFormatError(path, f"unknown format {raw.get('format') if isinstance(raw, dict) else raw!r}; "
                                         f"expected {FORMAT!r}", column="format")
-    try:
-        spec = ChainSpec.model_validate(raw)
-    except ValidationError as exc:
-        # of a union's errors the deepest names the field best (markers.1.0, not markers)
-        err = max(exc.errors(), key=lambda e: len(yaml_loc(e["loc"])))
-        loc = yaml_loc(err["loc"])
-        msg = error_text(err, ChainSpec)
-        if len(loc) > 2 and loc[0] == "joints" and isinstance(loc[1], int):
-            msg = f"joint {loc[1] + 1} (column j{loc[1] + 1}): {msg}"
-        raise CampaignFormatError(path, msg, line=_yaml_line(path, loc),
-                                  column=".".join(str(p) for p in loc)) from None
+    fields = _plain_spec(raw)
+    spec = ChainSpec(**fields) if fields is not None else _validated(path, raw)
     if spec.kinematics == "dh" and not all(isinstance(j, DHRow) for j in spec.joints):
         raise CampaignFormatError(path, "kinematics dh: every joint needs name, type, a_mm, "
                                         "alpha_deg, d_mm, theta_deg", column="joints")
@@ -148,6 +98,24 @@ def load_spec(path: Path) -> ChainSpec:
     if not np.linalg.norm(g) > 0:
         raise CampaignFormatError(path, "gravity must be a non-zero direction", column="gravity")
     return spec
+
+
+def _validated(path: Path, raw: dict) -> ChainSpec:
+    """``raw`` that is not plainly valid, judged by pydantic (:mod:`cell.chain.spec`): the
+    spec it converts to, or a CampaignFormatError naming the key and line of its error."""
+    from pydantic import ValidationError
+    from cell.yamlio import error_text
+    try:
+        return ChainSpec.model_validate(raw)
+    except ValidationError as exc:
+        # of a union's errors the deepest names the field best (markers.1.0, not markers)
+        err = max(exc.errors(), key=lambda e: len(yaml_loc(e["loc"])))
+        loc = yaml_loc(err["loc"])
+        msg = error_text(err, pydantic_models()[0])
+        if len(loc) > 2 and loc[0] == "joints" and isinstance(loc[1], int):
+            msg = f"joint {loc[1] + 1} (column j{loc[1] + 1}): {msg}"
+        raise CampaignFormatError(path, msg, line=_yaml_line(path, loc),
+                                  column=".".join(str(p) for p in loc)) from None
 
 
 def build_chain(spec: ChainSpec, model_path: Path) -> Chain:

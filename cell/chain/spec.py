@@ -1,0 +1,266 @@
+"""``model.yaml`` of a chain campaign (``cell/measurements.md``, Extension v1.1) as data:
+:class:`ChainSpec`, its :class:`DHRow` joints and :class:`Coupling` terms. No I/O.
+
+The pydantic models of :func:`pydantic_models` define what is valid and every error
+message, but importing pydantic and building them costs ~0.09 s CPU, more than the whole
+diagnosis of a 100-pose campaign after its fits got fast. So, as
+:class:`cell.measurements.ModelSpec` does for planar campaigns, the dataclasses here
+accept **plainly valid** input themselves (:func:`_plain_spec`: known keys, the types the
+model names with no conversion beyond int → float and list → tuple, finite numbers, the
+listed literals, every required key present) and hand anything else to pydantic, which
+converts what it accepts and raises its ``ValidationError`` for the rest. Whatever the
+input, the result is the one pydantic gives: the plain path only takes what pydantic would
+take unchanged (or convert int → float, list → tuple, as it does).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field, fields
+from typing import Literal
+
+from cell.measurements import _number, _pair
+
+KINEMATICS = ("dh", "urdf")
+CONVENTIONS = ("standard", "modified")
+JOINT_TYPES = ("revolute", "prismatic")
+FRAMES = ("base", "sensor")
+ROW_NUMBERS = ("a_mm", "alpha_deg", "d_mm", "theta_deg")
+
+
+@functools.cache
+def pydantic_models() -> tuple[type, type, type]:
+    """The pydantic models (ChainSpec, DHRow, Coupling) of a chain ``model.yaml``, built on
+    first use (module docstring). Every number must be finite; unknown keys are refused."""
+    from pydantic import BaseModel, ConfigDict, Field
+
+    class DHRow(BaseModel):
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+        name: str
+        type: Literal["revolute", "prismatic"] = "revolute"
+        a_mm: float
+        alpha_deg: float
+        d_mm: float
+        theta_deg: float
+        limits: tuple[float, float] | None = None
+
+    class Coupling(BaseModel):
+        model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
+        joint: str
+        from_: str = Field(alias="from")
+        factor: float
+
+    class ChainSpec(BaseModel):
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+        format: str
+        kinematics: Literal["dh", "urdf"]
+        dh_convention: Literal["standard", "modified"] = "standard"
+        joints: list[DHRow] | list[str] = Field(min_length=1)
+        coupling: list[Coupling] = []
+        tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        urdf: str | None = None
+        base_link: str | None = None
+        tip_link: str | None = None
+        measurement_frame: Literal["base", "sensor"] = "base"
+        markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
+        gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
+        source: str = ""
+    return ChainSpec, DHRow, Coupling
+
+
+def _triple(v) -> tuple[float, float, float] | None:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        return None
+    out = tuple(_number(x) for x in v)
+    return None if None in out else out
+
+
+def _opt_str(v) -> bool:
+    return v is None or isinstance(v, str)
+
+
+def _plain_row(v) -> dict | None:
+    """The fields of a :class:`DHRow` from ``v`` (a mapping or a DHRow) when plainly
+    valid, else None."""
+    if isinstance(v, DHRow):
+        v = v.model_dump()
+    if not isinstance(v, dict) or not set(v) <= _ROW_KEYS or not _ROW_REQUIRED <= set(v):
+        return None
+    out = {"name": v["name"], "type": v.get("type", "revolute")}
+    out |= {k: _number(v[k]) for k in ROW_NUMBERS}
+    limits = v.get("limits")
+    out["limits"] = None if limits is None else _pair(limits)
+    if not isinstance(out["name"], str) or out["type"] not in JOINT_TYPES \
+            or any(out[k] is None for k in ROW_NUMBERS) or (limits is not None and out["limits"] is None):
+        return None
+    return out
+
+
+def _plain_coupling(v) -> dict | None:
+    """The fields of a :class:`Coupling` from ``v`` (a mapping as ``model.yaml`` holds it,
+    ``from`` not ``from_``, or a Coupling) when plainly valid, else None."""
+    if isinstance(v, Coupling):
+        v = v.as_input()
+    if not isinstance(v, dict) or set(v) != {"joint", "from", "factor"}:
+        return None
+    out = {"joint": v["joint"], "from_": v["from"], "factor": _number(v["factor"])}
+    if not isinstance(out["joint"], str) or not isinstance(out["from_"], str) or out["factor"] is None:
+        return None
+    return out
+
+
+def _plain_markers(v):
+    if v == "unknown":
+        return v
+    if not isinstance(v, dict):
+        return None
+    out = {}
+    for k, p in v.items():
+        if type(k) is not int or (p := _triple(p)) is None:
+            return None
+        out[k] = p
+    return out
+
+
+def _plain_spec(data) -> dict | None:
+    """The fields of :class:`ChainSpec` from ``data`` (the mapping of ``model.yaml``, or
+    its keyword arguments) when plainly valid (module docstring), else None."""
+    if not isinstance(data, dict) or not set(data) <= set(_SPEC_DEFAULTS) \
+            or not _SPEC_REQUIRED <= set(data):
+        return None
+    out = {k: data.get(k, default) for k, default in _SPEC_DEFAULTS.items()}
+    if not isinstance(out["format"], str) or out["kinematics"] not in KINEMATICS \
+            or out["dh_convention"] not in CONVENTIONS or out["measurement_frame"] not in FRAMES \
+            or not all(_opt_str(out[k]) for k in ("urdf", "base_link", "tip_link")) \
+            or not isinstance(out["source"], str):
+        return None
+    joints, coupling = out["joints"], data.get("coupling", [])
+    if not isinstance(joints, list) or not joints or not isinstance(coupling, list):
+        return None
+    if all(isinstance(j, str) for j in joints):
+        out["joints"] = list(joints)
+    else:
+        rows = [_plain_row(j) for j in joints]
+        if None in rows:
+            return None
+        out["joints"] = [DHRow(**r) for r in rows]
+    terms = [_plain_coupling(c) for c in coupling]
+    if None in terms:
+        return None
+    out["coupling"] = [Coupling(**c) for c in terms]
+    out["tool_mm"], out["gravity"] = _triple(out["tool_mm"]), _triple(out["gravity"])
+    out["markers"] = _plain_markers(out["markers"])
+    if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None:
+        return None
+    return out
+
+
+@dataclass(kw_only=True)
+class DHRow:
+    """One joint of a ``kinematics: dh`` model: ``name``, ``type``, the DH numbers (mm,
+    deg) and optional ``limits`` (lo, hi) in the joint's unit. Validated on construction
+    (module docstring)."""
+
+    name: str
+    type: Literal["revolute", "prismatic"] = "revolute"
+    a_mm: float
+    alpha_deg: float
+    d_mm: float
+    theta_deg: float
+    limits: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        out = _plain_row(self.model_dump())
+        if out is None:
+            out = dict(pydantic_models()[1].model_validate(self.model_dump()))
+        self.__dict__.update(out)
+
+    def model_dump(self) -> dict:
+        """The fields as a dict, in the order of the format."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(kw_only=True)
+class Coupling:
+    """Model value of ``joint`` += ``factor`` × reading of ``from_`` (``from`` in the file).
+    Validated on construction (module docstring)."""
+
+    joint: str
+    from_: str
+    factor: float
+
+    def __post_init__(self):
+        out = _plain_coupling(self.as_input())
+        if out is None:
+            m = pydantic_models()[2].model_validate(self.as_input())
+            out = {"joint": m.joint, "from_": m.from_, "factor": m.factor}
+        self.__dict__.update(out)
+
+    def as_input(self) -> dict:
+        """As ``model.yaml`` holds it."""
+        return {"joint": self.joint, "from": self.from_, "factor": self.factor}
+
+
+@dataclass(kw_only=True)
+class ChainSpec:
+    """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
+    direction of gravity in the base frame, default −z; it only matters for the
+    gravity-compliance effect. Every number must be finite. Validated on construction as
+    the pydantic model of :func:`pydantic_models` (module docstring): bad input raises
+    pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as
+    pydantic's."""
+
+    format: str
+    kinematics: Literal["dh", "urdf"]
+    dh_convention: Literal["standard", "modified"] = "standard"
+    joints: list[DHRow] | list[str]
+    coupling: list[Coupling] = field(default_factory=list)
+    tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    urdf: str | None = None
+    base_link: str | None = None
+    tip_link: str | None = None
+    measurement_frame: Literal["base", "sensor"] = "base"
+    markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
+    gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    source: str = ""
+
+    def __post_init__(self):
+        given = self.as_input()
+        out = _plain_spec(given)
+        if out is None:
+            out = self._from_pydantic(pydantic_models()[0].model_validate(given))
+        self.__dict__.update(out)
+
+    def as_input(self) -> dict:
+        """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["joints"] = [j.model_dump() if isinstance(j, DHRow) else j for j in self.joints] \
+            if isinstance(self.joints, list) else self.joints
+        out["coupling"] = [c.as_input() if isinstance(c, Coupling) else c for c in self.coupling] \
+            if isinstance(self.coupling, list) else self.coupling
+        return out
+
+    @staticmethod
+    def _from_pydantic(m) -> dict:
+        out = dict(m)
+        out["joints"] = [j if isinstance(j, str) else DHRow(**j.model_dump()) for j in m.joints]
+        out["coupling"] = [Coupling(joint=c.joint, from_=c.from_, factor=c.factor) for c in m.coupling]
+        return out
+
+    @classmethod
+    def model_validate(cls, data) -> "ChainSpec":
+        """A ChainSpec from a mapping (as ``model.yaml`` holds it); unknown keys and bad
+        values raise pydantic's ValidationError."""
+        out = _plain_spec(data)
+        if out is None:
+            out = cls._from_pydantic(pydantic_models()[0].model_validate(data))
+        return cls(**out)
+
+    def model_dump(self, **kw) -> dict:
+        """pydantic's ``model_dump`` (``mode``, ``by_alias``, … as there) of the same spec."""
+        return pydantic_models()[0].model_validate(self.as_input()).model_dump(**kw)
+
+
+_ROW_KEYS = frozenset(f.name for f in fields(DHRow))
+_ROW_REQUIRED = frozenset(("name",) + ROW_NUMBERS)
+_SPEC_DEFAULTS = {f.name: f.default for f in fields(ChainSpec)}   # coupling: see _plain_spec
+_SPEC_REQUIRED = frozenset(("format", "kinematics", "joints"))
