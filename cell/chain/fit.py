@@ -70,16 +70,25 @@ def vocabulary(chain: Chain) -> list[Param]:
     return out
 
 
-def _levers(chain: Chain, readings: np.ndarray) -> np.ndarray:
-    tips, starts = kin.forward(chain, readings, keep=True)
+def _levers(chain: Chain, frames: tuple[np.ndarray, dict[int, np.ndarray]]) -> np.ndarray:
+    tips, starts = frames
     load = tips[:, :3, :3] @ chain.tool_mm + tips[:, :3, 3]
     return kin.gravity_levers(chain, starts, load)
+
+
+def _take(frames, rows: np.ndarray):
+    """``frames`` (tips, starts) of the poses ``rows`` (indices), or None."""
+    if frames is None:
+        return None
+    tips, starts = frames
+    return tips[rows], {i: F[rows] for i, F in starts.items()}
 
 
 @dataclass
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
-    lever of each joint at the nominal pose."""
+    lever of each joint at the nominal pose; ``frames`` the nominal forward kinematics of
+    the poses (:meth:`nominal_frames`), None until asked."""
 
     chain: Chain
     readings: np.ndarray
@@ -91,26 +100,38 @@ class Data:
     known_markers: np.ndarray | None
     levers: np.ndarray
     place: np.ndarray | None = None
+    frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
+                                                                     compare=False)
 
     def __post_init__(self) -> None:
         if self.place is None:
             self.place = place_folds(self.readings)[0]
 
+    def nominal_frames(self) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """(tips, starts) of :func:`cell.kinematics.forward` at the readings with every
+        error parameter zero (``keep``): the registration-only model and every Jacobian
+        taken at zero parameters use them. Computed once, shared with subsets."""
+        if self.frames is None:
+            self.frames = kin.forward(self.chain, self.readings, keep=True)
+        return self.frames
+
     @classmethod
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
         """From a :class:`~cell.chain.campaign.ChainCampaign`, keeping the poses of ``pose_mask``."""
+        frames = kin.forward(cc.chain, cc.readings, keep=True)
         d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
-                _levers(cc.chain, cc.readings))
+                _levers(cc.chain, frames), frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def at(self, readings: np.ndarray) -> "Data":
         """The same arm, markers and frame at other joint ``readings`` (P, J), every marker
         on every pose, nothing measured (``xyz`` zero): for predicting, not fitting."""
         P, m = len(readings), max(self.n_markers, 1)
+        frames = kin.forward(self.chain, readings, keep=True)
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, readings), np.arange(P))
+                    _levers(self.chain, frames), np.arange(P), frames)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -119,7 +140,7 @@ class Data:
         rows = pose_mask[self.obs_pose]
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[keep])
+                    self.levers[keep], frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
         """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
@@ -130,7 +151,7 @@ class Data:
         new[poses] = np.arange(int(poses.sum()))
         return Data(self.chain, self.readings[poses], new[self.obs_pose[keep]], self.obs_marker[keep],
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[poses])
+                    self.levers[poses], frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
     def n_poses(self) -> int:
@@ -228,8 +249,11 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     """Predicted points (M, 3) in the measurement frame; with ``jac`` also the (3M, n)
     Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
     positions (3 each) if free, then ``params``."""
-    geo, dq = joint_deltas(d, params, values)
-    tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
+    if np.any(values):
+        geo, dq = joint_deltas(d, params, values)
+        tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
+    else:
+        tips, starts = d.nominal_frames()
     local = reg.markers[d.obs_marker]
     xb = kin.points(tips, d.obs_pose, local)
     y = xb @ reg.R.T + reg.t
@@ -261,7 +285,7 @@ def initial_registration(d: Data) -> Registration:
     """Closed-form start: Kabsch for the sensor frame alternated with the per-marker mean
     for free markers (markers start at the nominal tool point)."""
     chain = d.chain
-    tips, _ = kin.forward(chain, d.readings)
+    tips = d.nominal_frames()[0]
     markers = (np.tile(chain.tool_mm, (d.n_markers, 1)) if d.known_markers is None
                else d.known_markers.copy())
     R, t = np.eye(3), np.zeros(3)

@@ -67,6 +67,19 @@ class Op:
     joint: int | None = None
     params: tuple[str, ...] = ()
 
+    def at(self, value: float) -> np.ndarray:
+        """The 4×4 transform of an R/T op at ``value`` (deg / mm)."""
+        return rot(self.axis, value) if self.kind == "R" else trans(self.axis, value)
+
+    @property
+    def nominal_matrix(self) -> np.ndarray:
+        """The 4×4 transform at the nominal value (F: its matrix), computed once."""
+        m = self.__dict__.get("_nominal_matrix")
+        if m is None:
+            m = self.matrix if self.kind == "F" else self.at(self.nominal)
+            object.__setattr__(self, "_nominal_matrix", m)
+        return m
+
 
 @dataclass
 class Chain:

@@ -39,9 +39,11 @@ def forward(chain: Chain, readings: np.ndarray, geo: dict[int, float] | None = N
             continue
         if keep:
             starts[i] = T
-        v = np.full(P, op.nominal + (geo.get(i, 0.0) if geo else 0.0))
-        if op.joint is not None:
-            v = v + qm[:, op.joint]
+        g = geo.get(i) if geo else None
+        if op.joint is None:                   # one transform for every pose
+            T = T @ (op.nominal_matrix if g is None else op.at(op.nominal + g))
+            continue
+        v = np.full(P, op.nominal + (g or 0.0)) + qm[:, op.joint]
         T = T @ (rot(op.axis, v) if op.kind == "R" else trans(op.axis, v))
     return T, starts
 
