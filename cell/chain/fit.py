@@ -102,10 +102,19 @@ class Data:
     place: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
+    _blocks: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.place is None:
             self.place = place_folds(self.readings)[0]
+
+    def zero_blocks(self, reg: "Registration") -> dict:
+        """The Jacobian blocks :func:`model` has computed at zero parameters for
+        registration ``reg`` (None: the registration's; a :class:`Param`: its column), kept
+        while ``reg`` is the registration asked about."""
+        if self._blocks is None or self._blocks[0] is not reg:
+            self._blocks = (reg, {})
+        return self._blocks[1]
 
     def nominal_frames(self) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         """(tips, starts) of :func:`cell.kinematics.forward` at the readings with every
@@ -248,31 +257,42 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
           ) -> tuple[np.ndarray, np.ndarray | None]:
     """Predicted points (M, 3) in the measurement frame; with ``jac`` also the (3M, n)
     Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
-    positions (3 each) if free, then ``params``."""
-    if np.any(values):
+    positions (3 each) if free, then ``params``. At zero ``values`` the frames are the
+    Data's nominal ones and the Jacobian's blocks are kept per registration and parameter
+    (:meth:`Data.zero_blocks`): screening, identifiability and the registration-only fit
+    ask for the same columns many times."""
+    zero = not np.any(values)
+    if zero:
+        tips, starts = d.nominal_frames()
+    else:
         geo, dq = joint_deltas(d, params, values)
         tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
-    else:
-        tips, starts = d.nominal_frames()
     local = reg.markers[d.obs_marker]
     xb = kin.points(tips, d.obs_pose, local)
     y = xb @ reg.R.T + reg.t
     if not jac:
         return y, None
-    cols = []
-    if d.sensor:
-        cols += [_skew_rows(y - reg.t), np.broadcast_to(np.eye(3), (len(y), 3, 3))]
-    if d.known_markers is None:
-        Rt = reg.R @ tips[d.obs_pose, :3, :3]                    # (M, 3, 3)
-        for m in range(d.n_markers):
-            cols.append(Rt * (d.obs_marker == m)[:, None, None])
-    blocks = [c.reshape(len(y), 3, -1) for c in cols]
+    kept = d.zero_blocks(reg) if zero else {}
+    blocks = kept.get(None)
+    if blocks is None:
+        cols = []
+        if d.sensor:
+            cols += [_skew_rows(y - reg.t), np.broadcast_to(np.eye(3), (len(y), 3, 3))]
+        if d.known_markers is None:
+            Rt = reg.R @ tips[d.obs_pose, :3, :3]                    # (M, 3, 3)
+            for m in range(d.n_markers):
+                cols.append(Rt * (d.obs_marker == m)[:, None, None])
+        blocks = kept[None] = [c.reshape(len(y), 3, -1) for c in cols]
+    blocks = list(blocks)
     for p in params:
-        g = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
-        r = _regressor(d, p)
-        if r is not None:
-            g = g * r[d.obs_pose][:, None]
-        blocks.append(g[:, :, None])
+        g = kept.get(p)
+        if g is None:
+            g = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+            r = _regressor(d, p)
+            if r is not None:
+                g = g * r[d.obs_pose][:, None]
+            g = kept[p] = g[:, :, None]
+        blocks.append(g)
     J = np.concatenate(blocks, axis=2).reshape(3 * len(y), -1) if blocks else np.zeros((3 * len(y), 0))
     return y, J
 
@@ -528,6 +548,27 @@ class FoldGram:
         ss = np.sum(e * e, axis=1)
         per = ss / np.maximum(self.n_pts, 1)
         return float(math.sqrt(np.sum(ss) / max(self.n_pts.sum(), 1))), per
+
+    def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
+        """:meth:`loo` of each column list of ``subsets`` (all of one length), solved in
+        one batch when each holds the eliminated base columns first."""
+        if not subsets:
+            return []
+        S = np.asarray(subsets, dtype=np.int64)                       # (t, c)
+        nb = self.base
+        if not nb or S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
+            return [self.loo(c) for c in subsets]
+        S = S[:, nb:] - nb                                            # (t, k)
+        try:
+            beta = np.linalg.solve(self.M[:, S[:, :, None], S[:, None, :]],
+                                   self.z[:, S, None])[..., 0]         # (F, t, k)
+        except np.linalg.LinAlgError:                                 # tell which: one at a time
+            return [self.loo(c) for c in subsets]
+        e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
+        ss = np.sum(e * e, axis=2)                                    # (t, F)
+        per = ss / np.maximum(self.n_pts, 1)
+        total = np.sqrt(np.sum(ss, axis=1) / max(self.n_pts.sum(), 1))
+        return [(float(t), q) for t, q in zip(total, per)]
 
 
 def loo_with(d: Data, f: Fit, extra: np.ndarray) -> tuple[float, np.ndarray]:

@@ -108,9 +108,11 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = (),
 
     best = cv(chosen)
     while True:                        # forward: while the left-out error still drops
-        tries = [(cv(chosen + [p]), p) for p in pool if p not in chosen]
-        if not tries:
+        rest = [p for p in pool if p not in chosen]
+        if not rest:
             break
+        scores = folds.loo_each([design.cols(chosen + [p]) for p in rest])
+        tries = [(sc[0], p) for sc, p in zip(scores, rest)]
         score, p = min(tries, key=lambda t: t[0])
         if not score < best:
             break
@@ -118,8 +120,9 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = (),
         best = score
     best_fold = folds.loo(design.cols(chosen))[1]
     while len(chosen) > len(start):    # backward: drop what the poses do not need
-        drops = [(folds.loo(design.cols([c for c in chosen if c is not p])), p)
-                 for p in chosen[len(start):]]
+        out = chosen[len(start):]
+        drops = list(zip(folds.loo_each([design.cols([c for c in chosen if c is not p]) for p in out]),
+                         out))
         (score, per), p = min(drops, key=lambda t: t[0][0])
         if wilcoxon_greater(per - best_fold) < STEP_ALPHA:
             break
