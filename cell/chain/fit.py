@@ -32,6 +32,7 @@ from cell.stats import t_quantile
 
 STRUCTURAL_TOL = 1e-6     # a unit column this close to the others' span adds nothing
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
+KEPT_REGISTRATIONS = 2    # Data.zero_blocks keeps the Jacobian blocks of this many
 # the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
 EFFECTS = tuple(fx.CHAIN_EFFECTS)
 SUBSYSTEM = {n: e.subsystem for n, e in fx.CHAIN_EFFECTS.items()}
@@ -102,7 +103,7 @@ class Data:
     place: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
-    _blocks: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.place is None:
@@ -111,10 +112,15 @@ class Data:
     def zero_blocks(self, reg: "Registration") -> dict:
         """The Jacobian blocks :func:`model` has computed at zero parameters for
         registration ``reg`` (None: the registration's; a :class:`Param`: its column), kept
-        while ``reg`` is the registration asked about."""
-        if self._blocks is None or self._blocks[0] is not reg:
-            self._blocks = (reg, {})
-        return self._blocks[1]
+        for the :data:`KEPT_REGISTRATIONS` registrations asked about last (a fit's start
+        between two screenings must not drop the registration-only fit's)."""
+        kept = self._blocks if self._blocks is not None else []
+        for i, (r, blocks) in enumerate(kept):
+            if r is reg:
+                kept.append(kept.pop(i))
+                return blocks
+        self._blocks = (kept + [(reg, {})])[-KEPT_REGISTRATIONS:]
+        return self._blocks[-1][1]
 
     def nominal_frames(self) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         """(tips, starts) of :func:`cell.kinematics.forward` at the readings with every
@@ -399,14 +405,13 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
         A = Js.T @ Js
         step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), Js.T @ r) / scale
         new_reg, new_v = _apply(d, reg, v, step)
-        y2, _ = model(d, new_reg, params, new_v)
+        y2, J2 = model(d, new_reg, params, new_v, jac=True)   # most steps are taken
         r2 = (d.xyz - y2).ravel()
         c2 = float(r2 @ r2)
         if c2 <= cost:
             reg, v, done = new_reg, new_v, cost - c2 <= tol * max(cost, 1e-30)
             lam = max(lam / 10, 1e-12)
-            y, J = model(d, reg, params, v, jac=True)
-            r, cost = (d.xyz - y).ravel(), float(r2 @ r2)
+            y, J, r, cost = y2, J2, r2, c2
             if done:
                 break
         else:
