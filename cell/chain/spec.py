@@ -18,7 +18,7 @@ import functools
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
-from cell.measurements import _number, _pair
+from cell.measurements import _number as _finite
 
 KINEMATICS = ("dh", "urdf")
 CONVENTIONS = ("standard", "modified")
@@ -67,8 +67,18 @@ def pydantic_models() -> tuple[type, type, type]:
     return ChainSpec, DHRow, Coupling
 
 
-def _triple(v) -> tuple[float, float, float] | None:
-    if not isinstance(v, (list, tuple)) or len(v) != 3:
+def _number(v) -> float | None:
+    """``v`` as a float if it is plainly a finite number, else None (an int too large for
+    a float included: pydantic says what is wrong with it)."""
+    try:
+        return _finite(v)
+    except OverflowError:
+        return None
+
+
+def _numbers(v, n: int) -> tuple[float, ...] | None:
+    """``v`` as ``n`` floats if it is a list or tuple of ``n`` plain numbers, else None."""
+    if not isinstance(v, (list, tuple)) or len(v) != n:
         return None
     out = tuple(_number(x) for x in v)
     return None if None in out else out
@@ -88,7 +98,7 @@ def _plain_row(v) -> dict | None:
     out = {"name": v["name"], "type": v.get("type", "revolute")}
     out |= {k: _number(v[k]) for k in ROW_NUMBERS}
     limits = v.get("limits")
-    out["limits"] = None if limits is None else _pair(limits)
+    out["limits"] = None if limits is None else _numbers(limits, 2)
     if not isinstance(out["name"], str) or out["type"] not in JOINT_TYPES \
             or any(out[k] is None for k in ROW_NUMBERS) or (limits is not None and out["limits"] is None):
         return None
@@ -115,7 +125,7 @@ def _plain_markers(v):
         return None
     out = {}
     for k, p in v.items():
-        if type(k) is not int or (p := _triple(p)) is None:
+        if type(k) is not int or (p := _numbers(p, 3)) is None:
             return None
         out[k] = p
     return out
@@ -147,7 +157,7 @@ def _plain_spec(data) -> dict | None:
     if None in terms:
         return None
     out["coupling"] = [Coupling(**c) for c in terms]
-    out["tool_mm"], out["gravity"] = _triple(out["tool_mm"]), _triple(out["gravity"])
+    out["tool_mm"], out["gravity"] = _numbers(out["tool_mm"], 3), _numbers(out["gravity"], 3)
     out["markers"] = _plain_markers(out["markers"])
     if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None:
         return None
