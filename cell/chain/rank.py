@@ -33,16 +33,16 @@ import numpy as np
 
 from cell.chain import drift
 from cell.chain import fit as F
+from cell.diagnosis import tie
 from cell.diagnosis.places import spaced_best
+from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 from cell.stats import wilcoxon_greater
 
-ALPHA = 0.01          # one-sided test over poses: candidate predicts left-out poses better
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
 PAIR_TOPS = 3         # pairs of the best this many single effects are fitted together
 MIN_FOLDS = 3         # fewer places: nothing is predicted out of sample
-RIVAL_RATIO = 1.25    # a tied candidate's leave-out rms is within this factor of the best's
 
 
 @dataclass
@@ -202,11 +202,8 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
 
 
 def wilcoxon_p(before: np.ndarray, after: np.ndarray) -> float:
-    """One-sided p that ``after`` is smaller than ``before`` (paired, per pose)."""
-    diff = np.asarray(before) - np.asarray(after)
-    if not np.all(np.isfinite(diff)):
-        return 1.0
-    return wilcoxon_greater(diff)
+    """One-sided p that ``after`` is smaller than ``before`` (paired, per fold)."""
+    return tie.p_worse(before, after)
 
 
 def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
@@ -251,16 +248,14 @@ def _components(c: Candidate) -> set:
 
 
 def tied_with(s: Search, best: Candidate) -> list[Candidate]:
-    """The candidates that predict left-out folds as well as ``best``: not worse by the
-    one-sided Wilcoxon test over folds at :data:`ALPHA`, and within :data:`RIVAL_RATIO`
-    of its prediction rms (a fold count too small for the test must not make a poor
-    candidate a rival). ``best`` first."""
+    """The candidates that predict left-out folds as well as ``best`` by the tie rule of
+    both families (:mod:`cell.diagnosis.tie`: not worse by the one-sided Wilcoxon test over
+    folds at :data:`ALPHA`, and within :data:`RIVAL_RATIO` of its prediction rms). ``best``
+    first."""
     out = [best]
     for c in s.ranking:
-        if c is best:
-            continue
-        if wilcoxon_p(c.fit.cv_fold, best.fit.cv_fold) >= ALPHA \
-                and c.fit.cv_rms <= RIVAL_RATIO * best.fit.cv_rms:
+        if c is not best and tie.tied(wilcoxon_p(c.fit.cv_fold, best.fit.cv_fold),
+                                      c.fit.cv_rms, best.fit.cv_rms):
             out.append(c)
     return out
 
@@ -284,8 +279,7 @@ def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     for p in ps:
         per = design.places.loo(design.cols([q for q in ps if q is not p]))[1]
         pv = wilcoxon_p(per, full)
-        close = math.sqrt(float(np.mean(per)) / max(float(np.mean(full)), 1e-300)) <= RIVAL_RATIO
-        if pv >= ALPHA and close:
+        if tie.tied(pv, math.sqrt(float(np.mean(per))), math.sqrt(float(np.mean(full)))):
             out.append((p.name, pv))
     return out
 
