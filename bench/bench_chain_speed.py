@@ -31,7 +31,7 @@ from pathlib import Path
 
 import cell  # noqa: F401  (one BLAS thread, as cellctl runs: see cell/__init__.py)
 from cell import progress
-from cell.chain.report import diagnose_chain
+from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth.chain_campaign import MARKER4, MARKERS, arm, make
 

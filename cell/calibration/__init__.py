@@ -6,6 +6,10 @@
 * :mod:`cell.calibration.kinematic` — seed 001: the SCARA's DH parameters from poses over
   a calibration board, by the differential (first-order) error model, iterated least
   squares, an identifiability report and a held-out check.
+* :mod:`cell.calibration.chain` — seed 001's model on any serial arm's campaign (DH or
+  URDF), checked on held-out poses and written back as a model file.
+* :mod:`cell.calibration.check` — the checks every calibration must pass before it is
+  written (held-out rms and max not worse, residual near the noise).
 
 Every failure raises :class:`~cell.errors.CalibrationError` naming the cause.
 """

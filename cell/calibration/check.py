@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from cell.chain.noise import revisits_disagree as f_test_p
+from cell.diagnosis.chain.noise import revisits_disagree as f_test_p
 
 FAR_FACTOR = 2.0     #: residual σ above this multiple of the noise σ is "far" (if significant)
 ALPHA = 1e-3         #: ... and significant at this level (one-sided F test of the variances)

@@ -23,7 +23,7 @@ stations, optional columns often missing, outliers); ``uniform`` the earlier spr
 design. ``--out-of-vocabulary SHARE`` gives that share of the trials (0–1, default 0) an
 effect from outside the vocabulary instead (``--oov-kinds``; default all), which should come
 back unexplained or as none, never as a confident cause. ``--chain`` validates the chain
-diagnosis instead (:mod:`cell.chain.validate`: a UR5 measured by a tracker, drawn from
+diagnosis instead (:mod:`cell.diagnosis.chain.validate`: a UR5 measured by a tracker, drawn from
 :mod:`cell.truth.chain`; ``--points`` is then the poses per campaign). ``--both`` runs the
 planar and the chain validation (default 100 trials each) and prints one verdict table for
 both before each family's tables.
@@ -133,11 +133,11 @@ def _html(write, diagnosis, args: argparse.Namespace) -> None:
 
 def run_chain(campaign, args: argparse.Namespace) -> int:
     """A chain campaign (Extension v1.1): registration first, then the chain vocabulary."""
-    from cell.chain.report import diagnose_chain_full, render_chain_text
+    from cell.diagnosis.chain.report import diagnose_chain_full, render_chain_text
     cd = diagnose_chain_full(campaign, args.noise_mm)
     rep = cd.report
     if args.html:
-        from cell.chain.html import write_chain_html
+        from cell.diagnosis.chain.html import write_chain_html
         _html(write_chain_html, cd, args)
     if args.json:
         print(json.dumps(json_safe(rep), indent=2, allow_nan=False))
@@ -257,7 +257,7 @@ def run_validate(args: argparse.Namespace) -> int:
 
 
 def run_validate_chain(args: argparse.Namespace) -> int:
-    from cell.chain import validate
+    from cell.diagnosis.chain import validate
     if args.combos:
         raise ConfigError("--combos: not available with --chain yet (single effects only)")
     trials, seed, poses, share, kinds = _validate_options(args, validate.OUTSIDE, 100, 60,
@@ -275,7 +275,7 @@ def run_validate_chain(args: argparse.Namespace) -> int:
 
 def run_validate_both(args: argparse.Namespace) -> int:
     """Planar and chain validation with the same options; one verdict table for both."""
-    from cell.chain import validate as chain
+    from cell.diagnosis.chain import validate as chain
     from cell.diagnosis import validate as planar
     from cell.truth import verdict
     if args.chain or args.combos or args.points is not None or args.oov_kinds is not None:

@@ -18,7 +18,7 @@
   (a cell running under the PLC applies a PLC-started calibration at once; the PLC never
   accepts a failed check).
 * ``calibrate kinematics CAMPAIGN`` — the same fit and check on a chain campaign
-  (:mod:`cell.chain.calibrate`); writes the calibrated model directory (``--out``) with
+  (:mod:`cell.calibration.chain`); writes the calibrated model directory (``--out``) with
   ``calibration.json``; ``--db`` adds a row to that cycle log's audit trail.
 
 ``--sim`` runs on the simulated cell (``--plant FILE``: a plant with effects the
@@ -240,12 +240,12 @@ def run_kinematics(args: argparse.Namespace) -> int:
 
 
 def run_chain(args: argparse.Namespace) -> int:
-    """Seed 001 on a chain campaign (:mod:`cell.chain.calibrate`): no cell, no devices."""
+    """Seed 001 on a chain campaign (:mod:`cell.calibration.chain`): no cell, no devices."""
     given = [f"--{n}" for n in ("poses", "holdout", "plant", "config") if getattr(args, n) is not None]
     given += ["--sim"] if args.sim else []
     if given:
         raise ConfigError(f"{', '.join(given)}: not with a CAMPAIGN (the campaign holds the poses)")
-    from cell.chain.calibrate import calibrate_chain, write_calibrated
+    from cell.calibration.chain import calibrate_chain, write_calibrated
     from cell.jsonsafe import json_safe
     from cell.measurements import Campaign, read_campaign
     c = read_campaign(args.campaign)

@@ -15,6 +15,13 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.report`     :func:`diagnose`, the JSON report and its text
 * :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
+
+Shared by the planar and the chain (:mod:`.chain`) diagnosis:
+
+* :mod:`.tie`        when the left-out folds cannot tell a candidate from the best
+* :mod:`.places`     poses at one station, folds, separating poses spaced apart
+* :mod:`.page`       the report format's version and the words for a cause
+* :mod:`.harness`    the validation harness: judged trials, scores, tables
 """
 __all__ = ["FORMAT", "Diagnosis", "diagnose", "render_text"]
 

@@ -1,7 +1,7 @@
 """The one validation harness of the diagnosis, planar and chain: a judged trial, the loop
 over trials, the scores and their Markdown tables. What differs between the two families
 is only how a trial's truth is drawn and its campaign made (:mod:`cell.diagnosis.validate`,
-:mod:`cell.chain.validate`, both from the independent :mod:`cell.truth`); everything from
+:mod:`cell.diagnosis.chain.validate`, both from the independent :mod:`cell.truth`); everything from
 the report on is judged here, by the same rules (:mod:`cell.truth.verdict`).
 
 A :class:`Trial` holds the hidden truth (its main effect, or ``none``, or a kind outside

@@ -1,7 +1,7 @@
 """The diagnosis as a page a person would rather look at: ``index.html`` + PNG plots
 (matplotlib, Agg backend) + ``report.json``. The one module of :mod:`cell.diagnosis` that
 writes files; the page itself is :mod:`cell.diagnosis.page` (shared with chain campaigns,
-:mod:`cell.chain.html`).
+:mod:`cell.diagnosis.chain.html`).
 
 Plots: ``workspace.png`` residual vectors over the workspace before and after the cause
 (quiver, one arrow scale and one colour scale for both, with its colour bar and a key

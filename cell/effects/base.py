@@ -8,7 +8,7 @@ plant and the replay call ``fn``; the fitter's Jacobian (:mod:`cell.diagnosis.ja
 calls ``deriv``; the candidate check (:mod:`cell.diagnosis.candidates`) asks each of
 ``needs`` whether a campaign can identify it; the screening (:mod:`cell.diagnosis.screen`)
 reads ``linear``; the recommended action (:mod:`cell.diagnosis.action`) is ``remedy``; the
-chain fitter (:mod:`cell.chain.fit`) takes its vocabulary, subsystems and ``depends_on``
+chain fitter (:mod:`cell.diagnosis.chain.fit`) takes its vocabulary, subsystems and ``depends_on``
 from the effects with ``chain``. See ``docs/adding-an-effect.md``.
 """
 from __future__ import annotations
@@ -190,7 +190,7 @@ CALIBRATE_CHAIN = Remedy("calibrate_kinematics", "Calibrate the kinematics: {wha
 
 @dataclass(frozen=True)
 class OnChain:
-    """How the effect applies to a serial chain (:mod:`cell.chain.fit`): its parameters per
+    """How the effect applies to a serial chain (:mod:`cell.diagnosis.chain.fit`): its parameters per
     joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
     ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
     origin parameter names. ``unit`` the parameter's unit (``{unit}``: the joint's).

@@ -1,7 +1,7 @@
 """gravity_compliance (chains only): the joint gives way under the gravity load,
 Δq_K = c·τ_K with τ_K the gravity lever of a unit weight at the tool point (format,
 "Chain effects"). Its forward model and derivative live with the chain's kinematics
-(:mod:`cell.chain.fit`, which needs the arm's levers); the SCARA moves in a horizontal
+(:mod:`cell.diagnosis.chain.fit`, which needs the arm's levers); the SCARA moves in a horizontal
 plane, so it has no planar form."""
 from __future__ import annotations
 

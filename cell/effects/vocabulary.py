@@ -14,5 +14,5 @@ REGISTRY: dict[str, Effect] = {m.EFFECT.name: m.EFFECT for m in (
 )}
 #: the planar (SCARA) vocabulary: what the plant simulates and the planar diagnosis fits
 EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.planar}
-#: the chain vocabulary (:mod:`cell.chain.fit`), in registry order
+#: the chain vocabulary (:mod:`cell.diagnosis.chain.fit`), in registry order
 CHAIN_EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.chain is not None}

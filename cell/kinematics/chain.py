@@ -9,7 +9,7 @@ Every chain, whatever its source, is the product (base to tip) of **ops**::
 
 An R/T op's value is ``nominal + Σ (its parameters) + joint terms``. Joint K's op carries
 its *model value* ``reading_K + Σ factor · reading_from`` (coupling), plus whatever error
-effects add to it (:mod:`cell.chain.fit`). Because every parameter enters one op as a
+effects add to it (:mod:`cell.diagnosis.chain.fit`). Because every parameter enters one op as a
 plain sum, the derivative of a point with respect to any parameter is that op's twist at
 the frame it starts in: exact analytic Jacobians (:mod:`cell.kinematics.evaluate`).
 

@@ -8,7 +8,7 @@ folder, read and checked here.
 * ``kinematics: dh`` (or ``urdf``) — any serial arm in the chain model format of
   ``cell/measurements.md`` (Extension v1.1): the seed 001 cobot and a UR5.
   :func:`chain_model_file` gives the file, which ``cellctl diagnose CAMPAIGN --model FILE``
-  and :func:`cell.chain.campaign.load_spec` read like any campaign's model.yaml.
+  and :func:`cell.measurements.chain.load_spec` read like any campaign's model.yaml.
 
 Adding a robot is adding a file; a bad file is refused when the package loads, naming the
 file and the field (the cell cannot start on an unknown robot).

@@ -1,6 +1,6 @@
 """An independent forward model of a DH arm measured by an external sensor, for blind
 checks of the chain diagnosis. Written plainly, per pose, from the DH definitions; it
-shares no code with :mod:`cell.kinematics` / :mod:`cell.chain.fit`,
+shares no code with :mod:`cell.kinematics` / :mod:`cell.diagnosis.chain.fit`,
 so a sign, unit or composition mistake there cannot cancel out here (the agreement test
 in ``tests/cell/chain/test_chain_model.py`` compares the two on every vocabulary effect).
 

@@ -1,6 +1,6 @@
 """Chain campaigns drawn from the independent forward model (:mod:`cell.truth.chain`),
 written in the exchange format (Extension v1.1): for the blind validation, the speed bench
-and the tests. Nothing here imports the fitter (:mod:`cell.chain`).
+and the tests. Nothing here imports the fitter (:mod:`cell.diagnosis.chain`).
 
 The default arm is a UR5 in standard DH (Universal Robots' published parameters: d1 89.159,
 a2 −425, a3 −392.25, d4 109.15, d5 94.65, d6 82.3 mm, α = 90, 0, 0, 90, −90, 0°), measured

@@ -265,7 +265,7 @@ def test_chain_sensor_frame_that_drifts_gets_no_confident_cause(tmp_path):
 
 
 def test_chain_sensor_frame_drift_beside_a_true_cause_is_said(tmp_path):
-    """A true j2 offset and the same drift: before cell/chain/drift.py,
+    """A true j2 offset and the same drift: before cell/diagnosis/chain/drift.py,
     joint_offset[j2] + gear_ratio[j1] (the drift) came out with confidence high, and nothing
     mentioned the drift. The poses walk j1 in order, so a drifting frame and a j1 effect
     look alike: the answer must not be confident, and must say the frame may have moved

@@ -201,7 +201,7 @@ def test_cycle_log_is_diagnosed(tmp_path, capsys):
 def test_validate_runs_a_few_trials(capsys):
     assert cellctl(["diagnose", "validate", "--trials", "3", "--seed", "4", "--points", "60"]) == 0
     out = capsys.readouterr().out
-    assert "Confusion matrix" in out and "| true \\ named |" in out
+    assert "Confusion matrix" in out and "| true \\ answer |" in out
     assert "| 3 |" in out                                       # the trials column
     assert cellctl(["diagnose", "validate", "--trials", "0"]) == 2
     assert "--trials 0 must be ≥ 1" in capsys.readouterr().err

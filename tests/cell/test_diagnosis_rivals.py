@@ -1,5 +1,5 @@
 """The out-of-sample choice of the planar and chain diagnoses (cell/diagnosis/crossval.py,
-cell/chain/rank.py): places, the simplest cause that predicts, 'ambiguous' with rivals and
+cell/diagnosis/chain/rank.py): places, the simplest cause that predicts, 'ambiguous' with rivals and
 the poses that would separate them, and labels that name every fitted component."""
 from __future__ import annotations
 

@@ -274,7 +274,7 @@ def test_every_effect_is_one_complete_definition():
 
 
 def test_the_chain_vocabulary_comes_from_the_registry():
-    from cell.chain import fit as chain_fit
+    from cell.diagnosis.chain import fit as chain_fit
     assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
     assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
                                    "gear_ratio": "transmission",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from cell import measurements as m
+from cell.measurements import campaign as m
 from cell.measurements import FORMAT, CameraSpec, ModelSpec
 
 PLAIN = [

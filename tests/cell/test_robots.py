@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cell.chain.campaign import build_chain, load_spec
+from cell.measurements.chain import build_chain, load_spec
 from cell.kinematics import forward
 from cell.errors import ConfigError
 from cell.kinematics import Scara

@@ -13,7 +13,7 @@ import pytest
 import cell.truth
 
 TRUTH = Path(cell.truth.__file__).parent
-FITTER_SIDE = ("cell.diagnosis", "cell.chain", "cell.calibration", "cell.effects", "cell.sim",
+FITTER_SIDE = ("cell.diagnosis", "cell.calibration", "cell.effects", "cell.sim",
                "cell.kinematics", "cell.compensation", "cell.measurements")
 MODULES = sorted(TRUTH.glob("*.py"))
 

@@ -1,7 +1,7 @@
 """The validation's accuracy, asserted on enough trials to fail when it drops.
 
 Realistic campaigns (cell/truth: poses clustered at 3–12 stations, optional columns often
-missing, gross outliers; cell/diagnosis/validate.py and cell/chain/validate.py), judged
+missing, gross outliers; cell/diagnosis/validate.py and cell/diagnosis/chain/validate.py), judged
 right / ambiguous (truth among the rivals) / ambiguous, truth missing / unexplained /
 wrong. Every golden number below was measured at the commit that set them (the cause chosen
 by predicting left-out places, untestable effects as rivals, pairs of the best three chain
@@ -14,7 +14,7 @@ effects) with ``.venv/bin/python`` running exactly these runs:
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
 * chain, 80 vocabulary trials (seed 1, 60 poses): right 40, ambiguous 34, ambiguous with
   the truth missing 3, unexplained 3, wrong 0; 36 of 38 intervals cover (measured after the
-  chain's outlier step, cell/chain/robust.py, by ``cellctl diagnose validate --chain
+  chain's outlier step, cell/diagnosis/chain/robust.py, by ``cellctl diagnose validate --chain
   --trials 80 --seed 1``; before it: right 18, ambiguous 12, unexplained 50);
 * chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
   13, ambiguous with the truth missing 10, right (none) 1, wrong 0 (before the outlier step:
@@ -33,7 +33,7 @@ import math
 
 import pytest
 
-from cell.chain import validate as chain
+from cell.diagnosis.chain import validate as chain
 from cell.diagnosis import validate as planar
 
 SEED = 1

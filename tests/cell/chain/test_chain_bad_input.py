@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cell.chain.report import diagnose_chain
+from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import CampaignFormatError, read_campaign
 from tests.cell.chain import chainsim
 

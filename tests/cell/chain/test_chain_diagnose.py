@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from cell.chain.calibrate import calibrate_chain, write_calibrated
-from cell.chain.report import diagnose_chain
+from cell.calibration.chain import calibrate_chain, write_calibrated
+from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from tests.cell.chain import chainsim
 
@@ -49,7 +49,7 @@ def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, e
 def test_conditioning_sees_a_combination_the_data_cannot_separate():
     import numpy as np
 
-    from cell.chain.fit import conditioning
+    from cell.diagnosis.chain.fit import conditioning
     J = np.random.default_rng(0).normal(size=(30, 4))
     rank, cols, cond = conditioning(J)
     assert (rank, cols) == (4, 4) and cond < 10

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cell.chain import fit as F
+from cell.diagnosis.chain import fit as F
 import cell.kinematics as kin
 from cell.kinematics.chain import dh_chain, matrix_rpy, rpy_matrix
 from cell.measurements import read_campaign

@@ -1,4 +1,4 @@
-"""The chain noise estimates (:mod:`cell.chain.noise`): the rigid constellation recovers the
+"""The chain noise estimates (:mod:`cell.diagnosis.chain.noise`): the rigid constellation recovers the
 sensor σ whatever the arm does; revisits that disagree beyond it are caught; a bump in the
 middle of a campaign is no longer taken for noise."""
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.stats import f as f_dist
 
-from cell.chain.noise import revisits_disagree, rigid_noise_mm
-from cell.chain.report import diagnose_chain
+from cell.diagnosis.chain.noise import revisits_disagree, rigid_noise_mm
+from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth import chain as truth
 from cell.truth.chain_campaign import MARKERS, make

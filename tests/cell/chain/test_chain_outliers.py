@@ -1,4 +1,4 @@
-"""Gross outliers of a chain campaign (cell/chain/robust.py): a tracker's glitch is set
+"""Gross outliers of a chain campaign (cell/diagnosis/chain/robust.py): a tracker's glitch is set
 aside and reported, a campaign with no error stays ``none``, and a residual that is
 systematic rather than a few glitches is not trimmed away. Campaigns come from the
 independent forward model (cell.truth.chain_campaign, the UR5 with 3 markers)."""
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.chain import robust
-from cell.chain.report import diagnose_chain, render_chain_text
+from cell.diagnosis.chain import robust
+from cell.diagnosis.chain.report import diagnose_chain, render_chain_text
 from cell.measurements import read_campaign
 from cell.truth.chain_campaign import MARKERS, make
 
@@ -45,7 +45,7 @@ def test_no_glitch_no_outlier(tmp_path):
 def test_more_far_points_than_the_allowed_share_are_not_set_aside_but_warned_about(tmp_path):
     """A fifth of the fit points pushed 1 mm off: not a few glitches but something
     systematic, so none is set aside and the flags carry a warning."""
-    from cell.chain import fit as F
+    from cell.diagnosis.chain import fit as F
     cc = _campaign(tmp_path, {}, outliers=0)
     d = F.Data.of(cc)
     f0 = F.fit(d, [])

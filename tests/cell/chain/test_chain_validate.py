@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from cell.chain import validate
+from cell.diagnosis.chain import validate
 from cell.cli import main
 
 

@@ -1,13 +1,13 @@
 """``cellctl diagnose`` for a chain campaign: the ``cell-diagnosis/1`` report with the
 chain additions of ``cell/measurements.md`` (Extension v1.1): ``registration`` (sensor
 frame, marker positions, what they absorb), the gap after registration alone, the cause
-named by :mod:`cell.chain.rank`, and the holdout on poses the fit never saw.
+named by :mod:`cell.diagnosis.chain.rank`, and the holdout on poses the fit never saw.
 
 Split: the campaign's ``split`` column when present; otherwise 30 % of the poses, drawn
 with the fixed seed :data:`SPLIT_SEED` (the v1 diagnosis's), whole poses at a time.
 Noise: ``--noise-mm``, else the scatter of revisited poses (same joint readings) when it
 agrees with the sensor noise seen within each pose's rigid marker constellation, else that
-sensor noise, else unknown (:func:`_noise`, :mod:`cell.chain.noise`). Revisits that
+sensor noise, else unknown (:func:`_noise`, :mod:`cell.diagnosis.chain.noise`). Revisits that
 disagree beyond the sensor noise make the gap unexplained: every vocabulary effect is a
 function of the readings, so they should agree.
 """
@@ -18,11 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.chain import fit as F
-from cell.chain import rank, robust
-from cell.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
+from cell.diagnosis.chain import fit as F
+from cell.diagnosis.chain import rank
+from cell.diagnosis.chain import robust
+from cell.diagnosis.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
                               rigid_noise_mm)
-from cell.chain.campaign import ChainCampaign
+from cell.measurements.chain import ChainCampaign
 from cell.measurements import CampaignFormatError
 from cell.diagnosis.page import describe_cause
 from cell.diagnosis.page import FORMAT, FORMAT_VERSION
@@ -60,7 +61,7 @@ def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None,
     Given σ first. Else the revisits' scatter when it agrees with the sensor noise of the
     rigid constellation (it then also holds the arm's repeatability); the rigid estimate
     when the revisits disagree (the disagreement is not noise: it is the reason) or when
-    there are none; unknown without either (:mod:`cell.chain.noise`). ``keep`` (M,) marks
+    there are none; unknown without either (:mod:`cell.diagnosis.chain.noise`). ``keep`` (M,) marks
     the campaign's points that are not outliers; ``fit_d`` holds only such points."""
     rep, groups, rep_dof = repeat_noise_mm(cc, keep)
     rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,

@@ -1,6 +1,6 @@
 """Which effect explains a chain campaign's gap: screening, fits, decision. Pure numerics.
 
-1. **Registration only** (:func:`cell.chain.fit.fit` with no parameters): the nominal.
+1. **Registration only** (:func:`cell.diagnosis.chain.fit.fit` with no parameters): the nominal.
 2. **Identifiability** per effect: its per-joint parameters the data can see beside the
    registration; the rest is reported (absorbed by registration, or seen only as a sum).
 3. **Linearised screening**: per effect, forward selection of its parameters on the
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cell.chain import drift
-from cell.chain import fit as F
+from cell.diagnosis.chain import drift
+from cell.diagnosis.chain import fit as F
 from cell.diagnosis import tie
 from cell.diagnosis.places import spaced_best
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
@@ -74,7 +74,7 @@ class Search:
 class Screen:
     """The linearised model at the registration-only solution ``f0`` with the columns of
     every parameter of ``pool`` (column-scaled), stacked for leave-one-pose-out and
-    leave-one-place-out fits of any subset (:class:`cell.chain.fit.FoldGram`)."""
+    leave-one-place-out fits of any subset (:class:`cell.diagnosis.chain.fit.FoldGram`)."""
 
     def __init__(self, d: F.Data, f0: F.Fit, pool: list[F.Param]):
         _, J = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
@@ -166,7 +166,7 @@ def _confounded_offsets(idents: dict[str, F.Identifiability], offsets: list[F.Pa
 def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarray | None = None
            ) -> Search:
     """Screen and fit the candidates on ``fit_d`` (module docstring), predicting ``hold_d``;
-    ``hold_keep`` marks the holdout points that are not outliers (:mod:`cell.chain.robust`)."""
+    ``hold_keep`` marks the holdout points that are not outliers (:mod:`cell.diagnosis.chain.robust`)."""
     f0 = F.fit(fit_d, [])
     nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)

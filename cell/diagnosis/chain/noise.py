@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from cell.chain.campaign import ChainCampaign
+from cell.measurements.chain import ChainCampaign
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
 

@@ -5,8 +5,8 @@ kinematics CAMPAIGN``). Pure numerics except :func:`write_calibrated`.
 Parameters: every joint offset and every geometric parameter of the chain (DH a, α, d, θ;
 URDF origin x, y, z, roll, pitch, yaw), offsets first. Those the campaign cannot see
 beside the registration, or sees only as a sum with others, are left at nominal and
-named (:func:`cell.chain.fit.identifiability`). Of the rest, the ones that improve the
-leave-one-pose-out prediction are kept (:func:`cell.chain.rank.screen`): with tens of
+named (:func:`cell.diagnosis.chain.fit.identifiability`). Of the rest, the ones that improve the
+leave-one-pose-out prediction are kept (:func:`cell.diagnosis.chain.rank.screen`): with tens of
 poses, fitting all 40-odd identifiable parameters of a 7-joint arm would fit noise.
 
 The check (:mod:`cell.calibration.check`): the held-out poses (the campaign's split, or
@@ -15,7 +15,7 @@ with its own registration, and neither their rms nor their max may get worse; an
 fit's residual σ per axis must not be far above the measurement noise, estimated apart
 from the fit: from revisited poses when there are some and they agree with the sensor
 noise (they then hold the arm's repeatability too), else from the markers' rigid
-constellation within each pose (:mod:`cell.chain.noise`). A failed check writes nothing,
+constellation within each pose (:mod:`cell.diagnosis.chain.noise`). A failed check writes nothing,
 unless the caller accepts it (``accept_worse``): the written directory then holds the
 warning in ``calibration.json`` and in ``model.yaml``'s ``source``.
 """
@@ -30,12 +30,12 @@ import math
 import numpy as np
 
 from cell.calibration import check as C
-from cell.chain import fit as F
-from cell.chain import rank
-from cell.chain.campaign import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
-from cell.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
+from cell.diagnosis.chain import fit as F
+from cell.diagnosis.chain import rank
+from cell.measurements.chain import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
+from cell.diagnosis.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
 from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
-from cell.chain.report import split_poses
+from cell.diagnosis.chain.report import split_poses
 from cell.jsonsafe import json_safe
 
 FORMAT = "cell-chain-calibration/1"

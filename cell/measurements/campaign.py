@@ -1,4 +1,5 @@
-"""Measurement exchange format v1 (``cell/measurements.md``): read and write campaigns.
+"""Measurement exchange format v1 (``cell/measurements.md``): read and write campaigns
+(the planar ones here; chains, Extension v1.1, in :mod:`cell.measurements.chain`).
 
 A campaign directory holds ``model.yaml`` (required), ``points.csv`` and/or ``paths.csv``.
 :func:`read_campaign` validates everything before returning: any bad input raises
@@ -36,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cell.errors import CampaignFormatError, CellError  # noqa: F401 (re-exported for the readers)
+from cell.errors import CampaignFormatError, CellError
 
 FORMAT = "cell-measurements/1"
 CHAIN_KINEMATICS = ("dh", "urdf")
@@ -422,7 +423,7 @@ def read_campaign(directory: Path | str, model_path: Path | str | None = None):
     """Read and validate a campaign directory; raises CampaignFormatError on any bad input.
 
     Returns a :class:`Campaign` for ``kinematics: scara`` (v1) and a
-    :class:`cell.chain.campaign.ChainCampaign` for ``dh`` / ``urdf`` chains (Extension
+    :class:`cell.measurements.chain.ChainCampaign` for ``dh`` / ``urdf`` chains (Extension
     v1.1). ``model_path`` (chains only) replaces ``directory/model.yaml``, e.g. a
     calibrated model as the new nominal for the same points."""
     d = Path(directory)
@@ -432,7 +433,7 @@ def read_campaign(directory: Path | str, model_path: Path | str | None = None):
     if not model_path.is_file():
         raise CampaignFormatError(model_path, "missing: every campaign needs model.yaml")
     if _chain_kind(model_path):
-        from cell.chain.campaign import read_chain_campaign  # lazy: only chains need it
+        from cell.measurements.chain import read_chain_campaign  # lazy: only chains need it
         return read_chain_campaign(d, model_path)
     if model_path != d / "model.yaml":
         raise CampaignFormatError(model_path, "a replacement nominal model is for chain campaigns "

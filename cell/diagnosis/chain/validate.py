@@ -1,7 +1,7 @@
 """Blind validation of the chain diagnosis: campaigns with a hidden effect drawn from the
 independent forward model (:mod:`cell.truth.chain`), written in the exchange format by
 :func:`cell.truth.chain_campaign.make` (the truth's own writer), read back with the
-project's reader, diagnosed by :func:`cell.chain.report.diagnose_chain` with no noise given
+project's reader, diagnosed by :func:`cell.diagnosis.chain.report.diagnose_chain` with no noise given
 (it must estimate the noise itself) and judged (:mod:`cell.truth.verdict`).
 
 The arm is the UR5 of :mod:`cell.truth.chain_campaign` (6 joints, standard DH), measured by a
@@ -50,15 +50,15 @@ from typing import Sequence
 
 import numpy as np
 
-from cell.chain.fit import EFFECTS
-from cell.chain.report import diagnose_chain
+from cell.diagnosis.chain.fit import EFFECTS
+from cell.diagnosis.chain.report import diagnose_chain
 from cell.diagnosis import harness
 from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
 from cell.measurements import read_campaign
 from cell.truth import verdict as vd
 from cell.truth.chain_campaign import MARKERS, make
 
-VOCABULARY = ("none",) + EFFECTS    # the chain vocabulary, cell.chain.fit.EFFECTS
+VOCABULARY = ("none",) + EFFECTS    # the chain vocabulary, cell.diagnosis.chain.fit.EFFECTS
 OUTSIDE = ("lens", "reach_sag", "bump", "couple", "cyclic", "plane_bump")
 LAYOUTS = ("realistic", "uniform")
 TWO_SHARE = 0.25

@@ -1,7 +1,7 @@
 """``cellctl diagnose CHAIN-CAMPAIGN --html DIR``: the chain diagnosis as a page
 (:mod:`cell.diagnosis.page`, the planar page's layout) with its own plots (matplotlib,
 Agg), ``report.json`` beside it. Writes files; the numbers come from
-:func:`cell.chain.report.diagnose_chain_full`.
+:func:`cell.diagnosis.chain.report.diagnose_chain_full`.
 
 Plots (before = registration only, after = with the named cause, both with their own
 registration; residual = measured − predicted point, mm, in the measurement frame):
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cell.chain import fit as F
-from cell.chain.report import ChainDiagnosis, render_chain_text
+from cell.diagnosis.chain import fit as F
+from cell.diagnosis.chain.report import ChainDiagnosis, render_chain_text
 from cell.diagnosis import page
 
 

@@ -22,9 +22,9 @@ campaign with no error at all comes back ``unexplained``.
   points lie beyond the threshold, the residual is heavy-tailed or systematic (an effect
   the vocabulary lacks), not a few glitches; none of that set is set aside and the report
   warns. Points of a free marker are kept when setting them aside would leave the marker
-  on fewer than :data:`cell.chain.campaign.MIN_MARKER_POSES` fit poses.
+  on fewer than :data:`cell.measurements.chain.MIN_MARKER_POSES` fit poses.
 
-:func:`robust_search` searches (:func:`cell.chain.rank.search`), flags, searches again
+:func:`robust_search` searches (:func:`cell.diagnosis.chain.rank.search`), flags, searches again
 without the flagged points and flags again from the new best candidate (a point set aside
 earlier can come back), until the flags no longer change, at most :data:`ROUNDS` times.
 """
@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cell.chain import fit as F
-from cell.chain import rank
-from cell.chain.campaign import MIN_MARKER_POSES
+from cell.diagnosis.chain import fit as F
+from cell.diagnosis.chain import rank
+from cell.measurements.chain import MIN_MARKER_POSES
 from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
 from cell.stats import chi2_isf
 
@@ -136,7 +136,7 @@ def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
 
 
 def robust_search(fit_d: F.Data, hold_d: F.Data, **kw) -> tuple[rank.Search, Outliers, rank.Search]:
-    """(the search (:func:`cell.chain.rank.search`, ``kw`` passed on) on the points that
+    """(the search (:func:`cell.diagnosis.chain.rank.search`, ``kw`` passed on) on the points that
     are not outliers, its :class:`Outliers`, the search on every point)."""
     s = first = rank.search(fit_d, hold_d, **kw)
     o = none_flagged(fit_d, hold_d)

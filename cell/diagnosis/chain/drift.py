@@ -5,9 +5,9 @@ Every arm effect depends on the joint readings only; a drifting sensor frame dep
 *when* a pose was measured. Its model is the registration made linear in the sample
 order: the sensor's rotation and translation each gain a rate, 6 parameters, with
 ``s`` = the pose's position in the campaign's sample order scaled to [−1, 1]. Nothing here
-is fitted in full: like :func:`cell.chain.rank.instrument_scale`, a hypothesis is the
+is fitted in full: like :func:`cell.diagnosis.chain.rank.instrument_scale`, a hypothesis is the
 linearised least squares of a fit's residual on its own Jacobian plus the 6 drift columns,
-judged by leave-out prediction over the folds of :meth:`cell.chain.fit.Data.folds`
+judged by leave-out prediction over the folds of :meth:`cell.diagnosis.chain.fit.Data.folds`
 (stations left out whole).
 
 * **present** (:func:`check`): the named cause plus drift predicts left-out folds
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cell.chain import fit as F
+from cell.diagnosis.chain import fit as F
 from cell.stats import wilcoxon_greater
 
 MIN_POSES = 12
@@ -57,7 +57,7 @@ def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
 
 
 def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
-    """Drift against the named candidate ``named`` (a :class:`cell.chain.rank.Candidate`,
+    """Drift against the named candidate ``named`` (a :class:`cell.diagnosis.chain.rank.Candidate`,
     the registration-only one when nothing is named; ``smaller`` the nominal and the
     candidates it contains), with the decision's ``alpha`` and rival ``ratio`` (module
     docstring)."""

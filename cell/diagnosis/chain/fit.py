@@ -132,7 +132,7 @@ class Data:
 
     @classmethod
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
-        """From a :class:`~cell.chain.campaign.ChainCampaign`, keeping the poses of ``pose_mask``."""
+        """From a :class:`~cell.measurements.chain.ChainCampaign`, keeping the poses of ``pose_mask``."""
         frames = kin.forward(cc.chain, cc.readings, keep=True)
         d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,

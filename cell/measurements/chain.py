@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cell.chain.spec import ChainSpec, DHRow, _plain_spec, pydantic_models
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
-from cell.measurements import (FORMAT, CampaignFormatError, _read_table, _yaml_line, check_places,
-                               staged_dir, yaml_loc)
+from cell.measurements.campaign import (FORMAT, CampaignFormatError, _read_table, _yaml_line,
+                                        check_places, staged_dir, yaml_loc)
+from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
@@ -101,7 +101,7 @@ def load_spec(path: Path) -> ChainSpec:
 
 
 def _validated(path: Path, raw: dict) -> ChainSpec:
-    """``raw`` that is not plainly valid, judged by pydantic (:mod:`cell.chain.spec`): the
+    """``raw`` that is not plainly valid, judged by pydantic (:mod:`cell.measurements.chain_spec`): the
     spec it converts to, or a CampaignFormatError naming the key and line of its error."""
     from pydantic import ValidationError
     from cell.yamlio import error_text

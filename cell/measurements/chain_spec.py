@@ -18,7 +18,7 @@ import functools
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
-from cell.measurements import _number as _finite
+from cell.measurements.campaign import _number as _finite
 
 KINEMATICS = ("dh", "urdf")
 CONVENTIONS = ("standard", "modified")

@@ -1,0 +1,16 @@
+"""The sim-to-real diagnosis of any serial arm measured in 3-D (``cell/measurements.md``,
+Extension v1.1): the chain front-end of :mod:`cell.diagnosis`. It shares with the planar one
+the tie rule (:mod:`cell.diagnosis.tie`), the places (:mod:`cell.diagnosis.places`), the report
+format and its words (:mod:`cell.diagnosis.page`) and the validation harness
+(:mod:`cell.diagnosis.harness`); the robot is :mod:`cell.kinematics`, the campaign
+:mod:`cell.measurements.chain`, the calibration that follows :mod:`cell.calibration.chain`.
+
+* :mod:`.fit`       registration (sensor frame, markers) and parameter fits, robust errors
+* :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision
+* :mod:`.drift`     a sensor frame that drifts during the campaign, as a rival or a reason
+* :mod:`.robust`    gross outliers found on the best candidate and set aside
+* :mod:`.noise`     the sensor noise from the data: rigid constellation, revisited poses
+* :mod:`.report`    the ``cell-diagnosis/1`` report for chains
+* :mod:`.html`      its HTML page
+* :mod:`.validate`  blind validation trials on the independent truth (:mod:`cell.truth`)
+"""
