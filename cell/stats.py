@@ -19,6 +19,8 @@ Scalar, pure Python on :mod:`math`; checked against scipy in ``tests/cell/test_s
 * :func:`wilcoxon_greater`: one-sided Wilcoxon signed-rank p-value that paired
   differences are shifted above zero; exact (by counting) up to 30 pairs without ties,
   normal approximation with tie and continuity corrections beyond.
+* :func:`median`: ``numpy.median``'s value by partition, without the import of
+  ``numpy.ma`` that ``numpy.median`` pays on its first call (about 8 ms of a diagnosis).
 """
 from __future__ import annotations
 
@@ -306,3 +308,24 @@ def wilcoxon_greater(diff) -> float:
     var = n * (n + 1) * (2 * n + 1) / 24 - float(np.sum(t ** 3 - t)) / 48
     z = (w - mean - 0.5) / math.sqrt(var) if var > 0 else 0.0
     return 1.0 - NormalDist().cdf(z)
+
+
+def median(v, axis: int | None = None):
+    """The median of ``v`` (all values, or along ``axis``), equal to ``numpy.median``'s:
+    the middle value, or the mean of the two middle ones; NaN where a NaN is among the
+    values, NaN for no values."""
+    a = np.asarray(v, dtype=float)
+    if axis is None:
+        a, axis = a.ravel(), 0
+    n = a.shape[axis]
+    if n == 0:
+        shape = a.shape[:axis] + a.shape[axis + 1:]
+        return np.full(shape, np.nan) if shape else math.nan
+    k = n // 2
+    part = np.partition(a, (k - 1, k) if n % 2 == 0 else k, axis=axis)
+    mid = part.take(k, axis=axis)
+    if n % 2 == 0:
+        mid = (part.take(k - 1, axis=axis) + mid) / 2.0
+    bad = np.isnan(a).any(axis=axis)
+    mid = np.where(bad, np.nan, mid)
+    return float(mid) if np.ndim(mid) == 0 else mid

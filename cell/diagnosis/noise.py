@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.stats import chi2_ppf
+from cell.stats import chi2_ppf, median
 
 NEIGHBOURS = 8
 MIN_POINTS = 20
@@ -72,7 +72,7 @@ def upper95(sigma: float, dof: float) -> float:
 def mad(v: np.ndarray) -> float:
     """1.4826 × median absolute deviation of all values of ``v``: a robust σ."""
     v = np.asarray(v, float).ravel()
-    return 1.4826 * float(np.median(np.abs(v - np.median(v))))
+    return 1.4826 * float(median(np.abs(v - median(v))))
 
 
 def given(sigma_mm: float) -> Noise:

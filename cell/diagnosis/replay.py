@@ -34,6 +34,7 @@ import numpy as np
 from cell import effects as fx
 from cell.kinematics import PlanarArm
 from cell.measurements import Campaign, CampaignFormatError
+from cell.stats import median
 
 SPLIT_SEED = 20260501      # seed of the generated 70/30 split (any fixed value: repeatable)
 HOLDOUT_SHARE = 0.3
@@ -317,4 +318,4 @@ def path_noise_mm(d: DiagData) -> float | None:
     if not parts:
         return None
     dd = np.concatenate(parts)
-    return float(1.4826 * np.median(np.abs(dd - np.median(dd))) / np.sqrt(6.0))
+    return float(1.4826 * median(np.abs(dd - median(dd))) / np.sqrt(6.0))

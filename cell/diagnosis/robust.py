@@ -46,7 +46,7 @@ from cell.diagnosis import where as where_mod
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 from cell.kinematics import planar_xy
-from cell.stats import chi2_isf
+from cell.stats import chi2_isf, median
 
 ALPHA = 0.01
 MAX_SHARE = 0.25
@@ -124,7 +124,7 @@ def flag(fit_d: DiagData, hold_d: DiagData, effects, path_temp_c=None) -> Outlie
         for _ in range(PASSES):   # a spike spoils its neighbours' planes: leave it out of them
             z = _local_residual(coords[t], r, ~far)
             zk = z[~far]
-            med = np.median(zk, axis=0)
+            med = median(zk, axis=0)
             s = noise_mod.mad(zk)
             if not s > 0:
                 break

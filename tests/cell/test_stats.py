@@ -68,3 +68,20 @@ def test_wilcoxon_large_samples_and_degenerate_input():
     assert wilcoxon_greater(d) == pytest.approx(stats.wilcoxon(d, alternative="greater").pvalue, abs=2e-3)
     assert wilcoxon_greater(np.zeros(5)) == 1.0
     assert wilcoxon_greater(-np.arange(1, 20.0)) > 0.99
+
+
+def test_median_is_numpys_without_loading_numpy_ma():
+    import subprocess
+    import sys
+
+    from cell.stats import median
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 10, 11, 64):
+        x = rng.normal(size=(n, 3))
+        assert median(x[:, 1]) == np.median(x[:, 1])
+        assert np.array_equal(median(x, axis=0), np.median(x, axis=0))
+    assert np.isnan(median([1.0, np.nan, 3.0])) and np.isnan(median([]))
+    code = ("import sys, numpy as np; from cell.stats import median; median(np.arange(6.0)); "
+            "print('numpy.ma' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -39,7 +39,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.measurements.chain import MIN_MARKER_POSES
 from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
-from cell.stats import chi2_isf
+from cell.stats import chi2_isf, median
 
 ALPHA = 0.01          # a Gaussian point is flagged anywhere in the campaign with this probability
 MAX_SHARE = 0.05      # more flagged than this share of a set: systematic, none set aside
@@ -107,7 +107,7 @@ def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
     ef = fit_d.xyz - F.model(fit_d, f.reg, f.params, f.values)[0]
     eh = hold_d.xyz - F.model(hold_d, f.reg, f.params, f.values)[0] if len(hold_d.xyz) else \
         np.zeros((0, 3))
-    med = np.median(ef, axis=0)
+    med = median(ef, axis=0)
     s = mad(ef - med)
     if not s > 0:
         return out
