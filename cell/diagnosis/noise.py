@@ -87,24 +87,32 @@ def from_paths(sigma_mm: float | None, n: int) -> Noise | None:
                  dof, upper95(float(sigma_mm), dof))
 
 
+def pooled(groups: np.ndarray, values: np.ndarray) -> tuple[float | None, int]:
+    """σ per axis of ``values`` (N, d) that should agree within each group (the same pose
+    measured again), pooled over the groups: √(Σ_groups Σ ‖x − x̄‖² / Σ d·(n − 1)), groups
+    taken in the order of their labels ``groups`` (N,) (a label < 0: the row is in none).
+    Groups of one row add nothing. Returns (σ, degrees of freedom), (None, 0) without any
+    group of two. The planar and the chain diagnosis take their revisit noise from here."""
+    values = np.asarray(values, dtype=float)
+    ss, dof = 0.0, 0
+    for g in np.unique(groups[groups >= 0]):
+        x = values[groups == g]
+        if len(x) > 1:
+            ss += float(np.sum((x - x.mean(axis=0)) ** 2))
+            dof += values.shape[1] * (len(x) - 1)
+    return (math.sqrt(ss / dof), dof) if dof else (None, 0)
+
+
 def repeats(cmd: np.ndarray, dirs: np.ndarray | None, r: np.ndarray) -> Noise | None:
     """Pooled within-group σ of remainder ``r`` (n,2) over poses with equal ``cmd`` (and
-    ``dirs``); None without a revisited pose."""
+    ``dirs``) (:func:`pooled`); None without a revisited pose."""
     key = np.round(cmd, 6) if dirs is None else np.column_stack([np.round(cmd, 6), dirs])
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.ravel()
-    rep = counts[inv] > 1
-    if not rep.any():
+    sigma, dof = pooled(np.where(counts[inv] > 1, inv, -1), r)
+    if sigma is None:
         return None
-    groups = inv[rep]
-    rr = r[rep]
-    ss = 0.0
-    for g in np.unique(groups):
-        x = rr[groups == g]
-        ss += float(np.sum((x - x.mean(axis=0)) ** 2))
-    n_groups = len(np.unique(groups))
-    dof = 2 * (int(rep.sum()) - n_groups)
-    sigma = math.sqrt(ss / dof)
+    n_groups = int(np.sum(counts > 1))
     return Noise(sigma, "repeats", f"scatter of {n_groups} revisited poses", dof,
                  upper95(sigma, dof))
 

@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from cell.diagnosis.noise import pooled
 from cell.measurements.chain import ChainCampaign
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
@@ -30,23 +31,24 @@ DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this sign
 
 def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
                     ) -> tuple[float | None, int, int]:
-    """σ per axis from poses revisited with identical readings (pooled over markers), the
-    number of repeat groups and the degrees of freedom; (None, 0, 0) without repeats.
-    ``keep`` (M,) marks the points to use (default all: outliers set aside are not)."""
+    """σ per axis from poses revisited with identical readings, each marker's points a
+    group of their own (:func:`cell.diagnosis.noise.pooled`, as the planar diagnosis pools
+    its revisits); the number of revisited poses' groups and the degrees of freedom;
+    (None, 0, 0) without repeats. ``keep`` (M,) marks the points to use (default all:
+    outliers set aside are not)."""
     key: dict[bytes, list[int]] = {}
     for p, q in enumerate(np.round(cc.readings, 6)):
         key.setdefault(q.tobytes(), []).append(p)
     groups = [g for g in key.values() if len(g) > 1]
-    ss, dof = 0.0, 0
-    for g in groups:
-        for m in range(len(cc.markers)):
-            sel = np.isin(cc.obs_pose, g) & (cc.obs_marker == m)
-            rows = np.flatnonzero(sel if keep is None else sel & keep)
-            if len(rows) > 1:
-                x = cc.xyz[rows]
-                ss += float(np.sum((x - x.mean(0)) ** 2))
-                dof += 3 * (len(rows) - 1)
-    return (math.sqrt(ss / dof), len(groups), dof) if dof else (None, 0, 0)
+    of_pose = np.full(len(cc.readings), -1)
+    for i, g in enumerate(groups):
+        of_pose[g] = i
+    label = np.where(of_pose[cc.obs_pose] >= 0,
+                     of_pose[cc.obs_pose] * len(cc.markers) + cc.obs_marker, -1)
+    if keep is not None:
+        label = np.where(keep, label, -1)
+    sigma, dof = pooled(label, cc.xyz)
+    return (sigma, len(groups), dof) if sigma is not None else (None, 0, 0)
 
 
 def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
