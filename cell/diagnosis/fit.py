@@ -34,11 +34,9 @@ from cell import effects as fx
 from cell.lsq import least_squares
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
-from cell.diagnosis.screen import ORDER_COST, ORDERS
+from cell.diagnosis.screen import MAX_COND, MAX_CORR, ORDER_COST, ORDERS
 
-MAX_CORR = 0.995
 JACOBIANS = ("analytic", "2-point")
-MAX_COND = 1e4
 Z95 = 1.959963984540054
 
 Candidate = tuple[tuple[str, tuple[str, ...]], ...]

@@ -31,7 +31,7 @@ closer in joint space than the angle over which the fastest response of the voca
 turns by a radian are one place for telling causes apart; the fit rows must cover at least
 half as many places as the smooth displacement field of the unexplained test (:mod:`.rank`:
 a cubic in (x, y) per axis, 20 columns) has columns, and determine that field (column-scaled
-condition number at most :data:`cell.diagnosis.fit.MAX_COND`). Fewer (clustered poses)
+condition number at most :data:`cell.diagnosis.screen.MAX_COND`). Fewer (clustered poses)
 and the report warns that causes cannot be told apart reliably nor the remainder checked.
 """
 from __future__ import annotations
@@ -187,8 +187,8 @@ def spread(fit_d: DiagData, max_order: int = 4) -> dict:
     (distinct commanded joint pairs), ``cond`` (column-scaled condition number of the
     20-column smooth field at the rows' nominal positions), ``rows``, and ``few`` (True
     when the places cannot determine that field: fewer than 10, or ``cond`` above
-    :data:`cell.diagnosis.fit.MAX_COND`)."""
-    from cell.diagnosis.fit import MAX_COND
+    :data:`cell.diagnosis.screen.MAX_COND`)."""
+    from cell.diagnosis.screen import MAX_COND
     rows = rows_of(fit_d)
     cell = 360.0 / (2 * math.pi * max_order)
     if rows.n == 0:

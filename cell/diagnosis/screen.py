@@ -30,7 +30,7 @@ Choosing among the orders costs ``2·ln(number of orders)`` in BIC per joint (a 
 prior over the orders).
 :func:`order_separation` says from the layout alone (the angles of the fit rows) whether
 two orders can be told apart at all: the largest canonical correlation between their
-response columns, against :data:`cell.diagnosis.fit.MAX_CORR`.
+response columns, against :data:`MAX_CORR`.
 """
 from __future__ import annotations
 
@@ -47,6 +47,8 @@ from cell.diagnosis.replay import DiagData
 #: the harmonic orders screened (those of the effect that declares orders: the cyclic error)
 ORDERS = next(e.linear.orders for e in fx.EFFECTS.values() if e.linear and e.linear.orders)
 ORDER_COST = 2.0 * math.log(len(ORDERS))
+MAX_CORR = 0.995     # a parameter correlation beyond: the candidate is not identifiable
+MAX_COND = 1e4       # a column-scaled condition number beyond: not identifiable
 ROUNDS = 3
 
 Key = tuple   # (effect, joint | None, order | None)
@@ -257,7 +259,6 @@ def _identifiability(G: np.ndarray, ke: list[int]) -> tuple[bool, str, float, fl
     """(identifiable, reason, condition number, largest correlation) of weighted Gram
     ``G`` judged on parameters ``ke`` (the nuisance left out), as :mod:`.fit` judges the
     Jacobian."""
-    from cell.diagnosis.fit import MAX_COND, MAX_CORR
     d = np.sqrt(np.maximum(np.diag(G), 0.0))
     if np.any(d[ke] <= 1e-12 * max(d.max(), 1e-300)):
         return False, "a parameter has no effect on the data", math.inf, 0.0
@@ -347,7 +348,6 @@ def _bfinish(B: Basis, group: list[Screened]) -> None:
     """Holdout RSS and identifiability (as :func:`_identifiability`; batched where no
     nuisance column is among the variant's) of screened variants with the same number of
     columns."""
-    from cell.diagnosis.fit import MAX_COND, MAX_CORR
     S = np.array([s.S for s in group], int)
     ix = (S[:, :, None], S[:, None, :])
     x = np.array([s.x for s in group])
