@@ -103,46 +103,22 @@ def run(args: argparse.Namespace) -> int:
     given += ["--oov-kinds"] if args.oov_kinds is not None else []
     if given:
         raise ConfigError(f"{', '.join(given)}: only with 'cellctl diagnose validate'")
-    from cell.measurements import Campaign
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
     campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
-    if not isinstance(campaign, Campaign):
-        return run_chain(campaign, args)
-    from cell.diagnosis import diagnose, render_text   # the planar diagnosis (scipy): only now
-    dg = diagnose(campaign, lines, args.noise_mm)
+    from cell.diagnosis.answer import diagnose_campaign   # the diagnosis itself: only now
+    answer = diagnose_campaign(campaign, lines, args.noise_mm)
     if args.html:
-        from cell.diagnosis.html import write_html
-        _html(write_html, dg, args)
+        try:
+            index = answer.write_html(args.html)
+        except OSError as exc:
+            raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
+        if not args.json:
+            print(f"HTML report written to {index}")
     if args.json:
-        print(json.dumps(json_safe(dg.report), indent=2, allow_nan=False))
+        print(json.dumps(json_safe(answer.report), indent=2, allow_nan=False))
     else:
-        print(render_text(dg.report))
-    return 0
-
-
-def _html(write, diagnosis, args: argparse.Namespace) -> None:
-    """Write the HTML page of ``diagnosis`` into ``--html`` with ``write``; say where."""
-    try:
-        index = write(diagnosis, args.html)
-    except OSError as exc:
-        raise ConfigError(f"--html {args.html}: cannot write: {exc}") from None
-    if not args.json:
-        print(f"HTML report written to {index}")
-
-
-def run_chain(campaign, args: argparse.Namespace) -> int:
-    """A chain campaign (Extension v1.1): registration first, then the chain vocabulary."""
-    from cell.diagnosis.chain.report import diagnose_chain_full, render_chain_text
-    cd = diagnose_chain_full(campaign, args.noise_mm)
-    rep = cd.report
-    if args.html:
-        from cell.diagnosis.chain.html import write_chain_html
-        _html(write_chain_html, cd, args)
-    if args.json:
-        print(json.dumps(json_safe(rep), indent=2, allow_nan=False))
-    else:
-        print(render_chain_text(rep))
+        print(answer.text())
     return 0
 
 

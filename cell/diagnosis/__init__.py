@@ -13,6 +13,7 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.noise`      the point noise: given, from revisited poses or from the remainder
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
 * :mod:`.report`     :func:`diagnose`, the JSON report and its text
+* :mod:`.answer`     :func:`~.answer.diagnose_campaign`: any campaign, planar or chain, one answer
 * :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
 
