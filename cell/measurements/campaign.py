@@ -32,6 +32,7 @@ import os
 import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ import yaml
 from cell.errors import CampaignFormatError, CellError
 
 FORMAT = "cell-measurements/1"
+INT64 = (-2 ** 63, 2 ** 63 - 1)   # the range of an int column (sample, move, marker)
 CHAIN_KINEMATICS = ("dh", "urdf")
 
 POINT_COLUMNS = {  # name: (kind, required)
@@ -85,10 +87,14 @@ def pydantic_models() -> tuple[type, type]:
 
 def _number(v, positive: bool = False) -> float | None:
     """``v`` as a float if it is plainly a finite number (an int or float, not a bool; > 0
-    with ``positive``), else None."""
+    with ``positive``), else None. An int too large for a float is not: the pydantic model
+    refuses it ('must be a valid number') and the reader names its line and key."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         return None
-    v = float(v)
+    try:
+        v = float(v)
+    except OverflowError:
+        return None
     return v if math.isfinite(v) and (v > 0 or not positive) else None
 
 
@@ -236,11 +242,16 @@ def _parse_cell(kind: str, text: str, path: Path, line: int, column: str) -> obj
     except ValueError:
         raise bad(f"not a number: {text!r}") from None
     if not math.isfinite(v):
-        raise bad(f"not a finite number: {text!r}")
+        big = math.isinf(v) and "inf" not in t.lower()
+        raise bad(f"not a finite number: {text!r}" + (" (too large for a float)" if big else ""))
     if kind == "int":
-        if v != int(v):
+        d = Decimal(t)                    # exact: a float rounds ids past 2**53
+        if d != d.to_integral_value():
             raise bad(f"not a whole number: {text!r}")
-        return int(v)
+        if not INT64[0] <= (n := int(d)) <= INT64[1]:
+            raise bad(f"whole number out of range (a 64-bit integer, {INT64[0]} to "
+                      f"{INT64[1]}): {text!r}")
+        return n
     if kind == "dir" and v not in (-1.0, 1.0):
         raise bad(f"direction must be +1 or -1, got {text!r}")
     return v
@@ -305,8 +316,9 @@ def _read_table(path: Path, columns: dict[str, tuple[str, bool]], at_once: bool 
 
 def _columns_at_once(rows: list[list[str]], width: int, used: list[tuple[int, str, str]]
                      ) -> tuple[dict[str, np.ndarray], list[int]] | None:
-    """What :func:`_read_table` returns, converted a column at a time (``float`` mapped over
-    it, the checks of :func:`_parse_cell` on whole arrays) when every row and cell is valid;
+    """What :func:`_read_table` returns, converted a column at a time (``float``, or ``int``
+    for an int column, mapped over it, the checks of :func:`_parse_cell` on whole arrays)
+    when every row and cell is valid;
     None at the first doubt, and the table is read again cell by cell, which names the
     first bad line and column."""
     body = [(n, row) for n, row in enumerate(rows[1:], start=2) if "".join(row).strip()]
@@ -321,25 +333,63 @@ def _columns_at_once(rows: list[list[str]], width: int, used: list[tuple[int, st
                 return None
             out[name] = np.array(v, dtype=object)
             continue
+        if kind == "int":                 # int() of the text, exact; "2.0", "1e3" go cell by cell
+            try:
+                out[name] = np.array(list(map(int, cols[i])), dtype=np.int64)
+            except (ValueError, OverflowError):
+                return None
+            continue
         try:
             x = np.array(list(map(float, cols[i])))
         except ValueError:
             return None
         if not np.all(np.isfinite(x)):
             return None
-        if kind == "int":
-            if np.any(x != np.trunc(x)) or np.any(np.abs(x) > 2.0 ** 53):
-                return None
-            x = x.astype(np.int64)
-        elif kind == "dir" and not np.all((x == 1.0) | (x == -1.0)):
+        if kind == "dir" and not np.all((x == 1.0) | (x == -1.0)):
             return None
         out[name] = x
     return out, [n for n, _ in body]
 
 
+def _safe_load(path: Path):
+    """``yaml.safe_load`` of ``path``. A scalar YAML cannot make into a value, where
+    PyYAML raises a bare ValueError (an integer of more digits than Python converts,
+    ``sys.get_int_max_str_digits``; a date such as 2021-13-01; ``!!float abc``), raises
+    CampaignFormatError naming its line and key. Raises yaml.YAMLError and
+    UnicodeDecodeError as ``yaml.safe_load`` and ``read_text`` do."""
+    text = path.read_text(encoding="utf-8")
+    try:
+        return yaml.safe_load(text)
+    except ValueError as exc:
+        why = str(exc).split(";")[0]      # without Python's advice to the programmer
+        loc, node = _unmade_scalar(yaml.compose(text))
+        raise CampaignFormatError(path, f"cannot be read: {why}",
+                                  line=node.start_mark.line + 1 if node else None,
+                                  column=".".join(map(str, loc)) or None) from None
+
+
+def _unmade_scalar(node, loc=()) -> tuple[tuple, yaml.Node | None]:
+    """(key path, node) of the first scalar under ``node`` (keys included) that PyYAML's
+    safe constructor raises ValueError on, or ((), None)."""
+    if isinstance(node, yaml.ScalarNode):
+        make = yaml.constructor.SafeConstructor()
+        try:
+            make.yaml_constructors.get(node.tag, lambda *_: None)(make, node)
+        except ValueError:
+            return loc, node
+        return (), None
+    children = [(x, loc + (k.value,)) for k, v in node.value for x in (k, v)] \
+        if isinstance(node, yaml.MappingNode) else \
+        [(v, loc + (i,)) for i, v in enumerate(node.value)] if isinstance(node, yaml.SequenceNode) else []
+    for child, at in children:
+        if (found := _unmade_scalar(child, at))[1] is not None:
+            return found
+    return (), None
+
+
 def _load_model(path: Path) -> ModelSpec:
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        raw = _safe_load(path)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise CampaignFormatError(path, f"not valid YAML: {getattr(exc, 'problem', exc)}",
@@ -413,7 +463,7 @@ def check_places(path: Path, readings: np.ndarray, ids, lines: list[int], column
 def _chain_kind(path: Path) -> bool:
     """True if ``model.yaml`` describes a serial chain (Extension v1.1: dh or urdf)."""
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        raw = _safe_load(path)
     except (yaml.YAMLError, UnicodeDecodeError):
         return False  # _load_model reports it with its line
     return isinstance(raw, dict) and raw.get("kinematics") in CHAIN_KINEMATICS

@@ -28,6 +28,8 @@ NOT_PLAIN = [  # accepted by pydantic's conversions, or refused with its message
     {"format": FORMAT, "l1_mm": 325, "l2_mm": 275, "stations": ["j1", 2]},
     {"format": FORMAT, "l1_mm": 325, "l2_mm": 275, "joint_limits_deg": [[1, 2, 3]]},
     {"format": FORMAT, "l1_mm": 325, "l2_mm": 275, "camera": {"center_mm": [1, 2], "x": 0}},
+    {"format": FORMAT, "l1_mm": 10 ** 400, "l2_mm": 275},
+    {"format": FORMAT, "l1_mm": 325, "l2_mm": 275, "joint_limits_deg": [[0, -10 ** 400]]},
 ]
 
 
@@ -73,7 +75,12 @@ def test_keyword_construction_converts_and_refuses_as_before():
                                   "1,0.5,10,20,1.5,2.5,1,-1,20.0,0.5,fit\n2,1,11,21,1,2,0,1,21,0,fit\n",
                                   "1.5,0.5,10,20,1.5,2.5,1,-1,20.0,0.5,fit\n",
                                   "1,0.5,10,20,1.5,2.5,1,-1,20.0,0.5,test\n",
-                                  "1,0.5,10,20,1.5,2.5,1,-1,20.0,0.5\n"])
+                                  "1,0.5,10,20,1.5,2.5,1,-1,20.0,0.5\n",
+                                  f"{2 ** 53 + 1},0,10,20,1,2,1,1,20,0,fit\n{2 ** 53},1,11,20,1,2,1,1,20,0,fit\n"
+                                  f"{-2 ** 63},1,11,20,1,2,1,1,20,0,fit\n",
+                                  "2.0,0,10,20,1,2,1,1,20,0,fit\n1e3,1,11,20,1,2,1,1,20,0,fit\n",
+                                  f"{2 ** 63},0,10,20,1,2,1,1,20,0,fit\n",
+                                  f"1,0,10,20,1{'0' * 400},2,1,1,20,0,fit\n"])
 def test_column_reading_is_the_cell_reading(tmp_path, body):
     f = tmp_path / "points.csv"
     f.write_text("sample,time_s,j1_deg,j2_deg,x_mm,y_mm,j1_dir,j2_dir,temp_c,payload_kg,split\n" + body)
