@@ -25,19 +25,12 @@ from cell.diagnosis.report import Diagnosis, render_text
 from cell.diagnosis.where import jacobian_cols, static_view
 
 
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def write_html(dg: Diagnosis, out_dir) -> Path:
     """Write index.html, report.json and the PNGs into ``out_dir`` (created); returns the
     index path. Raises OSError if the directory cannot be written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    plt = _plt()
+    plt = page.pyplot()
     d = dg.data
     eff = dg.decision.chosen.effects if dg.decision.chosen else []
     tp = dg.decision.chosen.path_temp_c if dg.decision.chosen else None
@@ -67,7 +60,7 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
             ax.legend(loc="upper left", fontsize=8)
     axes[0].set_ylabel("y, mm")
     fig.colorbar(q, ax=axes, shrink=0.85, label="|residual|, mm (arrow colour)")
-    pngs.append(_save(fig, out / "workspace.png", plt))
+    pngs.append(page.save_figure(plt, fig, out / "workspace.png"))
 
     j1, j2, _, _ = jacobian_cols(d.geometry.l1_mm, d.geometry.l2_mm, cmd)
     ok = np.abs(np.sin(np.radians(cmd[:, 1]))) > 0.15
@@ -105,7 +98,7 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     fig.suptitle("Nominal residual against each variable the gap could depend on", fontsize=11)
-    pngs.append(_save(fig, out / "variables.png", plt))
+    pngs.append(page.save_figure(plt, fig, out / "variables.png"))
 
     s = dg.search
     hp0, hq0 = residuals(s.hold_d, [], None)
@@ -123,7 +116,7 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
     ax.set_title(f"Holdout rows before/after ({dg.report['cause']['effect']}), shrink "
                  f"{dg.report['holdout']['shrink']:.3f}", loc="left", fontsize=10)
     ax.legend()
-    pngs.append(_save(fig, out / "holdout.png", plt))
+    pngs.append(page.save_figure(plt, fig, out / "holdout.png"))
 
     if d.moves:
         fig, axes = plt.subplots(1, 2, figsize=(12, 4), dpi=90)
@@ -147,7 +140,7 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
             axes[1].set_ylabel("lag, ms")
             axes[1].legend()
             axes[1].set_title("per-station lag vs station position", loc="left", fontsize=10)
-        pngs.append(_save(fig, out / "paths.png", plt))
+        pngs.append(page.save_figure(plt, fig, out / "paths.png"))
 
     rep = dg.report
     (out / "report.json").write_text(json.dumps(rep, indent=2), encoding="utf-8")
@@ -184,12 +177,3 @@ def _figures(pngs: list[Path]) -> list[page.Figure]:
 def _colors():
     import matplotlib.colors
     return matplotlib.colors
-
-
-def _save(fig, path: Path, plt) -> Path:
-    """Save with a margin around whatever was drawn (nothing clipped at the edges)."""
-    if not fig.get_layout_engine():
-        fig.tight_layout()
-    fig.savefig(path, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
-    return path

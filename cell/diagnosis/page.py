@@ -20,6 +20,7 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 from cell.diagnosis.action import recommend
 
@@ -89,6 +90,25 @@ class FitRms:
     before: float | None
     after: float | None
     rows: str
+
+
+def pyplot():
+    """matplotlib's pyplot on the file-only Agg backend (imported on first use: only a page
+    needs it)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def save_figure(plt, fig, path: Path) -> Path:
+    """Save ``fig`` as ``path`` with a margin around whatever was drawn (nothing clipped at
+    the edges), close it; ``path``."""
+    if not fig.get_layout_engine():
+        fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight", pad_inches=0.15)
+    plt.close(fig)
+    return path
 
 
 def esc(v) -> str:

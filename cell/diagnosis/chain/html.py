@@ -26,13 +26,6 @@ from cell.diagnosis.chain.report import ChainDiagnosis, render_chain_text
 from cell.diagnosis import page
 
 
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def residuals(d: F.Data, f: F.Fit) -> np.ndarray:
     """(M, 3) measured − predicted of fit ``f`` on ``d`` (its registration kept), mm."""
     y, _ = F.model(d, f.reg, f.params, f.values)
@@ -50,7 +43,7 @@ def write_chain_html(cd: ChainDiagnosis, out_dir) -> Path:
     index path. Raises OSError if the directory cannot be written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    plt = _plt()
+    plt = page.pyplot()
     rep, s, dec = cd.report, cd.search, cd.decision
     f0 = s.nominal.fit
     f1 = dec.chosen.fit if dec.chosen else f0
@@ -86,7 +79,8 @@ def _poses(plt, s, r, after: str, out: Path) -> page.Figure:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("rms 3-D point error of the pose, mm")
     axes[1].legend(fontsize=8, loc="upper right")
-    return page.Figure(_save(plt, fig, out / "poses.png"), "Pose by pose, fitted and held out",
+    png = page.save_figure(plt, fig, out / "poses.png").name
+    return page.Figure(png, "Pose by pose, fitted and held out",
                        "Each pose's error before (registration only) and after the named cause. "
                        "Left: the poses the model was fitted on (FIT); right: poses it never saw "
                        "(HOLDOUT, the answer's held-out check).")
@@ -118,7 +112,8 @@ def _vectors(plt, s, r, after: str, out: Path) -> page.Figure:
                          fontsize=10)
             ax.grid(alpha=0.25)
     fig.colorbar(q, ax=axes, shrink=0.7, label="|residual| 3-D, mm (arrow colour)")
-    return page.Figure(_save(plt, fig, out / "residuals.png"), "Where the gap lies",
+    png = page.save_figure(plt, fig, out / "residuals.png").name
+    return page.Figure(png, "Where the gap lies",
                        "Residual (measured − predicted) at every measured point, fit and holdout "
                        "poses, projected on two planes; arrow length on one scale for all panels "
                        "(key arrow), colour the 3-D size on one colour scale (bar).")
@@ -147,12 +142,7 @@ def _joints(plt, s, r, out: Path) -> page.Figure:
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=8)
-    return page.Figure(_save(plt, fig, out / "joints.png"), "What the gap follows",
+    png = page.save_figure(plt, fig, out / "joints.png").name
+    return page.Figure(png, "What the gap follows",
                        "Each pose's error after registration alone against each joint's reading "
                        "(revolute in deg, prismatic in mm).")
-
-
-def _save(plt, fig, path: Path) -> str:
-    fig.savefig(path, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
-    return path.name
