@@ -94,8 +94,7 @@ def load_spec(path: Path) -> ChainSpec:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise CampaignFormatError(path, f"joint name(s) {dupes} given twice", column="joints")
-    g = np.asarray(spec.gravity, float)
-    if not np.linalg.norm(g) > 0:
+    if not np.all(np.isfinite(unit(spec.gravity))):
         raise CampaignFormatError(path, "gravity must be a non-zero direction", column="gravity")
     return spec
 
@@ -131,9 +130,19 @@ def build_chain(spec: ChainSpec, model_path: Path) -> Chain:
         raise
 
 
+def unit(v) -> np.ndarray:
+    """``v`` scaled to length 1, scaled by its largest component first so that a vector of
+    huge (or tiny) finite components keeps its direction; NaN for a zero vector."""
+    a = np.asarray(v, dtype=float)
+    top = float(np.max(np.abs(a))) if a.size else 0.0
+    if not top > 0:
+        return np.full(a.shape, np.nan)
+    a = a / top
+    return a / np.linalg.norm(a)
+
+
 def _build_chain(spec: ChainSpec, model_path: Path) -> Chain:
-    g = np.asarray(spec.gravity, float)
-    g = g / np.linalg.norm(g)
+    g = unit(spec.gravity)
     coupling = [{"joint": c.joint, "from": c.from_, "factor": c.factor} for c in spec.coupling]
     if spec.kinematics == "dh":
         return dh_chain(model_path, [j.model_dump() for j in spec.joints], spec.dh_convention,

@@ -131,3 +131,20 @@ def test_a_bad_campaign_changes_nothing_on_disk(tmp_path):
     with pytest.raises(CampaignFormatError, match=r"model\.yaml.*bogus"):
         read_campaign(d)
     assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+
+
+@needs_tiago
+@pytest.mark.parametrize("gravity, direction", [([1e308, 1e308, 0], [0.7071068, 0.7071068, 0.0]),
+                                                ([0, 0, -1e-310], [0.0, 0.0, -1.0])])
+def test_a_gravity_of_huge_or_tiny_numbers_keeps_its_direction(tmp_path, gravity, direction):
+    d = _tiago(tmp_path)
+    _edit_model(d, gravity=gravity)
+    assert read_campaign(d).chain.gravity == pytest.approx(direction, abs=1e-7)
+
+
+@needs_tiago
+def test_a_zero_gravity_is_refused(tmp_path):
+    d = _tiago(tmp_path)
+    _edit_model(d, gravity=[0, 0, 0])
+    with pytest.raises(CampaignFormatError, match="gravity must be a non-zero direction"):
+        read_campaign(d)
