@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from cell.errors import CampaignFormatError, CellError
+from cell.measurements.checked import PlainFirst
 
 FORMAT = "cell-measurements/1"
 INT64 = (-2 ** 63, 2 ** 63 - 1)   # the range of an int column (sample, move, marker)
@@ -143,23 +144,32 @@ def _plain(data: dict) -> dict | None:
 
 
 @dataclass
-class CameraSpec:
+class CameraSpec(PlainFirst):
     """``model.yaml`` ``camera``: ``center_mm`` (x, y) mm on the work plane."""
 
     center_mm: tuple[float, float]
 
-    def __post_init__(self):
-        pair = _pair(self.center_mm)
-        if pair is None:     # not plainly valid: pydantic converts it or raises
-            pair = pydantic_models()[1].model_validate({"center_mm": self.center_mm}).center_mm
-        self.center_mm = pair
+    @staticmethod
+    def _plain(data) -> dict | None:
+        pair = _pair(data.get("center_mm")) if isinstance(data, dict) and set(data) == {"center_mm"} \
+            else None
+        return None if pair is None else {"center_mm": pair}
+
+    @staticmethod
+    def _pydantic() -> type:
+        return pydantic_models()[1]
+
+    @classmethod
+    def _from_pydantic(cls, m) -> dict:
+        return {"center_mm": m.center_mm}
 
 
 @dataclass
-class ModelSpec:
+class ModelSpec(PlainFirst):
     """``model.yaml``: the nominal model the simulation uses (every number finite).
     Validated on construction as the pydantic model :func:`pydantic_models` defines it
-    (unknown keys refused, lengths and command unit > 0, numbers finite); bad input raises
+    (unknown keys refused, lengths and command unit > 0, numbers finite), plain input
+    without pydantic (:class:`~cell.measurements.checked.PlainFirst`); bad input raises
     pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as pydantic's."""
 
     format: str
@@ -171,29 +181,25 @@ class ModelSpec:
     camera: CameraSpec | None = None
     stations: list[str] | None = None
 
-    def __post_init__(self):
-        given = {k: getattr(self, k) for k in self.__dataclass_fields__}
-        fields = _plain(given)
-        if fields is None:
-            if isinstance(given["camera"], CameraSpec):
-                given["camera"] = {"center_mm": given["camera"].center_mm}
-            fields = self._from_pydantic(pydantic_models()[0].model_validate(given))
-        self.__dict__.update(fields)
+    @staticmethod
+    def _plain(data) -> dict | None:
+        return _plain(data)
 
     @staticmethod
-    def _from_pydantic(m) -> dict:
+    def _pydantic() -> type:
+        return pydantic_models()[0]
+
+    def as_input(self) -> dict:
+        out = super().as_input()
+        if isinstance(out["camera"], CameraSpec):
+            out["camera"] = {"center_mm": out["camera"].center_mm}
+        return out
+
+    @classmethod
+    def _from_pydantic(cls, m) -> dict:
         d = dict(m)
         d["camera"] = None if m.camera is None else CameraSpec(m.camera.center_mm)
         return d
-
-    @classmethod
-    def model_validate(cls, data) -> "ModelSpec":
-        """A ModelSpec from a mapping (as ``model.yaml`` holds it); unknown keys and bad
-        values raise pydantic's ValidationError."""
-        fields = _plain(data)
-        if fields is None:
-            fields = cls._from_pydantic(pydantic_models()[0].model_validate(data))
-        return cls(**fields)
 
     def model_dump(self, exclude_none: bool = False, mode: str = "python") -> dict:
         """The fields as a dict in declaration order of the format (camera as a mapping;

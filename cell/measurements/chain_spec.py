@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, fields
 from typing import Literal
 
 from cell.measurements.campaign import _number as _finite
+from cell.measurements.checked import PlainFirst
 
 KINEMATICS = ("dh", "urdf")
 CONVENTIONS = ("standard", "modified")
@@ -165,7 +166,7 @@ def _plain_spec(data) -> dict | None:
 
 
 @dataclass(kw_only=True)
-class DHRow:
+class DHRow(PlainFirst):
     """One joint of a ``kinematics: dh`` model: ``name``, ``type``, the DH numbers (mm,
     deg) and optional ``limits`` (lo, hi) in the joint's unit. Validated on construction
     (module docstring)."""
@@ -178,19 +179,21 @@ class DHRow:
     theta_deg: float
     limits: tuple[float, float] | None = None
 
-    def __post_init__(self):
-        out = _plain_row(self.model_dump())
-        if out is None:
-            out = dict(pydantic_models()[1].model_validate(self.model_dump()))
-        self.__dict__.update(out)
+    @staticmethod
+    def _plain(data) -> dict | None:
+        return _plain_row(data)
+
+    @staticmethod
+    def _pydantic() -> type:
+        return pydantic_models()[1]
 
     def model_dump(self) -> dict:
         """The fields as a dict, in the order of the format."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return self.as_input()
 
 
 @dataclass(kw_only=True)
-class Coupling:
+class Coupling(PlainFirst):
     """Model value of ``joint`` += ``factor`` × reading of ``from_`` (``from`` in the file).
     Validated on construction (module docstring)."""
 
@@ -198,12 +201,17 @@ class Coupling:
     from_: str
     factor: float
 
-    def __post_init__(self):
-        out = _plain_coupling(self.as_input())
-        if out is None:
-            m = pydantic_models()[2].model_validate(self.as_input())
-            out = {"joint": m.joint, "from_": m.from_, "factor": m.factor}
-        self.__dict__.update(out)
+    @staticmethod
+    def _plain(data) -> dict | None:
+        return _plain_coupling(data)
+
+    @staticmethod
+    def _pydantic() -> type:
+        return pydantic_models()[2]
+
+    @classmethod
+    def _from_pydantic(cls, m) -> dict:
+        return {"joint": m.joint, "from_": m.from_, "factor": m.factor}
 
     def as_input(self) -> dict:
         """As ``model.yaml`` holds it."""
@@ -211,7 +219,7 @@ class Coupling:
 
 
 @dataclass(kw_only=True)
-class ChainSpec:
+class ChainSpec(PlainFirst):
     """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
     direction of gravity in the base frame, default −z; it only matters for the
     gravity-compliance effect. Every number must be finite. Validated on construction as
@@ -233,37 +241,29 @@ class ChainSpec:
     gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
     source: str = ""
 
-    def __post_init__(self):
-        given = self.as_input()
-        out = _plain_spec(given)
-        if out is None:
-            out = self._from_pydantic(pydantic_models()[0].model_validate(given))
-        self.__dict__.update(out)
+    @staticmethod
+    def _plain(data) -> dict | None:
+        return _plain_spec(data)
+
+    @staticmethod
+    def _pydantic() -> type:
+        return pydantic_models()[0]
 
     def as_input(self) -> dict:
         """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out = super().as_input()
         out["joints"] = [j.model_dump() if isinstance(j, DHRow) else j for j in self.joints] \
             if isinstance(self.joints, list) else self.joints
         out["coupling"] = [c.as_input() if isinstance(c, Coupling) else c for c in self.coupling] \
             if isinstance(self.coupling, list) else self.coupling
         return out
 
-    @staticmethod
-    def _from_pydantic(m) -> dict:
+    @classmethod
+    def _from_pydantic(cls, m) -> dict:
         out = dict(m)
         out["joints"] = [j if isinstance(j, str) else DHRow(**j.model_dump()) for j in m.joints]
         out["coupling"] = [Coupling(joint=c.joint, from_=c.from_, factor=c.factor) for c in m.coupling]
         return out
-
-    @classmethod
-    def model_validate(cls, data) -> "ChainSpec":
-        """A ChainSpec from a mapping (as ``model.yaml`` holds it); unknown keys and bad
-        values raise pydantic's ValidationError."""
-        out = _plain_spec(data)
-        if out is None:
-            out = cls._from_pydantic(pydantic_models()[0].model_validate(data))
-        return cls(**out)
 
     def model_dump(self, **kw) -> dict:
         """pydantic's ``model_dump`` (``mode``, ``by_alias``, … as there) of the same spec."""

@@ -1,0 +1,54 @@
+"""Model files checked twice over, cheaply: the base of the dataclasses that hold a
+``model.yaml`` (planar :class:`~cell.measurements.campaign.ModelSpec`, chain
+:class:`~cell.measurements.chain_spec.ChainSpec` and their parts).
+
+pydantic defines what is valid and says what is wrong, but importing it and building the
+models costs about 0.08 s of CPU, most of a diagnosis' start-up. So each class has a plain
+check of its own for input that is *plainly* valid (known keys, the types the model
+names, finite numbers; no conversion beyond int → float and list → tuple), and only the
+rest is handed to its pydantic model, built on first use, which converts what it accepts
+and raises its ValidationError, with its message, for the rest. A test holds the two
+paths to the same answers (``tests/cell/test_chain_spec_paths.py``,
+``tests/cell/test_measurements_fast.py``).
+"""
+from __future__ import annotations
+
+from dataclasses import fields
+
+
+class PlainFirst:
+    """Base of such a dataclass. A subclass gives ``_plain(mapping)`` (its fields, or None
+    when the input is not plainly valid) and ``_pydantic()`` (its pydantic model), and may
+    override ``_from_pydantic`` (the model's result as fields) and ``as_input`` (the fields
+    as the file holds them). Construction and :meth:`model_validate` check the input;
+    bad input raises pydantic's ValidationError."""
+
+    @staticmethod
+    def _plain(data) -> dict | None:
+        raise NotImplementedError
+
+    @staticmethod
+    def _pydantic() -> type:
+        raise NotImplementedError
+
+    @classmethod
+    def _from_pydantic(cls, m) -> dict:
+        return dict(m)
+
+    @classmethod
+    def _fields(cls, data) -> dict:
+        out = cls._plain(data)
+        return out if out is not None else cls._from_pydantic(cls._pydantic().model_validate(data))
+
+    def as_input(self) -> dict:
+        """The fields as the file holds them."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def __post_init__(self):
+        self.__dict__.update(self._fields(self.as_input()))
+
+    @classmethod
+    def model_validate(cls, data):
+        """An instance from a mapping (as ``model.yaml`` holds it); unknown keys and bad
+        values raise pydantic's ValidationError."""
+        return cls(**cls._fields(data))
