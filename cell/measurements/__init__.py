@@ -4,7 +4,8 @@ written, for the planar cell (v1) and any serial chain (Extension v1.1).
 * :mod:`.campaign`    v1 campaigns (model.yaml, points.csv, paths.csv), the shared table
   reader and the atomic writer; :func:`read_campaign` reads either kind
 * :mod:`.chain`       chain campaigns (dh / urdf model, markers, sensor frame)
-* :mod:`.chain_spec`  a chain's model.yaml as data, checked without pydantic when plainly valid
+* :mod:`.chain_spec`  a chain's model.yaml as data
+* :mod:`.checked`     model files checked without pydantic when plainly valid, with it otherwise
 
 The names most callers need are importable from here.
 """
