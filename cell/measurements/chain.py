@@ -26,8 +26,9 @@ import yaml
 
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
 from cell.measurements.campaign import (FORMAT, CampaignFormatError, _read_table, _yaml_line,
-                                        check_places, staged_dir, yaml_loc)
+                                        check_places, yaml_loc)
 from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
+from cell.measurements.folder import staged_dir
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
@@ -259,7 +260,7 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
 def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpec | None = None,
                          files: dict[str, str] | None = None, force: bool = False) -> Path:
     """Write ``c`` (with ``spec`` as its model, and extra ``files`` name → text such as a
-    URDF) to ``directory`` (:func:`cell.measurements.staged_dir`: a folder holding files it
+    URDF) to ``directory`` (:func:`cell.measurements.folder.staged_dir`: a folder holding files it
     did not write is refused unless ``force``)."""
     d = Path(directory)
     with staged_dir(d, force) as tmp:
