@@ -33,7 +33,7 @@ from cell.calibration import check as C
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.measurements.chain import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
-from cell.diagnosis.chain.noise import DRIFT_ALPHA, repeat_noise_mm, revisits_disagree, rigid_noise_mm
+from cell.diagnosis.chain.noise import estimate
 from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.diagnosis.chain.report import split_poses
 from cell.jsonsafe import json_safe
@@ -110,17 +110,14 @@ def calibrate_chain(cc: ChainCampaign) -> ChainCalibration:
 
 
 def _noise(cc: ChainCampaign, fit_d: F.Data, f: F.Fit) -> C.Noise:
-    """The fit's residual σ per axis against the measurement noise (see the module doc)."""
+    """The fit's residual σ per axis against the measurement noise the diagnosis judges
+    with too (:func:`cell.diagnosis.chain.noise.estimate`)."""
     dof = f.J.shape[0] - f.J.shape[1]
     resid = math.sqrt(float(np.sum(f.resid ** 2)) / dof) if dof > 0 else math.nan
-    rep, groups, rep_dof = repeat_noise_mm(cc)
-    rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f.reg.markers,
-                                  fit_d.known_markers is None)
-    if rep is not None and (rig is None or revisits_disagree(rep, rep_dof, rig, rig_dof) >= DRIFT_ALPHA):
-        return C.noise_check(resid, dof, rep, rep_dof, f"revisited poses ({groups} groups)", "mm")
-    if rig is not None:
-        return C.noise_check(resid, dof, rig, rig_dof, "markers' rigid constellation within each pose", "mm")
-    return C.noise_check(resid, dof, None, 0, "no revisited poses, fewer than 3 markers per pose", "mm")
+    n = estimate(cc, fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f.reg.markers,
+                 fit_d.known_markers is None)
+    source = n.source if n.sigma is not None else "no revisited poses, fewer than 3 markers per pose"
+    return C.noise_check(resid, dof, n.sigma, n.dof, source, "mm")
 
 
 def _dh_rows(spec: ChainSpec, values: dict[str, float]) -> list[dict]:

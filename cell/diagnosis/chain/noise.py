@@ -20,6 +20,7 @@ campaign), which the vocabulary cannot explain.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -90,3 +91,45 @@ def revisits_disagree(repeat_sigma: float, repeat_dof: int, sensor_sigma: float,
     c = f ** (1.0 / 3.0)
     z = ((1.0 - b) * c - (1.0 - a)) / math.sqrt(a + c * c * b)
     return 0.5 * math.erfc(z / math.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """A chain campaign's measurement noise as the data give it: ``sigma`` per axis, mm
+    (None: unknown), its degrees of freedom ``dof``, where it came from (``source``), and
+    ``disagree``: why the revisited poses are not noise, when they scatter beyond the
+    sensor noise (else None)."""
+
+    sigma: float | None
+    dof: int
+    source: str
+    disagree: str | None = None
+
+
+def estimate(cc: ChainCampaign, xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
+             markers_tip: np.ndarray, free_markers: bool,
+             keep: np.ndarray | None = None) -> SensorNoise:
+    """The noise the diagnosis and the calibration both judge with: the revisits' scatter
+    when it agrees with the sensor noise of the rigid constellation (it then also holds the
+    arm's repeatability); the rigid estimate when the revisits disagree (the disagreement
+    is not noise: it is :attr:`SensorNoise.disagree`) or when there are none; unknown
+    without either. The fit points (``xyz``, ``obs_pose``, ``obs_marker``) and the marker
+    constellation are those of :func:`rigid_noise_mm`; ``keep`` (M,) marks the campaign's
+    points that are not outliers (:func:`repeat_noise_mm`)."""
+    rep, groups, rep_dof = repeat_noise_mm(cc, keep)
+    rig, rig_dof = rigid_noise_mm(xyz, obs_pose, obs_marker, markers_tip, free_markers)
+    disagree = None
+    if rep is not None and rig is not None:
+        p = revisits_disagree(rep, rep_dof, rig, rig_dof)
+        if p < DRIFT_ALPHA:
+            disagree = (f"revisited poses disagree by {rep:.3f} mm per axis, {rep / rig:.1f}× the "
+                        f"sensor noise ({rig:.3f} mm, from the markers' rigid constellation; "
+                        f"p = {p:.2g}): the arm did not come back to where it was (poor "
+                        "repeatability, drift or a step during the campaign), which no effect "
+                        "of the chain vocabulary explains")
+    if rep is not None and disagree is None:
+        return SensorNoise(rep, rep_dof, f"repeats ({groups} revisited poses)")
+    if rig is not None:
+        return SensorNoise(rig, rig_dof, f"markers (rigid constellation within each pose, "
+                                         f"{rig_dof} dof)", disagree)
+    return SensorNoise(None, 0, "unknown")

@@ -21,8 +21,7 @@ import numpy as np
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.chain import robust
-from cell.diagnosis.chain.noise import (DRIFT_ALPHA, repeat_noise_mm, revisits_disagree,
-                              rigid_noise_mm)
+from cell.diagnosis.chain.noise import estimate
 from cell.measurements.chain import ChainCampaign
 from cell.measurements import CampaignFormatError
 from cell.diagnosis.page import describe_cause
@@ -56,32 +55,14 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
 def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None,
            keep: np.ndarray | None = None) -> tuple[float | None, str, str | None]:
     """(σ per axis for the decision, where it came from, the reason to call the gap
-    unexplained when revisited poses disagree beyond the sensor noise, or None).
-
-    Given σ first. Else the revisits' scatter when it agrees with the sensor noise of the
-    rigid constellation (it then also holds the arm's repeatability); the rigid estimate
-    when the revisits disagree (the disagreement is not noise: it is the reason) or when
-    there are none; unknown without either (:mod:`cell.diagnosis.chain.noise`). ``keep`` (M,) marks
-    the campaign's points that are not outliers; ``fit_d`` holds only such points."""
-    rep, groups, rep_dof = repeat_noise_mm(cc, keep)
-    rig, rig_dof = rigid_noise_mm(fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
-                                  fit_d.known_markers is None)
-    drift = None
-    if rep is not None and rig is not None:
-        p = revisits_disagree(rep, rep_dof, rig, rig_dof)
-        if p < DRIFT_ALPHA:
-            drift = (f"revisited poses disagree by {rep:.3f} mm per axis, {rep / rig:.1f}× the "
-                     f"sensor noise ({rig:.3f} mm, from the markers' rigid constellation; "
-                     f"p = {p:.2g}): the arm did not come back to where it was (poor "
-                     "repeatability, drift or a step during the campaign), which no effect "
-                     "of the chain vocabulary explains")
+    unexplained when revisited poses disagree beyond the sensor noise, or None): a given σ
+    first, else :func:`cell.diagnosis.chain.noise.estimate`. ``keep`` (M,) marks the
+    campaign's points that are not outliers; ``fit_d`` holds only such points."""
+    n = estimate(cc, fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
+                 fit_d.known_markers is None, keep)
     if given is not None:
-        return given, "given", drift
-    if rep is not None and drift is None:
-        return rep, f"repeats ({groups} revisited poses)", None
-    if rig is not None:
-        return rig, f"markers (rigid constellation within each pose, {rig_dof} dof)", drift
-    return None, "unknown", None
+        return given, "given", n.disagree
+    return n.sigma, n.source, n.disagree
 
 
 def _r(v, nd: int = 6):
