@@ -191,9 +191,8 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     if chosen is None:
         return Judgement(None, best, [], table, F, n_places, nominal, testable)
     tied = [s for s in table if s.tied]
-    named = min(tied, key=lambda s: (s.k, s.cv_rms))
-    mine = _components(named.candidate)
-    rivals = [s for s in tied if s is not named and not _components(s.candidate) >= mine]
+    named = tie.simplest(tied, lambda s: s.k, lambda s: s.cv_rms)
+    rivals = tie.rivals(named, tied, lambda s: _components(s.candidate))
     notes = []
     if not testable:
         notes.append(f"the fit rows lie at {F} folds: too few for a test over places to "

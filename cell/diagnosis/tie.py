@@ -16,10 +16,13 @@ other way round, says whether a candidate predicts better than the nominal model
 """
 from __future__ import annotations
 
+from typing import Callable, Sequence, TypeVar
+
 import numpy as np
 
 from cell.stats import wilcoxon_greater
 
+T = TypeVar("T")
 ALPHA = 0.01          # one-sided test over folds
 RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
 
@@ -48,3 +51,17 @@ def testable(n_folds: int) -> bool:
     """Whether ``n_folds`` folds can reach :data:`ALPHA` at all (the smallest one-sided
     Wilcoxon p over n folds is 0.5ⁿ)."""
     return 0.5 ** n_folds < ALPHA
+
+
+def simplest(candidates: Sequence[T], k: Callable[[T], int], rms: Callable[[T], float]) -> T:
+    """The candidate to name among ``candidates`` (tied ones): the fewest parameters ``k``,
+    then the lowest prediction ``rms``. A cause with more parameters is named only when it
+    predicts the left-out folds better, not when it fits the fit rows better."""
+    return min(candidates, key=lambda c: (k(c), rms(c)))
+
+
+def rivals(named: T, tied: Sequence[T], components: Callable[[T], set]) -> list[T]:
+    """The tied candidates that are other explanations of the gap than ``named``: neither
+    ``named`` itself nor a larger model that contains all of its ``components``."""
+    mine = components(named)
+    return [c for c in tied if c is not named and not components(c) >= mine]

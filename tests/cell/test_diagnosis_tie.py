@@ -28,3 +28,13 @@ def test_a_poor_candidate_is_never_tied_however_few_the_folds():
 def test_non_finite_errors_conclude_nothing():
     assert tie.p_worse([np.nan, 1.0], [0.5, 0.5]) == 1.0
     assert tie.testable(7) and not tie.testable(6)
+
+
+def test_the_simplest_tied_cause_is_named_and_other_explanations_are_its_rivals():
+    offset = ("offset", 2, 1.00, {("joint_offset", "j1")})
+    bigger = ("offset + link", 3, 0.98, {("joint_offset", "j1"), ("link_length", "j1")})
+    other = ("gear", 2, 1.01, {("gear_ratio", "j2")})
+    tied = [bigger, offset, other]
+    named = tie.simplest(tied, lambda c: c[1], lambda c: c[2])
+    assert named is offset                       # 2 parameters beat 3 that predict as well
+    assert tie.rivals(named, tied, lambda c: c[3]) == [other]   # the larger model is no rival

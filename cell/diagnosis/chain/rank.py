@@ -303,10 +303,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     if best is not None and p < ALPHA:
         tied = tied_with(s, best)
         passing = [c for c in tied if wilcoxon_p(f0.cv_pose, c.fit.cv_pose) < ALPHA]
-        chosen = min(passing, key=lambda c: (len(c.fit.params), c.fit.cv_rms))
+        chosen = tie.simplest(passing, lambda c: len(c.fit.params), lambda c: c.fit.cv_rms)
         p = wilcoxon_p(f0.cv_pose, chosen.fit.cv_pose)
-        mine = _components(chosen)
-        rivals = [c for c in tied if c is not chosen and not _components(c) >= mine]
+        rivals = tie.rivals(chosen, tied, _components)
         if chosen is not best:
             notes.append(f"{best.label} predicts left-out poses best, but not significantly "
                          f"better than the simpler {chosen.label} ({len(best.fit.params)} "
