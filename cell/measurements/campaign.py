@@ -36,7 +36,7 @@ import numpy as np
 import yaml
 
 from cell.errors import CampaignFormatError
-from cell.measurements.checked import PlainFirst
+from cell.measurements.checked import PlainFirst, plain
 from cell.measurements.folder import staged_dir
 
 FORMAT = "cell-measurements/1"
@@ -403,7 +403,7 @@ def _load_model(path: Path) -> ModelSpec:
     if raw.get("format") != FORMAT:
         raise CampaignFormatError(path, f"unknown format {raw.get('format')!r}; expected {FORMAT!r}",
                                   column="format")
-    fields = _plain(raw)
+    fields = plain(_plain, raw)
     if fields is not None:
         model = ModelSpec(**fields)
     else:

@@ -28,6 +28,7 @@ from cell.kinematics.chain import Chain, dh_chain, urdf_chain
 from cell.measurements.campaign import (FORMAT, CampaignFormatError, _read_table, _yaml_line,
                                         check_places, yaml_loc)
 from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
+from cell.measurements.checked import plain
 from cell.measurements.folder import staged_dir
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
@@ -79,7 +80,7 @@ def load_spec(path: Path) -> ChainSpec:
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise CampaignFormatError(path, f"unknown format {raw.get('format') if isinstance(raw, dict) else raw!r}; "
                                         f"expected {FORMAT!r}", column="format")
-    fields = _plain_spec(raw)
+    fields = plain(_plain_spec, raw)
     spec = ChainSpec(**fields) if fields is not None else _validated(path, raw)
     if spec.kinematics == "dh" and not all(isinstance(j, DHRow) for j in spec.joints):
         raise CampaignFormatError(path, "kinematics dh: every joint needs name, type, a_mm, "
