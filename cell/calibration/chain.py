@@ -32,11 +32,11 @@ import numpy as np
 from cell.calibration import check as C
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
-from cell.measurements.chain import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
 from cell.diagnosis.chain.noise import estimate
-from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
 from cell.diagnosis.chain.report import split_poses
 from cell.jsonsafe import json_safe
+from cell.kinematics.chain import AXES, matrix_rpy, parse_urdf, rot, rpy_matrix, trans
+from cell.measurements.chain import ChainCampaign, ChainSpec, DHRow, write_chain_campaign
 
 FORMAT = "cell-chain-calibration/1"
 CALIBRATION_FILE = "calibration.json"   #: the report, written beside model.yaml

@@ -34,10 +34,10 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis import screen
+from cell.diagnosis import tie
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
 from cell.diagnosis.places import spaced_best
-from cell.diagnosis import tie
 from cell.diagnosis.replay import DiagData
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 

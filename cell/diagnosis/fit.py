@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
-from cell.lsq import least_squares
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
 from cell.diagnosis.screen import MAX_COND, MAX_CORR, ORDER_COST, ORDERS
+from cell.lsq import least_squares
 
 JACOBIANS = ("analytic", "2-point")
 Z95 = 1.959963984540054

@@ -12,9 +12,9 @@ from cell import cli
 from cell import effects as fx
 from cell.commands import diagnose as cmd
 from cell.cyclelog import CycleLog, CycleRecord
-from cell.sim.campaigns import Design, make_campaign
 from cell.errors import CellError
 from cell.measurements import write_campaign
+from cell.sim.campaigns import Design, make_campaign
 
 
 def cellctl(argv: list[str]) -> int:

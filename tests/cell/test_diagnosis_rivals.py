@@ -14,9 +14,9 @@ import pytest
 from cell import effects as fx
 from cell.diagnosis import crossval, diagnose, render_text
 from cell.diagnosis.places import places
-from cell.sim.campaigns import Design, effect_dicts
-from cell.robots import PRESETS
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
+from cell.robots import PRESETS
+from cell.sim.campaigns import Design, effect_dicts
 from cell.sim.plant import Plant
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,8 +11,8 @@ import pytest
 
 from cell import effects as fx
 from cell.diagnosis import validate
-from cell.truth.campaign import Design
 from cell.truth import campaign, model, parts
+from cell.truth.campaign import Design
 
 
 def test_campaigns_do_not_go_through_effects_py():

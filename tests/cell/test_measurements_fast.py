@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from cell.measurements import campaign as m
 from cell.measurements import FORMAT, CameraSpec, ModelSpec
+from cell.measurements import campaign as m
 
 PLAIN = [
     {"format": FORMAT, "l1_mm": 325, "l2_mm": 275.5},

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cell.measurements.chain import build_chain, load_spec
-from cell.kinematics import forward
 from cell.errors import ConfigError
 from cell.kinematics import Scara
+from cell.kinematics import forward
+from cell.measurements.chain import build_chain, load_spec
 from cell.robots import CHAIN_MODELS, PRESETS, chain_model_file, load_scara
 from cell.truth import chain as truth
 from cell.truth.chain_campaign import UR5

@@ -33,8 +33,8 @@ import math
 
 import pytest
 
-from cell.diagnosis.chain import validate as chain
 from cell.diagnosis import validate as planar
+from cell.diagnosis.chain import validate as chain
 
 SEED = 1
 

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
+from cell.diagnosis.places import folds as place_folds
 import cell.kinematics as kin
 from cell.kinematics.chain import Chain
-from cell.diagnosis.places import folds as place_folds
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from cell.diagnosis import page
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain.report import ChainDiagnosis, render_chain_text
-from cell.diagnosis import page
 
 
 def residuals(d: F.Data, f: F.Fit) -> np.ndarray:

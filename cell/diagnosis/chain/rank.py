@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell.diagnosis import tie
 from cell.diagnosis.chain import drift
 from cell.diagnosis.chain import fit as F
-from cell.diagnosis import tie
 from cell.diagnosis.places import spaced_best
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 from cell.stats import wilcoxon_greater

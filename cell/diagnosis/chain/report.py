@@ -22,10 +22,10 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.chain import robust
 from cell.diagnosis.chain.noise import estimate
-from cell.measurements.chain import ChainCampaign
-from cell.measurements import CampaignFormatError
-from cell.diagnosis.page import describe_cause
 from cell.diagnosis.page import FORMAT, FORMAT_VERSION
+from cell.diagnosis.page import describe_cause
+from cell.measurements import CampaignFormatError
+from cell.measurements.chain import ChainCampaign
 
 SPLIT_SEED = 20260501
 HOLDOUT_SHARE = 0.3

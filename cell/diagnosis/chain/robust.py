@@ -37,8 +37,8 @@ import numpy as np
 
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
-from cell.measurements.chain import MIN_MARKER_POSES
 from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
+from cell.measurements.chain import MIN_MARKER_POSES
 from cell.stats import chi2_isf, median
 
 ALPHA = 0.01          # a Gaussian point is flagged anywhere in the campaign with this probability

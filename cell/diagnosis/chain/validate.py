@@ -50,9 +50,9 @@ from typing import Sequence
 
 import numpy as np
 
+from cell.diagnosis import harness
 from cell.diagnosis.chain.fit import EFFECTS
 from cell.diagnosis.chain.report import diagnose_chain
-from cell.diagnosis import harness
 from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
 from cell.measurements import read_campaign
 from cell.truth import verdict as vd

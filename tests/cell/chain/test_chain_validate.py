@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from cell.diagnosis.chain import validate
 from cell.cli import main
+from cell.diagnosis.chain import validate
 
 
 def test_vocabulary_truths_are_named_with_their_joints_and_covered():
