@@ -18,7 +18,7 @@ import functools
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
-from cell.measurements.campaign import _number as _finite
+from cell.measurements.campaign import _number
 from cell.measurements.checked import PlainFirst
 
 KINEMATICS = ("dh", "urdf")
@@ -66,15 +66,6 @@ def pydantic_models() -> tuple[type, type, type]:
         gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
         source: str = ""
     return ChainSpec, DHRow, Coupling
-
-
-def _number(v) -> float | None:
-    """``v`` as a float if it is plainly a finite number, else None (an int too large for
-    a float included: pydantic says what is wrong with it)."""
-    try:
-        return _finite(v)
-    except OverflowError:
-        return None
 
 
 def _numbers(v, n: int) -> tuple[float, ...] | None:
