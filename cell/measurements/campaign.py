@@ -141,21 +141,18 @@ def _plain(data: dict) -> dict | None:
             "stations": None if stations is None else list(stations)}
 
 
+def _plain_camera(data) -> dict | None:
+    """The fields of :class:`CameraSpec` from ``data`` when plainly valid, else None."""
+    pair = _pair(data.get("center_mm")) if isinstance(data, dict) and set(data) == {"center_mm"} \
+        else None
+    return None if pair is None else {"center_mm": pair}
+
+
 @dataclass
-class CameraSpec(PlainFirst):
+class CameraSpec(PlainFirst, plain=_plain_camera, pydantic=lambda: pydantic_models()[1]):
     """``model.yaml`` ``camera``: ``center_mm`` (x, y) mm on the work plane."""
 
     center_mm: tuple[float, float]
-
-    @staticmethod
-    def _plain(data) -> dict | None:
-        pair = _pair(data.get("center_mm")) if isinstance(data, dict) and set(data) == {"center_mm"} \
-            else None
-        return None if pair is None else {"center_mm": pair}
-
-    @staticmethod
-    def _pydantic() -> type:
-        return pydantic_models()[1]
 
     @classmethod
     def _from_pydantic(cls, m) -> dict:
@@ -163,7 +160,7 @@ class CameraSpec(PlainFirst):
 
 
 @dataclass
-class ModelSpec(PlainFirst):
+class ModelSpec(PlainFirst, plain=_plain, pydantic=lambda: pydantic_models()[0]):
     """``model.yaml``: the nominal model the simulation uses (every number finite).
     Validated on construction as the pydantic model :func:`pydantic_models` defines it
     (unknown keys refused, lengths and command unit > 0, numbers finite), plain input
@@ -178,14 +175,6 @@ class ModelSpec(PlainFirst):
     joint_limits_deg: list[tuple[float, float]] | None = None
     camera: CameraSpec | None = None
     stations: list[str] | None = None
-
-    @staticmethod
-    def _plain(data) -> dict | None:
-        return _plain(data)
-
-    @staticmethod
-    def _pydantic() -> type:
-        return pydantic_models()[0]
 
     def as_input(self) -> dict:
         out = super().as_input()

@@ -157,7 +157,7 @@ def _plain_spec(data) -> dict | None:
 
 
 @dataclass(kw_only=True)
-class DHRow(PlainFirst):
+class DHRow(PlainFirst, plain=_plain_row, pydantic=lambda: pydantic_models()[1]):
     """One joint of a ``kinematics: dh`` model: ``name``, ``type``, the DH numbers (mm,
     deg) and optional ``limits`` (lo, hi) in the joint's unit. Validated on construction
     (module docstring)."""
@@ -170,35 +170,19 @@ class DHRow(PlainFirst):
     theta_deg: float
     limits: tuple[float, float] | None = None
 
-    @staticmethod
-    def _plain(data) -> dict | None:
-        return _plain_row(data)
-
-    @staticmethod
-    def _pydantic() -> type:
-        return pydantic_models()[1]
-
     def model_dump(self) -> dict:
         """The fields as a dict, in the order of the format."""
         return self.as_input()
 
 
 @dataclass(kw_only=True)
-class Coupling(PlainFirst):
+class Coupling(PlainFirst, plain=_plain_coupling, pydantic=lambda: pydantic_models()[2]):
     """Model value of ``joint`` += ``factor`` × reading of ``from_`` (``from`` in the file).
     Validated on construction (module docstring)."""
 
     joint: str
     from_: str
     factor: float
-
-    @staticmethod
-    def _plain(data) -> dict | None:
-        return _plain_coupling(data)
-
-    @staticmethod
-    def _pydantic() -> type:
-        return pydantic_models()[2]
 
     @classmethod
     def _from_pydantic(cls, m) -> dict:
@@ -210,7 +194,7 @@ class Coupling(PlainFirst):
 
 
 @dataclass(kw_only=True)
-class ChainSpec(PlainFirst):
+class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models()[0]):
     """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
     direction of gravity in the base frame, default −z; it only matters for the
     gravity-compliance effect. Every number must be finite. Validated on construction as
@@ -231,14 +215,6 @@ class ChainSpec(PlainFirst):
     markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
     gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
     source: str = ""
-
-    @staticmethod
-    def _plain(data) -> dict | None:
-        return _plain_spec(data)
-
-    @staticmethod
-    def _pydantic() -> type:
-        return pydantic_models()[0]
 
     def as_input(self) -> dict:
         """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""

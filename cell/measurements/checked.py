@@ -40,19 +40,18 @@ def plain(check, data) -> dict | None:
 
 
 class PlainFirst:
-    """Base of such a dataclass. A subclass gives ``_plain(mapping)`` (its fields, or None
-    when the input is not plainly valid) and ``_pydantic()`` (its pydantic model), and may
-    override ``_from_pydantic`` (the model's result as fields) and ``as_input`` (the fields
-    as the file holds them). Construction and :meth:`model_validate` check the input;
-    bad input raises pydantic's ValidationError."""
+    """Base of such a dataclass, named with its two checks as class keywords:
+    ``class Row(PlainFirst, plain=check, pydantic=model)``, ``check(mapping)`` giving its
+    fields or None when the input is not plainly valid, ``model()`` its pydantic model. A
+    subclass may override ``_from_pydantic`` (the model's result as fields) and
+    ``as_input`` (the fields as the file holds them). Construction and
+    :meth:`model_validate` check the input; bad input raises pydantic's ValidationError."""
 
-    @staticmethod
-    def _plain(data) -> dict | None:
-        raise NotImplementedError
-
-    @staticmethod
-    def _pydantic() -> type:
-        raise NotImplementedError
+    def __init_subclass__(cls, plain=None, pydantic=None, **kw):
+        super().__init_subclass__(**kw)
+        if plain is None or pydantic is None:
+            raise TypeError(f"{cls.__name__}: name its plain= check and its pydantic= model")
+        cls._plain, cls._pydantic = staticmethod(plain), staticmethod(pydantic)
 
     @classmethod
     def _from_pydantic(cls, m) -> dict:
