@@ -201,11 +201,6 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep)
 
 
-def wilcoxon_p(before: np.ndarray, after: np.ndarray) -> float:
-    """One-sided p that ``after`` is smaller than ``before`` (paired, per fold)."""
-    return tie.p_worse(before, after)
-
-
 def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square; folds of :meth:`F.Data.folds`) of
     registration plus a scale error of the measuring instrument, linearised at the registration-only fit
@@ -254,7 +249,7 @@ def tied_with(s: Search, best: Candidate) -> list[Candidate]:
     first."""
     out = [best]
     for c in s.ranking:
-        if c is not best and tie.tied(wilcoxon_p(c.fit.cv_fold, best.fit.cv_fold),
+        if c is not best and tie.tied(tie.p_worse(c.fit.cv_fold, best.fit.cv_fold),
                                       c.fit.cv_rms, best.fit.cv_rms):
             out.append(c)
     return out
@@ -278,7 +273,7 @@ def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     out = []
     for p in ps:
         per = design.places.loo(design.cols([q for q in ps if q is not p]))[1]
-        pv = wilcoxon_p(per, full)
+        pv = tie.p_worse(per, full)
         if tie.tied(pv, math.sqrt(float(np.mean(per))), math.sqrt(float(np.mean(full)))):
             out.append((p.name, pv))
     return out
@@ -298,20 +293,20 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     f0 = s.nominal.fit
     notes: list[str] = []
     best = s.ranking[0] if s.ranking else None
-    p = wilcoxon_p(f0.cv_pose, best.fit.cv_pose) if best else 1.0
+    p = tie.p_worse(f0.cv_pose, best.fit.cv_pose) if best else 1.0
     chosen, rivals, tied = None, [], []
     if best is not None and p < ALPHA:
         tied = tied_with(s, best)
-        passing = [c for c in tied if wilcoxon_p(f0.cv_pose, c.fit.cv_pose) < ALPHA]
+        passing = [c for c in tied if tie.p_worse(f0.cv_pose, c.fit.cv_pose) < ALPHA]
         chosen = tie.simplest(passing, lambda c: len(c.fit.params), lambda c: c.fit.cv_rms)
-        p = wilcoxon_p(f0.cv_pose, chosen.fit.cv_pose)
+        p = tie.p_worse(f0.cv_pose, chosen.fit.cv_pose)
         rivals = tie.rivals(chosen, tied, _components)
         if chosen is not best:
             notes.append(f"{best.label} predicts left-out poses best, but not significantly "
                          f"better than the simpler {chosen.label} ({len(best.fit.params)} "
                          f"parameters against {len(chosen.fit.params)}): the simpler is named")
     runner = next((c for c in s.ranking if c is not chosen), None) if chosen is not None else None
-    rp = wilcoxon_p(runner.fit.cv_fold, chosen.fit.cv_fold) if runner else None
+    rp = tie.p_worse(runner.fit.cv_fold, chosen.fit.cv_fold) if runner else None
     warnings: list[str] = []
     if rivals:
         warnings.append("the campaign cannot tell the cause from " + ", ".join(
@@ -326,7 +321,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                         "places it was not fitted on")
     if chosen is not None:
         scale_rms, scale_pose = instrument_scale(s.fit_d, f0)
-        sp = wilcoxon_p(scale_pose, chosen.fit.cv_fold)
+        sp = tie.p_worse(scale_pose, chosen.fit.cv_fold)
         if sp >= ALPHA:
             warnings.append(f"a scale error of the measuring instrument predicts left-out poses "
                             f"as well as {chosen.label} (p = {sp:.2g}): check the sensor's scale "
