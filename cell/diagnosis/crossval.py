@@ -10,11 +10,12 @@ prediction** of the fit rows:
   :data:`cell.diagnosis.places.LINK_DEG` in joint space) are left out together; spread
   poses each on their own; more than :data:`MAX_FOLDS` groups are gathered into that many
   regions of the workspace. Every fit move is a fold of its own.
-* **prediction error** (:func:`cv_errors`): for each fold, the candidate's linearised fit
+* **prediction error** (:func:`fold_errors`): for each fold, the candidate's linearised fit
   (the screening's response columns at the nominal model, :mod:`.screen`) on all other
   folds predicts the fold's residual; its weighted mean square per scalar residual
   (each table weighed by 1/its noise, so 1 ≈ noise) is the fold's error. Nothing is
-  refitted: the fold's Gram pieces are subtracted from the whole fit's.
+  refitted: the fold's Gram pieces are subtracted from the whole fit's
+  (:mod:`cell.diagnosis.leaveout`, the yardstick of the chain diagnosis too).
 * **the choice** (:func:`judge`): the candidates the folds cannot tell from the best are
   **tied** (the rule of both families, :mod:`cell.diagnosis.tie`: not worse by a one-sided
   Wilcoxon test over folds, and within :data:`RIVAL_RATIO` of its prediction rms); of
@@ -33,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
-from cell.diagnosis import screen
+from cell.diagnosis import leaveout, screen
 from cell.diagnosis import tie
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
@@ -67,54 +68,20 @@ def folds(fit_d: DiagData) -> tuple[np.ndarray, int, int]:
     return out, n_pf, n_places
 
 
-@dataclass
-class FoldStack:
-    """The folds' Gram pieces of a Basis stacked once for every candidate's
-    :func:`cv_errors`: ``wf`` (F,) squared table weights, ``n`` (F,) scalar residuals (at
-    least 1), ``c`` (F,) weighted rᵀr, ``G`` (F, m, m) and ``b`` (F, m) unweighted, the
-    whole fit's ``G_fit`` (m, m) and ``b_fit`` (m,) weighted."""
-
-    wf: np.ndarray
-    n: np.ndarray
-    c: np.ndarray
-    G: np.ndarray
-    b: np.ndarray
-    G_fit: np.ndarray
-    b_fit: np.ndarray
-
-    @staticmethod
-    def of(B: screen.Basis, w: tuple[float, float]) -> "FoldStack":
-        wf = np.array([w[t] ** 2 for t in B.fold_table])
-        m = len(B.lo)
-        return FoldStack(wf, np.array([max(f.n, 1) for f in B.folds], float),
-                         np.array([f.c for f in B.folds]) * wf,
-                         np.stack([f.G for f in B.folds]) if B.folds else np.zeros((0, m, m)),
-                         np.stack([f.b for f in B.folds]) if B.folds else np.zeros((0, m)),
-                         w[0] ** 2 * B.fit[0].G + w[1] ** 2 * B.fit[1].G,
-                         w[0] ** 2 * B.fit[0].b + w[1] ** 2 * B.fit[1].b)
-
-
-def cv_errors(B: screen.Basis, S: list[int], w: tuple[float, float],
-              stack: FoldStack | None = None) -> np.ndarray:
-    """(F,) leave-one-fold-out mean square (weighted, per scalar residual) of the linear fit
-    on columns ``S`` with table weights ``w``; ``S`` empty = the nominal model. ``stack``:
-    :meth:`FoldStack.of` ``(B, w)`` made once for many calls (else made here)."""
-    F = len(B.folds)
-    st = FoldStack.of(B, w) if stack is None else stack
-    wf, n, c = st.wf, st.n, st.c
-    if not S:
-        return c / n
-    ix = np.ix_(S, S)
-    G = st.G_fit[ix]
-    b = st.b_fit[S]
-    Gg = st.G[:, S][:, :, S] * wf[:, None, None]
-    bg = st.b[:, S] * wf[:, None]
-    Gm = G[None] - Gg
-    ridge = 1e-10 * np.max(np.abs(np.diagonal(Gm, axis1=1, axis2=2)), axis=1) + 1e-300
-    Gm = Gm + ridge[:, None, None] * np.eye(len(S))
-    beta = np.linalg.solve(Gm, (b[None] - bg)[:, :, None])[:, :, 0]
-    e = c - 2.0 * np.einsum("fi,fi->f", beta, bg) + np.einsum("fi,fij,fj->f", beta, Gg, beta)
-    return np.maximum(e, 0.0) / n if F else e
+def fold_errors(B: screen.Basis, w: tuple[float, float]) -> leaveout.Folds:
+    """The leave-one-fold-out yardstick (:class:`cell.diagnosis.leaveout.Folds`) of the
+    Basis' fit rows, each table weighed by ``w`` (points, path samples): a fold's error is
+    its weighted mean square per scalar residual (1 ≈ the noise), of the linear fit on any
+    column subset (empty: the nominal model). A fold-out system that leaves a column unseen
+    is kept finite by a 1e-10 relative ridge."""
+    m = len(B.lo)
+    if B.fold_rows is None:
+        return leaveout.Folds(np.zeros((0, m)), np.zeros(0), np.zeros(0, int), 0, dims=2,
+                              per="scalar")
+    A, r, group, table = B.fold_rows
+    wr = np.where(table == 0, w[0], w[1])
+    return leaveout.Folds((A * wr[:, None, None]).reshape(-1, m), (r * wr[:, None]).ravel(),
+                          group, B.n_folds, dims=2, per="scalar", ridge=1e-10)
 
 
 @dataclass
@@ -164,9 +131,9 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     """Score every identifiable screened candidate (``screened`` {candidate: Screened}) out
     of sample and apply the rule of the module docstring. ``chosen`` the in-sample
     decision's candidate (None: ``none``, kept); ``label`` candidate → text."""
-    F = len(B.folds)
-    stack = FoldStack.of(B, weights)
-    nom_e = cv_errors(B, [], weights, stack)
+    F = B.n_folds
+    yardstick = fold_errors(B, weights)
+    nom_e = yardstick.loo([])[1]
     nominal = Scored("nominal", (), 0, nom_e, math.sqrt(float(nom_e.mean())) if F else math.nan)
     testable = F >= MIN_FOLDS and tie.testable(F)
     if F < MIN_FOLDS:
@@ -177,7 +144,7 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     for c, sc in screened.items():
         if not sc.identifiable:
             continue
-        e = cv_errors(B, list(sc.S), weights, stack)
+        e = yardstick.loo(list(sc.S))[1]
         table.append(Scored(label(c), c, sc.k, e, math.sqrt(float(e.mean()))))
     if not table:
         return Judgement(chosen, None, [], [], F, n_places, nominal, testable)

@@ -358,7 +358,7 @@ def judge(s: Search, dec: Decision, jac: str = "analytic") -> tuple[Decision, "c
     Returns the (possibly new) decision and the judgement (None without folds, e.g. the
     exhaustive search)."""
     B = s.basis
-    if B is None or not B.folds:
+    if B is None or not B.n_folds:
         return dec, None
     ref = s.screened.get(dec.chosen.candidate) if dec.chosen is not None else None
     w = ref.weights if ref is not None else (1.0, 1.0)

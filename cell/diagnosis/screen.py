@@ -76,8 +76,9 @@ class Basis:
     """Response columns of every single candidate's parameters at the nominal model:
     ``cols`` key -> column indices; ``fit`` / ``hold`` (points, paths) Tables; ``lo`` /
     ``hi`` bounds per column; ``nuisance`` columns left out of the identifiability
-    check; ``folds`` one Table per cross-validation fold of the fit rows and
-    ``fold_table`` its table (0 points, 1 path samples)."""
+    check; ``n_folds`` cross-validation folds of the fit rows and ``fold_rows`` the rows
+    in them: (A (n, 2, m), residual (n, 2), fold (n,), table (n,): 0 points, 1 path
+    samples), for :mod:`.crossval`."""
 
     cols: dict
     fit: tuple[Table, Table]
@@ -89,8 +90,8 @@ class Basis:
     t_ref: float = 20.0
     point_temp_mean: float | None = None
     has_paths: bool = False
-    folds: list = field(default_factory=list)
-    fold_table: list = field(default_factory=list)
+    n_folds: int = 0
+    fold_rows: tuple | None = None
 
 
 def _orders(name: str) -> tuple[int, ...]:
@@ -222,10 +223,10 @@ def basis(fit_d: DiagData, hold_d: DiagData, cands, keep_fit=None, keep_hold=Non
     if fit_folds is not None:
         kp = np.ones(rf.n, bool) if keep_fit is None else np.asarray(keep_fit, bool)
         folds = np.where(kp, np.asarray(fit_folds), -1)
-        B.folds = [Table.of(Af[folds == g].reshape(-1, Af.shape[2]), r0f[folds == g].ravel())
-                   for g in range(int(folds.max()) + 1)]
-        B.fold_table = [int(np.any(np.flatnonzero(folds == g) >= rf.n_points))
-                        for g in range(len(B.folds))]
+        inside = folds >= 0
+        B.n_folds = int(folds.max()) + 1 if len(folds) else 0
+        B.fold_rows = (Af[inside], r0f[inside], folds[inside],
+                       (np.arange(rf.n) >= rf.n_points)[inside].astype(int))
     return B
 
 

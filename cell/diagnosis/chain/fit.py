@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
+from cell.diagnosis import leaveout
+from cell.diagnosis.leaveout import Folds, scaled
 from cell.diagnosis.places import folds as place_folds
 import cell.kinematics as kin
 from cell.kinematics.chain import Chain
@@ -380,7 +382,7 @@ def conditioning(J: np.ndarray) -> tuple[int, int, float]:
     ``J`` with unit-norm columns (so units and lever lengths do not count)."""
     if J.size == 0:
         return 0, J.shape[1] if J.ndim == 2 else 0, 1.0
-    sv = np.linalg.svd(_scaled(J)[0], compute_uv=False)
+    sv = np.linalg.svd(scaled(J)[0], compute_uv=False)
     rank = int(np.sum(sv > sv[0] * STRUCTURAL_TOL))
     return rank, J.shape[1], float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
 
@@ -401,7 +403,7 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
     r = (d.xyz - y).ravel()
     cost, lam = float(r @ r), 1e-9
     for _ in range(max_iter):
-        Js, scale = _scaled(J)
+        Js, scale = scaled(J)
         A = Js.T @ Js
         step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), Js.T @ r) / scale
         new_reg, new_v = _apply(d, reg, v, step)
@@ -435,147 +437,6 @@ def _apply(d: Data, reg: Registration, v: np.ndarray, step: np.ndarray) -> tuple
     return Registration(R, t, m), v + step[i:]
 
 
-def _scaled(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    scale = np.linalg.norm(J, axis=0)
-    scale[scale == 0] = 1.0
-    return J / scale, scale
-
-
-def _by_pose(obs_pose: np.ndarray, n_poses: int) -> np.ndarray:
-    """(P, Rmax) indices of each pose's residual rows, padded with −1."""
-    rows = np.repeat(obs_pose, 3)
-    order = np.argsort(rows, kind="stable")
-    counts = np.bincount(rows, minlength=n_poses)
-    out = -np.ones((n_poses, int(counts.max()) if len(counts) else 0), dtype=np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    for g in range(n_poses):
-        out[g, :counts[g]] = order[start[g]:start[g] + counts[g]]
-    return out
-
-
-def leave_one_pose_out(J: np.ndarray, r: np.ndarray, obs_pose: np.ndarray, n_poses: int
-                       ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """Linearised leave-one-pose-out of the least-squares fit with design ``J`` and
-    residuals ``r`` (3M,) at its solution: (rms of the held-out 3-D errors, per-pose mean
-    squared 3-D error (P,), (J'J)⁻¹ of the column-scaled design, the scales). Each pose's
-    held-out residual is ``(I − H_gg)⁻¹ r_g`` (all poses at once, padded blocks)."""
-    Js, scale = _scaled(J)
-    Ainv = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
-    idx = _by_pose(obs_pose, n_poses)
-    pad = idx < 0
-    safe = np.where(pad, 0, idx)
-    Jg = np.where(pad[..., None], 0.0, Js[safe])                 # (P, R, n)
-    rg = np.where(pad, 0.0, r[safe])                             # (P, R)
-    H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
-    I = np.broadcast_to(np.eye(idx.shape[1]), H.shape)
-    try:
-        loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        return math.inf, np.full(n_poses, math.inf), Ainv, scale
-    n_pts = (~pad).sum(1) / 3
-    per_pose = np.sum(loo * loo, axis=1) / np.maximum(n_pts, 1)
-    total = float(math.sqrt(np.sum(loo * loo) / max(n_pts.sum(), 1)))
-    return total, per_pose, Ainv, scale
-
-
-class FoldGram:
-    """Leave-one-fold-out of the linear least-squares fits of ``r`` (3M,) on column subsets
-    of one design ``Js`` (3M, n), folds given per measured point (``fold`` (M,), ``n_folds``).
-    The folds' Gram pieces are stacked once; each subset then costs one batched solve of
-    its small normal equations with the fold taken out (no refit of the 3M rows), and the
-    held-out residual is formed explicitly, so it equals :func:`leave_one_pose_out` of
-    that subset's fit to rounding.
-
-    ``base``: the first ``base`` columns (the registration) are in every subset asked for.
-    They are eliminated once per fold (Schur complement: the held-out residual ``u`` and
-    columns ``W`` of the rest with the registration's least squares taken out, and the
-    reduced normal equations ``M β = z``), so a subset then costs a solve of the size of
-    its other columns only. A fold whose registration block is exactly singular makes
-    every subset take the full solve (which then fails as it would)."""
-
-    def __init__(self, Js: np.ndarray, r: np.ndarray, fold: np.ndarray, n_folds: int,
-                 base: int = 0):
-        idx = _by_pose(fold, n_folds)
-        pad = idx < 0
-        safe = np.where(pad, 0, idx)
-        self.Jg = np.where(pad[..., None], 0.0, Js[safe])            # (F, R, n)
-        self.rg = np.where(pad, 0.0, r[safe])                         # (F, R)
-        self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
-        self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
-        self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
-        self.n_pts = (~pad).sum(1) / 3
-        self.base = base
-        self.u, self.W, self.M, self.z = self.rg, self.Jg, None, None
-        if base:
-            self._eliminate(base)
-
-    def _eliminate(self, nb: int) -> None:
-        A = self.Gt - self.G                                          # (F, n, n) fold out
-        c = self.bt - self.b
-        try:
-            sol = np.linalg.solve(A[:, :nb, :nb],
-                                  np.concatenate([A[:, :nb, nb:], c[:, :nb, None]], axis=2))
-        except np.linalg.LinAlgError:
-            self.base = 0
-            return
-        X, x = sol[:, :, :-1], sol[:, :, -1]                          # (F, nb, m), (F, nb)
-        Apr = A[:, nb:, :nb]
-        self.M = A[:, nb:, nb:] - Apr @ X                             # (F, m, m)
-        self.z = c[:, nb:] - np.einsum("fmr,fr->fm", Apr, x)          # (F, m)
-        Jr = self.Jg[:, :, :nb]
-        self.u = self.rg - np.einsum("fRr,fr->fR", Jr, x)             # (F, R)
-        self.W = self.Jg[:, :, nb:] - Jr @ X                          # (F, R, m)
-
-    def loo(self, cols) -> tuple[float, np.ndarray]:
-        """(rms of the held-out 3-D errors, per-fold mean squared 3-D error) of the fit on
-        columns ``cols`` (indices)."""
-        cols = np.asarray(cols, dtype=np.int64)
-        nb = self.base
-        if nb and len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
-            S = cols[nb:] - nb
-            e = self.u
-            if len(S):
-                try:
-                    beta = np.linalg.solve(self.M[:, S[:, None], S], self.z[:, S, None])[..., 0]
-                except np.linalg.LinAlgError:
-                    return math.inf, np.full(len(self.rg), math.inf)
-                e = self.u - np.einsum("frk,fk->fr", self.W[:, :, S], beta)
-        else:
-            e = self.rg
-            if len(cols):
-                A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
-                rhs = self.bt[cols] - self.b[:, cols]
-                try:
-                    beta = np.linalg.solve(A, rhs[..., None])[..., 0]
-                except np.linalg.LinAlgError:
-                    return math.inf, np.full(len(self.rg), math.inf)
-                e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
-        ss = np.sum(e * e, axis=1)
-        per = ss / np.maximum(self.n_pts, 1)
-        return float(math.sqrt(np.sum(ss) / max(self.n_pts.sum(), 1))), per
-
-    def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
-        """:meth:`loo` of each column list of ``subsets`` (all of one length), solved in
-        one batch when each holds the eliminated base columns first."""
-        if not subsets:
-            return []
-        S = np.asarray(subsets, dtype=np.int64)                       # (t, c)
-        nb = self.base
-        if not nb or S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
-            return [self.loo(c) for c in subsets]
-        S = S[:, nb:] - nb                                            # (t, k)
-        try:
-            beta = np.linalg.solve(self.M[:, S[:, :, None], S[:, None, :]],
-                                   self.z[:, S, None])[..., 0]         # (F, t, k)
-        except np.linalg.LinAlgError:                                 # tell which: one at a time
-            return [self.loo(c) for c in subsets]
-        e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
-        ss = np.sum(e * e, axis=2)                                    # (t, F)
-        per = ss / np.maximum(self.n_pts, 1)
-        total = np.sqrt(np.sum(ss, axis=1) / max(self.n_pts.sum(), 1))
-        return [(float(t), q) for t, q in zip(total, per)]
-
-
 def loo_with(d: Data, f: Fit, extra: np.ndarray) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square; folds of :meth:`Data.folds`) of
     fit ``f`` with ``extra`` (3M, k) columns added to its Jacobian, linearised at ``f``: a
@@ -583,21 +444,21 @@ def loo_with(d: Data, f: Fit, extra: np.ndarray) -> tuple[float, np.ndarray]:
     as the candidates are."""
     J2 = np.column_stack([f.J, extra])
     r = f.resid.ravel()
-    Js, _ = _scaled(J2)
+    Js, _ = scaled(J2)
     beta, *_ = np.linalg.lstsq(Js, r, rcond=None)
-    total, per, *_ = leave_one_pose_out(J2, r - Js @ beta, *d.folds())
+    total, per, *_ = leaveout.at_solution(J2, r - Js @ beta, *d.folds())
     return total, per
 
 
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()
-    f.cv_rms, f.cv_fold, Ainv, scale = leave_one_pose_out(f.J, r, *d.folds())
+    f.cv_rms, f.cv_fold, Ainv, scale = leaveout.at_solution(f.J, r, *d.folds())
     f.cv_pose = f.cv_fold
     if d.folds()[1] < d.n_poses:
-        _, f.cv_pose, *_ = leave_one_pose_out(f.J, r, d.obs_pose, d.n_poses)
+        _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses)
     Js = f.J / scale
-    idx = _by_pose(d.obs_pose, d.n_poses)
+    idx = leaveout.by_group(d.obs_pose, d.n_poses, 3)
     pad = idx < 0
     safe = np.where(pad, 0, idx)
     Jg = np.where(pad[..., None], 0.0, Js[safe])

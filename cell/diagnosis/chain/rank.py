@@ -74,17 +74,17 @@ class Search:
 class Screen:
     """The linearised model at the registration-only solution ``f0`` with the columns of
     every parameter of ``pool`` (column-scaled), stacked for leave-one-pose-out and
-    leave-one-place-out fits of any subset (:class:`cell.diagnosis.chain.fit.FoldGram`)."""
+    leave-one-place-out fits of any subset (:class:`cell.diagnosis.leaveout.Folds`)."""
 
     def __init__(self, d: F.Data, f0: F.Fit, pool: list[F.Param]):
         _, J = F.model(d, f0.reg, list(pool), np.zeros(len(pool)), jac=True)
         self.nr = F.n_registration(d)
         self.index = {p.name: self.nr + i for i, p in enumerate(pool)}
-        Js, _ = F._scaled(J)
+        Js, _ = F.scaled(J)
         r0 = f0.resid.ravel()
-        self.poses = F.FoldGram(Js, r0, d.obs_pose, d.n_poses, self.nr)
+        self.poses = F.Folds(Js, r0, d.obs_pose, d.n_poses, self.nr)
         fold, n = d.folds()
-        self.places = self.poses if n >= d.n_poses else F.FoldGram(Js, r0, fold, n, self.nr)
+        self.places = self.poses if n >= d.n_poses else F.Folds(Js, r0, fold, n, self.nr)
 
     def cols(self, params) -> list[int]:
         return list(range(self.nr)) + [self.index[p.name] for p in params]

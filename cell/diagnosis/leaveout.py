@@ -1,0 +1,192 @@
+"""Leave-one-fold-out prediction error of linear least-squares fits: the one out-of-sample
+yardstick of the diagnosis, planar and chain alike. Pure numerics.
+
+A fold is a group of residual rows left out together (a pose's markers, the poses at one
+place, a measured move). For a design ``J`` and residual ``r`` (the model linearised at
+a reference solution), each fold's held-out residual is that of the fit on all other
+folds, formed explicitly; its squares summed and divided by the fold's size are the
+fold's error. Two ways to ask:
+
+* :func:`at_solution`: every column, ``r`` at the least-squares solution (the hat-matrix
+  form, ``(I − H_gg)⁻¹ r_g``), with the pieces a cluster-robust covariance needs;
+* :class:`Folds`: any subset of the columns, the folds' Gram pieces stacked once so a
+  subset costs one batched solve of its own small normal equations (screening many
+  subsets).
+
+Both agree to rounding on the same columns. ``dims`` is the number of scalar residuals
+per measured point (3 for a 3-D sensor, 2 for a camera that sees x, y); a fold's error is
+its sum of squares over its **points** (``per="point"``) or over its scalar residuals
+(``per="scalar"``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def scaled(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J`` with unit-norm columns (zero columns left as they are) and the scales."""
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    return J / scale, scale
+
+
+def by_group(group: np.ndarray, n_groups: int, dims: int) -> np.ndarray:
+    """(G, Rmax) indices of each group's scalar residual rows (``dims`` per point of
+    ``group`` (M,)), padded with −1."""
+    rows = np.repeat(group, dims)
+    order = np.argsort(rows, kind="stable")
+    counts = np.bincount(rows, minlength=n_groups)
+    out = -np.ones((n_groups, int(counts.max()) if len(counts) else 0), dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    for g in range(n_groups):
+        out[g, :counts[g]] = order[start[g]:start[g] + counts[g]]
+    return out
+
+
+def _sizes(pad: np.ndarray, dims: int, per: str) -> np.ndarray:
+    n = (~pad).sum(1).astype(float)
+    return n / dims if per == "point" else n
+
+
+def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, dims: int = 3,
+                per: str = "point") -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """Leave-one-fold-out of the least-squares fit with design ``J`` and residuals ``r``
+    at its solution, folds ``group`` per point: (rms of the held-out point errors, per-fold
+    error (G,), (JᵀJ)⁻¹ of the column-scaled design, the scales). All folds at once
+    (padded blocks); a singular ``I − H_gg`` gives inf."""
+    Js, scale = scaled(J)
+    Ainv = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
+    idx = by_group(group, n_groups, dims)
+    pad = idx < 0
+    safe = np.where(pad, 0, idx)
+    Jg = np.where(pad[..., None], 0.0, Js[safe])                 # (G, R, n)
+    rg = np.where(pad, 0.0, r[safe])                             # (G, R)
+    H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
+    I = np.broadcast_to(np.eye(idx.shape[1]), H.shape)
+    try:
+        loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return math.inf, np.full(n_groups, math.inf), Ainv, scale
+    ss = np.sum(loo * loo, axis=1)
+    total = float(math.sqrt(np.sum(loo * loo) / max(_sizes(pad, dims, "point").sum(), 1)))
+    return total, ss / np.maximum(_sizes(pad, dims, per), 1), Ainv, scale
+
+
+class Folds:
+    """Leave-one-fold-out of the linear least-squares fits of ``r`` on column subsets of
+    one design ``Js``, folds ``group`` per point (``n_groups``; ``dims`` scalar rows per
+    point, rows point-major). The folds' Gram pieces are stacked once; each subset then
+    costs one batched solve of its small normal equations with the fold taken out (no
+    refit of the rows), and the held-out residual is formed explicitly, so it equals
+    :func:`at_solution` of that subset's fit to rounding.
+
+    ``base``: the first ``base`` columns (a nuisance every subset holds, the chain's
+    registration) are eliminated once per fold (Schur complement: the held-out residual
+    ``u`` and columns ``W`` of the rest with the base's least squares taken out, and the
+    reduced normal equations ``M β = z``), so a subset then costs a solve of the size of its
+    other columns only. A fold whose base block is exactly singular makes every subset take
+    the full solve (which then fails as it would).
+
+    ``ridge``: a relative Tikhonov term (× the largest diagonal of each fold-out system,
+    plus the smallest positive double) that keeps a fold whose removal leaves a column
+    unseen finite instead of failing; 0 lets such a fold fail (its error inf)."""
+
+    def __init__(self, Js: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int,
+                 base: int = 0, dims: int = 3, per: str = "point", ridge: float = 0.0):
+        idx = by_group(group, n_groups, dims)
+        pad = idx < 0
+        safe = np.where(pad, 0, idx)
+        self.Jg = np.where(pad[..., None], 0.0, Js[safe])            # (F, R, n)
+        self.rg = np.where(pad, 0.0, r[safe])                         # (F, R)
+        self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
+        self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
+        self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
+        self.size = _sizes(pad, dims, per)
+        self.n_pts = _sizes(pad, dims, "point").sum()
+        self.ridge = ridge
+        self.base = base
+        self.u, self.W, self.M, self.z = self.rg, self.Jg, None, None
+        if base:
+            self._eliminate(base)
+
+    @property
+    def n_folds(self) -> int:
+        return len(self.rg)
+
+    def _eliminate(self, nb: int) -> None:
+        A = self.Gt - self.G                                          # (F, n, n) fold out
+        c = self.bt - self.b
+        try:
+            sol = np.linalg.solve(A[:, :nb, :nb],
+                                  np.concatenate([A[:, :nb, nb:], c[:, :nb, None]], axis=2))
+        except np.linalg.LinAlgError:
+            self.base = 0
+            return
+        X, x = sol[:, :, :-1], sol[:, :, -1]                          # (F, nb, m), (F, nb)
+        Apr = A[:, nb:, :nb]
+        self.M = A[:, nb:, nb:] - Apr @ X                             # (F, m, m)
+        self.z = c[:, nb:] - np.einsum("fmr,fr->fm", Apr, x)          # (F, m)
+        Jr = self.Jg[:, :, :nb]
+        self.u = self.rg - np.einsum("fRr,fr->fR", Jr, x)             # (F, R)
+        self.W = self.Jg[:, :, nb:] - Jr @ X                          # (F, R, m)
+
+    def _ridged(self, A: np.ndarray) -> np.ndarray:
+        if not self.ridge or A.shape[-1] == 0:
+            return A
+        lam = self.ridge * np.max(np.abs(np.diagonal(A, axis1=-2, axis2=-1)), axis=-1) + 1e-300
+        return A + lam[..., None, None] * np.eye(A.shape[-1])
+
+    def _result(self, e: np.ndarray) -> tuple[float, np.ndarray]:
+        ss = np.sum(e * e, axis=-1)
+        return (float(math.sqrt(np.sum(ss) / max(self.n_pts, 1))),
+                ss / np.maximum(self.size, 1))
+
+    def loo(self, cols) -> tuple[float, np.ndarray]:
+        """(rms of the held-out point errors, per-fold error (F,)) of the fit on columns
+        ``cols`` (indices; empty: the residual as it is)."""
+        cols = np.asarray(cols, dtype=np.int64)
+        nb = self.base
+        if nb and len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
+            S = cols[nb:] - nb
+            e = self.u
+            if len(S):
+                try:
+                    beta = np.linalg.solve(self._ridged(self.M[:, S[:, None], S]),
+                                           self.z[:, S, None])[..., 0]
+                except np.linalg.LinAlgError:
+                    return math.inf, np.full(len(self.rg), math.inf)
+                e = self.u - np.einsum("frk,fk->fr", self.W[:, :, S], beta)
+            return self._result(e)
+        e = self.rg
+        if len(cols):
+            A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
+            rhs = self.bt[cols] - self.b[:, cols]
+            try:
+                beta = np.linalg.solve(self._ridged(A), rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                return math.inf, np.full(len(self.rg), math.inf)
+            e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
+        return self._result(e)
+
+    def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
+        """:meth:`loo` of each column list of ``subsets`` (all of one length), solved in
+        one batch when each holds the eliminated base columns first."""
+        if not subsets:
+            return []
+        S = np.asarray(subsets, dtype=np.int64)                       # (t, c)
+        nb = self.base
+        if not nb or S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
+            return [self.loo(c) for c in subsets]
+        S = S[:, nb:] - nb                                            # (t, k)
+        try:
+            beta = np.linalg.solve(self._ridged(self.M[:, S[:, :, None], S[:, None, :]]),
+                                   self.z[:, S, None])[..., 0]         # (F, t, k)
+        except np.linalg.LinAlgError:                                 # tell which: one at a time
+            return [self.loo(c) for c in subsets]
+        e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
+        ss = np.sum(e * e, axis=2)                                    # (t, F)
+        per = ss / np.maximum(self.size, 1)
+        total = np.sqrt(np.sum(ss, axis=1) / max(self.n_pts, 1))
+        return [(float(t), q) for t, q in zip(total, per)]

@@ -1,0 +1,76 @@
+"""The one leave-one-fold-out yardstick of the diagnosis (cell.diagnosis.leaveout), held
+against refitting with each fold really left out."""
+import math
+
+import numpy as np
+import pytest
+
+from cell.diagnosis import leaveout
+
+
+def _problem(seed: int, points: int = 40, dims: int = 3, cols: int = 5, folds: int = 8):
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(points * dims, cols)) * rng.uniform(0.1, 10.0, cols)
+    r = rng.normal(size=points * dims)
+    group = rng.integers(0, folds, points)
+    group[:folds] = np.arange(folds)                     # every fold holds a point
+    return J, r, group, folds
+
+
+def _refit(J, r, group, g, cols, dims):
+    """The held-out residual of fold ``g`` by a real refit on the other folds."""
+    rows = np.repeat(group, dims)
+    train, test = rows != g, rows == g
+    A = J[:, cols]
+    beta = np.linalg.lstsq(A[train], r[train], rcond=None)[0] if len(cols) else np.zeros(0)
+    return r[test] - A[test] @ beta
+
+
+@pytest.mark.parametrize("dims,per", [(3, "point"), (2, "scalar"), (2, "point")])
+def test_each_fold_error_is_a_real_refit_without_the_fold(dims, per):
+    J, r, group, F = _problem(1, dims=dims)
+    folds = leaveout.Folds(leaveout.scaled(J)[0], r, group, F, dims=dims, per=per)
+    for cols in ([], [0], [1, 3], [0, 1, 2, 3, 4]):
+        total, errors = folds.loo(cols)
+        Js = leaveout.scaled(J)[0]
+        want = []
+        for g in range(F):
+            e = _refit(Js, r, group, g, cols, dims)
+            size = len(e) / dims if per == "point" else len(e)
+            want.append(float(e @ e) / size)
+        assert np.allclose(errors, want, rtol=1e-9, atol=1e-12)
+        pts = np.bincount(group, minlength=F)
+        assert total == pytest.approx(math.sqrt(sum(w * (n if per == "point" else n * dims)
+                                                    for w, n in zip(want, pts)) / len(group)))
+
+
+def test_a_nuisance_eliminated_once_gives_the_same_errors_as_the_full_solve():
+    J, r, group, F = _problem(2)
+    Js = leaveout.scaled(J)[0]
+    plain = leaveout.Folds(Js, r, group, F)
+    based = leaveout.Folds(Js, r, group, F, base=2)
+    for cols in ([0, 1], [0, 1, 2], [0, 1, 3, 4]):
+        assert np.allclose(based.loo(cols)[1], plain.loo(cols)[1], rtol=1e-9)
+    batch = based.loo_each([[0, 1, 2], [0, 1, 3], [0, 1, 4]])
+    for (t, e), c in zip(batch, ([0, 1, 2], [0, 1, 3], [0, 1, 4])):
+        assert np.allclose(e, plain.loo(c)[1], rtol=1e-9)
+
+
+def test_at_the_solution_the_hat_matrix_form_agrees_with_the_folds():
+    J, r, group, F = _problem(3)
+    Js = leaveout.scaled(J)[0]
+    res = r - Js @ np.linalg.lstsq(Js, r, rcond=None)[0]
+    total, per, _, _ = leaveout.at_solution(J, res, group, F)
+    t2, p2 = leaveout.Folds(Js, res, group, F).loo(list(range(J.shape[1])))
+    assert np.allclose(per, p2, rtol=1e-8)
+    assert total == pytest.approx(t2, rel=1e-8)
+
+
+def test_a_fold_that_alone_sees_a_column_fails_without_a_ridge_and_stays_finite_with_one():
+    J, r, group, F = _problem(4, cols=3)
+    rows = np.repeat(group, 3)
+    J[:, 2] = np.where(rows == 0, J[:, 2], 0.0)          # only fold 0 moves column 2
+    Js = leaveout.scaled(J)[0]
+    assert math.isinf(leaveout.Folds(Js, r, group, F).loo([0, 1, 2])[0])
+    total, per = leaveout.Folds(Js, r, group, F, ridge=1e-10).loo([0, 1, 2])
+    assert np.all(np.isfinite(per)) and math.isfinite(total)
