@@ -149,23 +149,19 @@ def judge(B: screen.Basis, screened: dict, chosen: tuple | None, weights: tuple[
     if not table:
         return Judgement(chosen, None, [], [], F, n_places, nominal, testable)
     table.sort(key=lambda s: s.cv_rms)
-    best = table[0]
-    for i, s in enumerate(table):
-        close = tie.close(s.cv_rms, best.cv_rms)
-        if s is not best and (close or i < REPORTED):   # the test only where it is read
-            s.p_worse = tie.p_worse(s.errors, best.errors)
-        s.tied = s is best or tie.tied(s.p_worse, s.cv_rms, best.cv_rms)
+    ch = tie.choose(table, lambda s: s.errors, lambda s: s.cv_rms, lambda s: s.k,
+                    lambda s: _components(s.candidate), reported=REPORTED)
+    for s, p, t in zip(table, ch.p, ch.tied):
+        s.p_worse, s.tied = p, t
     if chosen is None:
-        return Judgement(None, best, [], table, F, n_places, nominal, testable)
-    tied = [s for s in table if s.tied]
-    named = tie.simplest(tied, lambda s: s.k, lambda s: s.cv_rms)
-    rivals = tie.rivals(named, tied, lambda s: _components(s.candidate))
+        return Judgement(None, ch.best, [], table, F, n_places, nominal, testable)
+    named, rivals = ch.named, ch.rivals
     notes = []
     if not testable:
         notes.append(f"the fit rows lie at {F} folds: too few for a test over places to "
                      f"reach p < {ALPHA:g}; every cause within {RIVAL_RATIO:g}× the best "
                      "prediction error is a rival")
-    return Judgement(named.candidate, best, rivals[:MAX_RIVALS], table, F, n_places, nominal,
+    return Judgement(named.candidate, ch.best, rivals[:MAX_RIVALS], table, F, n_places, nominal,
                      testable, notes)
 
 

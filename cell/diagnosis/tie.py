@@ -16,7 +16,8 @@ other way round, says whether a candidate predicts better than the nominal model
 """
 from __future__ import annotations
 
-from typing import Callable, Sequence, TypeVar
+from dataclasses import dataclass
+from typing import Callable, Generic, Sequence, TypeVar
 
 import numpy as np
 
@@ -65,3 +66,37 @@ def rivals(named: T, tied: Sequence[T], components: Callable[[T], set]) -> list[
     ``named`` itself nor a larger model that contains all of its ``components``."""
     mine = components(named)
     return [c for c in tied if c is not named and not components(c) >= mine]
+
+
+@dataclass
+class Choice(Generic[T]):
+    """The rule applied to candidates ranked best first: ``p`` (one-sided p that each
+    predicts worse than the best, 1.0 where not computed) and ``tied`` per candidate, in
+    the ranking's order; ``named`` the simplest tied candidate that passes; ``rivals`` the
+    tied other explanations of it."""
+
+    best: T
+    p: list[float]
+    tied: list[bool]
+    named: T
+    rivals: list[T]
+
+
+def choose(ranked: Sequence[T], errors: Callable[[T], np.ndarray], rms: Callable[[T], float],
+           k: Callable[[T], int], components: Callable[[T], set],
+           passes: Callable[[T], bool] = lambda c: True, reported: int = 0) -> Choice[T]:
+    """Apply the rule of this module to ``ranked`` (non-empty, lowest prediction ``rms``
+    first; ``errors`` per fold, ``k`` parameters, ``components`` what the candidate
+    claims): the tied candidates, the simplest of those that ``passes`` (the best must
+    pass) and its rivals. ``p`` is computed for the candidates close enough to be tied
+    and for the first ``reported`` (a report's table reads them)."""
+    best = ranked[0]
+    p = [1.0] * len(ranked)
+    flags = [False] * len(ranked)
+    for i, c in enumerate(ranked):
+        if c is not best and (close(rms(c), rms(best)) or i < reported):
+            p[i] = p_worse(errors(c), errors(best))
+        flags[i] = c is best or tied(p[i], rms(c), rms(best))
+    ties = [c for c, f in zip(ranked, flags) if f]
+    named = simplest([c for c in ties if passes(c)] or [best], k, rms)
+    return Choice(best, p, flags, named, rivals(named, ties, components))

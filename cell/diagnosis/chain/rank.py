@@ -13,7 +13,7 @@
    predicts poses left out one at a time better than registration alone, by a one-sided
    Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
    the candidates that predict left-out **places** (poses at one station left out
-   together, :mod:`cell.diagnosis.places`) as well as the best (:func:`tied_with`) are
+   together, :mod:`cell.diagnosis.places`) as well as the best (:func:`choose`) are
    tied, and the one with the fewest parameters is named. It is ``unexplained`` when it
    leaves most of the holdout gap (shrink < :data:`MIN_SHRINK`) or, with a noise
    reference, a fit error well above the noise.
@@ -242,23 +242,21 @@ def _components(c: Candidate) -> set:
     return {(p.effect, p.joint) for p in c.fit.params}
 
 
-def tied_with(s: Search, best: Candidate) -> list[Candidate]:
-    """The candidates that predict left-out folds as well as ``best`` by the tie rule of
-    both families (:mod:`cell.diagnosis.tie`: not worse by the one-sided Wilcoxon test over
-    folds at :data:`ALPHA`, and within :data:`RIVAL_RATIO` of its prediction rms). ``best``
-    first."""
-    out = [best]
-    for c in s.ranking:
-        if c is not best and tie.tied(tie.p_worse(c.fit.cv_fold, best.fit.cv_fold),
-                                      c.fit.cv_rms, best.fit.cv_rms):
-            out.append(c)
-    return out
+def choose(s: Search) -> tie.Choice:
+    """The rule of both families (:func:`cell.diagnosis.tie.choose`) over the ranking:
+    tied with the best over left-out folds, and of the tied candidates that predict
+    left-out poses better than registration alone (one-sided Wilcoxon over poses at
+    :data:`ALPHA`) the simplest named."""
+    f0 = s.nominal.fit
+    return tie.choose(s.ranking, lambda c: c.fit.cv_fold, lambda c: c.fit.cv_rms,
+                      lambda c: len(c.fit.params), _components,
+                      passes=lambda c: tie.p_worse(f0.cv_pose, c.fit.cv_pose) < ALPHA)
 
 
 def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     """The parameters of ``chosen`` that left-out places do not need: (name, p) where the
     linearised model without the parameter is tied with it by the rule of
-    :func:`tied_with` (not worse by the one-sided Wilcoxon test over places at
+    :func:`choose` (not worse by the one-sided Wilcoxon test over places at
     :data:`ALPHA`, and within :data:`RIVAL_RATIO` of its leave-out rms): the campaign
     cannot tell whether the parameter is part of the cause. Empty when the poses do not
     sit at places, or at fewer than :data:`MIN_FOLDS` (screening has already asked the
@@ -286,7 +284,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     The candidate with the lowest leave-out error is tested against registration alone
     (over poses, each left out alone: is there an effect at all);
     if it passes, the simplest candidate (fewest parameters) among those it cannot be told
-    from over places (:func:`tied_with`) that also passes is named: a cause with more parameters must
+    from over places (:func:`choose`) that also passes is named: a cause with more parameters must
     predict left-out poses better, not fit the fit poses better. Tied candidates that are
     neither the named cause nor a larger model containing it are its ``rivals``; so is a
     scale error of the measuring instrument that predicts as well."""
@@ -296,11 +294,10 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     p = tie.p_worse(f0.cv_pose, best.fit.cv_pose) if best else 1.0
     chosen, rivals, tied = None, [], []
     if best is not None and p < ALPHA:
-        tied = tied_with(s, best)
-        passing = [c for c in tied if tie.p_worse(f0.cv_pose, c.fit.cv_pose) < ALPHA]
-        chosen = tie.simplest(passing, lambda c: len(c.fit.params), lambda c: c.fit.cv_rms)
+        ch = choose(s)
+        tied = [c for c, t in zip(s.ranking, ch.tied) if t]
+        chosen, rivals = ch.named, ch.rivals
         p = tie.p_worse(f0.cv_pose, chosen.fit.cv_pose)
-        rivals = tie.rivals(chosen, tied, _components)
         if chosen is not best:
             notes.append(f"{best.label} predicts left-out poses best, but not significantly "
                          f"better than the simpler {chosen.label} ({len(best.fit.params)} "
