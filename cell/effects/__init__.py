@@ -39,7 +39,8 @@ dimensionless. Per-joint parameters are named ``<joint>_<stem>`` (``j2_backlash_
 from __future__ import annotations
 
 from cell.effects.base import (PLANAR_JOINTS, STAGES, SUBSYSTEMS, AngleSpan, BothDirections,
-                               CameraCentre, Effect, Layout, Linear, MovingCommands, OnChain,
+                               CameraCentre, ChainPoses, Effect, Layout, Linear, MovingCommands,
+                               OnChain,
                                ParamSpec, PhaseCoverage, Remedy, Requirement, TempSpread)
 from cell.effects.vocabulary import CHAIN_EFFECTS, EFFECTS, REGISTRY
 from cell.effects.instances import (EffectInstance, make_effect, reference_temp_c, split_vector,
@@ -53,7 +54,7 @@ from cell.errors import ConfigError  # noqa: F401  (kept: callers catch fx.Confi
 __all__ = ["PLANAR_JOINTS", "STAGES", "SUBSYSTEMS", "STATION_NAMES", "DEFAULT_STATIONS",
            "ParamSpec", "Effect", "Layout", "Requirement", "TempSpread", "BothDirections",
            "AngleSpan", "PhaseCoverage", "CameraCentre", "MovingCommands", "Remedy", "OnChain",
-           "Linear", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",
+           "ChainPoses", "Linear", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",
            "stack_vectors", "split_vector", "reference_temp_c", "true_joints", "true_links", "planar_fk",
            "camera_view", "simulate_points", "simulate_path", "station_order",
            "path_directions", "comm_delay"]

@@ -189,17 +189,44 @@ CALIBRATE_CHAIN = Remedy("calibrate_kinematics", "Calibrate the kinematics: {wha
 
 
 @dataclass(frozen=True)
+class ChainPoses:
+    """What a chain effect's joint term may read, per pose: ``q`` (P, J) the joints' model
+    values (deg or mm: the readings with the model's zero and sign applied), ``levers``
+    (P, J) m the gravity lever of each joint at the nominal pose (format, "Chain
+    effects")."""
+
+    q: np.ndarray
+    levers: np.ndarray
+
+
+@dataclass(frozen=True)
 class OnChain:
     """How the effect applies to a serial chain (:mod:`cell.diagnosis.chain.fit`): its parameters per
     joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
     ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
     origin parameter names. ``unit`` the parameter's unit (``{unit}``: the joint's).
-    ``remedy`` replaces the planar one on a chain."""
+    ``remedy`` replaces the planar one on a chain.
+
+    ``term(poses, k) -> (P,)``: the effect on joint k's value per unit of its parameter,
+    Δq_k = value · term (:class:`ChainPoses`): the chain fitter's forward model and,
+    being linear, its exact derivative. A ``"geometric"`` effect has none (its parameter
+    is the chain's own op offset); every other effect must give one."""
 
     joints: str
     stem: str = ""
     unit: str = "{unit}"
     remedy: Remedy | None = None
+    term: Callable[[ChainPoses, int], np.ndarray] | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        if (self.term is None) != (self.joints == "geometric"):
+            raise ValueError(f"OnChain({self.joints!r}): a joint term is given exactly when "
+                             "the effect is not geometric")
+
+
+def constant_term(poses: ChainPoses, k: int) -> np.ndarray:
+    """Δq_k = value: a constant addition to the joint (an offset)."""
+    return np.ones(len(poses.q))
 
 
 # ------------------------------------------------------------------ screening

@@ -37,4 +37,5 @@ EFFECT = Effect(
     mimics=("joint_offset",),     # on a joint that never moves: a constant angle error
     needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
     remedy=CALIBRATE_JOINT,
-    chain=OnChain("all", "gear_ratio_rel", "1", remedy=CALIBRATE_CHAIN))
+    chain=OnChain("all", "gear_ratio_rel", "1", remedy=CALIBRATE_CHAIN,
+                  term=lambda poses, k: poses.q[:, k]))    # Δq_k = ε·q_k

@@ -14,4 +14,5 @@ EFFECT = Effect(
     "position", "the joint gives way under the gravity load",
     remedy=Remedy("compliance", "Check the drive and payload{on}: the joint gives way "
                   "under the gravity load."),
-    chain=OnChain("revolute", "compliance_deg_per_m", "deg/m"))
+    chain=OnChain("revolute", "compliance_deg_per_m", "deg/m",
+                  term=lambda poses, k: poses.levers[:, k]))    # Δq_k = c·τ_k

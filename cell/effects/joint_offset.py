@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from cell.effects.base import (CALIBRATE_CHAIN, CALIBRATE_KINEMATICS, PLANAR_JOINTS, Effect,
-                               OnChain, ParamSpec, grid, unit_columns)
+                               OnChain, ParamSpec, constant_term, grid, unit_columns)
 
 
 def joint_offset(x, jidx, cmd_deg, dirs):
@@ -24,4 +24,4 @@ EFFECT = Effect(
     (ParamSpec("offset_deg", "deg", "joint zero error", (-5.0, 5.0), (0.02, 0.2)),),
     "constant", "joint zero differs from the nominal zero", joint_offset, d_joint_offset,
     remedy=CALIBRATE_KINEMATICS,
-    chain=OnChain("all", "offset_{unit}", remedy=CALIBRATE_CHAIN))
+    chain=OnChain("all", "offset_{unit}", remedy=CALIBRATE_CHAIN, term=constant_term))

@@ -298,3 +298,14 @@ def test_requirements_say_what_the_layout_lacks():
     steady = fx.Layout(angles, lay.directions, np.full(20, 21.0), True, True)
     assert E["thermal_drift"].unidentifiable(steady).startswith("temperature spread 0.000 K < 0.2 K")
     assert E["camera_rotation"].unidentifiable(steady) == E["comm_delay"].unidentifiable(steady) == ""
+
+
+def test_a_chain_effect_on_a_joint_must_say_how_it_moves_the_joint():
+    import pytest
+    term = fx.REGISTRY["gear_ratio"].chain.term
+    poses = fx.ChainPoses(np.array([[10.0, -20.0], [30.0, 5.0]]), np.zeros((2, 2)))
+    assert np.array_equal(term(poses, 1), [-20.0, 5.0])          # Δq_k = ε·q_k
+    with pytest.raises(ValueError, match="joint term"):
+        fx.OnChain("all", "wobble_deg")                          # a joint effect without a term
+    with pytest.raises(ValueError, match="joint term"):
+        fx.OnChain("geometric", term=lambda p, k: p.q[:, k])     # the op's own offset needs none

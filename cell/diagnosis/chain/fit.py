@@ -236,29 +236,29 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - R @ ca
 
 
+def _poses(d: Data) -> fx.ChainPoses:
+    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers)
+
+
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray) -> tuple[dict[int, float], np.ndarray]:
-    """The geometric op offsets and the (P, J) joint-value additions of ``values``."""
+    """The geometric op offsets and the (P, J) joint-value additions of ``values``: each
+    parameter's effect definition says which (:attr:`cell.effects.OnChain.term`)."""
     geo: dict[int, float] = {}
     dq = np.zeros_like(d.readings)
-    qm0 = d.chain.model_values(d.readings)
+    poses = _poses(d)
     for p, v in zip(params, values):
-        if p.effect == "link_length":
+        term = fx.CHAIN_EFFECTS[p.effect].chain.term
+        if term is None:
             geo[p.op] = geo.get(p.op, 0.0) + v
-        elif p.effect == "joint_offset":
-            dq[:, p.joint] += v
-        elif p.effect == "gear_ratio":
-            dq[:, p.joint] += v * qm0[:, p.joint]
         else:
-            dq[:, p.joint] += v * d.levers[:, p.joint]
+            dq[:, p.joint] += v * term(poses, p.joint)
     return geo, dq
 
 
 def _regressor(d: Data, p: Param) -> np.ndarray | None:
-    if p.effect == "gear_ratio":
-        return d.chain.model_values(d.readings)[:, p.joint]
-    if p.effect == "gravity_compliance":
-        return d.levers[:, p.joint]
-    return None
+    """The joint term of ``p`` per pose (None: a geometric parameter, its op's own twist)."""
+    term = fx.CHAIN_EFFECTS[p.effect].chain.term
+    return None if term is None else term(_poses(d), p.joint)
 
 
 def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
