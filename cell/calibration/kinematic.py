@@ -36,9 +36,10 @@ import scipy.linalg as sla
 
 from cell.calibration.dh import D2R, DHChain, check_measured, error_jacobian
 from cell.errors import CalibrationError
+from cell.kinematics import identifiable
 from cell.stats import t_ppf
 
-RANK_TOL = 1e-4        # σ_min/σ_max of the column-scaled J a kept set must exceed (cond < 1e4)
+RANK_TOL = 1e-4        # share of a unit column outside the kept span it needs (and the rank cut)
 ZERO_TOL = 1e-9        # column norm / largest column norm below which a parameter is unseen
 UNOBSERVABLE = "not observable from planar measurements"
 
@@ -114,8 +115,9 @@ class Identifiability:
     """Which parameters a design J can separate.
 
     ``singular_values``: of the column-scaled observable columns; ``rank``: how many
-    exceed ``rank_threshold`` = ``tol``·σ_max. ``kept``: a maximal subset, chosen in priority
-    order, whose column-scaled J has σ_min/σ_max > tol; ``condition_number`` is its
+    exceed ``rank_threshold`` = ``tol``·σ_max. ``kept``: chosen in priority order, each with
+    at least ``tol`` of its unit column outside the span of those kept before it
+    (:mod:`cell.kinematics.identifiable`); ``condition_number`` is the kept set's
     σ_max/σ_min. ``fixed``: one dict per other parameter, ``{"param", "reason"}`` with
     reason :data:`UNOBSERVABLE` (zero column) or ``"merged"`` plus ``"merged_into"``
     ({kept name: c}: an error δ of this parameter acts like errors c·δ of those, so they
@@ -163,10 +165,10 @@ def identifiability(J, names: Sequence[str], *, priority: Sequence[str] | None =
 
     Columns with norm ≤ zero_tol·(largest norm) are not observable (fixed at 0: all d's,
     since z is not measured). The others are scaled to unit norm; going through them in
-    ``priority`` order (unlisted names last, in their order), a column is kept if the kept
-    set stays well conditioned (σ_min/σ_max > tol), else it is merged: its column is fitted
-    by least squares on the kept columns (in parameter units) and reported with the
-    coefficients. Raises CalibrationError on a shape mismatch or non-finite J.
+    ``priority`` order (unlisted names last, in their order), a column is kept by the rule
+    of :mod:`cell.kinematics.identifiable` (at least ``tol`` of it outside the span of the
+    columns kept before it), else it is merged: its column is fitted by least squares on
+    the kept columns (in parameter units) and reported with the coefficients. Raises CalibrationError on a shape mismatch or non-finite J.
     """
     J = np.asarray(J, dtype=float)
     names = tuple(names)
@@ -183,11 +185,7 @@ def identifiability(J, names: Sequence[str], *, priority: Sequence[str] | None =
     sv = _scaled_sv(Js[:, obs])
     threshold = tol * sv[0] if sv.size else 0.0
     rank = int((sv > threshold).sum()) if sv.size else 0
-    kept: list[int] = []
-    for j in (names.index(n) for n in order):
-        s = _scaled_sv(Js[:, kept + [j]]) if obs[j] else None
-        if s is not None and s[-1] > tol * s[0]:
-            kept.append(j)
+    kept = identifiable.greedy(Js, [names.index(n) for n in order], tol).kept
     s_kept = _scaled_sv(Js[:, kept])
     cond = float(s_kept[0] / s_kept[-1]) if s_kept.size else math.inf
     fixed = []

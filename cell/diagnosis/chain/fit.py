@@ -28,11 +28,12 @@ from cell.diagnosis import leaveout
 from cell.diagnosis.leaveout import Folds, scaled
 from cell.diagnosis.places import folds as place_folds
 import cell.kinematics as kin
+from cell.kinematics import identifiable
 from cell.kinematics.chain import Chain
+from cell.kinematics.identifiable import STRUCTURAL_TOL
 from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 
-STRUCTURAL_TOL = 1e-6     # a unit column this close to the others' span adds nothing
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
 KEPT_REGISTRATIONS = 2    # Data.zero_blocks keeps the Jacobian blocks of this many
 # the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
@@ -501,43 +502,35 @@ class Identifiability:
 
 def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: list[Param] = ()
                     ) -> Identifiability:
-    """Gram–Schmidt in priority order (registration, ``keep_first``, then ``pool``): a
-    parameter whose scaled column lies in the span of those before it (to
-    :data:`STRUCTURAL_TOL`) is dropped, naming what absorbs it."""
+    """The rule of :mod:`cell.kinematics.identifiable` in priority order (registration,
+    ``keep_first``, then ``pool``) at :data:`STRUCTURAL_TOL`: a parameter whose scaled
+    column lies in the span of those before it is dropped, naming what absorbs it; one
+    kept with a variance inflation above :data:`MAX_VIF` is warned about."""
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
     _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
     nr = n_registration(d)
-    Q = np.zeros((J.shape[0], 0))
-    if nr:
-        Qr, Rr = np.linalg.qr(J[:, :nr] / np.maximum(np.linalg.norm(J[:, :nr], axis=0), 1e-300))
-        Q = Qr[:, np.abs(np.diag(Rr)) > STRUCTURAL_TOL]
-    Qreg = Q
-    kept: list[Param] = []
-    kept_cols: list[np.ndarray] = []
+    span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
+                               identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))
+    kept = [allp[i] for i in span.kept]
+    kept_cols = [J[:, nr + i] / np.linalg.norm(J[:, nr + i]) for i in span.kept]
     dropped: dict[str, str] = {}
     warnings: list[str] = []
     for i, p in enumerate(allp):
-        c = J[:, nr + i]
-        norm = np.linalg.norm(c)
-        if norm == 0:
+        left = span.left[i]
+        if not np.isfinite(left):
             dropped[p.name] = "has no effect on the measured points"
-            continue
-        v = c / norm
-        perp = v - Q @ (Q.T @ v)
-        left = float(np.linalg.norm(perp))
-        if left < STRUCTURAL_TOL:
-            reg_left = float(np.linalg.norm(v - Qreg @ (Qreg.T @ v)))
-            if reg_left < STRUCTURAL_TOL:
+        elif i not in span.kept:
+            v = J[:, nr + i] / np.linalg.norm(J[:, nr + i])
+            if span.outside(v, span.Q0) < STRUCTURAL_TOL:
                 dropped[p.name] = "absorbed by the registration (sensor frame / marker positions)"
             else:
-                dropped[p.name] = "seen only as a sum with " + ", ".join(_partners(v, kept, kept_cols))
-            continue
-        if 1.0 / left ** 2 > MAX_VIF:
+                before = [k for k in span.kept if k < i]
+                dropped[p.name] = "seen only as a sum with " + ", ".join(
+                    _partners(v, [allp[k] for k in before],
+                              [kept_cols[span.kept.index(k)] for k in before]))
+        elif 1.0 / left ** 2 > MAX_VIF:
             warnings.append(f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like the "
                             "registration or other parameters; they are hard to tell apart")
-        kept.append(p)
-        kept_cols.append(v)
-        Q = np.column_stack([Q, perp / left])
     return Identifiability(kept, dropped, warnings)
 
 
