@@ -12,17 +12,19 @@ vocabulary (:mod:`cell.effects`) causes it, and how far it shrinks on withheld r
 * :mod:`.robust`     outliers set aside, and how many places the fit rows cover
 * :mod:`.noise`      the point noise: given, from revisited poses or from the remainder
 * :mod:`.delay`      per-station comm lags and the λ_i = σ·i check
-* :mod:`.report`     :func:`diagnose`, the JSON report and its text
+* :mod:`.report`     :func:`diagnose`, the JSON report
 * :mod:`.answer`     :func:`~.answer.diagnose_campaign`: any campaign, planar or chain, one answer
 * :mod:`.validate`   validation trials on the independent truth (:mod:`cell.truth`), scores
 * :mod:`.html`       the HTML page with plots (the one module here that writes files)
 
 Shared by the planar and the chain (:mod:`.chain`) diagnosis:
 
-* :mod:`.tie`        when the left-out folds cannot tell a candidate from the best
+* :mod:`.leaveout`   the leave-one-fold-out prediction error of any linearised fit
+* :mod:`.tie`        when the left-out folds cannot tell a candidate from the best; naming
 * :mod:`.places`     poses at one station, folds, separating poses spaced apart
 * :mod:`.page`       the report format's version and the words for a cause
 * :mod:`.harness`    the validation harness: judged trials, scores, tables
+* :mod:`.text`       the report as text (:func:`render_text`)
 """
 __all__ = ["FORMAT", "Diagnosis", "diagnose", "render_text"]
 
@@ -30,6 +32,9 @@ __all__ = ["FORMAT", "Diagnosis", "diagnose", "render_text"]
 def __getattr__(name: str):
     """The planar diagnosis on first use only: the chain side imports small modules of this
     package (:mod:`.crossval`, :mod:`.page`) without loading the whole planar search."""
+    if name == "render_text":
+        from cell.diagnosis.text import render
+        return render
     if name in __all__:
         from cell.diagnosis import report
         return getattr(report, name)

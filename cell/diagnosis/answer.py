@@ -22,12 +22,9 @@ class Answer:
     computed: Any
 
     def text(self) -> str:
-        """The report as readable lines."""
-        if self.family == "chain":
-            from cell.diagnosis.chain.report import render_chain_text
-            return render_chain_text(self.report)
-        from cell.diagnosis.report import render_text
-        return render_text(self.report)
+        """The report as readable lines (:func:`cell.diagnosis.text.render`)."""
+        from cell.diagnosis.text import render
+        return render(self.report)
 
     def write_html(self, out_dir) -> Path:
         """Write ``out_dir/index.html`` with its PNG plots; its path. Raises OSError."""

@@ -21,7 +21,8 @@ import numpy as np
 from cell.diagnosis import page
 from cell.diagnosis.fit import combined
 from cell.diagnosis.replay import residuals
-from cell.diagnosis.report import Diagnosis, render_text
+from cell.diagnosis.report import Diagnosis
+from cell.diagnosis.text import render
 from cell.diagnosis.where import jacobian_cols, static_view
 
 
@@ -148,7 +149,7 @@ def write_html(dg: Diagnosis, out_dir) -> Path:
     fb, fa = combined(sn.fit_points, sn.fit_paths), combined((ch or sn).fit_points, (ch or sn).fit_paths)
     fit = page.FitRms(fb.rms, fa.rms, f"{fb.n} rows")
     index = out / "index.html"
-    index.write_text(page.render(rep, _figures(pngs), fit, render_text(rep), chain=False,
+    index.write_text(page.render(rep, _figures(pngs), fit, render(rep), chain=False,
                                  chosen_label=ch.label if ch else None), encoding="utf-8")
     return index
 

@@ -122,7 +122,7 @@ def test_text_and_json_agree_on_the_real_tiago_campaign():
     # source of 3.2878: the held-out rms after the cause on main before this change
     assert js["holdout"]["rms_after_mm"] <= 3.2878 + 1e-4
     assert js["unexplained"] and c["confidence"] != "high"
-    assert f"confidence {c['confidence']}" in text and "UNEXPLAINED" in text
+    assert f"confidence: {c['confidence']}" in text and "UNEXPLAINED" in text
     for comp in c["components"]:
         assert comp["effect"] in text.split("cause: ")[1].splitlines()[0]
     assert {p.split("_")[0] for p in c["params"]} <= {j for comp in c["components"]

@@ -23,7 +23,8 @@ import numpy as np
 
 from cell.diagnosis import page
 from cell.diagnosis.chain import fit as F
-from cell.diagnosis.chain.report import ChainDiagnosis, render_chain_text
+from cell.diagnosis.chain.report import ChainDiagnosis
+from cell.diagnosis.text import render
 
 
 def residuals(d: F.Data, f: F.Fit) -> np.ndarray:
@@ -55,7 +56,7 @@ def write_chain_html(cd: ChainDiagnosis, out_dir) -> Path:
     fit = page.FitRms(rep["gap"]["rms_mm"], rep["noise"]["fit_rms_mm"],
                       f"{rep['split']['fit_poses']} poses, {rep['split']['fit_rows']} points")
     index = out / "index.html"
-    index.write_text(page.render(rep, figs, fit, render_chain_text(rep), chain=True,
+    index.write_text(page.render(rep, figs, fit, render(rep), chain=True,
                                  chosen_label=dec.chosen.label if dec.chosen else None),
                      encoding="utf-8")
     return index

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from cell.diagnosis.chain import robust
-from cell.diagnosis.chain.report import diagnose_chain, render_chain_text
+from cell.diagnosis.chain.report import diagnose_chain
+from cell.diagnosis.text import render
 from cell.measurements import read_campaign
 from cell.truth.chain_campaign import MARKERS, make
 
@@ -27,7 +28,7 @@ def test_a_glitch_in_a_campaign_with_no_error_is_set_aside_and_the_answer_is_non
     assert rep["cause"]["effect"] == "none" and not rep["unexplained"], rep["remainder"]
     assert rep["holdout"]["inliers"]["n"] == rep["holdout"]["n"] - sum(p["split"] == "holdout"
                                                                        for p in o["points"])
-    assert "outliers set aside: 2 point(s)" in render_chain_text(rep)
+    assert "outliers set aside: 2 point(s)" in render(rep)
 
 
 def test_a_glitch_beside_a_true_cause_does_not_hide_it(tmp_path):
