@@ -38,7 +38,7 @@ from cell.diagnosis import leaveout, screen
 from cell.diagnosis import tie
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
-from cell.diagnosis.places import spaced_best
+from cell.diagnosis.places import N_POSES, separating
 from cell.diagnosis.replay import DiagData
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 
@@ -46,7 +46,6 @@ MAX_FOLDS = 24        # more places are gathered into this many regions
 MIN_FOLDS = 3         # fewer: nothing can be predicted out of sample
 MAX_RIVALS = 4
 REPORTED = 12         # candidates the report's selection table lists
-N_POSES = 5
 POSE_SPACING_DEG = 20.0
 
 
@@ -220,16 +219,7 @@ def separating_poses(B: screen.Basis, screened: dict, named: tuple, rivals: list
         return np.einsum("nak,k->na", A[:, :, idx], sc.x)
     base = predict(named)
     diffs = np.stack([np.linalg.norm(base - predict(r.candidate), axis=1) for r in rivals], axis=1)
-    score = diffs.min(axis=1)
-    picked = spaced_best(qq, score, N_POSES, POSE_SPACING_DEG)
-    out = []
-    for i in picked:
-        entry = {"j1_deg": round(float(qq[i, 0]), 3), "j2_deg": round(float(qq[i, 1]), 3),
-                 "j1_dir": int(dd[i, 0]), "j2_dir": int(dd[i, 1]), "difference_mm": {}}
-        for r, v in zip(rivals, diffs[i]):
-            entry["difference_mm"][r.label] = round(float(v), 6)
-        if sigma_mm:
-            entry["difference_over_noise"] = {r.label: round(float(v / sigma_mm), 2)
-                                              for r, v in zip(rivals, diffs[i])}
-        out.append(entry)
-    return out
+    return separating(qq, diffs, [r.label for r in rivals], sigma_mm, POSE_SPACING_DEG,
+                      lambda i: {"j1_deg": round(float(qq[i, 0]), 3),
+                                 "j2_deg": round(float(qq[i, 1]), 3),
+                                 "j1_dir": int(dd[i, 0]), "j2_dir": int(dd[i, 1])})

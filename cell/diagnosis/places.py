@@ -82,3 +82,26 @@ def spaced_best(q: np.ndarray, score: np.ndarray, n: int, spacing: float) -> lis
         if all(np.linalg.norm(q[i] - q[j]) >= spacing for j in picked):
             picked.append(int(i))
     return picked
+
+
+N_POSES = 5           # separating poses proposed
+
+
+def separating(q: np.ndarray, diffs: np.ndarray, labels, noise_mm: float | None,
+               spacing: float, where) -> list[dict]:
+    """The separating poses of a named cause and its rivals (``labels``), both families'
+    rule: of the configurations ``q`` (rows, in units where ``spacing`` is the least
+    distance between two proposals), the up to :data:`N_POSES` where the smallest of the
+    expected differences ``diffs`` (rows × rivals, mm) is largest (:func:`spaced_best`).
+    Each entry is ``where(i)`` (the configuration, in the family's words), the difference
+    per rival (``difference_mm``) and, with a noise σ per axis, that difference over it
+    (``difference_over_noise``)."""
+    out = []
+    for i in spaced_best(q, diffs.min(axis=1), N_POSES, spacing):
+        e = where(i) | {"difference_mm": {lab: round(float(v), 6)
+                                          for lab, v in zip(labels, diffs[i])}}
+        if noise_mm:
+            e["difference_over_noise"] = {lab: round(float(v / noise_mm), 2)
+                                          for lab, v in zip(labels, diffs[i])}
+        out.append(e)
+    return out

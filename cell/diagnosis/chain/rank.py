@@ -34,7 +34,7 @@ import numpy as np
 from cell.diagnosis import tie
 from cell.diagnosis.chain import drift
 from cell.diagnosis.chain import fit as F
-from cell.diagnosis.places import spaced_best
+from cell.diagnosis.places import N_POSES, separating
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 from cell.stats import wilcoxon_greater
 
@@ -368,7 +368,6 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                     dr.rivals)
 
 
-N_POSES = 5           # separating poses proposed
 POSE_DRAWS = 4000     # configurations drawn inside the limits to choose them from
 
 
@@ -400,14 +399,6 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
         return y.reshape(len(q), m, 3)
     base = predict(chosen)
     diffs = np.stack([np.linalg.norm(base - predict(c), axis=2).max(axis=1) for c in rivals], 1)
-    score = diffs.min(axis=1)
-    picked = spaced_best(q / span, score, N_POSES, 0.2)
-    out = []
-    for i in picked:
-        e = {"readings": {j.column: round(float(v), 3) for j, v in zip(d.chain.joints, q[i])},
-             "difference_mm": {c.label: round(float(v), 6) for c, v in zip(rivals, diffs[i])}}
-        if noise_mm:
-            e["difference_over_noise"] = {c.label: round(float(v / noise_mm), 2)
-                                          for c, v in zip(rivals, diffs[i])}
-        out.append(e)
-    return out
+    return separating(q / span, diffs, [c.label for c in rivals], noise_mm, 0.2,
+                      lambda i: {"readings": {j.column: round(float(v), 3)
+                                              for j, v in zip(d.chain.joints, q[i])}})
