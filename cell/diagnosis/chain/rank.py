@@ -18,7 +18,10 @@
    leaves most of the holdout gap (shrink < :data:`MIN_SHRINK`) or, with a noise
    reference, a fit error well above the noise.
 6. **Confidence**: ``ambiguous`` when a tied candidate is another explanation (its
-   ``rivals``, with :func:`separating_poses`); ``low`` when a scale error of the measuring
+   ``rivals``, with :func:`separating_poses`); ``low`` when the named cause predicts
+   left-out poses to more than :data:`PREDICT_FACTOR` × the noise (it fits, but does not
+   carry over: an effect outside the vocabulary that a flexible enough candidate imitates
+   at the campaign's places), when a scale error of the measuring
    instrument (:func:`instrument_scale`: a uniform and a radial scale of the sensor's
    readings, not an arm effect, so never named; a tracker's scale and a uniform stretch of
    the arm's links look alike from outside) predicts as well, when the fit poses lie at
@@ -41,6 +44,7 @@ from cell.stats import wilcoxon_greater
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
 NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noise
+PREDICT_FACTOR = 1.5  # a named cause predicting left-out poses worse than this × noise: doubt
 PAIR_TOPS = 3         # pairs of the best this many single effects are fitted together
 MIN_FOLDS = 3         # fewer places: nothing is predicted out of sample
 
@@ -338,6 +342,11 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                         + ", ".join(r["label"] for r in dr.rivals)
                         + ": measure the poses in another order, or fix the sensor")
     noise3 = None if noise_mm is None else noise_mm * math.sqrt(3)
+    if noise3 is not None and chosen is not None and chosen.fit.cv_rms > PREDICT_FACTOR * noise3:
+        warnings.append(f"{chosen.label} predicts left-out poses only to {chosen.fit.cv_rms:.3f} mm "
+                        f"rms, {chosen.fit.cv_rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D): "
+                        "part of the gap is something it does not hold, or the noise is larger "
+                        "than measured")
     gap = f0.rms
     if noise3 is not None and gap <= NOISE_FACTOR * noise3:
         if chosen is not None:

@@ -87,3 +87,12 @@ def test_the_command_prints_json_scores(capsys):
 def test_the_command_refuses_bad_options_by_name(capsys, argv, words):
     assert main(["diagnose", "validate", "--chain", "--trials", "1", *argv]) == 2
     assert words in capsys.readouterr().err
+
+
+def test_a_cause_that_does_not_predict_down_to_the_noise_is_not_named_with_confidence():
+    # source: before the PREDICT_FACTOR rule, trial 34 of `cellctl diagnose validate --chain
+    # --trials 60 --seed 2 --out-of-vocabulary 1` (a cyclic ripple on j2, outside the chain
+    # vocabulary) was named gear_ratio + joint_offset on j2 with confidence high
+    t = validate.run_trial(34, 2, outside_share=1.0)
+    assert t.true_effect == "cyclic" and t.outside
+    assert t.verdict != "wrong" and t.confidence != "high", (t.answer_label, t.confidence)
