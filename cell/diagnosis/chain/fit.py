@@ -256,12 +256,6 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray) -> tuple[dict
     return geo, dq
 
 
-def _regressor(d: Data, p: Param) -> np.ndarray | None:
-    """The joint term of ``p`` per pose (None: a geometric parameter, its op's own twist)."""
-    term = fx.CHAIN_EFFECTS[p.effect].chain.term
-    return None if term is None else term(_poses(d), p.joint)
-
-
 def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
           ) -> tuple[np.ndarray, np.ndarray | None]:
     """Predicted points (M, 3) in the measurement frame; with ``jac`` also the (3M, n)
@@ -293,13 +287,18 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                 cols.append(Rt * (d.obs_marker == m)[:, None, None])
         blocks = kept[None] = [c.reshape(len(y), 3, -1) for c in cols]
     blocks = list(blocks)
+    twists: dict[int, np.ndarray] = {}        # one op's twist serves all its parameters
+    poses = None
     for p in params:
         g = kept.get(p)
         if g is None:
-            g = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
-            r = _regressor(d, p)
-            if r is not None:
-                g = g * r[d.obs_pose][:, None]
+            g = twists.get(p.op)
+            if g is None:
+                g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+            term = fx.CHAIN_EFFECTS[p.effect].chain.term
+            if term is not None:
+                poses = poses or _poses(d)
+                g = g * term(poses, p.joint)[d.obs_pose][:, None]
             g = kept[p] = g[:, :, None]
         blocks.append(g)
     J = np.concatenate(blocks, axis=2).reshape(3 * len(y), -1) if blocks else np.zeros((3 * len(y), 0))
