@@ -103,16 +103,23 @@ def pooled(groups: np.ndarray, values: np.ndarray) -> tuple[float | None, int]:
     return (math.sqrt(ss / dof), dof) if dof else (None, 0)
 
 
+def revisits(key: np.ndarray) -> tuple[np.ndarray, int]:
+    """The revisit group of every row of ``key`` (N, k): rows whose keys agree to 10⁻⁶ (the
+    same joints, and whatever else must be equal for two visits to agree) share a label,
+    a row with no twin gets −1; and the number of groups of two or more. Both diagnoses
+    group their revisits here and pool them with :func:`pooled`."""
+    _, inv, counts = np.unique(np.round(key, 6), axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    return np.where(counts[inv] > 1, inv, -1), int(np.sum(counts > 1))
+
+
 def repeats(cmd: np.ndarray, dirs: np.ndarray | None, r: np.ndarray) -> Noise | None:
     """Pooled within-group σ of remainder ``r`` (n,2) over poses with equal ``cmd`` (and
-    ``dirs``) (:func:`pooled`); None without a revisited pose."""
-    key = np.round(cmd, 6) if dirs is None else np.column_stack([np.round(cmd, 6), dirs])
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    sigma, dof = pooled(np.where(counts[inv] > 1, inv, -1), r)
+    ``dirs``) (:func:`revisits`, :func:`pooled`); None without a revisited pose."""
+    labels, n_groups = revisits(cmd if dirs is None else np.column_stack([cmd, dirs]))
+    sigma, dof = pooled(labels, r)
     if sigma is None:
         return None
-    n_groups = int(np.sum(counts > 1))
     return Noise(sigma, "repeats", f"scatter of {n_groups} revisited poses", dof,
                  upper95(sigma, dof))
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.diagnosis.noise import pooled
+from cell.diagnosis.noise import pooled, revisits
 from cell.measurements.chain import ChainCampaign
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
@@ -37,19 +37,12 @@ def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
     its revisits); the number of revisited poses' groups and the degrees of freedom;
     (None, 0, 0) without repeats. ``keep`` (M,) marks the points to use (default all:
     outliers set aside are not)."""
-    key: dict[bytes, list[int]] = {}
-    for p, q in enumerate(np.round(cc.readings, 6)):
-        key.setdefault(q.tobytes(), []).append(p)
-    groups = [g for g in key.values() if len(g) > 1]
-    of_pose = np.full(len(cc.readings), -1)
-    for i, g in enumerate(groups):
-        of_pose[g] = i
-    label = np.where(of_pose[cc.obs_pose] >= 0,
-                     of_pose[cc.obs_pose] * len(cc.markers) + cc.obs_marker, -1)
+    _, n_groups = revisits(cc.readings)
+    label, _ = revisits(np.column_stack([cc.readings[cc.obs_pose], cc.obs_marker]))
     if keep is not None:
         label = np.where(keep, label, -1)
     sigma, dof = pooled(label, cc.xyz)
-    return (sigma, len(groups), dof) if sigma is not None else (None, 0, 0)
+    return (sigma, n_groups, dof) if sigma is not None else (None, 0, 0)
 
 
 def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
