@@ -179,17 +179,21 @@ def _cause_card(rep: dict) -> str:
             f'{plist}{poses}<p class="small">{esc(ptxt)}</p></section>')
 
 
+def pose_words(pz: dict) -> str:
+    """Where a separating pose is, in words: the chain's readings (``jK value``), or the
+    planar joints with their approach directions (``j1 30.0° (+1), …``)."""
+    if "readings" in pz:
+        return ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
+    return (f"j1 {pz['j1_deg']:.1f}° ({pz['j1_dir']:+d}), "
+            f"j2 {pz['j2_deg']:.1f}° ({pz['j2_dir']:+d})")
+
+
 def _separating(c: dict) -> str:
     """The separating poses (planar joints and directions, or chain readings) as a list."""
     items = []
     for pz in c.get("separating_poses") or []:
-        if "readings" in pz:
-            where = ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
-        else:
-            where = (f"j1 {pz['j1_deg']:g}° ({pz['j1_dir']:+d}), "
-                     f"j2 {pz['j2_deg']:g}° ({pz['j2_dir']:+d})")
         diff = ", ".join(f"{esc(k)} {num(v)} mm" for k, v in pz["difference_mm"].items())
-        items.append(f"<li>{esc(where)}: differs from {diff}</li>")
+        items.append(f"<li>{esc(pose_words(pz))}: differs from {diff}</li>")
     if not items:
         return ""
     return ("<h2 id='separating'>Measure next: where the rival causes differ most</h2>"

@@ -11,7 +11,7 @@ noise; UNEXPLAINED and notes; the per-station lags; what the campaign cannot ide
 """
 from __future__ import annotations
 
-from cell.diagnosis.page import describe_cause
+from cell.diagnosis.page import describe_cause, pose_words
 
 
 def render(rep: dict) -> str:
@@ -130,13 +130,8 @@ def _rivals(rep: dict) -> list[str]:
         out.append(f"  rival: {r['label']}{on} (k {r['k']}, {pred}, holdout rms "
                    f"{r['holdout_rms_mm']:.4f} mm)")
     for pz in c.get("separating_poses", []):
-        if "readings" in pz:
-            where = ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
-        else:
-            where = (f"j1 {pz['j1_deg']:.1f}° ({pz['j1_dir']:+d}), "
-                     f"j2 {pz['j2_deg']:.1f}° ({pz['j2_dir']:+d})")
         diff = ", ".join(f"{k} {v:.4f} mm" for k, v in pz["difference_mm"].items())
-        out.append(f"  measure next: {where}: differs from {diff}")
+        out.append(f"  measure next: {pose_words(pz)}: differs from {diff}")
     return out
 
 
