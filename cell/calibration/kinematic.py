@@ -168,7 +168,8 @@ def identifiability(J, names: Sequence[str], *, priority: Sequence[str] | None =
     ``priority`` order (unlisted names last, in their order), a column is kept by the rule
     of :mod:`cell.kinematics.identifiable` (at least ``tol`` of it outside the span of the
     columns kept before it), else it is merged: its column is fitted by least squares on
-    the kept columns (in parameter units) and reported with the coefficients. Raises CalibrationError on a shape mismatch or non-finite J.
+    the kept columns (in parameter units) and reported with the coefficients. Raises
+    CalibrationError on a shape mismatch or non-finite J.
     """
     J = np.asarray(J, dtype=float)
     names = tuple(names)
