@@ -4,8 +4,11 @@ cluster) cannot tell the two apart. Pure numerics.
 
 A candidate is tied with the best when both hold:
 
-* it does not predict the left-out folds worse: the one-sided Wilcoxon signed-rank test
-  over folds (its per-fold error minus the best's) gives p ≥ :data:`ALPHA`;
+* it does not predict the left-out folds worse by a margin that matters: the one-sided
+  Wilcoxon signed-rank test over folds (its per-fold error minus the best's) gives
+  p ≥ :data:`ALPHA`, or its prediction rms is within :data:`MARGIN` of the best's (a
+  candidate that is worse on every fold by a hair is still as good an explanation: a
+  spurious extra parameter of 0.002° must not beat the simpler cause);
 * its prediction rms is within :data:`RIVAL_RATIO` of the best's. A fold count too small
   for the test to reach :data:`ALPHA` (at most 6 folds: 0.5⁶ > 0.01) must not make a poor
   candidate a rival.
@@ -26,6 +29,7 @@ from cell.stats import wilcoxon_greater
 T = TypeVar("T")
 ALPHA = 0.01          # one-sided test over folds
 RIVAL_RATIO = 1.25    # a tied candidate's prediction rms is within this factor of the best's
+MARGIN = 0.05         # a candidate predicting worse by less than this share is tied anyway
 
 
 def p_worse(errors, best_errors) -> float:
@@ -43,9 +47,10 @@ def close(rms: float, best_rms: float) -> bool:
 
 
 def tied(p: float, rms: float, best_rms: float) -> bool:
-    """Tied with the best: not worse at :data:`ALPHA` (``p`` from :func:`p_worse`) and
-    :func:`close`."""
-    return p >= ALPHA and close(rms, best_rms)
+    """Tied with the best: :func:`close`, and either not worse at :data:`ALPHA` (``p``
+    from :func:`p_worse`) or worse by less than :data:`MARGIN` of the best's prediction
+    rms (a difference too small to matter, however consistent over the folds)."""
+    return close(rms, best_rms) and (p >= ALPHA or rms <= (1.0 + MARGIN) * best_rms)
 
 
 def testable(n_folds: int) -> bool:

@@ -75,3 +75,11 @@ def test_choose_tests_only_the_candidates_it_reads():
     poor = next(i for i, c in enumerate(ranked) if c[0] == "backlash")
     assert _choose(ranked).p[poor] == 1.0                  # far from the best: not tested
     assert _choose(ranked, reported=len(ranked)).p[poor] < tie.ALPHA
+
+
+def test_a_candidate_worse_by_a_hair_on_every_fold_is_still_tied():
+    best = np.linspace(1.0, 2.0, 12)
+    hair = best * 1.02                      # worse on all 12 folds, by 2 %
+    p = tie.p_worse(hair, best)
+    assert p < tie.ALPHA and tie.tied(p, 1.02, 1.0)
+    assert not tie.tied(p, 1.06, 1.0)        # by 6 %: that matters
