@@ -17,8 +17,8 @@ prediction** of the fit rows:
   refitted: the fold's Gram pieces are subtracted from the whole fit's
   (:mod:`cell.diagnosis.leaveout`, the yardstick of the chain diagnosis too).
 * **the choice** (:func:`judge`): the candidates the folds cannot tell from the best are
-  **tied** (the rule of both families, :mod:`cell.diagnosis.tie`: not worse by a one-sided
-  Wilcoxon test over folds, and within :data:`RIVAL_RATIO` of its prediction rms); of
+  **tied** (the rule of both families, :func:`cell.diagnosis.tie.tied`: within
+  :data:`RIVAL_RATIO` of its prediction rms, and not worse by a margin that matters); of
   those, the one with the fewest parameters is named (then the lowest error). A tied
   candidate that is neither the named cause nor a larger model containing it is a
   **rival**: the campaign cannot tell the two apart, the answer is ``ambiguous``.
@@ -34,11 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell import effects as fx
-from cell.diagnosis import leaveout, screen
-from cell.diagnosis import tie
+from cell.diagnosis import leaveout, screen, tie
 from cell.diagnosis.jacobian import Rows, rows_of
 from cell.diagnosis.places import folds as place_folds
-from cell.diagnosis.places import N_POSES, separating
+from cell.diagnosis.places import separating
 from cell.diagnosis.replay import DiagData
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 
@@ -195,7 +194,7 @@ def _grid(limits, n1: int = 25, n2: int = 12) -> np.ndarray:
 
 def separating_poses(B: screen.Basis, screened: dict, named: tuple, rivals: list[Scored],
                      fit_d: DiagData, limits, sigma_mm: float | None) -> list[dict]:
-    """Up to :data:`N_POSES` joint configurations inside ``limits`` (both approach
+    """Up to :data:`cell.diagnosis.places.N_POSES` joint configurations inside ``limits`` (both approach
     directions, the campaign's mean temperature) where the named cause and each rival
     predict most differently, at least :data:`POSE_SPACING_DEG` apart: per pose the joints,
     the directions and, per rival, the expected difference (mm) and that difference over

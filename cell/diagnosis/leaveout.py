@@ -45,6 +45,17 @@ def by_group(group: np.ndarray, n_groups: int, dims: int) -> np.ndarray:
     return out
 
 
+def blocks(Js: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, dims: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each group's rows of the design ``Js`` and the residual ``r`` side by side, zero-padded
+    to one length (:func:`by_group`): (Jg (G, R, n), rg (G, R), pad (G, R) True where
+    padded)."""
+    idx = by_group(group, n_groups, dims)
+    pad = idx < 0
+    safe = np.where(pad, 0, idx)
+    return np.where(pad[..., None], 0.0, Js[safe]), np.where(pad, 0.0, r[safe]), pad
+
+
 def _sizes(pad: np.ndarray, dims: int, per: str) -> np.ndarray:
     n = (~pad).sum(1).astype(float)
     return n / dims if per == "point" else n
@@ -58,13 +69,9 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
     (padded blocks); a singular ``I − H_gg`` gives inf."""
     Js, scale = scaled(J)
     Ainv = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
-    idx = by_group(group, n_groups, dims)
-    pad = idx < 0
-    safe = np.where(pad, 0, idx)
-    Jg = np.where(pad[..., None], 0.0, Js[safe])                 # (G, R, n)
-    rg = np.where(pad, 0.0, r[safe])                             # (G, R)
+    Jg, rg, pad = blocks(Js, r, group, n_groups, dims)          # (G, R, n), (G, R)
     H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
-    I = np.broadcast_to(np.eye(idx.shape[1]), H.shape)
+    I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
     try:
         loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
     except np.linalg.LinAlgError:
@@ -95,11 +102,7 @@ class Folds:
 
     def __init__(self, Js: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int,
                  base: int = 0, dims: int = 3, per: str = "point", ridge: float = 0.0):
-        idx = by_group(group, n_groups, dims)
-        pad = idx < 0
-        safe = np.where(pad, 0, idx)
-        self.Jg = np.where(pad[..., None], 0.0, Js[safe])            # (F, R, n)
-        self.rg = np.where(pad, 0.0, r[safe])                         # (F, R)
+        self.Jg, self.rg, pad = blocks(Js, r, group, n_groups, dims)  # (F, R, n), (F, R)
         self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
         self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
         self.Gt, self.bt = self.G.sum(0), self.b.sum(0)

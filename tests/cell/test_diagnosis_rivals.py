@@ -13,7 +13,7 @@ import pytest
 
 from cell import effects as fx
 from cell.diagnosis import crossval, diagnose, render_text
-from cell.diagnosis.places import places
+from cell.diagnosis.places import N_POSES, places
 from cell.measurements import FORMAT, Campaign, CameraSpec, ModelSpec
 from cell.robots import PRESETS
 from cell.sim.campaigns import Design, effect_dicts
@@ -92,7 +92,7 @@ def test_an_ambiguous_answer_names_its_rivals_and_where_to_measure_next():
     assert any(r["label"] == "backlash[j2]" and not r["testable"] and "direction" in r["why"]
                for r in c["rivals"]), c["rivals"]
     poses = c["separating_poses"]
-    assert len(poses) <= crossval.N_POSES and bool(poses) == bool(tested)
+    assert len(poses) <= N_POSES and bool(poses) == bool(tested)
     (lo1, hi1), (lo2, hi2) = PRESETS["seed000"].limits[:2]
     for pz in poses:
         assert lo1 < pz["j1_deg"] < hi1 and lo2 < pz["j2_deg"] < hi2

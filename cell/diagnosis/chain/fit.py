@@ -25,7 +25,7 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis import leaveout
-from cell.diagnosis.leaveout import Folds, scaled
+from cell.diagnosis.leaveout import scaled
 from cell.diagnosis.places import folds as place_folds
 import cell.kinematics as kin
 from cell.kinematics import identifiable
@@ -297,7 +297,8 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                 g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
             term = fx.CHAIN_EFFECTS[p.effect].chain.term
             if term is not None:
-                poses = poses or _poses(d)
+                if poses is None:
+                    poses = _poses(d)
                 g = g * term(poses, p.joint)[d.obs_pose][:, None]
             g = kept[p] = g[:, :, None]
         blocks.append(g)
@@ -457,12 +458,8 @@ def _uncertainty(d: Data, f: Fit) -> None:
     f.cv_pose = f.cv_fold
     if d.folds()[1] < d.n_poses:
         _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses)
-    Js = f.J / scale
-    idx = leaveout.by_group(d.obs_pose, d.n_poses, 3)
-    pad = idx < 0
-    safe = np.where(pad, 0, idx)
-    Jg = np.where(pad[..., None], 0.0, Js[safe])
-    S = (Jg.transpose(0, 2, 1) @ np.where(pad, 0.0, r[safe])[..., None])[..., 0]
+    Jg, rg, _ = leaveout.blocks(f.J / scale, r, d.obs_pose, d.n_poses, 3)
+    S = (Jg.transpose(0, 2, 1) @ rg[..., None])[..., 0]
     G = d.n_poses
     corr = G / (G - 1) if G > 1 else 1.0
     cov = corr * Ainv @ (S.T @ S) @ Ainv / np.outer(scale, scale)
@@ -510,27 +507,25 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     nr = n_registration(d)
     span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
                                identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))
-    kept = [allp[i] for i in span.kept]
-    kept_cols = [J[:, nr + i] / np.linalg.norm(J[:, nr + i]) for i in span.kept]
+    unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])
+            for i in range(len(allp)) if np.isfinite(span.left[i])}
     dropped: dict[str, str] = {}
     warnings: list[str] = []
     for i, p in enumerate(allp):
         left = span.left[i]
-        if not np.isfinite(left):
+        if i not in unit:
             dropped[p.name] = "has no effect on the measured points"
         elif i not in span.kept:
-            v = J[:, nr + i] / np.linalg.norm(J[:, nr + i])
-            if span.outside(v, span.Q0) < STRUCTURAL_TOL:
+            if span.outside(unit[i], span.Q0) < STRUCTURAL_TOL:
                 dropped[p.name] = "absorbed by the registration (sensor frame / marker positions)"
             else:
                 before = [k for k in span.kept if k < i]
                 dropped[p.name] = "seen only as a sum with " + ", ".join(
-                    _partners(v, [allp[k] for k in before],
-                              [kept_cols[span.kept.index(k)] for k in before]))
+                    _partners(unit[i], [allp[k] for k in before], [unit[k] for k in before]))
         elif 1.0 / left ** 2 > MAX_VIF:
             warnings.append(f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like the "
                             "registration or other parameters; they are hard to tell apart")
-    return Identifiability(kept, dropped, warnings)
+    return Identifiability([allp[i] for i in span.kept], dropped, warnings)
 
 
 def _partners(v: np.ndarray, kept: list[Param], cols: list[np.ndarray]) -> list[str]:

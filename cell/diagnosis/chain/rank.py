@@ -37,7 +37,8 @@ import numpy as np
 from cell.diagnosis import tie
 from cell.diagnosis.chain import drift
 from cell.diagnosis.chain import fit as F
-from cell.diagnosis.places import N_POSES, separating
+from cell.diagnosis.leaveout import Folds
+from cell.diagnosis.places import separating
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
 from cell.stats import wilcoxon_greater
 
@@ -86,9 +87,9 @@ class Screen:
         self.index = {p.name: self.nr + i for i, p in enumerate(pool)}
         Js, _ = F.scaled(J)
         r0 = f0.resid.ravel()
-        self.poses = F.Folds(Js, r0, d.obs_pose, d.n_poses, self.nr)
+        self.poses = Folds(Js, r0, d.obs_pose, d.n_poses, self.nr)
         fold, n = d.folds()
-        self.places = self.poses if n >= d.n_poses else F.Folds(Js, r0, fold, n, self.nr)
+        self.places = self.poses if n >= d.n_poses else Folds(Js, r0, fold, n, self.nr)
 
     def cols(self, params) -> list[int]:
         return list(range(self.nr)) + [self.index[p.name] for p in params]
@@ -259,9 +260,8 @@ def choose(s: Search) -> tie.Choice:
 
 def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     """The parameters of ``chosen`` that left-out places do not need: (name, p) where the
-    linearised model without the parameter is tied with it by the rule of
-    :func:`choose` (not worse by the one-sided Wilcoxon test over places at
-    :data:`ALPHA`, and within :data:`RIVAL_RATIO` of its leave-out rms): the campaign
+    linearised model without the parameter is tied with it over places by the rule of
+    both families (:func:`cell.diagnosis.tie.tied`): the campaign
     cannot tell whether the parameter is part of the cause. Empty when the poses do not
     sit at places, or at fewer than :data:`MIN_FOLDS` (screening has already asked the
     same over poses)."""
@@ -382,7 +382,7 @@ POSE_DRAWS = 4000     # configurations drawn inside the limits to choose them fr
 
 def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
                      noise_mm: float | None, seed: int = 0) -> list[dict]:
-    """Up to :data:`N_POSES` joint configurations where ``chosen`` and its ``rivals``
+    """Up to :data:`cell.diagnosis.places.N_POSES` joint configurations where ``chosen`` and its ``rivals``
     (each with its own registration) predict the measured points most differently:
     drawn inside each joint's limits (the campaign's own range where the model gives
     none), the pose whose smallest difference to any rival is largest first, then the
