@@ -26,6 +26,7 @@ from cell.diagnosis.places import places
 from cell.diagnosis.replay import DiagData
 from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG  # noqa: F401  (re-exported)
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C  # noqa: F401  (re-exported)
+from cell.stats import distinct
 
 
 def layout(d: DiagData) -> fx.Layout:
@@ -38,10 +39,10 @@ def layout(d: DiagData) -> fx.Layout:
     dirs_seen = [set(), set()]
     if p is not None:
         for j in range(2):
-            dirs_seen[j] |= set(np.unique(p.dirs[fit, j]).tolist()) - {0.0}
+            dirs_seen[j] |= set(distinct(p.dirs[fit, j]).tolist()) - {0.0}
     for m in fit_moves:
         for j in range(2):
-            dirs_seen[j] |= set(np.unique(fx.path_directions(m.cmd, m.dirs0)[:, j]).tolist()) - {0.0}
+            dirs_seen[j] |= set(distinct(fx.path_directions(m.cmd, m.dirs0)[:, j]).tolist()) - {0.0}
     temp = None if p is None or p.temp is None else np.asarray(p.temp[fit], float)
     groups = [places(p.cmd[fit]) if p is not None and np.any(fit) else np.zeros(0, int)]
     k = int(groups[0].max()) + 1 if len(groups[0]) else 0

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.stats import chi2_ppf, median
+from cell.stats import chi2_ppf, distinct, median
 
 NEIGHBOURS = 8
 MIN_POINTS = 20
@@ -95,7 +95,7 @@ def pooled(groups: np.ndarray, values: np.ndarray) -> tuple[float | None, int]:
     group of two. The planar and the chain diagnosis take their revisit noise from here."""
     values = np.asarray(values, dtype=float)
     ss, dof = 0.0, 0
-    for g in np.unique(groups[groups >= 0]):
+    for g in distinct(groups[groups >= 0]):
         x = values[groups == g]
         if len(x) > 1:
             ss += float(np.sum((x - x.mean(axis=0)) ** 2))

@@ -46,7 +46,7 @@ from cell.diagnosis import where as where_mod
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 from cell.kinematics import planar_xy
-from cell.stats import chi2_isf, median
+from cell.stats import chi2_isf, distinct, median
 
 ALPHA = 0.01
 MAX_SHARE = 0.25
@@ -204,11 +204,11 @@ def spread(fit_d: DiagData, max_order: int = 4) -> dict:
         Xn = X / nrm
         ev = np.linalg.eigvalsh(np.einsum("ij,ik->jk", Xn, Xn))     # σ² of Xn (no threads)
         cond = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
-    places = len(np.unique(np.floor(cmd / cell), axis=0))
-    distinct = len(np.unique(np.round(cmd, 6), axis=0))
+    places = len(distinct(np.floor(cmd / cell), axis=0))
+    n_distinct = len(distinct(np.round(cmd, 6), axis=0))
     few = places < X.shape[1] // 2 or not cond <= MAX_COND
     return {"places": int(places), "cell_deg": round(cell, 4), "cond": cond,
-            "distinct_poses": int(distinct), "rows": int(rows.n), "few": bool(few)}
+            "distinct_poses": int(n_distinct), "rows": int(rows.n), "few": bool(few)}
 
 
 def keep_all(d: DiagData, o: Outliers) -> tuple[np.ndarray, np.ndarray]:

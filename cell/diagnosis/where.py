@@ -37,6 +37,7 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis.replay import DiagData
+from cell.stats import distinct
 
 ANGLE_ORDERS = (1, 2, 3, 4)     # the harmonic orders the cyclic error is screened at
 SPEC_DEPENDS = ("constant", "angle", "direction", "time", "temperature", "position", "speed")
@@ -158,7 +159,7 @@ def analyse(d: DiagData, r_points: np.ndarray, r_paths: np.ndarray, keep=None) -
             models.append(("angle", jn, _stack(J, np.column_stack(
                 [np.ones(len(th)), th / 100.0, np.sin(k * np.radians(th)),
                  np.cos(k * np.radians(th))]))))
-        if set(np.unique(dirs[:, ji])) >= {-1.0, 1.0}:
+        if set(distinct(dirs[:, ji])) >= {-1.0, 1.0}:
             models.append(("direction", jn, _stack(J, np.column_stack([np.ones(len(th)),
                                                                       dirs[:, ji]]))))
     models.append(("position", None, B))

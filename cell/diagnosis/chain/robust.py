@@ -39,7 +39,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
 from cell.measurements.chain import MIN_MARKER_POSES
-from cell.stats import chi2_isf, median
+from cell.stats import chi2_isf, distinct, median
 
 ALPHA = 0.01          # a Gaussian point is flagged anywhere in the campaign with this probability
 MAX_SHARE = 0.05      # more flagged than this share of a set: systematic, none set aside
@@ -91,8 +91,8 @@ def _keep_markers(d: F.Data, out: np.ndarray) -> np.ndarray:
     if d.known_markers is not None or not out.any():
         return out
     out = out.copy()
-    for m in np.unique(d.obs_marker[out]):
-        left = np.unique(d.obs_pose[(d.obs_marker == m) & ~out])
+    for m in distinct(d.obs_marker[out]):
+        left = distinct(d.obs_pose[(d.obs_marker == m) & ~out])
         if len(left) < MIN_MARKER_POSES:
             out[d.obs_marker == m] = False
     return out
