@@ -208,7 +208,7 @@ def fit_candidate(c: Candidate, fit_d: DiagData, hold_d: DiagData, n_total: int,
     kp = np.ones(rows.n, bool) if keep is None else np.asarray(keep, bool)
     sel_p = np.flatnonzero(kp[:rows.n_points])
     sel_q = rows.n_points + np.flatnonzero(kp[rows.n_points:])
-    n_p, n_q = 2 * len(sel_p), 2 * len(sel_q)
+    n_p = 2 * len(sel_p)
     tp0 = None
     if start is not None:
         tmpl, tp0, orders = list(start.effects), start.path_temp_c, dict(start.orders)

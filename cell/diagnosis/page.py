@@ -123,6 +123,13 @@ def num(v, nd: int = 4) -> str:
     return f"{v:.{nd}f}" if abs(v) >= 10 ** -nd or v == 0 else f"{v:.3g}"
 
 
+#: what the gap depends on (``gap.where.depends_on``), in the words of the summaries
+DEPENDS_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angle",
+                "direction": "depends on the approach direction", "time": "drifts with time",
+                "temperature": "follows the temperature", "position": "varies over the workspace",
+                "speed": "follows the joint speeds along the moves"}
+
+
 def describe_cause(c: dict) -> str:
     """The named cause in words, every fitted component: ``backlash on j2``,
     ``joint_offset on j1 + link_length on j1`` (text, page and action say the same)."""

@@ -147,7 +147,7 @@ def _approx(B: screen.Basis, sc: screen.Screened, n_rows: tuple[int, int]) -> Fi
     if len(sc.candidate) > 1:           # rms displacement of each component (linearised)
         G = B.fit[0].G + B.fit[1].G
         n = max(B.fit[0].n + B.fit[1].n, 1)
-        sizes, pos = [], 0
+        sizes = []
         for name, joints in sc.candidate:
             idx = [i for key in sc.keys if key[0] == name and (key[1] in joints or key[1] is None)
                    for i in B.cols[key]]

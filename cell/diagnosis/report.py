@@ -34,7 +34,7 @@ import numpy as np
 from cell.diagnosis import delay as delay_mod
 from cell.diagnosis import noise as noise_mod
 from cell.diagnosis import crossval, rank, robust, where as where_mod
-from cell.diagnosis.page import FORMAT, FORMAT_VERSION, describe_cause
+from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
 from cell.diagnosis.fit import (FitResult, TableStats, combined, component_sizes,
                                 hold_residuals)
 from cell.diagnosis.replay import DiagData, path_noise_mm, prepare, residuals
@@ -340,16 +340,10 @@ def _rivals(j: "crossval.Judgement | None", s: rank.Search) -> list[dict]:
     return out
 
 
-_VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angle",
-             "direction": "depends on the approach direction", "time": "drifts with time",
-             "temperature": "follows the temperature", "position": "varies over the workspace",
-             "speed": "follows the joint speeds along the moves"}
-
-
 def _summary(gap: TableStats, wh: where_mod.Where, cause: dict, rem: rank.Remainder) -> str:
     es = wh.effect_sizes.get(wh.depends_on, {})
     on = f" of {wh.joint}" if wh.joint else ""
-    s = (f"The gap (rms {gap.rms:.4f} mm over {gap.n} rows) {_VAR_TEXT[wh.depends_on]}{on}: "
+    s = (f"The gap (rms {gap.rms:.4f} mm over {gap.n} rows) {DEPENDS_TEXT[wh.depends_on]}{on}: "
          f"that alone explains {100 * es.get('r2', 0.0):.0f} % of its mean square")
     if cause["effect"] == "none":
         s += "; no effect of the vocabulary is supported beyond noise"
@@ -358,5 +352,5 @@ def _summary(gap: TableStats, wh: where_mod.Where, cause: dict, rem: rank.Remain
     if rem.unexplained:
         s += ", but most of the gap is left unexplained"
         if rem.where is not None:
-            s += f" (the remainder {_VAR_TEXT[rem.where.depends_on]})"
+            s += f" (the remainder {DEPENDS_TEXT[rem.where.depends_on]})"
     return s + "."

@@ -22,15 +22,12 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.chain import robust
 from cell.diagnosis.chain.noise import estimate
-from cell.diagnosis.page import FORMAT, FORMAT_VERSION
-from cell.diagnosis.page import describe_cause
+from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
 from cell.measurements import CampaignFormatError
 from cell.measurements.chain import ChainCampaign
 
 SPLIT_SEED = 20260501
 HOLDOUT_SHARE = 0.3
-_VAR_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angles",
-             "position": "varies with the arm's pose"}
 
 
 def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
@@ -186,7 +183,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     if cause["effect"] == "none":
         summary += "; no effect of the chain vocabulary is supported"
     else:
-        summary += f"; it {_VAR_TEXT[depends]} and the best-supported cause is {describe_cause(cause)}"
+        summary += f"; it {DEPENDS_TEXT[depends]} and the best-supported cause is {describe_cause(cause)}"
     summary += (", but most of it is left unexplained." if dec.unexplained else ".")
     n_reg = F.n_registration(fit_d)
     return ChainDiagnosis({
