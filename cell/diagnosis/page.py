@@ -190,7 +190,9 @@ def pose_words(pz: dict) -> str:
     """Where a separating pose is, in words: the chain's readings (``jK value``), or the
     planar joints with their approach directions (``j1 30.0° (+1), …``)."""
     if "readings" in pz:
-        return ", ".join(f"{k} {v:g}" for k, v in pz["readings"].items())
+        dirs = pz.get("dirs", {})
+        return ", ".join(f"{k} {v:g}" + (f" ({dirs[k]:+d})" if k in dirs else "")
+                         for k, v in pz["readings"].items())
     return (f"j1 {pz['j1_deg']:.1f}° ({pz['j1_dir']:+d}), "
             f"j2 {pz['j2_deg']:.1f}° ({pz['j2_dir']:+d})")
 

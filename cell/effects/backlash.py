@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, PLANAR_JOINTS, BothDirections, Effect,
-                               ParamSpec, grid)
+from cell.effects.base import (CALIBRATE_JOINT, PLANAR_JOINTS, BothDirections, Effect, OnChain,
+                               ParamSpec, Remedy, grid)
 
 
 def backlash(x, jidx, cmd_deg, dirs):
@@ -34,4 +34,10 @@ EFFECT = Effect(
     "direction", "lost motion: the joint depends on the approach direction", backlash, d_backlash,
     mimics=("joint_offset", "gear_ratio", "cyclic_error"),
     needs=(BothDirections(),),
-    remedy=CALIBRATE_JOINT)
+    remedy=CALIBRATE_JOINT,
+    chain=OnChain("all", "backlash_{unit}",
+                  remedy=Remedy("calibrate_joint", "Compensate the lost motion, or service the "
+                                "drive: {what}{on}."),
+                  term=lambda poses, k: -0.5 * poses.dirs[:, k],     # Δq_k = −dir_k·b/2
+                  unseen="no jK_dir column: the direction of the joint's last motion is "
+                         "not known"))

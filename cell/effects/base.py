@@ -193,10 +193,12 @@ class ChainPoses:
     """What a chain effect's joint term may read, per pose: ``q`` (P, J) the joints' model
     values (deg or mm: the readings with the model's zero and sign applied), ``levers``
     (P, J) m the gravity lever of each joint at the nominal pose (format, "Chain
-    effects")."""
+    effects"), ``dirs`` (P, J) the sign of each joint's last motion (``jK_dir``; 0
+    unknown)."""
 
     q: np.ndarray
     levers: np.ndarray
+    dirs: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -210,13 +212,16 @@ class OnChain:
     ``term(poses, k) -> (P,)``: the effect on joint k's value per unit of its parameter,
     Δq_k = value · term (:class:`ChainPoses`): the chain fitter's forward model and,
     being linear, its exact derivative. A ``"geometric"`` effect has none (its parameter
-    is the chain's own op offset); every other effect must give one."""
+    is the chain's own op offset); every other effect must give one. ``unseen``: why the
+    campaign cannot show the effect when its term is zero on every pose (what column it
+    lacks)."""
 
     joints: str
     stem: str = ""
     unit: str = "{unit}"
     remedy: Remedy | None = None
     term: Callable[[ChainPoses, int], np.ndarray] | None = field(default=None, repr=False)
+    unseen: str = ""
 
     def __post_init__(self):
         if (self.term is None) != (self.joints == "geometric"):

@@ -42,7 +42,9 @@ class ChainCampaign:
     ``readings`` (P, J) joint readings (deg / mm) per pose; ``pose_ids`` their ``sample``;
     ``split`` (P,) "fit"/"holdout" or None; ``obs_pose`` / ``obs_marker`` (M,) index of the
     pose and marker of each measured point, ``xyz`` (M, 3) in ``measurement_frame``;
-    ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point."""
+    ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point;
+    ``dirs`` (P, J) the sign of each joint's last motion before the pose (``jK_dir``, 0 where
+    the campaign has no column for the joint), None without any ``jK_dir`` column."""
 
     spec: ChainSpec
     chain: Chain
@@ -57,6 +59,7 @@ class ChainCampaign:
     source: str = ""
     directory: Path | None = None
     extra: dict = field(default_factory=dict)
+    dirs: np.ndarray | None = None
 
     @property
     def n_poses(self) -> int:
@@ -162,6 +165,7 @@ def _columns(n_joints: int) -> dict[str, tuple[str, bool]]:
     cols |= {"marker": ("int", False), "x_mm": ("float", True), "y_mm": ("float", True),
              "z_mm": ("float", True), "split": ("split", False), "temp_c": ("float", False),
              "payload_kg": ("float", False)}
+    cols |= {f"j{k}_dir": ("dir", False) for k in range(1, n_joints + 1)}
     return cols
 
 
@@ -231,6 +235,12 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
         if split is not None and split[i] != split[first[order[p]]]:
             raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on the split",
                                       line=lines[i], column="split")
+        for k in range(chain.n_joints):
+            col = t.get(f"j{k + 1}_dir")
+            if col is not None and col[i] != col[first[order[p]]]:
+                raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on "
+                                              f"j{k + 1}_dir (the markers of one pose share its "
+                                              "approach)", line=lines[i], column=f"j{k + 1}_dir")
     _check_limits(pp, chain, q, lines)
     check_places(pp, readings, ids[order].tolist(), [lines[int(first[o])] for o in order],
                  [j.column for j in chain.joints])
@@ -254,8 +264,14 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
     mi = np.searchsorted(markers, marker)
     xyz = np.column_stack([t["x_mm"], t["y_mm"], t["z_mm"]])
     extra = {k: t[k] for k in ("time_s", "temp_c", "payload_kg") if k in t}
+    dirs = None
+    if any(f"j{k}_dir" in t for k in range(1, chain.n_joints + 1)):
+        dirs = np.zeros_like(readings)
+        for k in range(chain.n_joints):
+            if f"j{k + 1}_dir" in t:
+                dirs[:, k] = t[f"j{k + 1}_dir"][first[order]]
     return ChainCampaign(spec, chain, readings, ids[order], pose_split, pose, mi, xyz, markers,
-                         lines, spec.source or str(d), d, extra)
+                         lines, spec.source or str(d), d, extra, dirs)
 
 
 def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpec | None = None,
@@ -272,12 +288,15 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
         nj = c.chain.n_joints
         head = ["sample"] + [f"j{k}" for k in range(1, nj + 1)] + ["marker", "x_mm", "y_mm", "z_mm"]
         head += ["split"] if c.split is not None else []
+        dir_cols = [] if c.dirs is None else [k for k in range(nj) if np.any(c.dirs[:, k])]
+        head += [f"j{k + 1}_dir" for k in dir_cols]
         out = [",".join(head)]
         for i in range(len(c.xyz)):
             p = c.obs_pose[i]
             row = [str(int(c.pose_ids[p]))] + [repr(float(v)) for v in c.readings[p]]
             row += [str(c.markers[c.obs_marker[i]])] + [repr(float(v)) for v in c.xyz[i]]
             row += [c.split[p]] if c.split is not None else []
+            row += [str(int(c.dirs[p, k])) for k in dir_cols]
             out.append(",".join(row))
         (tmp / "points.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
     return d

@@ -8,7 +8,10 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
 
 * vocabulary: ``offset`` {joint: deg}, ``a``/``d``/``alpha`` {joint: mm or deg} (DH
   parameter errors), ``ratio`` {joint: relative}, ``sag`` {joint: deg per m of the
-  gravity lever of a unit load at the tool point, taken on the nominal arm};
+  gravity lever of a unit load at the tool point, taken on the nominal arm},
+  ``backlash`` {joint: total lost-motion width b, deg}: the joint trails its reading by
+  b/2 against the direction of its last motion (``dirs`` per pose, the format's
+  ``jK_dir``: θ = θ_reading − dir·b/2);
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
   the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading),
@@ -41,8 +44,9 @@ def dh_matrix(theta_deg: float, d: float, a: float, alpha_deg: float, modified: 
                      [0.0, 0.0, 0.0, 1.0]])
 
 
-def _chain(rows, q, modified, eff, pose_index, n_poses):
-    """(list of 4×4 joint frames, tip 4×4) for one pose with the effects applied."""
+def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None):
+    """(list of 4×4 joint frames, tip 4×4) for one pose with the effects applied; ``dirs``
+    the sign of each joint's last motion (None: unknown, the centre of a backlash band)."""
     T = np.eye(4)
     frames = []
     for k, r in enumerate(rows):
@@ -54,6 +58,8 @@ def _chain(rows, q, modified, eff, pose_index, n_poses):
         if pose_index >= n_poses // 2:
             qk += eff.get("bump", {}).get(name, 0.0)
         qk += eff.get("_sag_dq", {}).get(name, 0.0)
+        if dirs is not None:
+            qk -= dirs[k] * eff.get("backlash", {}).get(name, 0.0) / 2.0
         if name in eff.get("cyclic", {}):
             amp, cycles, phase = eff["cyclic"][name]
             qk += amp * math.sin(cycles * q[k] * DEG + phase * DEG)
@@ -70,8 +76,10 @@ def _chain(rows, q, modified, eff, pose_index, n_poses):
     return frames, T
 
 
-def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, gravity=(0, 0, -1)):
-    """Base-frame positions (K, 3) of ``markers`` (K, 3, tip frame) on one pose."""
+def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, gravity=(0, 0, -1),
+                dirs=None):
+    """Base-frame positions (K, 3) of ``markers`` (K, 3, tip frame) on one pose approached
+    from ``dirs`` (per joint ±1; None: unknown)."""
     eff = dict(eff)
     if eff.get("sag"):
         # the lever is taken on the nominal arm (the effect's definition; the deflected
@@ -87,7 +95,7 @@ def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, g
             lever_m = float(z @ np.cross(load - o, g)) / 1000.0
             dq[r["name"]] = eff["sag"][r["name"]] * lever_m
         eff["_sag_dq"] = dq
-    _, T = _chain(rows, q, modified, eff, pose_index, n_poses)
+    _, T = _chain(rows, q, modified, eff, pose_index, n_poses, dirs)
     out = np.array([T[:3, :3] @ np.asarray(m, float) + T[:3, 3] for m in markers])
     if eff.get("reach_sag"):
         reach_m = np.hypot(out[:, 0], out[:, 1]) / 1000.0
@@ -119,12 +127,14 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 def campaign_rows(rows, modified, readings, markers, eff, R, t, noise_mm, rng, tool_mm=(0, 0, 0),
-                  lens: float = 0.0) -> list[list]:
-    """points.csv rows ``[sample, j1..jN, marker, x, y, z]`` for every pose and marker."""
+                  lens: float = 0.0, dirs=None) -> list[list]:
+    """points.csv rows ``[sample, j1..jN, marker, x, y, z]`` for every pose and marker;
+    ``dirs`` (P, J) each pose's approach directions (None: unknown)."""
     out = []
     P = len(readings)
     for p, q in enumerate(readings):
-        pts = sensor_view(tool_points(rows, q, modified, tool_mm, markers, eff, p, P), R, t, lens)
+        pts = sensor_view(tool_points(rows, q, modified, tool_mm, markers, eff, p, P,
+                                      dirs=None if dirs is None else dirs[p]), R, t, lens)
         pts = pts + rng.normal(0.0, noise_mm, pts.shape)
         for m, x in enumerate(pts):
             out.append([p, *q, m + 1, *x])

@@ -44,7 +44,7 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
          seed: int = 0, sensor: bool = True, markers=MARKERS, rows=UR5, modified: bool = False,
          split: bool = False, model_extra: dict | None = None, lens: float = 0.0,
          repeats: int = 0, places: int = 0, jitter_deg: float = 3.0, outliers: int = 0,
-         outlier_mm: tuple[float, float] = (1.0, 5.0)) -> Path:
+         outlier_mm: tuple[float, float] = (1.0, 5.0), dirs: bool = False) -> Path:
     """Write a campaign with ``effects`` (see :mod:`cell.truth.chain`) to ``directory``:
     ``poses`` poses with readings uniform over ±150° (joint 2 in −160…−20°, the arm above
     its base), the last ``repeats`` of them revisiting earlier ones (same readings, new
@@ -53,7 +53,10 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     ``places`` > 0 gives a production-like layout instead: that many stations drawn as
     above, each pose one of them at random plus a jitter uniform in ±``jitter_deg`` per
     joint (revisits as before). ``outliers`` marker readings (a tracker's glitch) are moved
-    by ``outlier_mm`` (uniform) in a random direction, after the noise."""
+    by ``outlier_mm`` (uniform) in a random direction, after the noise. With ``dirs`` every
+    pose is approached from a random side per joint (±1, from a stream of its own) and
+    the ``jK_dir`` columns are written; without, the arm has no backlash to show (the
+    truth's backlash acts only where a direction is known)."""
     rng = np.random.default_rng(seed)
     if places:
         c = rng.uniform(-150, 150, (places, len(rows)))
@@ -69,7 +72,9 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
         q[poses - repeats:] = q[rng.choice(poses - repeats, repeats, replace=False)]
     R = truth.random_rotation(rng) if sensor else np.eye(3)
     t = rng.uniform(-800, 800, 3) if sensor else np.zeros(3)
-    data = truth.campaign_rows(rows, modified, q, markers, effects or {}, R, t, noise_mm, rng, lens=lens)
+    approach = np.random.default_rng([seed, 1]).choice((-1, 1), q.shape) if dirs else None
+    data = truth.campaign_rows(rows, modified, q, markers, effects or {}, R, t, noise_mm, rng,
+                               lens=lens, dirs=approach)
     if outliers:
         k = len(rows) + 2                              # x_mm's index in a data row
         for i in rng.choice(len(data), min(outliers, len(data)), replace=False):
@@ -83,11 +88,13 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
              "source": "cell.truth.chain_campaign: DH arm drawn by cell.truth.chain"} | (model_extra or {})
     head = ["sample"] + [f"j{k + 1}" for k in range(len(rows))] + ["marker", "x_mm", "y_mm", "z_mm"]
     head += ["split"] if split else []
+    head += [f"j{k + 1}_dir" for k in range(len(rows))] if dirs else []
     table = []
     for r in data:
         cells = [int(r[0])] + [float(v) for v in r[1:1 + len(rows)]] + [int(r[1 + len(rows)])]
         cells += [float(v) for v in r[2 + len(rows):]]
         cells += (["holdout" if r[0] % 3 == 0 else "fit"] if split else [])
+        cells += [int(v) for v in approach[int(r[0])]] if dirs else []
         table.append(cells)
     return files.write(directory, {"model.yaml": files.yaml_text(model),
                                    "points.csv": files.csv_text(head, table)})

@@ -269,7 +269,7 @@ def test_every_effect_is_one_complete_definition():
         if e.planar:
             assert e.deriv is not None and e.stage in fx.STAGES, name
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
-    assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio",
+    assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
                                       "gravity_compliance"]
 
 
@@ -277,10 +277,11 @@ def test_the_chain_vocabulary_comes_from_the_registry():
     from cell.diagnosis.chain import fit as chain_fit
     assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
     assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
-                                   "gear_ratio": "transmission",
+                                   "gear_ratio": "transmission", "backlash": "transmission",
                                    "gravity_compliance": "transmission"}
     assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
-                                    "gear_ratio": "angle", "gravity_compliance": "position"}
+                                    "gear_ratio": "angle", "backlash": "direction",
+                                    "gravity_compliance": "position"}
 
 
 def test_requirements_say_what_the_layout_lacks():
@@ -303,8 +304,11 @@ def test_requirements_say_what_the_layout_lacks():
 def test_a_chain_effect_on_a_joint_must_say_how_it_moves_the_joint():
     import pytest
     term = fx.REGISTRY["gear_ratio"].chain.term
-    poses = fx.ChainPoses(np.array([[10.0, -20.0], [30.0, 5.0]]), np.zeros((2, 2)))
+    poses = fx.ChainPoses(np.array([[10.0, -20.0], [30.0, 5.0]]), np.zeros((2, 2)),
+                          np.array([[1.0, -1.0], [0.0, 1.0]]))
     assert np.array_equal(term(poses, 1), [-20.0, 5.0])          # Δq_k = ε·q_k
+    backlash = fx.REGISTRY["backlash"].chain.term
+    assert np.array_equal(backlash(poses, 1), [0.5, -0.5])       # Δq_k = −dir_k·b/2
     with pytest.raises(ValueError, match="joint term"):
         fx.OnChain("all", "wobble_deg")                          # a joint effect without a term
     with pytest.raises(ValueError, match="joint term"):

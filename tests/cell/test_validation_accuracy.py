@@ -5,19 +5,21 @@ missing, gross outliers; cell/diagnosis/validate.py and cell/diagnosis/chain/val
 right / ambiguous (truth among the rivals) / ambiguous, truth missing / unexplained /
 wrong. Every golden number below was measured at the commit that set them (the cause chosen
 by predicting left-out places, untestable effects as rivals, pairs of the best three chain
-effects) with ``.venv/bin/python`` running exactly these runs:
+effects and the best with every other) with ``.venv/bin/python`` running exactly these runs:
 
 * planar, 120 vocabulary trials (seed 1, 200 poses), measured when motor_cyclic_error
   joined the vocabulary (its station layouts cannot test it: unexplained, not wrong):
   right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
   78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses): right 40, ambiguous 34, ambiguous with
-  the truth missing 3, unexplained 3, wrong 0; 36 of 38 intervals cover (measured after the
-  chain's outlier step, cell/diagnosis/chain/robust.py, by ``cellctl diagnose validate --chain
-  --trials 80 --seed 1``; before it: right 18, ambiguous 12, unexplained 50);
+* chain, 80 vocabulary trials (seed 1, 60 poses), measured when backlash joined the chain
+  vocabulary (half the campaigns record ``jK_dir``) by ``cellctl diagnose validate --chain
+  --trials 80 --seed 1``: right 39, ambiguous 39, ambiguous with the truth missing 1,
+  unexplained 1, wrong 0; 42 of 44 intervals cover (before, with other truths: right 40,
+  ambiguous 34, truth missing 3, unexplained 3; before the chain's outlier step,
+  cell/diagnosis/chain/robust.py: right 18, ambiguous 12, unexplained 50);
 * chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
-  13, ambiguous with the truth missing 10, right (none) 1, wrong 0 (before the outlier step:
+  12, ambiguous with the truth missing 11, right (none) 1, wrong 0 (before the outlier step:
   unexplained 19, wrong 1; glitches had made most of them unexplained).
 
 Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
@@ -26,8 +28,10 @@ truth named or among the rivals by 5, so the decision logic can move a few answe
 Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
-cell/effects/joint_offset.py: right 56, unexplained 25; the chain's joint effects in cell/kinematics/evaluate.py
-forward(): right 7, wrong 7; the twist in cell/kinematics/evaluate.py: right 4, wrong 4).
+cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
+in cell/kinematics/evaluate.py forward(): right 11, unexplained 53; the twist in
+cell/kinematics/evaluate.py: right 8, unexplained 68; both also leave fewer than 15
+intervals to check).
 """
 import math
 
@@ -104,9 +108,9 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 40 - 5, v
-    assert v["right"] + v["ambiguous"] >= 74 - 5, v
-    assert v["unexplained"] <= 3 + 5, v
+    assert v["right"] >= 39 - 5, v
+    assert v["right"] + v["ambiguous"] >= 78 - 5, v
+    assert v["unexplained"] <= 1 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 
 
@@ -118,4 +122,4 @@ def test_chain_outside_the_vocabulary():
     s = chain.summarise(chain.run(24, SEED, outside_share=1.0))
     v = s["outside_verdicts"]
     assert sum(v.values()) == 24 and v["wrong"] == 0, s["wrong"]
-    assert v["unexplained"] >= 13 - 3, v
+    assert v["unexplained"] >= 12 - 3, v

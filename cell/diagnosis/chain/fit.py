@@ -91,8 +91,9 @@ def _take(frames, rows: np.ndarray):
 @dataclass
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
-    lever of each joint at the nominal pose; ``frames`` the nominal forward kinematics of
-    the poses (:meth:`nominal_frames`), None until asked."""
+    lever of each joint at the nominal pose; ``dirs`` (P, J) the sign of each joint's last
+    motion (0: unknown); ``frames`` the nominal forward kinematics of the poses
+    (:meth:`nominal_frames`), None until asked."""
 
     chain: Chain
     readings: np.ndarray
@@ -103,12 +104,15 @@ class Data:
     sensor: bool
     known_markers: np.ndarray | None
     levers: np.ndarray
+    dirs: np.ndarray | None = None
     place: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if self.dirs is None:
+            self.dirs = np.zeros_like(self.readings)
         if self.place is None:
             self.place = place_folds(self.readings)[0]
 
@@ -139,17 +143,18 @@ class Data:
         frames = kin.forward(cc.chain, cc.readings, keep=True)
         d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
-                _levers(cc.chain, frames), frames=frames)
+                _levers(cc.chain, frames), cc.dirs, frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
-    def at(self, readings: np.ndarray) -> "Data":
-        """The same arm, markers and frame at other joint ``readings`` (P, J), every marker
-        on every pose, nothing measured (``xyz`` zero): for predicting, not fitting."""
+    def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
+        """The same arm, markers and frame at other joint ``readings`` (P, J) approached
+        from ``dirs`` (P, J; None: unknown), every marker on every pose, nothing measured
+        (``xyz`` zero): for predicting, not fitting."""
         P, m = len(readings), max(self.n_markers, 1)
         frames = kin.forward(self.chain, readings, keep=True)
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, frames), np.arange(P), frames)
+                    _levers(self.chain, frames), dirs, np.arange(P), frames)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -158,7 +163,7 @@ class Data:
         rows = pose_mask[self.obs_pose]
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[keep], frames=_take(self.frames, keep))
+                    self.levers[keep], self.dirs[keep], frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
         """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
@@ -169,7 +174,8 @@ class Data:
         new[poses] = np.arange(int(poses.sum()))
         return Data(self.chain, self.readings[poses], new[self.obs_pose[keep]], self.obs_marker[keep],
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[poses], frames=_take(self.frames, np.flatnonzero(poses)))
+                    self.levers[poses], self.dirs[poses],
+                    frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
     def n_poses(self) -> int:
@@ -238,7 +244,7 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _poses(d: Data) -> fx.ChainPoses:
-    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers)
+    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers, d.dirs)
 
 
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray) -> tuple[dict[int, float], np.ndarray]:
@@ -514,7 +520,8 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     for i, p in enumerate(allp):
         left = span.left[i]
         if i not in unit:
-            dropped[p.name] = "has no effect on the measured points"
+            dropped[p.name] = fx.CHAIN_EFFECTS[p.effect].chain.unseen \
+                or "has no effect on the measured points"
         elif i not in span.kept:
             if span.outside(unit[i], span.Q0) < STRUCTURAL_TOL:
                 dropped[p.name] = "absorbed by the registration (sensor frame / marker positions)"

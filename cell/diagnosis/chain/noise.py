@@ -8,11 +8,12 @@ Two estimates of σ per axis (mm) of one measured point:
   3·n − 6 degrees of freedom of pure sensor noise for a pose with n ≥ 3 markers, whatever
   the arm does: no kinematic error, drift or bump can show here.
 * **Revisited poses** (:func:`repeat_noise_mm`): poses measured again with identical joint
-  readings. Their scatter holds the sensor noise *and* the arm's repeatability, the floor
+  readings (and approach directions, where the campaign records them). Their scatter holds the sensor noise *and* the arm's repeatability, the floor
   no kinematic model can go below, but also anything that changed between the visits.
 
-Every effect of the chain vocabulary is a function of the joint readings, so two visits
-with the same readings must agree. :func:`revisits_disagree` tests whether their scatter
+Every effect of the chain vocabulary is a function of the joint readings and the
+directions the joints last moved in, so two visits with the same readings and directions
+must agree. :func:`revisits_disagree` tests whether their scatter
 exceeds the sensor noise by more than chance (one-sided F test of the two variances): then the
 arm did not come back to where it was (poor repeatability, drift, a step during the
 campaign), which the vocabulary cannot explain.
@@ -32,13 +33,14 @@ DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this sign
 
 def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
                     ) -> tuple[float | None, int, int]:
-    """σ per axis from poses revisited with identical readings, each marker's points a
+    """σ per axis from poses revisited with identical readings (and ``jK_dir``), each marker's points a
     group of their own (:func:`cell.diagnosis.noise.pooled`, as the planar diagnosis pools
     its revisits); the number of revisited poses' groups and the degrees of freedom;
     (None, 0, 0) without repeats. ``keep`` (M,) marks the points to use (default all:
     outliers set aside are not)."""
-    _, n_groups = revisits(cc.readings)
-    label, _ = revisits(np.column_stack([cc.readings[cc.obs_pose], cc.obs_marker]))
+    visits = cc.readings if cc.dirs is None else np.column_stack([cc.readings, cc.dirs])
+    _, n_groups = revisits(visits)
+    label, _ = revisits(np.column_stack([visits[cc.obs_pose], cc.obs_marker]))
     if keep is not None:
         label = np.where(keep, label, -1)
     sigma, dof = pooled(label, cc.xyz)

@@ -7,8 +7,10 @@
    registration-only Jacobian (forward while the leave-one-pose-out prediction error
    drops, then backward while a removal costs nothing significant over poses). Cheap:
    one linear solve per try.
-4. **Full non-linear fits** of each effect's selection, and of every pair of the best
-   :data:`PAIR_TOPS` effects together (their pools screened jointly).
+4. **Full non-linear fits** of each effect's selection, of every pair of the best
+   :data:`PAIR_TOPS` effects, and of the best effect paired with every other effect the
+   campaign can see (their pools screened jointly: a second effect too small to rank
+   alone still joins the first).
 5. **Decision**: an effect exists when the candidate with the lowest leave-out error
    predicts poses left out one at a time better than registration alone, by a one-sided
    Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
@@ -194,14 +196,18 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         if picks[e]:
             ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep))
     ranking.sort(key=lambda c: c.fit.cv_rms)
-    tops = [c.effects[0] for c in ranking[:PAIR_TOPS]]
-    for i, a in enumerate(tops):
-        for b in tops[i + 1:]:
-            ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
-            both = screen(fit_d, f0, ident.kept)
-            if {p.effect for p in both} == {a, b}:
-                ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident,
-                                          hold_keep))
+    # singles by their leave-out error, then the effects that picked nothing alone
+    order = [c.effects[0] for c in ranking]
+    order += [e for e in effects if e in idents and idents[e].kept and e not in order]
+    pairs = {tuple(sorted((a, b), key=order.index)) for a in order[:PAIR_TOPS]
+             for b in order[:PAIR_TOPS] if b != a}
+    pairs |= {(order[0], b) for b in order[1:]}
+    for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
+        ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
+        both = screen(fit_d, f0, ident.kept)
+        if {p.effect for p in both} == {a, b}:
+            ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident,
+                                      hold_keep))
     ranking.sort(key=lambda c: c.fit.cv_rms)
     return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep)
 
@@ -291,7 +297,10 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     from over places (:func:`choose`) that also passes is named: a cause with more parameters must
     predict left-out poses better, not fit the fit poses better. Tied candidates that are
     neither the named cause nor a larger model containing it are its ``rivals``; so is a
-    scale error of the measuring instrument that predicts as well."""
+    scale error of the measuring instrument that predicts as well. A named cause with a
+    parameter that the registration and the other parameters almost absorb (variance
+    inflation above :data:`cell.diagnosis.chain.fit.MAX_VIF`) is not confident: the
+    campaign hardly sees it apart from them."""
     f0 = s.nominal.fit
     notes: list[str] = []
     best = s.ranking[0] if s.ranking else None
@@ -317,6 +326,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     for name, pv in unsupported(s, chosen) if chosen is not None else []:
         warnings.append(f"{name} is not needed to predict left-out places (p = {pv:.2g} over "
                         f"{n_folds} places): the campaign cannot tell whether it is part of the cause")
+    if chosen is not None and chosen.ident is not None:       # a parameter hardly seen
+        named = {p.name for p in chosen.fit.params}
+        warnings += [w for w in chosen.ident.warnings if w.split(":", 1)[0] in named]
     if chosen is not None and n_folds < MIN_FOLDS:
         warnings.append(f"the fit poses lie at {n_folds} place(s): no cause can be checked on "
                         "places it was not fitted on")
@@ -387,8 +399,9 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
     drawn inside each joint's limits (the campaign's own range where the model gives
     none), the pose whose smallest difference to any rival is largest first, then the
     next at least a fifth of the joints' ranges away. Per pose the readings (``jK``), the
-    expected largest point difference (mm) per rival and, with a noise reference, that
-    difference over σ per axis."""
+    approach directions (``dirs``, for the joints whose ``jK_dir`` the campaign records,
+    drawn ±1), the expected largest point difference (mm) per rival and, with a noise
+    reference, that difference over σ per axis."""
     if not rivals or chosen is None:
         return []
     d = s.fit_d
@@ -400,7 +413,9 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
             lo[k], hi[k] = j.lower, j.upper
     span = np.where(hi > lo, hi - lo, 1.0)
     q = lo + rng.random((POSE_DRAWS, len(lo))) * (hi - lo)
-    syn = d.at(q)
+    seen = np.any(d.dirs != 0, axis=0)            # joints whose approach the campaign records
+    dirs = np.where(seen, rng.choice((-1.0, 1.0), q.shape), 0.0) if seen.any() else None
+    syn = d.at(q, dirs)
     m = max(d.n_markers, 1)
 
     def predict(c: Candidate) -> np.ndarray:
@@ -408,6 +423,9 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
         return y.reshape(len(q), m, 3)
     base = predict(chosen)
     diffs = np.stack([np.linalg.norm(base - predict(c), axis=2).max(axis=1) for c in rivals], 1)
-    return separating(q / span, diffs, [c.label for c in rivals], noise_mm, 0.2,
-                      lambda i: {"readings": {j.column: round(float(v), 3)
-                                              for j, v in zip(d.chain.joints, q[i])}})
+    def where(i: int) -> dict:
+        e = {"readings": {j.column: round(float(v), 3) for j, v in zip(d.chain.joints, q[i])}}
+        if dirs is not None:
+            e["dirs"] = {j.column: int(dirs[i, k]) for k, j in enumerate(d.chain.joints) if seen[k]}
+        return e
+    return separating(q / span, diffs, [c.label for c in rivals], noise_mm, 0.2, where)

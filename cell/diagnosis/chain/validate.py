@@ -9,7 +9,10 @@ tracker at a random unknown pose, at 3 markers at unknown places on the hand; ``
 poses (default 60) of which a tenth (at least 3) revisit earlier ones; σ per axis uniform
 in 0.02–0.05 mm. **Layouts**: ``realistic`` (default; its own stream per trial): the poses
 cluster at 3–12 stations with ±3° jitter per joint, and 0–2 marker readings are gross
-outliers (1–5 mm); ``uniform``: readings uniform over ±150°, no outliers.
+outliers (1–5 mm); ``uniform``: readings uniform over ±150°, no outliers. Either way half
+of the campaigns (by a stream of their own) record the approach directions ``jK_dir``,
+each pose approached from a random side per joint; every campaign whose truth holds a
+backlash does.
 
 **Truths**, from each trial's own seed, uniformly among ``none`` and the vocabulary:
 
@@ -19,6 +22,9 @@ outliers (1–5 mm); ``uniform``: readings uniform over ±150°, no outliers.
   registration and from each other (a of j2, j3; α of j2, j3, j4; d of j5), 0.2–2 mm or
   0.02–0.2°;
 * ``gear_ratio``: j2 or j3, 3·10⁻⁴–2·10⁻³ relative;
+* ``backlash``: j2 or j3, a lost-motion width of 0.02–0.1° (its campaign records every
+  joint's approach direction, ``jK_dir``: without them the format places each joint at the
+  centre of its band and there is no backlash to see);
 * ``gravity_compliance``: j2, or j2 and j3, 0.1–0.5 °/m each.
 
 In the realistic layout a quarter of the effect trials carry a second effect of another
@@ -112,6 +118,10 @@ def draw(rng: np.random.Generator, kind: str) -> Truth:
         j = str(rng.choice(["j2", "j3"]))
         x = _size(rng, 3e-4, 2e-3)
         return Truth(kind, (j,), {"ratio": {j: x}}, 0.0, {f"{j}_gear_ratio_rel": x})
+    if kind == "backlash":
+        j = str(rng.choice(["j2", "j3"]))
+        x = float(rng.uniform(0.02, 0.1))
+        return Truth(kind, (j,), {"backlash": {j: x}}, 0.0, {f"{j}_backlash_deg": x})
     if kind == "gravity_compliance":
         js = ["j2"] if rng.random() < 0.5 else ["j2", "j3"]
         v = {j: float(rng.uniform(0.1, 0.5)) for j in js}
@@ -162,12 +172,13 @@ def draw_second(rng: np.random.Generator, first: Truth) -> Truth:
 
 def draw_layout(tseed: int, layout: str) -> dict:
     """Keyword arguments of :func:`cell.truth.chain_campaign.make` for trial seed ``tseed``'s
-    layout (module docstring), from a stream of its own."""
+    layout (module docstring), from streams of its own."""
+    dirs = bool(np.random.default_rng([tseed, 4]).random() < 0.5)
     if layout == "uniform":
-        return {}
+        return {"dirs": dirs}
     rng = np.random.default_rng([tseed, 3])
     return {"places": int(rng.integers(3, 13)), "jitter_deg": 3.0,
-            "outliers": int(rng.integers(0, 3))}
+            "outliers": int(rng.integers(0, 3)), "dirs": dirs}
 
 
 def _covered(truth: Truth, ci95: dict) -> tuple[int, int]:
@@ -195,6 +206,7 @@ def run_trial(i: int, seed: int, poses: int = 60, outside_share: float = 0.0,
             and np.random.default_rng([tseed, 5]).random() < TWO_SHARE:
         truth = draw_second(np.random.default_rng([tseed, 6]), truth)
     lay = draw_layout(tseed, layout)
+    lay["dirs"] = lay["dirs"] or "backlash" in truth.effects
     with tempfile.TemporaryDirectory(prefix="cell-chain-validate-") as tmp:
         d = make(Path(tmp) / "campaign", truth.effects, poses=poses, noise_mm=noise, seed=tseed,
                  markers=MARKERS, lens=truth.lens, repeats=max(3, poses // 10), **lay)

@@ -75,11 +75,14 @@ def test_every_jacobian_column_matches_finite_differences(tmp_path):
     y0, J = F.model(data, reg, params, v0, jac=True)
     nr = F.n_registration(data)
     h = 1e-6
-    for i in range(len(params)):
-        v = v0.copy()
+    for i in range(len(params)):              # central differences: a gear ratio's curvature
+        v = v0.copy()                         # (q² · the arm's reach) spoils a one-sided one
         v[i] += h
         y1, _ = F.model(data, reg, params, v)
-        assert np.allclose((y1 - y0).ravel() / h, J[:, nr + i], atol=1e-4, rtol=1e-4), params[i].name
+        v[i] -= 2 * h
+        y2, _ = F.model(data, reg, params, v)
+        assert np.allclose((y1 - y2).ravel() / (2 * h), J[:, nr + i], atol=1e-4, rtol=1e-4), \
+            params[i].name
     # registration columns: translation and markers exactly, the rotation as a left twist
     for i in range(nr):
         step = np.zeros(nr + len(params))
