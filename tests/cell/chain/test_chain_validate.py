@@ -106,3 +106,12 @@ def test_a_cause_with_a_parameter_the_registration_almost_absorbs_is_not_confide
     t = validate.run_trial(8, 0, outside_share=1.0)
     assert t.true_effect == "cyclic" and t.outside
     assert t.verdict != "wrong" and t.confidence != "high", (t.answer_label, t.confidence)
+
+
+def test_a_second_effect_too_small_to_rank_alone_still_joins_the_best():
+    # source: with pairs only among the best three singles, trial 76 of `cellctl diagnose
+    # validate --chain --trials 100 --seed 0` (gear ratio on j3 + a 0.07° offset on j5, whose
+    # offset alone ranked nowhere) was named gear_ratio + link_length with confidence high
+    t = validate.run_trial(76, 0)
+    assert t.truth_label == "gear_ratio[j3] + joint_offset[j5]"
+    assert t.verdict == "right", (t.answer_label, t.confidence)
