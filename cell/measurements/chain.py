@@ -222,6 +222,7 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
     rank[order] = np.arange(len(order))
     pose = rank[inv]
     readings = q[first[order]]
+    dir_cols = {k: t[f"j{k + 1}_dir"] for k in range(chain.n_joints) if f"j{k + 1}_dir" in t}
     seen: set[tuple[int, int]] = set()
     for i, (p, m) in enumerate(zip(pose.tolist(), marker.tolist())):
         if (p, m) in seen:
@@ -235,9 +236,8 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
         if split is not None and split[i] != split[first[order[p]]]:
             raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on the split",
                                       line=lines[i], column="split")
-        for k in range(chain.n_joints):
-            col = t.get(f"j{k + 1}_dir")
-            if col is not None and col[i] != col[first[order[p]]]:
+        for k, col in dir_cols.items():
+            if col[i] != col[first[order[p]]]:
                 raise CampaignFormatError(pp, f"rows of sample {int(ids[order[p]])} disagree on "
                                               f"j{k + 1}_dir (the markers of one pose share its "
                                               "approach)", line=lines[i], column=f"j{k + 1}_dir")
@@ -265,11 +265,10 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
     xyz = np.column_stack([t["x_mm"], t["y_mm"], t["z_mm"]])
     extra = {k: t[k] for k in ("time_s", "temp_c", "payload_kg") if k in t}
     dirs = None
-    if any(f"j{k}_dir" in t for k in range(1, chain.n_joints + 1)):
+    if dir_cols:
         dirs = np.zeros_like(readings)
-        for k in range(chain.n_joints):
-            if f"j{k + 1}_dir" in t:
-                dirs[:, k] = t[f"j{k + 1}_dir"][first[order]]
+        for k, col in dir_cols.items():
+            dirs[:, k] = col[first[order]]
     return ChainCampaign(spec, chain, readings, ids[order], pose_split, pose, mi, xyz, markers,
                          lines, spec.source or str(d), d, extra, dirs)
 

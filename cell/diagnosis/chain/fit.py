@@ -494,12 +494,12 @@ def predict_rms(d: Data, f: Fit, keep: np.ndarray | None = None) -> tuple[float,
 @dataclass
 class Identifiability:
     """Which of a parameter pool the data can see beside registration: ``kept`` in
-    priority order; ``dropped`` name → reason; ``warnings`` for kept parameters that
-    registration (or the others) almost absorb."""
+    priority order; ``dropped`` name → reason; ``warnings`` name → warning for the kept
+    parameters that registration (or the others) almost absorb."""
 
     kept: list[Param]
     dropped: dict[str, str]
-    warnings: list[str]
+    warnings: dict[str, str]
 
 
 def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: list[Param] = ()
@@ -516,7 +516,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])
             for i in range(len(allp)) if np.isfinite(span.left[i])}
     dropped: dict[str, str] = {}
-    warnings: list[str] = []
+    warnings: dict[str, str] = {}
     for i, p in enumerate(allp):
         left = span.left[i]
         if i not in unit:
@@ -530,8 +530,8 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
                 dropped[p.name] = "seen only as a sum with " + ", ".join(
                     _partners(unit[i], [allp[k] for k in before], [unit[k] for k in before]))
         elif 1.0 / left ** 2 > MAX_VIF:
-            warnings.append(f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like the "
-                            "registration or other parameters; they are hard to tell apart")
+            warnings[p.name] = (f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like "
+                                "the registration or other parameters; they are hard to tell apart")
     return Identifiability([allp[i] for i in span.kept], dropped, warnings)
 
 

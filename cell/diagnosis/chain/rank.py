@@ -327,8 +327,8 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         warnings.append(f"{name} is not needed to predict left-out places (p = {pv:.2g} over "
                         f"{n_folds} places): the campaign cannot tell whether it is part of the cause")
     if chosen is not None and chosen.ident is not None:       # a parameter hardly seen
-        named = {p.name for p in chosen.fit.params}
-        warnings += [w for w in chosen.ident.warnings if w.split(":", 1)[0] in named]
+        warnings += [chosen.ident.warnings[p.name] for p in chosen.fit.params
+                     if p.name in chosen.ident.warnings]
     if chosen is not None and n_folds < MIN_FOLDS:
         warnings.append(f"the fit poses lie at {n_folds} place(s): no cause can be checked on "
                         "places it was not fitted on")

@@ -137,7 +137,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     # "absorbed by the registration" does not depend on which pool a parameter was in
     not_ident = {n: why for e in s.idents.values() for n, why in e.dropped.items()}
     absorbed = {n: why for n, why in not_ident.items() if "registration" in why}
-    warnings = sorted({w for c in s.ranking[:1] if c.ident for w in c.ident.warnings})
+    warnings = sorted({w for c in s.ranking[:1] if c.ident for w in c.ident.warnings.values()})
     named = dec.chosen or s.nominal
     before, after = s.nominal.hold_rms, named.hold_rms
     shrink = 1 - after / before if before > 0 else 0.0
