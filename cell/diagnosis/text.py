@@ -76,7 +76,8 @@ def _ranking(rep: dict) -> list[str]:
            f"{g['rms_mm']:.4f} | {h['rms_before_mm']:.4f} | {reg['condition']:.3g} |"]
     for i, r in enumerate(rows, 1):
         note = "" if r["identifiable"] else f", rank {r['rank']} of {r['columns']}"
-        out.append(f"| {i} | {r['label']} ({', '.join(r['joints'])}) | {r['k']} | "
+        on = f" ({', '.join(r['joints'])})" if r["joints"] else ""
+        out.append(f"| {i} | {r['label']}{on} | {r['k']} | "
                    f"{r['cv_rms_mm']:.4f} | {r['fit_rms_mm']:.4f} | {r['holdout_rms_mm']:.4f} | "
                    f"{r['condition']:.3g}{note} |")
     return out + [""]

@@ -194,11 +194,17 @@ class ChainPoses:
     values (deg or mm: the readings with the model's zero and sign applied), ``levers``
     (P, J) m the gravity lever of each joint at the nominal pose (format, "Chain
     effects"), ``dirs`` (P, J) the sign of each joint's last motion (``jK_dir``; 0
-    unknown)."""
+    unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; NaN unknown)."""
 
     q: np.ndarray
     levers: np.ndarray
     dirs: np.ndarray
+    temp_c: np.ndarray | None = None
+
+    @property
+    def temps(self) -> np.ndarray:
+        """``temp_c`` with NaN for every pose when the campaign has no column."""
+        return np.full(len(self.q), np.nan) if self.temp_c is None else self.temp_c
 
 
 @dataclass(frozen=True)
@@ -206,15 +212,20 @@ class OnChain:
     """How the effect applies to a serial chain (:mod:`cell.diagnosis.chain.fit`): its parameters per
     joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
     ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
-    origin parameter names. ``unit`` the parameter's unit (``{unit}``: the joint's).
-    ``remedy`` replaces the planar one on a chain.
+    origin parameter names; ``"arm"`` is one parameter for the whole arm, named ``stem``.
+    ``unit`` the parameter's unit (``{unit}``: the joint's). ``remedy`` replaces the planar
+    one on a chain.
 
     ``term(poses, k) -> (P,)``: the effect on joint k's value per unit of its parameter,
-    Δq_k = value · term (:class:`ChainPoses`): the chain fitter's forward model and,
+    Δq_k = value · term (:class:`ChainPoses`); for an ``"arm"`` effect (k = −1) the
+    relative change of every length of the arm, so that each point in the base frame moves
+    to (1 + value · term) times itself. Either way the chain fitter's forward model and,
     being linear, its exact derivative. A ``"geometric"`` effect has none (its parameter
     is the chain's own op offset); every other effect must give one. ``unseen``: why the
     campaign cannot show the effect when its term is zero on every pose (what column it
-    lacks)."""
+    lacks); ``min_spread``: the least spread (max − min) of the term over the fit poses
+    that tells the effect from a constant one, ``still`` what it cannot be told from below
+    it."""
 
     joints: str
     stem: str = ""
@@ -222,6 +233,8 @@ class OnChain:
     remedy: Remedy | None = None
     term: Callable[[ChainPoses, int], np.ndarray] | None = field(default=None, repr=False)
     unseen: str = ""
+    min_spread: float = 0.0
+    still: str = ""
 
     def __post_init__(self):
         if (self.term is None) != (self.joints == "geometric"):

@@ -1,12 +1,14 @@
-"""thermal_drift: both links grow with temperature
-(format: L_true = L_nominal·(1 + α·(T − T_ref)))."""
+"""thermal_drift: the links grow with temperature
+(format: L_true = L_nominal·(1 + α·(T − T_ref))). On a chain every length of the arm grows
+alike, so each point in the base frame moves to (1 + α·(T − T_ref)) times itself."""
 from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import Effect, Linear, ParamSpec, Remedy, TempSpread
+from cell.effects.base import ChainPoses, Effect, Linear, OnChain, ParamSpec, Remedy, TempSpread
 
 MIN_TEMP_SPREAD_C = 0.2
+REF_TEMP_C = 20.0          # T_ref: the temperature the nominal lengths hold at (ISO 1)
 
 
 def thermal_drift(x, jidx, links_mm, temp_c):
@@ -15,6 +17,12 @@ def thermal_drift(x, jidx, links_mm, temp_c):
     joint (``joints = []``); T comes from the temperature model (plant) or the log."""
     alpha, t_ref = np.asarray(x, dtype=float)
     return alpha * (np.asarray(temp_c, dtype=float)[:, None] - t_ref) * np.asarray(links_mm)[None, :]
+
+
+def chain_growth(poses: ChainPoses, k: int) -> np.ndarray:
+    """Relative growth of the whole arm per unit α: T − T_ref per pose, 0 where the pose's
+    temperature is not known (the format's reference temperature)."""
+    return np.nan_to_num(poses.temps - REF_TEMP_C, nan=0.0)
 
 
 def d_thermal_drift(x, jidx, links_mm, temp_c):
@@ -29,11 +37,19 @@ EFFECT = Effect(
     (ParamSpec("thermal_expansion_per_k", "1/K", "linear expansion of both links", (-2e-5, 2e-4),
                (10e-6, 30e-6), False),
      ParamSpec("thermal_ref_temp_c", "°C", "temperature of the nominal lengths (known)",
-               (-50.0, 100.0), (20.0, 20.0), False, fitted=False, default=20.0)),
+               (-50.0, 100.0), (REF_TEMP_C, REF_TEMP_C), False, fitted=False, default=REF_TEMP_C)),
     "temperature", "both links grow with temperature", thermal_drift, d_thermal_drift,
     mimics=("link_length",),
     needs=(TempSpread(MIN_TEMP_SPREAD_C, "thermal growth cannot be told from link_length"),),
     remedy=Remedy("thermal", "Calibrate the kinematics at working temperature, and keep the "
                   "cell's temperature steady: the links grow with it.",
                   ("cellctl calibrate kinematics",)),
-    linear=Linear(path_nuisance="thermal_ref_temp_c"))
+    linear=Linear(path_nuisance="thermal_ref_temp_c"),
+    chain=OnChain("arm", "thermal_expansion_per_k", "1/K", term=chain_growth,
+                  remedy=Remedy("thermal", "Measure and calibrate the arm at working temperature "
+                                "(after a warm-up), and keep its temperature steady: every "
+                                "length of the arm grows with it."),
+                  unseen="no temp_c column: the temperature of the poses is not known",
+                  min_spread=MIN_TEMP_SPREAD_C,
+                  still=f"temperature spread under {MIN_TEMP_SPREAD_C} °C over the fit poses: "
+                        "growth cannot be told from constant link lengths"))

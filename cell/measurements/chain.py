@@ -44,7 +44,9 @@ class ChainCampaign:
     pose and marker of each measured point, ``xyz`` (M, 3) in ``measurement_frame``;
     ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point;
     ``dirs`` (P, J) the sign of each joint's last motion before the pose (``jK_dir``, 0 where
-    the campaign has no column for the joint), None without any ``jK_dir`` column."""
+    the campaign has no column for the joint), None without any ``jK_dir`` column;
+    ``extra`` the optional per-point columns ``time_s``, ``temp_c``, ``payload_kg`` (M,)
+    the campaign has."""
 
     spec: ChainSpec
     chain: Chain
@@ -64,6 +66,15 @@ class ChainCampaign:
     @property
     def n_poses(self) -> int:
         return len(self.pose_ids)
+
+    def pose_temps(self) -> np.ndarray | None:
+        """(P,) each pose's temperature, the mean ``temp_c`` of its rows (its markers are
+        measured within moments of each other); None without the column."""
+        t = self.extra.get("temp_c")
+        if t is None:
+            return None
+        n = np.bincount(self.obs_pose, minlength=self.n_poses)
+        return np.bincount(self.obs_pose, weights=t, minlength=self.n_poses) / np.maximum(n, 1)
 
     @property
     def known_markers(self) -> np.ndarray | None:
@@ -289,6 +300,8 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
         head += ["split"] if c.split is not None else []
         dir_cols = [] if c.dirs is None else [k for k in range(nj) if np.any(c.dirs[:, k])]
         head += [f"j{k + 1}_dir" for k in dir_cols]
+        extra = [k for k in ("time_s", "temp_c", "payload_kg") if k in c.extra]
+        head += extra
         out = [",".join(head)]
         for i in range(len(c.xyz)):
             p = c.obs_pose[i]
@@ -296,6 +309,7 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
             row += [str(c.markers[c.obs_marker[i]])] + [repr(float(v)) for v in c.xyz[i]]
             row += [c.split[p]] if c.split is not None else []
             row += [str(int(c.dirs[p, k])) for k in dir_cols]
+            row += [repr(float(c.extra[k][i])) for k in extra]
             out.append(",".join(row))
         (tmp / "points.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
     return d

@@ -11,7 +11,10 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
   gravity lever of a unit load at the tool point, taken on the nominal arm},
   ``backlash`` {joint: total lost-motion width b, deg}: the joint trails its reading by
   b/2 against the direction of its last motion (``dirs`` per pose, the format's
-  ``jK_dir``: θ = θ_reading − dir·b/2);
+  ``jK_dir``: θ = θ_reading − dir·b/2); ``grow`` α (1/K): every length of the arm (DH a
+  and d, a prismatic joint's travel, the marker offsets on the hand) is (1 + α·(T − 20 °C))
+  times its size at the pose's temperature T (``temp_c``; the format's thermal_drift, its
+  reference temperature 20 °C);
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
   the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading),
@@ -27,6 +30,7 @@ import math
 import numpy as np
 
 DEG = math.pi / 180.0
+T_REF_C = 20.0      # the format's thermal_ref_temp_c: the nominal lengths hold at 20 °C
 
 
 def dh_matrix(theta_deg: float, d: float, a: float, alpha_deg: float, modified: bool) -> np.ndarray:
@@ -44,9 +48,10 @@ def dh_matrix(theta_deg: float, d: float, a: float, alpha_deg: float, modified: 
                      [0.0, 0.0, 0.0, 1.0]])
 
 
-def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None):
+def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None, size=1.0):
     """(list of 4×4 joint frames, tip 4×4) for one pose with the effects applied; ``dirs``
-    the sign of each joint's last motion (None: unknown, the centre of a backlash band)."""
+    the sign of each joint's last motion (None: unknown, the centre of a backlash band);
+    ``size`` the factor every length of the arm has grown by."""
     T = np.eye(4)
     frames = []
     for k, r in enumerate(rows):
@@ -64,8 +69,9 @@ def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None):
             amp, cycles, phase = eff["cyclic"][name]
             qk += amp * math.sin(cycles * q[k] * DEG + phase * DEG)
         th = r["theta_deg"] + (qk if r["type"] == "revolute" else 0.0)
-        d = r["d_mm"] + eff.get("d", {}).get(name, 0.0) + (qk if r["type"] == "prismatic" else 0.0)
-        a = r["a_mm"] + eff.get("a", {}).get(name, 0.0)
+        d = size * (r["d_mm"] + eff.get("d", {}).get(name, 0.0)
+                     + (qk if r["type"] == "prismatic" else 0.0))
+        a = size * (r["a_mm"] + eff.get("a", {}).get(name, 0.0))
         al = r["alpha_deg"] + eff.get("alpha", {}).get(name, 0.0)
         if modified:
             frames.append(T @ dh_matrix(0.0, 0.0, a, al, True))   # joint axis: z after Rx·Tx
@@ -77,9 +83,10 @@ def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None):
 
 
 def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, gravity=(0, 0, -1),
-                dirs=None):
+                dirs=None, temp_c=None):
     """Base-frame positions (K, 3) of ``markers`` (K, 3, tip frame) on one pose approached
-    from ``dirs`` (per joint ±1; None: unknown)."""
+    from ``dirs`` (per joint ±1; None: unknown) at temperature ``temp_c`` (°C; None: not
+    recorded, and the arm is at the reference temperature)."""
     eff = dict(eff)
     if eff.get("sag"):
         # the lever is taken on the nominal arm (the effect's definition; the deflected
@@ -95,8 +102,11 @@ def tool_points(rows, q, modified, tool_mm, markers, eff, pose_index, n_poses, g
             lever_m = float(z @ np.cross(load - o, g)) / 1000.0
             dq[r["name"]] = eff["sag"][r["name"]] * lever_m
         eff["_sag_dq"] = dq
-    _, T = _chain(rows, q, modified, eff, pose_index, n_poses, dirs)
-    out = np.array([T[:3, :3] @ np.asarray(m, float) + T[:3, 3] for m in markers])
+    size = 1.0
+    if eff.get("grow") and temp_c is not None:
+        size = 1.0 + eff["grow"] * (temp_c - T_REF_C)
+    _, T = _chain(rows, q, modified, eff, pose_index, n_poses, dirs, size)
+    out = np.array([T[:3, :3] @ (size * np.asarray(m, float)) + T[:3, 3] for m in markers])
     if eff.get("reach_sag"):
         reach_m = np.hypot(out[:, 0], out[:, 1]) / 1000.0
         out[:, 2] -= eff["reach_sag"] * reach_m ** 2
@@ -127,14 +137,16 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 
 def campaign_rows(rows, modified, readings, markers, eff, R, t, noise_mm, rng, tool_mm=(0, 0, 0),
-                  lens: float = 0.0, dirs=None) -> list[list]:
+                  lens: float = 0.0, dirs=None, temps=None) -> list[list]:
     """points.csv rows ``[sample, j1..jN, marker, x, y, z]`` for every pose and marker;
-    ``dirs`` (P, J) each pose's approach directions (None: unknown)."""
+    ``dirs`` (P, J) each pose's approach directions, ``temps`` (P,) its temperature °C
+    (None: unknown / not recorded)."""
     out = []
     P = len(readings)
     for p, q in enumerate(readings):
         pts = sensor_view(tool_points(rows, q, modified, tool_mm, markers, eff, p, P,
-                                      dirs=None if dirs is None else dirs[p]), R, t, lens)
+                                      dirs=None if dirs is None else dirs[p],
+                                      temp_c=None if temps is None else float(temps[p])), R, t, lens)
         pts = pts + rng.normal(0.0, noise_mm, pts.shape)
         for m, x in enumerate(pts):
             out.append([p, *q, m + 1, *x])

@@ -40,11 +40,21 @@ def arm(joints: int) -> list[dict]:
     return [dict(r) for r in rows[:joints]]
 
 
+def warm_up(rng: np.random.Generator, poses: int) -> np.ndarray:
+    """(poses,) temperatures °C of an arm warming up from a cold start while it is
+    measured: from 18–24 °C it rises by 8–15 °C towards its working temperature (time
+    constant a third of the campaign), read by a sensor to ±0.05 °C."""
+    t0, rise = rng.uniform(18.0, 24.0), rng.uniform(8.0, 15.0)
+    x = np.arange(poses) / max(poses - 1, 1)
+    return t0 + rise * (1.0 - np.exp(-3.0 * x)) + rng.normal(0.0, 0.05, poses)
+
+
 def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise_mm: float = 0.05,
          seed: int = 0, sensor: bool = True, markers=MARKERS, rows=UR5, modified: bool = False,
          split: bool = False, model_extra: dict | None = None, lens: float = 0.0,
          repeats: int = 0, places: int = 0, jitter_deg: float = 3.0, outliers: int = 0,
-         outlier_mm: tuple[float, float] = (1.0, 5.0), dirs: bool = False) -> Path:
+         outlier_mm: tuple[float, float] = (1.0, 5.0), dirs: bool = False,
+         temps: bool = False) -> Path:
     """Write a campaign with ``effects`` (see :mod:`cell.truth.chain`) to ``directory``:
     ``poses`` poses with readings uniform over ±150° (joint 2 in −160…−20°, the arm above
     its base), the last ``repeats`` of them revisiting earlier ones (same readings, new
@@ -56,7 +66,9 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     by ``outlier_mm`` (uniform) in a random direction, after the noise. With ``dirs`` every
     pose is approached from a random side per joint (±1, from a stream of its own) and
     the ``jK_dir`` columns are written; without, the arm has no backlash to show (the
-    truth's backlash acts only where a direction is known)."""
+    truth's backlash acts only where a direction is known). With ``temps`` the arm warms up
+    over the campaign (:func:`warm_up`) and the ``temp_c`` column is written; without, it
+    stays at the reference temperature and has no thermal growth to show."""
     rng = np.random.default_rng(seed)
     if places:
         c = rng.uniform(-150, 150, (places, len(rows)))
@@ -73,8 +85,9 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     R = truth.random_rotation(rng) if sensor else np.eye(3)
     t = rng.uniform(-800, 800, 3) if sensor else np.zeros(3)
     approach = np.random.default_rng([seed, 1]).choice((-1, 1), q.shape) if dirs else None
+    temp = np.round(warm_up(np.random.default_rng([seed, 2]), poses), 2) if temps else None
     data = truth.campaign_rows(rows, modified, q, markers, effects or {}, R, t, noise_mm, rng,
-                               lens=lens, dirs=approach)
+                               lens=lens, dirs=approach, temps=temp)
     if outliers:
         k = len(rows) + 2                              # x_mm's index in a data row
         for i in rng.choice(len(data), min(outliers, len(data)), replace=False):
@@ -89,12 +102,14 @@ def make(directory: Path, effects: dict | None = None, *, poses: int = 60, noise
     head = ["sample"] + [f"j{k + 1}" for k in range(len(rows))] + ["marker", "x_mm", "y_mm", "z_mm"]
     head += ["split"] if split else []
     head += [f"j{k + 1}_dir" for k in range(len(rows))] if dirs else []
+    head += ["temp_c"] if temps else []
     table = []
     for r in data:
         cells = [int(r[0])] + [float(v) for v in r[1:1 + len(rows)]] + [int(r[1 + len(rows)])]
         cells += [float(v) for v in r[2 + len(rows):]]
         cells += (["holdout" if r[0] % 3 == 0 else "fit"] if split else [])
         cells += [int(v) for v in approach[int(r[0])]] if dirs else []
+        cells += [float(temp[int(r[0])])] if temps else []
         table.append(cells)
     return files.write(directory, {"model.yaml": files.yaml_text(model),
                                    "points.csv": files.csv_text(head, table)})

@@ -270,7 +270,7 @@ def test_every_effect_is_one_complete_definition():
             assert e.deriv is not None and e.stage in fx.STAGES, name
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
     assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
-                                      "gravity_compliance"]
+                                      "thermal_drift", "gravity_compliance"]
 
 
 def test_the_chain_vocabulary_comes_from_the_registry():
@@ -278,9 +278,10 @@ def test_the_chain_vocabulary_comes_from_the_registry():
     assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
     assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
                                    "gear_ratio": "transmission", "backlash": "transmission",
-                                   "gravity_compliance": "transmission"}
+                                   "thermal_drift": "thermal", "gravity_compliance": "transmission"}
     assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
                                     "gear_ratio": "angle", "backlash": "direction",
+                                    "thermal_drift": "temperature",
                                     "gravity_compliance": "position"}
 
 

@@ -2,12 +2,13 @@
 
 Measurement model (one measured point ``y`` of marker m on pose p)::
 
-    y = R_s · (T_tip(q_p; e) · m_m) + t_s
+    y = R_s · ((1 + g_p) · T_tip(q_p; e) · m_m) + t_s
 
 ``R_s, t_s`` (the sensor frame, when ``measurement_frame: sensor``) and ``m_m`` (marker
 positions in the tip frame, when ``markers: unknown``) are **registration**: nuisance
 fitted first and with every candidate. ``e`` are the error parameters of the chain
-vocabulary (:func:`vocabulary`). Fits are damped Gauss–Newton with exact Jacobians
+vocabulary (:func:`vocabulary`); ``g_p`` the growth of the whole arm on pose p that its
+parameters give (thermal: α·(T_p − 20 °C); 0 without one). Fits are damped Gauss–Newton with exact Jacobians
 (:mod:`cell.kinematics.evaluate`); the sensor rotation is updated multiplicatively.
 
 **Honest uncertainty.** The markers of one pose share its joint readings and often one
@@ -45,7 +46,8 @@ DEPENDS_ON = {n: e.depends_on for n, e in fx.CHAIN_EFFECTS.items()}
 @dataclass(frozen=True)
 class Param:
     """One error parameter: ``effect`` of the chain vocabulary, 0-based ``joint``, the op it
-    adds to and its unit (deg, mm, 1, deg/m)."""
+    adds to and its unit (deg, mm, 1, deg/m, 1/K); ``joint`` and ``op`` are −1 for a
+    parameter of the whole arm (:attr:`arm`)."""
 
     name: str
     effect: str
@@ -53,15 +55,23 @@ class Param:
     op: int
     unit: str
 
+    @property
+    def arm(self) -> bool:
+        """A parameter of the whole arm (thermal growth), on no joint."""
+        return self.joint < 0
+
 
 def vocabulary(chain: Chain) -> list[Param]:
     """All error parameters the chain defines, offsets first (the identifiability priority):
     per effect of :data:`EFFECTS`, in its order, the parameters its definition's
-    :class:`cell.effects.OnChain` names (per joint, per revolute joint, or the chain's
-    geometric parameters)."""
+    :class:`cell.effects.OnChain` names (per joint, per revolute joint, the chain's
+    geometric parameters, or one for the whole arm)."""
     out = []
     for name, e in fx.CHAIN_EFFECTS.items():
         use = e.chain
+        if use.joints == "arm":
+            out.append(Param(use.stem, name, -1, -1, use.unit))
+            continue
         if use.joints == "geometric":
             for pn, op in chain.geometric.items():
                 out.append(Param(pn, name, int(pn.split("_")[0][1:]) - 1, op, pn.rsplit("_", 1)[1]))
@@ -92,7 +102,8 @@ def _take(frames, rows: np.ndarray):
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
     lever of each joint at the nominal pose; ``dirs`` (P, J) the sign of each joint's last
-    motion (0: unknown); ``frames`` the nominal forward kinematics of the poses
+    motion (0: unknown); ``temp_c`` (P,) each pose's temperature (the mean ``temp_c`` of
+    its rows; None: no column); ``frames`` the nominal forward kinematics of the poses
     (:meth:`nominal_frames`), None until asked."""
 
     chain: Chain
@@ -106,6 +117,7 @@ class Data:
     levers: np.ndarray
     dirs: np.ndarray | None = None
     place: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
@@ -143,18 +155,19 @@ class Data:
         frames = kin.forward(cc.chain, cc.readings, keep=True)
         d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
-                _levers(cc.chain, frames), cc.dirs, frames=frames)
+                _levers(cc.chain, frames), cc.dirs, temp_c=cc.pose_temps(), frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
         """The same arm, markers and frame at other joint ``readings`` (P, J) approached
-        from ``dirs`` (P, J; None: unknown), every marker on every pose, nothing measured
-        (``xyz`` zero): for predicting, not fitting."""
+        from ``dirs`` (P, J; None: unknown), at the campaign's mean temperature, every
+        marker on every pose, nothing measured (``xyz`` zero): for predicting, not fitting."""
         P, m = len(readings), max(self.n_markers, 1)
         frames = kin.forward(self.chain, readings, keep=True)
+        temp = None if self.temp_c is None else np.full(P, float(np.mean(self.temp_c)))
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, frames), dirs, np.arange(P), frames)
+                    _levers(self.chain, frames), dirs, np.arange(P), temp, frames)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -163,7 +176,9 @@ class Data:
         rows = pose_mask[self.obs_pose]
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
-                    self.levers[keep], self.dirs[keep], frames=_take(self.frames, keep))
+                    self.levers[keep], self.dirs[keep],
+                    temp_c=None if self.temp_c is None else self.temp_c[keep],
+                    frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
         """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
@@ -175,6 +190,7 @@ class Data:
         return Data(self.chain, self.readings[poses], new[self.obs_pose[keep]], self.obs_marker[keep],
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
                     self.levers[poses], self.dirs[poses],
+                    temp_c=None if self.temp_c is None else self.temp_c[poses],
                     frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
@@ -244,41 +260,49 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _poses(d: Data) -> fx.ChainPoses:
-    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers, d.dirs)
+    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers, d.dirs, d.temp_c)
 
 
-def joint_deltas(d: Data, params: list[Param], values: np.ndarray) -> tuple[dict[int, float], np.ndarray]:
-    """The geometric op offsets and the (P, J) joint-value additions of ``values``: each
-    parameter's effect definition says which (:attr:`cell.effects.OnChain.term`)."""
+def joint_deltas(d: Data, params: list[Param], values: np.ndarray
+                 ) -> tuple[dict[int, float], np.ndarray, np.ndarray | None]:
+    """The geometric op offsets, the (P, J) joint-value additions and the (P,) relative
+    growth of the whole arm (None: none) of ``values``: each parameter's effect definition
+    says which (:attr:`cell.effects.OnChain.term`)."""
     geo: dict[int, float] = {}
     dq = np.zeros_like(d.readings)
+    grow = None
     poses = _poses(d)
     for p, v in zip(params, values):
         term = fx.CHAIN_EFFECTS[p.effect].chain.term
         if term is None:
             geo[p.op] = geo.get(p.op, 0.0) + v
+        elif p.arm:
+            grow = (0.0 if grow is None else grow) + v * term(poses, -1)
         else:
             dq[:, p.joint] += v * term(poses, p.joint)
-    return geo, dq
+    return geo, dq, grow
 
 
 def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
           ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Predicted points (M, 3) in the measurement frame; with ``jac`` also the (3M, n)
+    """Predicted points (M, 3) in the measurement frame (the arm grown by the growth of
+    :func:`joint_deltas`, about the base frame's origin); with ``jac`` also the (3M, n)
     Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
     positions (3 each) if free, then ``params``. At zero ``values`` the frames are the
     Data's nominal ones and the Jacobian's blocks are kept per registration and parameter
     (:meth:`Data.zero_blocks`): screening, identifiability and the registration-only fit
     ask for the same columns many times."""
     zero = not np.any(values)
+    grow = None
     if zero:
         tips, starts = d.nominal_frames()
     else:
-        geo, dq = joint_deltas(d, params, values)
+        geo, dq, grow = joint_deltas(d, params, values)
         tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
     local = reg.markers[d.obs_marker]
     xb = kin.points(tips, d.obs_pose, local)
-    y = xb @ reg.R.T + reg.t
+    scale = None if grow is None else (1.0 + grow)[d.obs_pose][:, None]     # (M, 1)
+    y = (xb if scale is None else xb * scale) @ reg.R.T + reg.t
     if not jac:
         return y, None
     kept = d.zero_blocks(reg) if zero else {}
@@ -289,6 +313,8 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
             cols += [_skew_rows(y - reg.t), np.broadcast_to(np.eye(3), (len(y), 3, 3))]
         if d.known_markers is None:
             Rt = reg.R @ tips[d.obs_pose, :3, :3]                    # (M, 3, 3)
+            if scale is not None:
+                Rt = Rt * scale[:, :, None]
             for m in range(d.n_markers):
                 cols.append(Rt * (d.obs_marker == m)[:, None, None])
         blocks = kept[None] = [c.reshape(len(y), 3, -1) for c in cols]
@@ -298,14 +324,19 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     for p in params:
         g = kept.get(p)
         if g is None:
-            g = twists.get(p.op)
-            if g is None:
-                g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
             term = fx.CHAIN_EFFECTS[p.effect].chain.term
-            if term is not None:
-                if poses is None:
-                    poses = _poses(d)
-                g = g * term(poses, p.joint)[d.obs_pose][:, None]
+            if poses is None and term is not None:
+                poses = _poses(d)
+            if p.arm:                          # ∂(s·x)/∂v = term · x
+                g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
+            else:
+                g = twists.get(p.op)
+                if g is None:
+                    g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+                if term is not None:
+                    g = g * term(poses, p.joint)[d.obs_pose][:, None]
+                if scale is not None:          # the grown arm moves (1 + growth) as far
+                    g = g * scale
             g = kept[p] = g[:, :, None]
         blocks.append(g)
     J = np.concatenate(blocks, axis=2).reshape(3 * len(y), -1) if blocks else np.zeros((3 * len(y), 0))
@@ -507,15 +538,24 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     """The rule of :mod:`cell.kinematics.identifiable` in priority order (registration,
     ``keep_first``, then ``pool``) at :data:`STRUCTURAL_TOL`: a parameter whose scaled
     column lies in the span of those before it is dropped, naming what absorbs it; one
-    kept with a variance inflation above :data:`MAX_VIF` is warned about."""
+    kept with a variance inflation above :data:`MAX_VIF` is warned about. A parameter whose
+    term varies over the poses by less than its effect's ``min_spread`` is dropped first
+    (:attr:`cell.effects.OnChain.still`: a temperature that hardly changes)."""
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
+    dropped: dict[str, str] = {}
+    for p in list(allp):
+        use = fx.CHAIN_EFFECTS[p.effect].chain
+        if use.min_spread > 0:
+            v = use.term(_poses(d), p.joint)
+            if np.any(v) and float(np.ptp(v)) < use.min_spread:
+                dropped[p.name] = use.still
+                allp.remove(p)
     _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
     nr = n_registration(d)
     span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
                                identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))
     unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])
             for i in range(len(allp)) if np.isfinite(span.left[i])}
-    dropped: dict[str, str] = {}
     warnings: dict[str, str] = {}
     for i, p in enumerate(allp):
         left = span.left[i]

@@ -126,16 +126,20 @@ def _joints(plt, s, r, out: Path) -> page.Figure:
     e = np.concatenate([per_pose_rms(s.fit_d, r[("fit", "before")]),
                         per_pose_rms(s.hold_d, r[("hold", "before")])])
     held = np.r_[np.zeros(s.fit_d.n_poses, bool), np.ones(s.hold_d.n_poses, bool)]
-    n = len(chain.joints)
+    panels = [(read[:, k], f"{jt.column} {jt.name}, "
+               + ("mm" if str(getattr(jt.type, "value", jt.type)) == "prismatic" else "deg"))
+              for k, jt in enumerate(chain.joints)]
+    if s.fit_d.temp_c is not None and s.hold_d.temp_c is not None:
+        panels.append((np.r_[s.fit_d.temp_c, s.hold_d.temp_c], "temperature, °C"))
+    n = len(panels)
     cols = 4
     rows = (n + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(12, 2.8 * rows), dpi=80, squeeze=False,
                              sharey=True, layout="constrained")
-    for k, (ax, jt) in enumerate(zip(axes.ravel(), chain.joints)):
-        unit = "mm" if str(getattr(jt.type, "value", jt.type)) == "prismatic" else "deg"
-        ax.plot(read[~held, k], e[~held], "o", ms=4, color="tab:gray", label="fit poses")
-        ax.plot(read[held, k], e[held], "s", ms=4, color="tab:orange", label="holdout poses")
-        ax.set_xlabel(f"{jt.column} {jt.name}, {unit}", fontsize=9)
+    for ax, (x, label) in zip(axes.ravel(), panels):
+        ax.plot(x[~held], e[~held], "o", ms=4, color="tab:gray", label="fit poses")
+        ax.plot(x[held], e[held], "s", ms=4, color="tab:orange", label="holdout poses")
+        ax.set_xlabel(label, fontsize=9)
         ax.margins(0.08)
         ax.grid(alpha=0.3)
     for ax in axes[:, 0]:
@@ -146,4 +150,5 @@ def _joints(plt, s, r, out: Path) -> page.Figure:
     png = page.save_figure(plt, fig, out / "joints.png").name
     return page.Figure(png, "What the gap follows",
                        "Each pose's error after registration alone against each joint's reading "
-                       "(revolute in deg, prismatic in mm).")
+                       "(revolute in deg, prismatic in mm), and against its temperature when "
+                       "the campaign records one.")

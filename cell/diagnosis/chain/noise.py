@@ -8,11 +8,13 @@ Two estimates of σ per axis (mm) of one measured point:
   3·n − 6 degrees of freedom of pure sensor noise for a pose with n ≥ 3 markers, whatever
   the arm does: no kinematic error, drift or bump can show here.
 * **Revisited poses** (:func:`repeat_noise_mm`): poses measured again with identical joint
-  readings (and approach directions, where the campaign records them). Their scatter holds the sensor noise *and* the arm's repeatability, the floor
-  no kinematic model can go below, but also anything that changed between the visits.
+  readings (and approach directions and, within :data:`TEMP_BIN_C`, temperature, where the
+  campaign records them). Their scatter holds the sensor noise *and* the arm's
+  repeatability, the floor no kinematic model can go below, but also anything that changed
+  between the visits.
 
-Every effect of the chain vocabulary is a function of the joint readings and the
-directions the joints last moved in, so two visits with the same readings and directions
+Every effect of the chain vocabulary is a function of the joint readings, the directions
+the joints last moved in and the temperature, so two visits that agree on all three
 must agree. :func:`revisits_disagree` tests whether their scatter
 exceeds the sensor noise by more than chance (one-sided F test of the two variances): then the
 arm did not come back to where it was (poor repeatability, drift, a step during the
@@ -26,19 +28,25 @@ from dataclasses import dataclass
 import numpy as np
 
 from cell.diagnosis.noise import pooled, revisits
+from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C
 from cell.measurements.chain import ChainCampaign
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
+TEMP_BIN_C = MIN_TEMP_SPREAD_C    # visits in one such temperature bin count as one pose
 
 
 def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
                     ) -> tuple[float | None, int, int]:
-    """σ per axis from poses revisited with identical readings (and ``jK_dir``), each marker's points a
+    """σ per axis from poses revisited with identical readings (and ``jK_dir``, and
+    ``temp_c`` in one bin of :data:`TEMP_BIN_C`), each marker's points a
     group of their own (:func:`cell.diagnosis.noise.pooled`, as the planar diagnosis pools
     its revisits); the number of revisited poses' groups and the degrees of freedom;
     (None, 0, 0) without repeats. ``keep`` (M,) marks the points to use (default all:
     outliers set aside are not)."""
     visits = cc.readings if cc.dirs is None else np.column_stack([cc.readings, cc.dirs])
+    temps = cc.pose_temps()
+    if temps is not None:
+        visits = np.column_stack([visits, np.floor(temps / TEMP_BIN_C)])
     _, n_groups = revisits(visits)
     label, _ = revisits(np.column_stack([visits[cc.obs_pose], cc.obs_marker]))
     if keep is not None:

@@ -12,7 +12,10 @@ cluster at 3–12 stations with ±3° jitter per joint, and 0–2 marker reading
 outliers (1–5 mm); ``uniform``: readings uniform over ±150°, no outliers. Either way half
 of the campaigns (by a stream of their own) record the approach directions ``jK_dir``,
 each pose approached from a random side per joint; every campaign whose truth holds a
-backlash does.
+backlash does. Likewise, by a stream of their own, half of the campaigns record the
+arm's temperature (``temp_c``) while it warms up by 8–15 °C
+(:func:`cell.truth.chain_campaign.warm_up`); every campaign whose truth holds a thermal
+growth does.
 
 **Truths**, from each trial's own seed, uniformly among ``none`` and the vocabulary:
 
@@ -25,7 +28,12 @@ backlash does.
 * ``backlash``: j2 or j3, a lost-motion width of 0.02–0.1° (its campaign records every
   joint's approach direction, ``jK_dir``: without them the format places each joint at the
   centre of its band and there is no backlash to see);
-* ``gravity_compliance``: j2, or j2 and j3, 0.1–0.5 °/m each.
+* ``gravity_compliance``: j2, or j2 and j3, 0.1–0.5 °/m each;
+* ``thermal_drift``: every length of the arm grows by 1.5–3·10⁻⁵ /K (an aluminium arm
+  such as the UR5 has about 2.3·10⁻⁵). With the warm-up's 8–15 °C that moves the tool by
+  0.07–0.3 mm at the arm's reach, above the tracker's noise as every other drawn effect is;
+  a 1·10⁻⁵ /K arm warming by 5 °C moves it by 0.03 mm, within the noise, and the
+  diagnosis rightly sees nothing there.
 
 In the realistic layout a quarter of the effect trials carry a second effect of another
 kind (drawn the same way; a joint offset then on j4 or j5 only, so the two act on
@@ -122,6 +130,9 @@ def draw(rng: np.random.Generator, kind: str) -> Truth:
         j = str(rng.choice(["j2", "j3"]))
         x = float(rng.uniform(0.02, 0.1))
         return Truth(kind, (j,), {"backlash": {j: x}}, 0.0, {f"{j}_backlash_deg": x})
+    if kind == "thermal_drift":
+        x = float(rng.uniform(1.5e-5, 3e-5))
+        return Truth(kind, (), {"grow": x}, 0.0, {"thermal_expansion_per_k": x})
     if kind == "gravity_compliance":
         js = ["j2"] if rng.random() < 0.5 else ["j2", "j3"]
         v = {j: float(rng.uniform(0.1, 0.5)) for j in js}
@@ -165,7 +176,7 @@ def draw_second(rng: np.random.Generator, first: Truth) -> Truth:
         second = draw(rng, kind)
     effects = {**first.effects}
     for k, v in second.effects.items():
-        effects[k] = {**effects.get(k, {}), **v}
+        effects[k] = {**effects.get(k, {}), **v} if isinstance(v, dict) else v
     comps = ((first.kind, first.joints), (second.kind, second.joints))
     return Truth(first.kind, first.joints, effects, 0.0, {**first.params, **second.params}, comps)
 
@@ -174,11 +185,12 @@ def draw_layout(tseed: int, layout: str) -> dict:
     """Keyword arguments of :func:`cell.truth.chain_campaign.make` for trial seed ``tseed``'s
     layout (module docstring), from streams of its own."""
     dirs = bool(np.random.default_rng([tseed, 4]).random() < 0.5)
+    temps = bool(np.random.default_rng([tseed, 8]).random() < 0.5)
     if layout == "uniform":
-        return {"dirs": dirs}
+        return {"dirs": dirs, "temps": temps}
     rng = np.random.default_rng([tseed, 3])
     return {"places": int(rng.integers(3, 13)), "jitter_deg": 3.0,
-            "outliers": int(rng.integers(0, 3)), "dirs": dirs}
+            "outliers": int(rng.integers(0, 3)), "dirs": dirs, "temps": temps}
 
 
 def _covered(truth: Truth, ci95: dict) -> tuple[int, int]:
@@ -207,6 +219,7 @@ def run_trial(i: int, seed: int, poses: int = 60, outside_share: float = 0.0,
         truth = draw_second(np.random.default_rng([tseed, 6]), truth)
     lay = draw_layout(tseed, layout)
     lay["dirs"] = lay["dirs"] or "backlash" in truth.effects
+    lay["temps"] = lay["temps"] or "grow" in truth.effects
     with tempfile.TemporaryDirectory(prefix="cell-chain-validate-") as tmp:
         d = make(Path(tmp) / "campaign", truth.effects, poses=poses, noise_mm=noise, seed=tseed,
                  markers=MARKERS, lens=truth.lens, repeats=max(3, poses // 10), **lay)

@@ -66,7 +66,7 @@ def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modifie
 
 
 def test_every_jacobian_column_matches_finite_differences(tmp_path):
-    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True)
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True, temps=True)
     cc = read_campaign(d)
     data = F.Data.of(cc)
     params = F.vocabulary(cc.chain)
