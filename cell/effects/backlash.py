@@ -40,4 +40,4 @@ EFFECT = Effect(
                                 "drive: {what}{on}."),
                   term=lambda poses, k: -0.5 * poses.dirs[:, k],     # Δq_k = −dir_k·b/2
                   unseen="no jK_dir column: the direction of the joint's last motion is "
-                         "not known"))
+                         "not known", lower=0.0))

@@ -225,6 +225,8 @@ class OnChain:
     campaign cannot show the effect when its term is zero on every pose (what column it
     lacks); ``min_spread``: the least spread (max − min) of the term over the fit poses
     that tells the effect from a constant one, ``still`` what it cannot be told from below
+    it. ``lower``: the least value the parameter can physically take (a width, a give
+    that cannot be negative; None: unbounded): a fit that wants it below is left without
     it."""
 
     joints: str
@@ -235,6 +237,7 @@ class OnChain:
     unseen: str = ""
     min_spread: float = 0.0
     still: str = ""
+    lower: float | None = None
 
     def __post_init__(self):
         if (self.term is None) != (self.joints == "geometric"):

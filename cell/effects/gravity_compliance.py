@@ -15,4 +15,5 @@ EFFECT = Effect(
     remedy=Remedy("compliance", "Check the drive and payload{on}: the joint gives way "
                   "under the gravity load."),
     chain=OnChain("revolute", "compliance_deg_per_m", "deg/m",
-                  term=lambda poses, k: poses.levers[:, k]))    # Δq_k = c·τ_k
+                  term=lambda poses, k: poses.levers[:, k],     # Δq_k = c·τ_k
+                  lower=0.0))                # the joint gives way, never against the load

@@ -12,11 +12,13 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
   78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses), measured when thermal growth joined the
-  chain vocabulary (half the campaigns record ``temp_c`` while the arm warms up) by
-  ``cellctl diagnose validate --chain --trials 80 --seed 1``: right 36, ambiguous 39,
-  ambiguous with the truth missing 3, unexplained 2, wrong 0; 40 of 41 intervals cover
-  (before, with other truths: without thermal growth right 39, ambiguous 39, truth missing 1,
+* chain, 80 vocabulary trials (seed 1, 60 poses), measured when the chain fit bounded
+  backlash and compliance at zero and checked the remainder for a ripple, by ``cellctl
+  diagnose validate --chain --trials 80 --seed 1``: right 36, ambiguous 38, ambiguous with
+  the truth missing 4, unexplained 2, wrong 0; 40 of 41 intervals cover (when thermal growth
+  joined the chain vocabulary, half the campaigns recording ``temp_c`` while the arm warms
+  up: ambiguous 39, truth missing 3, the rest the same;
+  before, with other truths: without thermal growth right 39, ambiguous 39, truth missing 1,
   unexplained 1; without backlash right 40, ambiguous 34, truth missing 3, unexplained 3;
   before the chain's outlier step, cell/diagnosis/chain/robust.py: right 18, ambiguous 12,
   unexplained 50);
@@ -31,7 +33,7 @@ Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
 cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
-in cell/kinematics/evaluate.py forward(): right 16, unexplained 48, wrong 2; the twist in
+in cell/kinematics/evaluate.py forward(): right 16, unexplained 49, wrong 2; the twist in
 cell/kinematics/evaluate.py: right 13, unexplained 58, wrong 4; both also leave fewer than 15
 intervals to check).
 """
@@ -111,7 +113,7 @@ def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
     assert v["right"] >= 36 - 5, v
-    assert v["right"] + v["ambiguous"] >= 75 - 5, v
+    assert v["right"] + v["ambiguous"] >= 74 - 5, v
     assert v["unexplained"] <= 2 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 

@@ -36,6 +36,8 @@ from cell.measurements import CampaignFormatError
 from cell.stats import t_quantile
 
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
+TERM_EPS = 1e-9           # a joint term below this on every pose (deg, m, K, 1) is zero: the
+                          # gravity lever of a joint whose axis runs through the tool point
 KEPT_REGISTRATIONS = 2    # Data.zero_blocks keeps the Jacobian blocks of this many
 # the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
 EFFECTS = tuple(fx.CHAIN_EFFECTS)
@@ -540,18 +542,28 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     column lies in the span of those before it is dropped, naming what absorbs it; one
     kept with a variance inflation above :data:`MAX_VIF` is warned about. A parameter whose
     term varies over the poses by less than its effect's ``min_spread`` is dropped first
-    (:attr:`cell.effects.OnChain.still`: a temperature that hardly changes)."""
+    (:attr:`cell.effects.OnChain.still`: a temperature that hardly changes); one whose term
+    stays below :data:`TERM_EPS` on every pose has no effect (its column is rounding noise,
+    which scaled to unit length would look like a direction of its own)."""
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
     dropped: dict[str, str] = {}
+    poses = _poses(d)
+    still = set()                          # terms that are zero but for rounding
     for p in list(allp):
         use = fx.CHAIN_EFFECTS[p.effect].chain
-        if use.min_spread > 0:
-            v = use.term(_poses(d), p.joint)
-            if np.any(v) and float(np.ptp(v)) < use.min_spread:
-                dropped[p.name] = use.still
-                allp.remove(p)
+        if use.term is None:
+            continue
+        v = use.term(poses, p.joint)
+        if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
+            still.add(p.name)
+        elif use.min_spread > 0 and np.any(v) and float(np.ptp(v)) < use.min_spread:
+            dropped[p.name] = use.still
+            allp.remove(p)
     _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
     nr = n_registration(d)
+    for i, p in enumerate(allp):
+        if p.name in still:
+            J[:, nr + i] = 0.0
     span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
                                identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))
     unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])

@@ -36,8 +36,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell import effects as fx
 from cell.diagnosis import tie
-from cell.diagnosis.chain import drift
+from cell.diagnosis.chain import drift, ripple
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.leaveout import Folds
 from cell.diagnosis.places import separating
@@ -149,8 +150,23 @@ def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candida
     return c
 
 
-def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None) -> Candidate:
-    return _held(label, effects, F.fit(fit_d, params, f0.reg), hold_d, keep, ident)
+def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None
+               ) -> Candidate | None:
+    """``params`` fitted on ``fit_d`` and judged on ``hold_d``, within their physical bounds
+    (:attr:`cell.effects.OnChain.lower`): while the fit wants a parameter below its bound,
+    the one furthest below (in standard errors) is left out and the rest fitted again.
+    None when an effect of ``effects`` is left without a parameter (the campaign shows it
+    only with a value it cannot have)."""
+    params = list(params)
+    while True:
+        f = F.fit(fit_d, params, f0.reg)
+        below = [((v - lo) / max(se, 1e-300), p) for p, v, se in zip(params, f.values, f.se)
+                 if (lo := fx.CHAIN_EFFECTS[p.effect].chain.lower) is not None and v < lo]
+        if not below:
+            return _held(label, effects, f, hold_d, keep, ident)
+        params.remove(min(below, key=lambda t: t[0])[1])
+        if {p.effect for p in params} != set(effects):
+            return None
 
 
 def _confounded_offsets(idents: dict[str, F.Identifiability], offsets: list[F.Param]) -> None:
@@ -193,8 +209,10 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         if e not in idents:
             continue
         picks[e] = screen(fit_d, f0, idents[e].kept)
-        if picks[e]:
-            ranking.append(_candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep))
+        c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep) \
+            if picks[e] else None
+        if c is not None:
+            ranking.append(c)
     ranking.sort(key=lambda c: c.fit.cv_rms)
     # singles by their leave-out error, then the effects that picked nothing alone
     order = [c.effects[0] for c in ranking]
@@ -205,9 +223,10 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
         ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
         both = screen(fit_d, f0, ident.kept)
-        if {p.effect for p in both} == {a, b}:
-            ranking.append(_candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident,
-                                      hold_keep))
+        c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep) \
+            if {p.effect for p in both} == {a, b} else None
+        if c is not None:
+            ranking.append(c)
     ranking.sort(key=lambda c: c.fit.cv_rms)
     return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep)
 
@@ -349,6 +368,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     dr = drift.check(s.fit_d, chosen or s.nominal, smaller, ALPHA, RIVAL_RATIO)
     if dr.present:
         reasons.append(dr.present)
+    wave = ripple.check(s.fit_d, chosen, ALPHA) if chosen is not None and not dr.present else ""
+    if wave:
+        reasons.append(wave)
     if dr.rivals:
         warnings.append("the campaign cannot tell the cause from "
                         + ", ".join(r["label"] for r in dr.rivals)

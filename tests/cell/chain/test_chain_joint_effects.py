@@ -55,3 +55,25 @@ def test_markers_of_one_pose_that_disagree_on_the_approach_are_refused(tmp_path)
     with pytest.raises(CampaignFormatError,
                        match=r"line 3, column 'j2_dir': rows of sample 0 disagree on j2_dir"):
         read_campaign(d)
+
+
+def test_a_joint_whose_axis_runs_through_the_tool_point_has_no_gravity_lever(tmp_path):
+    # UR5: the tool point (tool_mm 0) lies on j6's axis, so j6's lever is rounding noise
+    # (~1e-13 m); scaled to unit length it looked like a direction of its own, and on the real
+    # TIAGo set a candidate gave arm_7's twin a compliance of 6e12 deg/m
+    d = chainsim.make(tmp_path / "c", {"sag": {"j2": 0.3}}, poses=40, noise_mm=NOISE, seed=5)
+    rep = diagnose_chain(read_campaign(d), NOISE)
+    assert rep["not_identifiable"]["j6_compliance_deg_per_m"] == "has no effect on the measured points"
+    assert rep["cause"]["label"] == "gravity_compliance"
+
+
+def test_a_fit_that_wants_a_negative_give_or_width_leaves_that_parameter_out(tmp_path):
+    # a joint pushed against gravity (an over-set balancer): the format's compliance is a
+    # give (≥ 0), so no candidate may carry a negative one, and none names it
+    d = chainsim.make(tmp_path / "c", {"sag": {"j2": -0.4}}, poses=60, noise_mm=NOISE, seed=6,
+                      dirs=True)
+    rep = diagnose_chain(read_campaign(d), NOISE)
+    values = [(r["label"], n, v) for r in rep["ranking"] for n, v in r["params"].items()
+              if "compliance" in n or "backlash" in n]
+    assert all(v >= 0 for _, _, v in values), values
+    assert "gravity_compliance" not in rep["cause"]["label"]
