@@ -12,6 +12,8 @@ What the readers refuse as unusable, and why (the line between refusing and answ
 
 * a value that is not a finite number (NaN, inf), in a CSV cell or in ``model.yaml``: it
   is not a measurement, and one of it turns every fitted number into NaN;
+* a ``temp_c`` outside :data:`TEMP_RANGE_C` (a typo, or kelvin): an arm is not measured
+  there, and one such row would decide the thermal growth on its own;
 * a campaign whose poses all have the same joint readings, one pose included
   (:func:`check_places`): nothing that depends on the joints can be learned from one
   configuration, however often it is measured, and no pose is left to check a fit on.
@@ -41,6 +43,7 @@ from cell.measurements.folder import staged_dir
 
 FORMAT = "cell-measurements/1"
 INT64 = (-2 ** 63, 2 ** 63 - 1)   # the range of an int column (sample, move, marker)
+TEMP_RANGE_C = (-40.0, 150.0)     # temp_c: where an arm is measured, in °C
 CHAIN_KINEMATICS = ("dh", "urdf")
 
 POINT_COLUMNS = {  # name: (kind, required)
@@ -48,7 +51,7 @@ POINT_COLUMNS = {  # name: (kind, required)
     "j1_deg": ("float", True), "j2_deg": ("float", True),
     "x_mm": ("float", True), "y_mm": ("float", True),
     "j1_dir": ("dir", False), "j2_dir": ("dir", False),
-    "temp_c": ("float", False), "payload_kg": ("float", False),
+    "temp_c": ("temp", False), "payload_kg": ("float", False),
     "split": ("split", False),
 }
 PATH_COLUMNS = {
@@ -247,6 +250,9 @@ def _parse_cell(kind: str, text: str, path: Path, line: int, column: str) -> obj
         return n
     if kind == "dir" and v not in (-1.0, 1.0):
         raise bad(f"direction must be +1 or -1, got {text!r}")
+    if kind == "temp" and not TEMP_RANGE_C[0] <= v <= TEMP_RANGE_C[1]:
+        raise bad(f"temperature {text.strip()} °C is outside {TEMP_RANGE_C[0]:g} … "
+                  f"{TEMP_RANGE_C[1]:g} °C, where an arm is measured (a typo, or kelvin?)")
     return v
 
 
@@ -339,6 +345,8 @@ def _columns_at_once(rows: list[list[str]], width: int, used: list[tuple[int, st
         if not np.all(np.isfinite(x)):
             return None
         if kind == "dir" and not np.all((x == 1.0) | (x == -1.0)):
+            return None
+        if kind == "temp" and not np.all((x >= TEMP_RANGE_C[0]) & (x <= TEMP_RANGE_C[1])):
             return None
         out[name] = x
     return out, [n for n, _ in body]

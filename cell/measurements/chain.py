@@ -174,7 +174,7 @@ def _columns(n_joints: int) -> dict[str, tuple[str, bool]]:
     cols = {"sample": ("int", True), "time_s": ("float", False)}
     cols |= {f"j{k}": ("float", True) for k in range(1, n_joints + 1)}
     cols |= {"marker": ("int", False), "x_mm": ("float", True), "y_mm": ("float", True),
-             "z_mm": ("float", True), "split": ("split", False), "temp_c": ("float", False),
+             "z_mm": ("float", True), "split": ("split", False), "temp_c": ("temp", False),
              "payload_kg": ("float", False)}
     cols |= {f"j{k}_dir": ("dir", False) for k in range(1, n_joints + 1)}
     return cols

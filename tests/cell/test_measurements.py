@@ -70,6 +70,8 @@ def test_round_trip_is_exact(tmp_path):
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,1,2,3,nan\n", 2, "y_mm", "not a finite"),
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0.5,0,1,2,3,4\n", 2, "sample", "whole number"),
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm,j1_dir\n0,0,1,2,3,4,0\n", 2, "j1_dir", "direction"),
+    ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm,temp_c\n0,0,1,2,3,4,21\n1,1,3,2,3,4,294.15\n", 3,
+     "temp_c", r"temperature 294.15 °C is outside -40 … 150 °C.*kelvin"),
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm,split\n0,0,1,2,3,4,train\n", 2, "split", "'fit' or 'holdout'"),
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,1,2,3,4\n0,1,1,2,3,4\n", 3, "sample", "not unique"),
     ("sample,time_s,j1_deg,j2_deg,x_mm,y_mm\n0,0,1,2,3\n", 2, None, "5 fields"),

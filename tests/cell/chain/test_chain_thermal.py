@@ -10,7 +10,7 @@ import pytest
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain.noise import repeat_noise_mm
 from cell.diagnosis.chain.report import diagnose_chain
-from cell.measurements import read_campaign
+from cell.measurements import CampaignFormatError, read_campaign
 from cell.measurements.chain import write_chain_campaign
 from cell.truth import chain as truth
 from tests.cell.chain import chainsim
@@ -89,3 +89,15 @@ def test_a_written_chain_campaign_keeps_its_temperatures(tmp_path):
     back = read_campaign(write_chain_campaign(cc, tmp_path / "copy"))
     assert np.array_equal(back.extra["temp_c"], cc.extra["temp_c"])
     assert np.array_equal(back.pose_temps(), cc.pose_temps())
+
+
+def test_a_temperature_no_arm_is_measured_at_is_refused_where_it_is(tmp_path):
+    d = chainsim.make(tmp_path / "c", {}, poses=10, temps=True)
+    lines = (d / "points.csv").read_text().splitlines()
+    k = lines[0].split(",").index("temp_c")
+    cells = lines[5].split(",")
+    cells[k] = "2150.0"                                       # 21.50 with the point slipped
+    lines[5] = ",".join(cells)
+    (d / "points.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(CampaignFormatError, match=r"line 6, column 'temp_c'.*temperature 2150.0 °C"):
+        read_campaign(d)
