@@ -8,8 +8,9 @@ Measurement model (one measured point ``y`` of marker m on pose p)::
 positions in the tip frame, when ``markers: unknown``) are **registration**: nuisance
 fitted first and with every candidate. ``e`` are the error parameters of the chain
 vocabulary (:func:`vocabulary`); ``g_p`` the growth of the whole arm on pose p that its
-parameters give (thermal: α·(T_p − 20 °C); 0 without one). Fits are damped Gauss–Newton with exact Jacobians
-(:mod:`cell.kinematics.evaluate`); the sensor rotation is updated multiplicatively.
+parameters give (thermal: α·(T_p − 20 °C); 0 without one). Fits are damped Gauss–Newton
+with exact Jacobians (:mod:`cell.kinematics.evaluate`); the sensor rotation is updated
+multiplicatively.
 
 **Honest uncertainty.** The markers of one pose share its joint readings and often one
 tracked rigid body, so their errors are correlated: the covariance is the

@@ -80,8 +80,8 @@ def _components(c: rank.Candidate) -> list[dict]:
     for e in c.effects:
         idx = [nr + i for i, p in enumerate(f.params) if p.effect == e]
         disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, 3)
-        out.append({"effect": e, "joints": sorted({f"j{p.joint + 1}" for p in f.params if p.effect == e and not p.arm},
-                                                   key=lambda s: int(s[1:])),
+        joints = {f"j{p.joint + 1}" for p in f.params if p.effect == e and not p.arm}
+        out.append({"effect": e, "joints": sorted(joints, key=lambda s: int(s[1:])),
                     "rms_mm": _r(F.rms3(disp))})
     return sorted(out, key=lambda x: -(x["rms_mm"] or 0))
 
