@@ -67,6 +67,12 @@ class ChainCampaign:
     def n_poses(self) -> int:
         return len(self.pose_ids)
 
+    @property
+    def axes(self) -> tuple[int, ...]:
+        """The axes of the measurement frame the sensor sees (0, 1, 2 = x, y, z;
+        ``sensor_axes``); ``xyz`` is 0 on the others."""
+        return tuple("xyz".index(a) for a in self.spec.sensor_axes)
+
     def pose_temps(self) -> np.ndarray | None:
         """(P,) each pose's temperature, the mean ``temp_c`` of its rows (its markers are
         measured within moments of each other); None without the column."""
@@ -170,11 +176,12 @@ def _build_chain(spec: ChainSpec, model_path: Path) -> Chain:
                       list(spec.joints), spec.tool_mm, g)
 
 
-def _columns(n_joints: int) -> dict[str, tuple[str, bool]]:
+def _columns(n_joints: int, axes=("x", "y", "z")) -> dict[str, tuple[str, bool]]:
     cols = {"sample": ("int", True), "time_s": ("float", False)}
     cols |= {f"j{k}": ("float", True) for k in range(1, n_joints + 1)}
-    cols |= {"marker": ("int", False), "x_mm": ("float", True), "y_mm": ("float", True),
-             "z_mm": ("float", True), "split": ("split", False), "temp_c": ("temp", False),
+    cols |= {"marker": ("int", False)}
+    cols |= {f"{a}_mm": ("float", True) for a in axes}          # what the sensor does not see
+    cols |= {"split": ("split", False), "temp_c": ("temp", False),  # is not read
              "payload_kg": ("float", False)}
     cols |= {f"j{k}_dir": ("dir", False) for k in range(1, n_joints + 1)}
     return cols
@@ -192,6 +199,18 @@ def _check_joint_columns(path: Path, chain: Chain) -> None:
         if h.endswith("_deg") and h[:-4] in {j.column for j in chain.joints}:
             raise CampaignFormatError(path, f"column {h!r}: chain joint columns are j1 … j{n} "
                                             "(unit by joint type), not the SCARA's jK_deg", line=1, column=h)
+
+
+def _check_axes(model_path: Path, spec: ChainSpec) -> None:
+    """A sensor that sees fewer than three axes measures in the base frame a point known on
+    the hand: its missing axis leaves a sensor frame and a marker's place undetermined."""
+    if len(spec.sensor_axes) == 3:
+        return
+    if spec.measurement_frame != "base" or spec.markers == "unknown":
+        raise CampaignFormatError(model_path, f"sensor_axes {list(spec.sensor_axes)}: a sensor that "
+                                  "does not see every axis needs measurement_frame: base and the "
+                                  "markers' positions given (markers: {id: [x, y, z]})",
+                                  column="sensor_axes", line=_yaml_line(model_path, ("sensor_axes",)))
 
 
 def _check_limits(path: Path, chain: Chain, readings: np.ndarray, lines: list[int]) -> None:
@@ -223,7 +242,8 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
     if not pp.is_file():
         raise CampaignFormatError(pp, "missing: a chain campaign needs points.csv")
     _check_joint_columns(pp, chain)
-    t, lines = _read_table(pp, _columns(chain.n_joints))
+    _check_axes(mp, spec)
+    t, lines = _read_table(pp, _columns(chain.n_joints, spec.sensor_axes))
     q = np.column_stack([t[f"j{k}"] for k in range(1, chain.n_joints + 1)])
     marker = t.get("marker", np.zeros(len(lines), dtype=np.int64))
     split = t.get("split")
@@ -273,7 +293,7 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
                                               f"marker needs at least {MIN_MARKER_POSES}",
                                           line=lines[int(rows[0])], column="marker")
     mi = np.searchsorted(markers, marker)
-    xyz = np.column_stack([t["x_mm"], t["y_mm"], t["z_mm"]])
+    xyz = np.column_stack([t.get(f"{a}_mm", np.zeros(len(lines))) for a in "xyz"])
     extra = {k: t[k] for k in ("time_s", "temp_c", "payload_kg") if k in t}
     dirs = None
     if dir_cols:
@@ -292,6 +312,8 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
     d = Path(directory)
     with staged_dir(d, force) as tmp:
         model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
+        if tuple(model.get("sensor_axes", ())) == ("x", "y", "z"):
+            del model["sensor_axes"]             # the default: files written before it stay alike
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
@@ -313,3 +335,37 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
             out.append(",".join(row))
         (tmp / "points.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
     return d
+
+
+def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
+    """The static points of a v1 (SCARA) campaign ``c`` (:class:`~cell.measurements.Campaign`)
+    as the chain campaign they are: two revolute joints in standard DH (a = ``l1_mm``,
+    ``l2_mm``; α, d, θ zero; ``joint_limits_deg`` as limits), the tool centre a known marker
+    at the flange, measured in the base frame by a sensor that sees x and y
+    (``sensor_axes: [x, y]``); ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
+    moves (``paths.csv``) are not part of it; ``directory`` is where ``c`` was read from
+    (messages name its files). Raises CampaignFormatError for a campaign without points."""
+    if c.points is None:
+        raise CampaignFormatError(c.source or "campaign", "no points.csv: only static points "
+                                  "make a chain campaign", column="points.csv")
+    m = c.model
+    limits = m.joint_limits_deg or [None, None]
+    rows = [DHRow(name=f"j{k + 1}", type="revolute", a_mm=float(a), alpha_deg=0.0, d_mm=0.0,
+                  theta_deg=0.0, limits=None if lim is None else tuple(lim))
+            for k, (a, lim) in enumerate(zip((m.l1_mm, m.l2_mm), limits))]
+    spec = ChainSpec(format=FORMAT, kinematics="dh", joints=rows, measurement_frame="base",
+                     markers={0: (0.0, 0.0, 0.0)}, sensor_axes=("x", "y"),
+                     source=c.source or "planar campaign")
+    p = c.points
+    n = len(p["sample"])
+    chain = dh_chain("planar campaign", [r.model_dump() for r in rows], "standard", [],
+                     (0.0, 0.0, 0.0), (0.0, 0.0, -1.0))
+    dirs = None
+    if "j1_dir" in p or "j2_dir" in p:
+        dirs = np.column_stack([p.get(f"j{k}_dir", np.zeros(n)) for k in (1, 2)]).astype(float)
+    extra = {k: p[k] for k in ("time_s", "temp_c", "payload_kg") if k in p}
+    return ChainCampaign(spec, chain, np.column_stack([p["j1_deg"], p["j2_deg"]]).astype(float),
+                         np.asarray(p["sample"]), p.get("split"), np.arange(n),
+                         np.zeros(n, dtype=np.int64),
+                         np.column_stack([p["x_mm"], p["y_mm"], np.zeros(n)]).astype(float), [0],
+                         list(range(2, n + 2)), spec.source, Path(directory), extra, dirs)

@@ -25,6 +25,7 @@ KINEMATICS = ("dh", "urdf")
 CONVENTIONS = ("standard", "modified")
 JOINT_TYPES = ("revolute", "prismatic")
 FRAMES = ("base", "sensor")
+AXES = ("x", "y", "z")
 ROW_NUMBERS = ("a_mm", "alpha_deg", "d_mm", "theta_deg")
 
 
@@ -32,7 +33,7 @@ ROW_NUMBERS = ("a_mm", "alpha_deg", "d_mm", "theta_deg")
 def pydantic_models() -> tuple[type, type, type]:
     """The pydantic models (ChainSpec, DHRow, Coupling) of a chain ``model.yaml``, built on
     first use (module docstring). Every number must be finite; unknown keys are refused."""
-    from pydantic import BaseModel, ConfigDict, Field
+    from pydantic import BaseModel, ConfigDict, Field, field_validator
 
     class DHRow(BaseModel):
         model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -65,6 +66,15 @@ def pydantic_models() -> tuple[type, type, type]:
         markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
         gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
         source: str = ""
+        sensor_axes: tuple[Literal["x", "y", "z"], ...] = AXES
+
+        @field_validator("sensor_axes")
+        @classmethod
+        def _axes(cls, v):
+            if not _plain_axes(v):
+                raise ValueError("sensor_axes must be two or three of x, y, z, each once, in "
+                                 "that order (e.g. [x, y] for a camera looking down)")
+            return v
     return ChainSpec, DHRow, Coupling
 
 
@@ -123,6 +133,12 @@ def _plain_markers(v):
     return out
 
 
+def _plain_axes(v) -> bool:
+    """``v`` names two or three of x, y, z, each once, in that order."""
+    return isinstance(v, (list, tuple)) and len(v) >= 2 and all(a in AXES for a in v) \
+        and list(v) == sorted(set(v), key=AXES.index)
+
+
 def _plain_spec(data) -> dict | None:
     """The fields of :class:`ChainSpec` from ``data`` (the mapping of ``model.yaml``, or
     its keyword arguments) when plainly valid (module docstring), else None."""
@@ -151,8 +167,10 @@ def _plain_spec(data) -> dict | None:
     out["coupling"] = [Coupling(**c) for c in terms]
     out["tool_mm"], out["gravity"] = _numbers(out["tool_mm"], 3), _numbers(out["gravity"], 3)
     out["markers"] = _plain_markers(out["markers"])
-    if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None:
+    if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None \
+            or not _plain_axes(out["sensor_axes"]):
         return None
+    out["sensor_axes"] = tuple(out["sensor_axes"])
     return out
 
 
@@ -197,7 +215,8 @@ class Coupling(PlainFirst, plain=_plain_coupling, pydantic=lambda: pydantic_mode
 class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models()[0]):
     """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
     direction of gravity in the base frame, default −z; it only matters for the
-    gravity-compliance effect. Every number must be finite. Validated on construction as
+    gravity-compliance effect. ``sensor_axes`` (this project's addition) the axes the
+    sensor sees, two or three of x, y, z in that order (default all three). Every number must be finite. Validated on construction as
     the pydantic model of :func:`pydantic_models` (module docstring): bad input raises
     pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as
     pydantic's."""
@@ -215,6 +234,7 @@ class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models(
     markers: Literal["unknown"] | dict[int, tuple[float, float, float]] = "unknown"
     gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
     source: str = ""
+    sensor_axes: tuple[str, ...] = AXES
 
     def as_input(self) -> dict:
         """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""

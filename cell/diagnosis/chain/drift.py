@@ -52,7 +52,7 @@ def _order(d: F.Data) -> np.ndarray:
 def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square) of fit ``f`` plus a sensor frame
     drifting linearly with sample order, linearised at ``f``."""
-    s = np.repeat(_order(d), 3)
+    s = np.repeat(_order(d), d.dims)
     return F.loo_with(d, f, f.J[:, :N_DRIFT] * s[:, None])
 
 

@@ -106,8 +106,10 @@ class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
     lever of each joint at the nominal pose; ``dirs`` (P, J) the sign of each joint's last
     motion (0: unknown); ``temp_c`` (P,) each pose's temperature (the mean ``temp_c`` of
-    its rows; None: no column); ``frames`` the nominal forward kinematics of the poses
-    (:meth:`nominal_frames`), None until asked."""
+    its rows; None: no column); ``axes`` the axes of the measurement frame the sensor sees
+    (0, 1, 2 = x, y, z; ``sensor_axes``), ``xyz`` (M, len(axes)) holds those components
+    only; ``frames`` the nominal forward kinematics of the poses (:meth:`nominal_frames`),
+    None until asked."""
 
     chain: Chain
     readings: np.ndarray
@@ -121,6 +123,7 @@ class Data:
     dirs: np.ndarray | None = None
     place: np.ndarray | None = None
     temp_c: np.ndarray | None = None
+    axes: tuple[int, ...] = (0, 1, 2)
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
@@ -156,9 +159,12 @@ class Data:
     def of(cls, cc, pose_mask: np.ndarray | None = None) -> "Data":
         """From a :class:`~cell.measurements.chain.ChainCampaign`, keeping the poses of ``pose_mask``."""
         frames = kin.forward(cc.chain, cc.readings, keep=True)
-        d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker, cc.xyz, len(cc.markers),
+        axes = cc.axes
+        d = cls(cc.chain, cc.readings, cc.obs_pose, cc.obs_marker,
+                cc.xyz if len(axes) == 3 else cc.xyz[:, list(axes)], len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
-                _levers(cc.chain, frames), cc.dirs, temp_c=cc.pose_temps(), frames=frames)
+                _levers(cc.chain, frames), cc.dirs, temp_c=cc.pose_temps(), axes=axes,
+                frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
@@ -169,8 +175,8 @@ class Data:
         frames = kin.forward(self.chain, readings, keep=True)
         temp = None if self.temp_c is None else np.full(P, float(np.mean(self.temp_c)))
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
-                    np.zeros((P * m, 3)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, frames), dirs, np.arange(P), temp, frames)
+                    np.zeros((P * m, self.dims)), self.n_markers, self.sensor, self.known_markers,
+                    _levers(self.chain, frames), dirs, np.arange(P), temp, self.axes, frames)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -180,7 +186,7 @@ class Data:
         return Data(self.chain, self.readings[keep], new[self.obs_pose[rows]], self.obs_marker[rows],
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
                     self.levers[keep], self.dirs[keep],
-                    temp_c=None if self.temp_c is None else self.temp_c[keep],
+                    temp_c=None if self.temp_c is None else self.temp_c[keep], axes=self.axes,
                     frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
@@ -193,12 +199,17 @@ class Data:
         return Data(self.chain, self.readings[poses], new[self.obs_pose[keep]], self.obs_marker[keep],
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
                     self.levers[poses], self.dirs[poses],
-                    temp_c=None if self.temp_c is None else self.temp_c[poses],
+                    temp_c=None if self.temp_c is None else self.temp_c[poses], axes=self.axes,
                     frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
     def n_poses(self) -> int:
         return len(self.readings)
+
+    @property
+    def dims(self) -> int:
+        """Components per measured point: the axes the sensor sees."""
+        return len(self.axes)
 
     def folds(self) -> tuple[np.ndarray, int]:
         """(fold of every measured point, number of folds) for leave-out prediction: the
@@ -288,8 +299,9 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
 
 def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
           ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Predicted points (M, 3) in the measurement frame (the arm grown by the growth of
-    :func:`joint_deltas`, about the base frame's origin); with ``jac`` also the (3M, n)
+    """Predicted points (M, dims) in the measurement frame, the axes the sensor sees (the
+    arm grown by the growth of :func:`joint_deltas`, about the base frame's origin); with
+    ``jac`` also the (dims·M, n)
     Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
     positions (3 each) if free, then ``params``. At zero ``values`` the frames are the
     Data's nominal ones and the Jacobian's blocks are kept per registration and parameter
@@ -307,7 +319,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     scale = None if grow is None else (1.0 + grow)[d.obs_pose][:, None]     # (M, 1)
     y = (xb if scale is None else xb * scale) @ reg.R.T + reg.t
     if not jac:
-        return y, None
+        return _seen(d, y), None
     kept = d.zero_blocks(reg) if zero else {}
     blocks = kept.get(None)
     if blocks is None:
@@ -342,8 +354,15 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                     g = g * scale
             g = kept[p] = g[:, :, None]
         blocks.append(g)
-    J = np.concatenate(blocks, axis=2).reshape(3 * len(y), -1) if blocks else np.zeros((3 * len(y), 0))
-    return y, J
+    J = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(y), 3, 0))
+    if d.dims < 3:
+        J = J[:, list(d.axes), :]
+    return _seen(d, y), J.reshape(d.dims * len(y), -1)
+
+
+def _seen(d: Data, y: np.ndarray) -> np.ndarray:
+    """The components of (M, 3) points the sensor sees."""
+    return y if d.dims == 3 else y[:, list(d.axes)]
 
 
 def n_registration(d: Data) -> int:
@@ -461,7 +480,7 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
             lam *= 10
             if lam > 1e8:
                 break
-    f = Fit(params, v, reg, r.reshape(-1, 3), J)
+    f = Fit(params, v, reg, r.reshape(-1, d.dims), J)
     _uncertainty(d, f)
     return f
 
@@ -487,18 +506,18 @@ def loo_with(d: Data, f: Fit, extra: np.ndarray) -> tuple[float, np.ndarray]:
     r = f.resid.ravel()
     Js, _ = scaled(J2)
     beta, *_ = np.linalg.lstsq(Js, r, rcond=None)
-    total, per, *_ = leaveout.at_solution(J2, r - Js @ beta, *d.folds())
+    total, per, *_ = leaveout.at_solution(J2, r - Js @ beta, *d.folds(), dims=d.dims)
     return total, per
 
 
 def _uncertainty(d: Data, f: Fit) -> None:
     """Cluster-robust covariance and leave-one-pose-out errors (linearised)."""
     r = f.resid.ravel()
-    f.cv_rms, f.cv_fold, Ainv, scale = leaveout.at_solution(f.J, r, *d.folds())
+    f.cv_rms, f.cv_fold, Ainv, scale = leaveout.at_solution(f.J, r, *d.folds(), dims=d.dims)
     f.cv_pose = f.cv_fold
     if d.folds()[1] < d.n_poses:
-        _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses)
-    Jg, rg, _ = leaveout.blocks(f.J / scale, r, d.obs_pose, d.n_poses, 3)
+        _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses, dims=d.dims)
+    Jg, rg, _ = leaveout.blocks(f.J / scale, r, d.obs_pose, d.n_poses, d.dims)
     S = (Jg.transpose(0, 2, 1) @ rg[..., None])[..., 0]
     G = d.n_poses
     corr = G / (G - 1) if G > 1 else 1.0

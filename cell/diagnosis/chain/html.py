@@ -28,9 +28,19 @@ from cell.diagnosis.text import render
 
 
 def residuals(d: F.Data, f: F.Fit) -> np.ndarray:
-    """(M, 3) measured − predicted of fit ``f`` on ``d`` (its registration kept), mm."""
+    """(M, 3) measured − predicted of fit ``f`` on ``d`` (its registration kept), mm; 0 on
+    an axis the sensor does not see."""
     y, _ = F.model(d, f.reg, f.params, f.values)
-    return d.xyz - y
+    return _full(d, d.xyz - y)
+
+
+def _full(d: F.Data, v: np.ndarray) -> np.ndarray:
+    """(M, 3) from the (M, dims) components the sensor sees, 0 on the others."""
+    if d.dims == 3:
+        return v
+    out = np.zeros((len(v), 3))
+    out[:, list(d.axes)] = v
+    return out
 
 
 def per_pose_rms(d: F.Data, r: np.ndarray) -> np.ndarray:
@@ -88,7 +98,7 @@ def _poses(plt, s, r, after: str, out: Path) -> page.Figure:
 
 
 def _vectors(plt, s, r, after: str, out: Path) -> page.Figure:
-    xyz = np.vstack([s.fit_d.xyz, s.hold_d.xyz])
+    xyz = np.vstack([_full(s.fit_d, s.fit_d.xyz), _full(s.hold_d, s.hold_d.xyz)])
     rb = np.vstack([r[("fit", "before")], r[("hold", "before")]])
     ra = np.vstack([r[("fit", "after")], r[("hold", "after")]])
     nb, na = np.linalg.norm(rb, axis=1), np.linalg.norm(ra, axis=1)

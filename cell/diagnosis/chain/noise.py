@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.diagnosis.noise import pooled, revisits
+from cell.diagnosis.noise import MAD_EFFICIENCY, MIN_POINTS, NEIGHBOURS, local_plane, mad, pooled, \
+    revisits
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C
 from cell.measurements.chain import ChainCampaign
 
@@ -51,7 +52,7 @@ def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
     label, _ = revisits(np.column_stack([visits[cc.obs_pose], cc.obs_marker]))
     if keep is not None:
         label = np.where(keep, label, -1)
-    sigma, dof = pooled(label, cc.xyz)
+    sigma, dof = pooled(label, cc.xyz[:, list(cc.axes)])
     return (sigma, n_groups, dof) if sigma is not None else (None, 0, 0)
 
 
@@ -78,6 +79,38 @@ def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray
     if free_markers:
         dof -= 3 * len(markers_tip) - 6
     return (math.sqrt(ss / dof), dof) if dof > 0 and ss > 0 else (None, 0)
+
+
+def remainder_noise_mm(coords: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
+                       r: np.ndarray) -> tuple[float | None, int, str]:
+    """σ per axis from the remainder ``r`` (M, dims) of a fit, as the planar diagnosis takes
+    it when nothing better is at hand (:func:`cell.diagnosis.noise.residual`), per marker:
+    each point against the leave-one-out plane through its :data:`NEIGHBOURS` nearest
+    points in joint space (``coords`` (M, J), the joints' model values), scaled by
+    √(1 + ΣW²); and the differences of consecutive poses in sample order, scaled by √2. A
+    remainder smooth in the joints (an arm effect) mostly cancels in the first, one slow in
+    time (a warm-up) in the second; the noise in neither. σ = 1.4826 × the MAD, the smaller
+    of the two. Returns (σ, degrees of freedom, how); (None, 0, '') with fewer than
+    :data:`cell.diagnosis.noise.MIN_POINTS` points of every marker."""
+    planes, steps = [], []
+    k = NEIGHBOURS
+    for m in np.unique(obs_marker):
+        rows = np.flatnonzero(obs_marker == m)
+        if len(rows) < MIN_POINTS:
+            continue
+        k = min(NEIGHBOURS, len(rows) - 1)
+        nb, W = local_plane(coords[rows], k)
+        e = r[rows] - np.einsum("nk,nkc->nc", W, r[rows][nb])
+        planes.append(e / np.sqrt(1.0 + np.sum(W * W, axis=1))[:, None])
+        o = rows[np.argsort(obs_pose[rows], kind="stable")]
+        steps.append((r[o][1:] - r[o][:-1]) / np.sqrt(2.0))
+    if not planes:
+        return None, 0, ""
+    found = [(mad(np.concatenate(planes)), f"local planes through {k} joint-space neighbours"),
+             (mad(np.concatenate(steps)), "differences of consecutive poses in sample order")]
+    s, how = min(found, key=lambda t: t[0])
+    n = sum(len(z) for z in planes) * r.shape[1]
+    return (s, int(MAD_EFFICIENCY * n), how) if s > 0 else (None, 0, "")
 
 
 def revisits_disagree(repeat_sigma: float, repeat_dof: int, sensor_sigma: float,
@@ -111,16 +144,21 @@ class SensorNoise:
 
 def estimate(cc: ChainCampaign, xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
              markers_tip: np.ndarray, free_markers: bool,
-             keep: np.ndarray | None = None) -> SensorNoise:
+             keep: np.ndarray | None = None,
+             remainder: tuple[np.ndarray, np.ndarray] | None = None) -> SensorNoise:
     """The noise the diagnosis and the calibration both judge with: the revisits' scatter
     when it agrees with the sensor noise of the rigid constellation (it then also holds the
     arm's repeatability); the rigid estimate when the revisits disagree (the disagreement
     is not noise: it is :attr:`SensorNoise.disagree`) or when there are none; unknown
     without either. The fit points (``xyz``, ``obs_pose``, ``obs_marker``) and the marker
     constellation are those of :func:`rigid_noise_mm`; ``keep`` (M,) marks the campaign's
-    points that are not outliers (:func:`repeat_noise_mm`)."""
+    points that are not outliers (:func:`repeat_noise_mm`). Without revisits and without
+    a rigid constellation (fewer than 3 markers per pose, or a sensor that does not see
+    every axis), ``remainder`` (the fit points' joint values (M, J) and a fit's residual)
+    gives the estimate of :func:`remainder_noise_mm`."""
     rep, groups, rep_dof = repeat_noise_mm(cc, keep)
-    rig, rig_dof = rigid_noise_mm(xyz, obs_pose, obs_marker, markers_tip, free_markers)
+    rig, rig_dof = rigid_noise_mm(xyz, obs_pose, obs_marker, markers_tip, free_markers) \
+        if len(cc.axes) == 3 else (None, 0)     # a rigid fit needs every axis
     disagree = None
     if rep is not None and rig is not None:
         p = revisits_disagree(rep, rep_dof, rig, rig_dof)
@@ -135,4 +173,8 @@ def estimate(cc: ChainCampaign, xyz: np.ndarray, obs_pose: np.ndarray, obs_marke
     if rig is not None:
         return SensorNoise(rig, rig_dof, f"markers (rigid constellation within each pose, "
                                          f"{rig_dof} dof)", disagree)
+    if rep is None and remainder is not None:
+        s, dof, how = remainder_noise_mm(remainder[0], obs_pose, obs_marker, remainder[1])
+        if s is not None:
+            return SensorNoise(s, dof, f"residual ({how})")
     return SensorNoise(None, 0, "unknown")

@@ -90,9 +90,9 @@ class Screen:
         self.index = {p.name: self.nr + i for i, p in enumerate(pool)}
         Js, _ = F.scaled(J)
         r0 = f0.resid.ravel()
-        self.poses = Folds(Js, r0, d.obs_pose, d.n_poses, self.nr)
+        self.poses = Folds(Js, r0, d.obs_pose, d.n_poses, self.nr, dims=d.dims)
         fold, n = d.folds()
-        self.places = self.poses if n >= d.n_poses else Folds(Js, r0, fold, n, self.nr)
+        self.places = self.poses if n >= d.n_poses else Folds(Js, r0, fold, n, self.nr, dims=d.dims)
 
     def cols(self, params) -> list[int]:
         return list(range(self.nr)) + [self.index[p.name] for p in params]
@@ -375,17 +375,17 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         warnings.append("the campaign cannot tell the cause from "
                         + ", ".join(r["label"] for r in dr.rivals)
                         + ": measure the poses in another order, or fix the sensor")
-    noise3 = None if noise_mm is None else noise_mm * math.sqrt(3)
+    noise3 = None if noise_mm is None else noise_mm * math.sqrt(s.fit_d.dims)
     if noise3 is not None and chosen is not None and chosen.fit.cv_rms > PREDICT_FACTOR * noise3:
         warnings.append(f"{chosen.label} predicts left-out poses only to {chosen.fit.cv_rms:.3f} mm "
-                        f"rms, {chosen.fit.cv_rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D): "
+                        f"rms, {chosen.fit.cv_rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D): "
                         "part of the gap is something it does not hold, or the noise is larger "
                         "than measured")
     gap = f0.rms
     if noise3 is not None and gap <= NOISE_FACTOR * noise3:
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
-                         f"({noise3:.3f} mm 3-D); the named cause is small")
+                         f"({noise3:.3f} mm {s.fit_d.dims}-D); the named cause is small")
         return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals,
                         tied, dr.rivals)
     before = s.nominal.hold_in_rms
@@ -406,7 +406,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                        f"{100 * shrink:.0f} %: most of the gap is left")
     if noise3 is not None and chosen.fit.rms > NOISE_FACTOR * noise3:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
-                       f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm 3-D)")
+                       f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D)")
     return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied,
                     dr.rivals)
 
@@ -442,7 +442,7 @@ def separating_poses(s: Search, chosen: Candidate, rivals: list[Candidate],
 
     def predict(c: Candidate) -> np.ndarray:
         y, _ = F.model(syn, c.fit.reg, c.fit.params, c.fit.values)
-        return y.reshape(len(q), m, 3)
+        return y.reshape(len(q), m, d.dims)
     base = predict(chosen)
     diffs = np.stack([np.linalg.norm(base - predict(c), axis=2).max(axis=1) for c in rivals], 1)
     def where(i: int) -> dict:

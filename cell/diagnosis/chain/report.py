@@ -50,13 +50,17 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
 
 
 def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None,
-           keep: np.ndarray | None = None) -> tuple[float | None, str, str | None]:
+           keep: np.ndarray | None = None, best: F.Fit | None = None
+           ) -> tuple[float | None, str, str | None]:
     """(σ per axis for the decision, where it came from, the reason to call the gap
     unexplained when revisited poses disagree beyond the sensor noise, or None): a given σ
-    first, else :func:`cell.diagnosis.chain.noise.estimate`. ``keep`` (M,) marks the
-    campaign's points that are not outliers; ``fit_d`` holds only such points."""
+    first, else :func:`cell.diagnosis.chain.noise.estimate`, its last resort the remainder
+    of ``best`` (the candidate that predicts left-out poses best; default ``f0``). ``keep``
+    (M,) marks the campaign's points that are not outliers; ``fit_d`` holds only such
+    points."""
+    q = fit_d.chain.model_values(fit_d.readings)[fit_d.obs_pose]
     n = estimate(cc, fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
-                 fit_d.known_markers is None, keep)
+                 fit_d.known_markers is None, keep, remainder=(q, (best or f0).resid))
     if given is not None:
         return given, "given", n.disagree
     return n.sigma, n.source, n.disagree
@@ -79,7 +83,7 @@ def _components(c: rank.Candidate) -> list[dict]:
     out = []
     for e in c.effects:
         idx = [nr + i for i, p in enumerate(f.params) if p.effect == e]
-        disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, 3)
+        disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, c.fit.resid.shape[1])
         joints = {f"j{p.joint + 1}" for p in f.params if p.effect == e and not p.arm}
         out.append({"effect": e, "joints": sorted(joints, key=lambda s: int(s[1:])),
                     "rms_mm": _r(F.rms3(disp))})
@@ -123,7 +127,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     keep = np.ones(len(cc.xyz), bool)
     keep[fit_mask[cc.obs_pose]] = ~outl.fit
     keep[~fit_mask[cc.obs_pose]] = ~outl.hold
-    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm, keep)
+    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm, keep, robust.reference(s))
     dec = rank.decide(s, noise_mm)
     dec.warnings += outl.warnings
     if outl.n:

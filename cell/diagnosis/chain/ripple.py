@@ -43,7 +43,7 @@ def with_ripple(d: F.Data, f: F.Fit, k: int) -> tuple[float, np.ndarray]:
     _, J = F.model(d, f.reg, list(f.params) + [offset], np.r_[f.values, 0.0], jac=True)
     twist = J[:, -1]                                          # (3M,): ∂y/∂θ_k
     theta = d.chain.model_values(d.readings)[d.obs_pose, k]
-    extra = np.repeat(_harmonics(theta), 3, axis=0) * twist[:, None]
+    extra = np.repeat(_harmonics(theta), d.dims, axis=0) * twist[:, None]
     return F.loo_with(d, f, extra)
 
 

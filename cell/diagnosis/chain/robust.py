@@ -106,13 +106,13 @@ def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
         return out
     ef = fit_d.xyz - F.model(fit_d, f.reg, f.params, f.values)[0]
     eh = hold_d.xyz - F.model(hold_d, f.reg, f.params, f.values)[0] if len(hold_d.xyz) else \
-        np.zeros((0, 3))
+        np.zeros((0, fit_d.dims))
     med = median(ef, axis=0)
     s = mad(ef - med)
     if not s > 0:
         return out
     su = upper95(s, MAD_EFFICIENCY * ef.size)
-    q = math.sqrt(float(chi2_isf(ALPHA / (len(ef) + len(eh)), 3)))
+    q = math.sqrt(float(chi2_isf(ALPHA / (len(ef) + len(eh)), fit_d.dims)))
     dist_f = np.linalg.norm(ef - med, axis=1)
     dist_h = np.linalg.norm(eh - med, axis=1)
     out.dist_fit, out.dist_hold = dist_f, dist_h

@@ -1,0 +1,96 @@
+"""A planar campaign is a chain campaign whose sensor sees x and y: ``sensor_axes`` in a
+chain ``model.yaml``, the chain diagnosis on the components the sensor sees, and a v1
+(SCARA) campaign's points read as such a chain campaign
+(:func:`cell.measurements.chain.planar_as_chain`)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cell.diagnosis.chain.report import diagnose_chain
+from cell.measurements import CampaignFormatError, read_campaign
+from cell.measurements.chain import planar_as_chain
+from cell.truth import campaign as planar_truth
+from cell.truth import parts
+from tests.cell.chain import chainsim
+
+NOISE = 0.005
+SCARA = [{"name": "j1", "type": "revolute", "a_mm": 325.0, "alpha_deg": 0.0, "d_mm": 0.0,
+          "theta_deg": 0.0},
+         {"name": "j2", "type": "revolute", "a_mm": 275.0, "alpha_deg": 0.0, "d_mm": 0.0,
+          "theta_deg": 0.0}]
+SEEN_XY = {"sensor_axes": ["x", "y"], "markers": {1: [0.0, 0.0, 0.0]}}
+
+
+def _scara(tmp_path, effects, extra=SEEN_XY, **kw):
+    return chainsim.make(tmp_path / "c", effects, poses=60, noise_mm=NOISE, seed=3,
+                         sensor=False, rows=SCARA, markers=[[0.0, 0.0, 0.0]], repeats=6,
+                         model_extra=extra, **kw)
+
+
+@pytest.mark.parametrize("effects, label, name, value", [
+    ({"offset": {"j2": 0.05}}, "joint_offset", "j2_offset_deg", 0.05),
+    ({"a": {"j2": 0.3}}, "link_length", "j2_a_mm", 0.3),
+    ({"ratio": {"j1": 1e-3}}, "gear_ratio", "j1_gear_ratio_rel", 1e-3),
+])
+def test_a_scara_seen_in_x_and_y_is_diagnosed_as_a_chain(tmp_path, effects, label, name, value):
+    cc = read_campaign(_scara(tmp_path, effects))
+    assert cc.axes == (0, 1)
+    rep = diagnose_chain(cc)
+    assert rep["cause"]["label"] == label and rep["cause"]["confidence"] == "high", rep["cause"]
+    lo, hi = rep["cause"]["ci95"][name]
+    assert lo < value < hi
+    # the z the sensor does not see is not read: the same points with z garbled agree
+    d = tmp_path / "c"
+    lines = (d / "points.csv").read_text().splitlines()
+    k = lines[0].split(",").index("z_mm")
+    for i in range(1, len(lines)):
+        cells = lines[i].split(",")
+        cells[k] = str(1000.0 + i)
+        lines[i] = ",".join(cells)
+    (d / "points.csv").write_text("\n".join(lines) + "\n")
+    assert diagnose_chain(read_campaign(d))["cause"]["params"] == rep["cause"]["params"]
+
+
+def test_noise_of_a_two_axis_sensor_comes_from_its_revisits_or_the_remainder(tmp_path):
+    rep = diagnose_chain(read_campaign(_scara(tmp_path, {})))
+    assert rep["cause"]["label"] == "none" and rep["noise"]["source"].startswith("repeats")
+    warm = diagnose_chain(read_campaign(chainsim.make(
+        tmp_path / "w", {"grow": 2.5e-5}, poses=80, noise_mm=NOISE, seed=4, sensor=False,
+        rows=SCARA, markers=[[0.0, 0.0, 0.0]], temps=True, model_extra=SEEN_XY)))
+    # no revisit at one temperature, no rigid constellation in two axes: the remainder
+    assert warm["noise"]["source"].startswith("residual (")
+    assert 0.5 * NOISE < warm["noise"]["sigma_mm"] < 2.0 * NOISE
+    assert warm["cause"]["label"] == "thermal_drift"
+
+
+@pytest.mark.parametrize("extra, words", [
+    ({"sensor_axes": ["y", "x"], "markers": {1: [0.0, 0.0, 0.0]}}, "sensor_axes"),
+    ({"sensor_axes": ["x"], "markers": {1: [0.0, 0.0, 0.0]}}, "sensor_axes"),
+    ({"sensor_axes": ["x", "x"], "markers": {1: [0.0, 0.0, 0.0]}}, "sensor_axes"),
+    ({"sensor_axes": ["x", "y"]}, r"sensor_axes \['x', 'y'\]: a sensor that does not see every "
+                                  r"axis needs measurement_frame: base and the markers' positions"),
+    ({"sensor_axes": ["x", "y"], "markers": {1: [0.0, 0.0, 0.0]}, "measurement_frame": "sensor"},
+     "needs measurement_frame: base"),
+])
+def test_a_sensor_axes_key_that_cannot_be_used_is_refused_in_model_yaml(tmp_path, extra, words):
+    d = _scara(tmp_path, {}, extra)
+    with pytest.raises(CampaignFormatError, match=words) as exc:
+        read_campaign(d)
+    assert exc.value.file.endswith("model.yaml")
+
+
+def test_a_planar_campaign_is_diagnosed_by_the_chain_engine(tmp_path):
+    # a v1 campaign of the planar validation's independent truth (cell/truth/campaign.py):
+    # a j2 offset, 300 poses at stations; its points as a chain campaign seen in x and y
+    design = planar_truth.as_design(planar_truth.Design(places=0, directions=True))
+    rows = planar_truth.draw_rows(11, design)
+    truth = [parts.Part("joint_offset", 2, {"zero_deg": 0.08})]   # the offset o = 0.08°
+    camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", truth, 11, design, rows))
+    cc = planar_as_chain(camp, tmp_path / "p")
+    assert cc.chain.n_joints == 2 and cc.axes == (0, 1)
+    assert np.array_equal(cc.readings[:, 0], camp.points["j1_deg"])
+    rep = diagnose_chain(cc)
+    assert rep["cause"]["label"] == "joint_offset" and rep["cause"]["joints"] == ["j2"], rep["cause"]
+    # within 1 % (the planar engine, with the moves and its own noise model, is closer)
+    assert abs(rep["cause"]["params"]["j2_offset_deg"] - 0.08) < 0.0008
