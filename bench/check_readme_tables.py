@@ -143,6 +143,8 @@ SOURCES: tuple[Source, ...] = (
     Source("chain-oov", "cellctl diagnose validate --chain --trials 60 --seed 0 --out-of-vocabulary 1",
            ("cellctl", "diagnose", "validate", "--chain", "--trials", "60", "--seed", "0",
             "--out-of-vocabulary", "1"), 4, CHAIN_WALL),
+    Source("planar-as-chain", ".venv/bin/python bench/bench_planar_as_chain.py",
+           ("bench/bench_planar_as_chain.py",), 2, (cols("CPU s median"), cols()), slow=True),
     Source("tiago", "cellctl diagnose tests/data/real/tiago-mocap-train",
            ("cellctl", "diagnose", "tests/data/real/tiago-mocap-train"), 1),
     Source("chain-speed", ".venv/bin/python bench/bench_chain_speed.py --repeats 3",
