@@ -27,8 +27,9 @@ def _chain(rep: dict) -> list[str]:
     ch, reg = rep.get("chain"), rep.get("registration")
     if ch is None:
         return []
+    seen = f", seeing {', '.join(ch['sensor_axes'])} only" if "sensor_axes" in ch else ""
     out = [f"chain: {ch['kinematics']}, {len(ch['joints'])} joints, markers {ch['markers']}, "
-           f"measured in the {ch['measurement_frame']} frame"]
+           f"measured in the {ch['measurement_frame']} frame{seen}"]
     if "sensor_frame" in reg:
         sf = reg["sensor_frame"]
         out.append(f"registration: sensor frame t = {sf['t_mm']} mm, rpy = {sf['rpy_deg']} deg")

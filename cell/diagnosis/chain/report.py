@@ -197,7 +197,8 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
         "chain": {"kinematics": chain.kind, "convention": chain.convention or None,
                   "joints": {j.column: {"name": j.name, "type": j.type, "unit": j.unit}
                              for j in chain.joints},
-                  "markers": cc.markers, "measurement_frame": cc.spec.measurement_frame},
+                  "markers": cc.markers, "measurement_frame": cc.spec.measurement_frame}
+        | ({} if len(cc.axes) == 3 else {"sensor_axes": list(cc.spec.sensor_axes)}),
         "registration": f0.reg.as_dict(fit_d.sensor, fit_d.known_markers is None, cc.markers)
         | {"parameters": n_reg, "condition": _r(f0.conditioning()[2], 1), "rms_mm": _r(f0.rms),
            "absorbs": absorbed,
