@@ -31,6 +31,7 @@ from cell.diagnosis.noise import MAD_EFFICIENCY, MIN_POINTS, NEIGHBOURS, local_p
     revisits
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C
 from cell.measurements.chain import ChainCampaign
+from cell.stats import distinct
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
 TEMP_BIN_C = MIN_TEMP_SPREAD_C    # visits in one such temperature bin count as one pose
@@ -94,7 +95,7 @@ def remainder_noise_mm(coords: np.ndarray, obs_pose: np.ndarray, obs_marker: np.
     :data:`cell.diagnosis.noise.MIN_POINTS` points of every marker."""
     planes, steps = [], []
     k = NEIGHBOURS
-    for m in np.unique(obs_marker):
+    for m in distinct(obs_marker):
         rows = np.flatnonzero(obs_marker == m)
         if len(rows) < MIN_POINTS:
             continue
