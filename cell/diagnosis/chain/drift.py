@@ -18,8 +18,10 @@ judged by leave-out prediction over the folds of :meth:`cell.diagnosis.chain.fit
   when poses are walked in joint order, a drifting frame and a joint effect look alike,
   and the campaign cannot tell them apart.
 
-Only with ``measurement_frame: sensor`` (a fixed base frame is not registered, so it has
-no frame to drift) and at least :data:`MIN_POSES` fit poses.
+With ``measurement_frame: base`` there is no sensor frame to drift, but a joint's zero
+can move (a slipping encoder, a bumped coupling): the hypothesis is then every joint's
+offset made linear in the sample order (one rate per joint: its twist at the fit times
+``s``). At least :data:`MIN_POSES` fit poses.
 """
 from __future__ import annotations
 
@@ -51,9 +53,21 @@ def _order(d: F.Data) -> np.ndarray:
 
 def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square) of fit ``f`` plus a sensor frame
-    drifting linearly with sample order, linearised at ``f``."""
+    (base frame: the joints' zeros) drifting linearly with sample order, linearised at ``f``."""
     s = np.repeat(_order(d), d.dims)
-    return F.loo_with(d, f, f.J[:, :N_DRIFT] * s[:, None])
+    return F.loo_with(d, f, _moving(d, f) * s[:, None])
+
+
+def _moving(d: F.Data, f: F.Fit) -> np.ndarray:
+    """(dims·M, k) what moves: the sensor frame's 6 registration columns of ``f``, or in
+    the base frame each joint's twist at ``f`` (the column of its offset)."""
+    if d.sensor:
+        return f.J[:, :N_DRIFT]
+    zeros = [F.Param(f"j{k + 1}_zero", "joint_offset", k, d.chain.joint_op[k], "")
+             for k in range(d.chain.n_joints)]
+    _, J = F.model(d, f.reg, list(f.params) + zeros, np.r_[f.values, np.zeros(len(zeros))],
+                   jac=True)
+    return J[:, -len(zeros):]
 
 
 def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
@@ -62,23 +76,32 @@ def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
     candidates it contains), with the decision's ``alpha`` and rival ``ratio`` (module
     docstring)."""
     out = Drift()
-    if not d.sensor or d.n_poses < MIN_POSES:
+    if d.n_poses < MIN_POSES:
         return out
     base = named.fit
     total, per = with_drift(d, base)
     p = wilcoxon_greater(base.cv_fold - per)
     if p < alpha:
-        out.present = (f"the sensor frame moves with sample order: {named.label} plus a frame "
-                       f"drifting over the campaign predicts left-out places better than "
+        what, moves = ("the sensor frame", "moves") if d.sensor else ("the joints' zeros", "move")
+        out.present = (f"{what} {moves} with sample order: {named.label} plus {what} drifting "
+                       f"over the campaign predicts left-out places better than "
                        f"{named.label} alone (leave-out rms {base.cv_rms:.4f} -> {total:.4f} mm, "
                        f"p = {p:.2g})")
         return out
     for c in smaller:
         t, pc = with_drift(d, c.fit)
         if wilcoxon_greater(pc - base.cv_fold) >= alpha and t <= ratio * base.cv_rms:
-            out.rivals.append({"label": f"{c.label} + sensor frame drifting with sample order",
-                               "effects": list(c.effects) + ["sensor_drift"],
-                               "joints": c.joints, "cv_rms_mm": round(float(t), 6),
-                               "testable": False,
-                               "why": "a sensor frame that moves is not an arm effect"})
+            if d.sensor:
+                out.rivals.append({"label": f"{c.label} + sensor frame drifting with sample order",
+                                   "effects": list(c.effects) + ["sensor_drift"],
+                                   "joints": c.joints, "cv_rms_mm": round(float(t), 6),
+                                   "testable": False,
+                                   "why": "a sensor frame that moves is not an arm effect"})
+            else:
+                out.rivals.append({"label": f"{c.label} + joint zeros drifting with sample order",
+                                   "effects": list(c.effects) + ["zero_drift"],
+                                   "joints": c.joints, "cv_rms_mm": round(float(t), 6),
+                                   "testable": False,
+                                   "why": "a joint zero that moves during the campaign is not "
+                                          "a constant effect"})
     return out

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cell.diagnosis import validate
 from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import CampaignFormatError, read_campaign
 from cell.measurements.chain import planar_as_chain
@@ -94,3 +95,19 @@ def test_a_planar_campaign_is_diagnosed_by_the_chain_engine(tmp_path):
     assert rep["cause"]["label"] == "joint_offset" and rep["cause"]["joints"] == ["j2"], rep["cause"]
     # within 1 % (the planar engine, with the moves and its own noise model, is closer)
     assert abs(rep["cause"]["params"]["j2_offset_deg"] - 0.08) < 0.0008
+
+
+@pytest.mark.parametrize("trial", [0, 13])
+def test_a_joint_zero_that_steps_mid_campaign_is_not_a_constant_offset(tmp_path, trial):
+    # trials 0 and 13 of the planar validation's outside seed 2 (bench/bench_planar_as_chain.py
+    # --seed 2 --outside 1): the offset of a joint steps mid-campaign. Through the chain
+    # engine both were named joint_offset with confidence high: a base-frame campaign had no
+    # frame whose drift was checked; now the joints' zeros are
+    tseed = 2 * 100_003 + trial
+    design = validate.draw_layout(tseed, "realistic", 300)
+    rows = planar_truth.draw_rows(tseed, design)
+    odd = validate.draw_outside(tseed, 1.0, validate.OUTSIDE)
+    assert odd.kind == "offset_bump"
+    camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", [odd], tseed, design, rows))
+    rep = diagnose_chain(planar_as_chain(camp, tmp_path / "p"))
+    assert rep["cause"]["confidence"] != "high" or rep["unexplained"], rep["cause"]
