@@ -7,7 +7,8 @@ format and its words (:mod:`cell.diagnosis.page`) and the validation harness
 
 * :mod:`.fit`       registration (sensor frame, markers) and parameter fits, robust errors
 * :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision
-* :mod:`.drift`     a sensor frame that drifts during the campaign, as a rival or a reason
+* :mod:`.drift`     a sensor frame (base frame: the joints' zeros) that drifts during the
+                    campaign, as a rival or a reason
 * :mod:`.ripple`    a transmission ripple on one joint in the remainder, as a reason
 * :mod:`.robust`    gross outliers found on the best candidate and set aside
 * :mod:`.noise`     the sensor noise from the data: rigid constellation, revisited poses
