@@ -82,26 +82,23 @@ def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
     total, per = with_drift(d, base)
     p = wilcoxon_greater(base.cv_fold - per)
     if p < alpha:
-        what, moves = ("the sensor frame", "moves") if d.sensor else ("the joints' zeros", "move")
-        out.present = (f"{what} {moves} with sample order: {named.label} plus {what} drifting "
+        what, moves, plus = (("the sensor frame", "moves", "a frame") if d.sensor
+                             else ("the joints' zeros", "move", "the joints' zeros"))
+        out.present = (f"{what} {moves} with sample order: {named.label} plus {plus} drifting "
                        f"over the campaign predicts left-out places better than "
                        f"{named.label} alone (leave-out rms {base.cv_rms:.4f} -> {total:.4f} mm, "
                        f"p = {p:.2g})")
         return out
+    if d.sensor:
+        moving, tag, why = ("sensor frame", "sensor_drift",
+                            "a sensor frame that moves is not an arm effect")
+    else:
+        moving, tag, why = ("joint zeros", "zero_drift",
+                            "a joint zero that moves during the campaign is not a constant effect")
     for c in smaller:
         t, pc = with_drift(d, c.fit)
         if wilcoxon_greater(pc - base.cv_fold) >= alpha and t <= ratio * base.cv_rms:
-            if d.sensor:
-                out.rivals.append({"label": f"{c.label} + sensor frame drifting with sample order",
-                                   "effects": list(c.effects) + ["sensor_drift"],
-                                   "joints": c.joints, "cv_rms_mm": round(float(t), 6),
-                                   "testable": False,
-                                   "why": "a sensor frame that moves is not an arm effect"})
-            else:
-                out.rivals.append({"label": f"{c.label} + joint zeros drifting with sample order",
-                                   "effects": list(c.effects) + ["zero_drift"],
-                                   "joints": c.joints, "cv_rms_mm": round(float(t), 6),
-                                   "testable": False,
-                                   "why": "a joint zero that moves during the campaign is not "
-                                          "a constant effect"})
+            out.rivals.append({"label": f"{c.label} + {moving} drifting with sample order",
+                               "effects": list(c.effects) + [tag], "joints": c.joints,
+                               "cv_rms_mm": round(float(t), 6), "testable": False, "why": why})
     return out
