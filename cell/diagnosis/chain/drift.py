@@ -60,14 +60,8 @@ def with_drift(d: F.Data, f: F.Fit) -> tuple[float, np.ndarray]:
 
 def _moving(d: F.Data, f: F.Fit) -> np.ndarray:
     """(dims·M, k) what moves: the sensor frame's 6 registration columns of ``f``, or in
-    the base frame each joint's twist at ``f`` (the column of its offset)."""
-    if d.sensor:
-        return f.J[:, :N_DRIFT]
-    zeros = [F.Param(f"j{k + 1}_zero", "joint_offset", k, d.chain.joint_op[k], "")
-             for k in range(d.chain.n_joints)]
-    _, J = F.model(d, f.reg, list(f.params) + zeros, np.r_[f.values, np.zeros(len(zeros))],
-                   jac=True)
-    return J[:, -len(zeros):]
+    the base frame each joint's column at ``f`` (:func:`cell.diagnosis.chain.fit.joint_columns`)."""
+    return f.J[:, :N_DRIFT] if d.sensor else F.joint_columns(d, f)
 
 
 def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:

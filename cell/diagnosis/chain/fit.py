@@ -365,6 +365,18 @@ def _seen(d: Data, y: np.ndarray) -> np.ndarray:
     return y if d.dims == 3 else y[:, list(d.axes)]
 
 
+def joint_columns(d: Data, f: "Fit") -> np.ndarray:
+    """(dims·M, J) each joint's column at fit ``f``: how the measured points move per unit
+    (deg / mm) added to the joint's value, the column its offset would have. The rivals
+    outside the vocabulary that act through a joint (a ripple, a drifting zero) are built
+    on them."""
+    offsets = [Param(f"j{k + 1}_column", "joint_offset", k, d.chain.joint_op[k], "")
+               for k in range(d.chain.n_joints)]
+    _, J = model(d, f.reg, list(f.params) + offsets, np.r_[f.values, np.zeros(len(offsets))],
+                 jac=True)
+    return J[:, J.shape[1] - len(offsets):]
+
+
 def n_registration(d: Data) -> int:
     return (6 if d.sensor else 0) + (3 * d.n_markers if d.known_markers is None else 0)
 
@@ -568,21 +580,21 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
     dropped: dict[str, str] = {}
     poses = _poses(d)
-    still = set()                          # terms that are zero but for rounding
+    rounding = set()                       # terms that are zero but for rounding
     for p in list(allp):
         use = fx.CHAIN_EFFECTS[p.effect].chain
         if use.term is None:
             continue
         v = use.term(poses, p.joint)
         if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
-            still.add(p.name)
+            rounding.add(p.name)
         elif use.min_spread > 0 and np.any(v) and float(np.ptp(v)) < use.min_spread:
             dropped[p.name] = use.still
             allp.remove(p)
     _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
     nr = n_registration(d)
     for i, p in enumerate(allp):
-        if p.name in still:
+        if p.name in rounding:
             J[:, nr + i] = 0.0
     span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
                                identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))

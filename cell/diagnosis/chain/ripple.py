@@ -36,14 +36,12 @@ def _harmonics(theta_deg: np.ndarray) -> np.ndarray:
     return np.column_stack([np.sin(t), np.cos(t)])
 
 
-def with_ripple(d: F.Data, f: F.Fit, k: int) -> tuple[float, np.ndarray]:
+def with_ripple(d: F.Data, f: F.Fit, k: int, column: np.ndarray) -> tuple[float, np.ndarray]:
     """Leave-out error (total rms, per-fold mean square) of fit ``f`` plus a ripple on
-    joint ``k`` (module docstring), linearised at ``f``."""
-    offset = F.Param(f"j{k + 1}_ripple", "joint_offset", k, d.chain.joint_op[k], "deg")
-    _, J = F.model(d, f.reg, list(f.params) + [offset], np.r_[f.values, 0.0], jac=True)
-    twist = J[:, -1]                                          # (3M,): ∂y/∂θ_k
+    joint ``k`` (module docstring), linearised at ``f``; ``column`` (dims·M,) the joint's
+    column at ``f`` (:func:`cell.diagnosis.chain.fit.joint_columns`)."""
     theta = d.chain.model_values(d.readings)[d.obs_pose, k]
-    extra = np.repeat(_harmonics(theta), d.dims, axis=0) * twist[:, None]
+    extra = np.repeat(_harmonics(theta), d.dims, axis=0) * column[:, None]
     return F.loo_with(d, f, extra)
 
 
@@ -58,9 +56,10 @@ def check(d: F.Data, named, alpha: float) -> str:
     if not joints:
         return ""
     base = named.fit
+    columns = F.joint_columns(d, base)
     best = None
     for k in joints:
-        total, per = with_ripple(d, base, k)
+        total, per = with_ripple(d, base, k, columns[:, k])
         p = wilcoxon_greater(base.cv_fold - per)
         if best is None or p < best[0]:
             best = (p, k, total)
