@@ -33,6 +33,7 @@ from cell.measurements.folder import staged_dir
 
 MIN_MARKER_POSES = 3     # 3 unknowns per marker: at least one pose more than that needs
 LIMIT_SLACK = 0.05       # readings may pass a limit by 5 % of the range (overshoot, encoder)
+EXTRA_COLUMNS = ("time_s", "temp_c", "payload_kg")   # optional per-point columns kept as read
 
 
 @dataclass
@@ -294,7 +295,7 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
                                           line=lines[int(rows[0])], column="marker")
     mi = np.searchsorted(markers, marker)
     xyz = np.column_stack([t.get(f"{a}_mm", np.zeros(len(lines))) for a in "xyz"])
-    extra = {k: t[k] for k in ("time_s", "temp_c", "payload_kg") if k in t}
+    extra = {k: t[k] for k in EXTRA_COLUMNS if k in t}
     dirs = None
     if dir_cols:
         dirs = np.zeros_like(readings)
@@ -322,7 +323,7 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
         head += ["split"] if c.split is not None else []
         dir_cols = [] if c.dirs is None else [k for k in range(nj) if np.any(c.dirs[:, k])]
         head += [f"j{k + 1}_dir" for k in dir_cols]
-        extra = [k for k in ("time_s", "temp_c", "payload_kg") if k in c.extra]
+        extra = [k for k in EXTRA_COLUMNS if k in c.extra]
         head += extra
         out = [",".join(head)]
         for i in range(len(c.xyz)):
@@ -358,12 +359,11 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
                      source=c.source or "planar campaign")
     p = c.points
     n = len(p["sample"])
-    chain = dh_chain("planar campaign", [r.model_dump() for r in rows], "standard", [],
-                     (0.0, 0.0, 0.0), (0.0, 0.0, -1.0))
+    chain = build_chain(spec, Path(directory) / "model.yaml")
     dirs = None
     if "j1_dir" in p or "j2_dir" in p:
         dirs = np.column_stack([p.get(f"j{k}_dir", np.zeros(n)) for k in (1, 2)]).astype(float)
-    extra = {k: p[k] for k in ("time_s", "temp_c", "payload_kg") if k in p}
+    extra = {k: p[k] for k in EXTRA_COLUMNS if k in p}
     return ChainCampaign(spec, chain, np.column_stack([p["j1_deg"], p["j2_deg"]]).astype(float),
                          np.asarray(p["sample"]), p.get("split"), np.arange(n),
                          np.zeros(n, dtype=np.int64),
