@@ -194,17 +194,12 @@ class ChainPoses:
     values (deg or mm: the readings with the model's zero and sign applied), ``levers``
     (P, J) m the gravity lever of each joint at the nominal pose (format, "Chain
     effects"), ``dirs`` (P, J) the sign of each joint's last motion (``jK_dir``; 0
-    unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; NaN unknown)."""
+    unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; None: not recorded)."""
 
     q: np.ndarray
     levers: np.ndarray
     dirs: np.ndarray
     temp_c: np.ndarray | None = None
-
-    @property
-    def temps(self) -> np.ndarray:
-        """``temp_c`` with NaN for every pose when the campaign has no column."""
-        return np.full(len(self.q), np.nan) if self.temp_c is None else self.temp_c
 
 
 @dataclass(frozen=True)

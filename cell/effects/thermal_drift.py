@@ -20,9 +20,9 @@ def thermal_drift(x, jidx, links_mm, temp_c):
 
 
 def chain_growth(poses: ChainPoses, k: int) -> np.ndarray:
-    """Relative growth of the whole arm per unit α: T − T_ref per pose, 0 where the pose's
-    temperature is not known (the format's reference temperature)."""
-    return np.nan_to_num(poses.temps - REF_TEMP_C, nan=0.0)
+    """Relative growth of the whole arm per unit α: T − T_ref per pose; 0 on every pose when
+    the campaign records no temperature (the format's reference temperature)."""
+    return np.zeros(len(poses.q)) if poses.temp_c is None else poses.temp_c - REF_TEMP_C
 
 
 def d_thermal_drift(x, jidx, links_mm, temp_c):
