@@ -207,18 +207,20 @@ class OnChain:
     """How the effect applies to a serial chain (:mod:`cell.diagnosis.chain.fit`): its parameters per
     joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
     ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
-    origin parameter names; ``"arm"`` is one parameter for the whole arm, named ``stem``.
-    ``unit`` the parameter's unit (``{unit}``: the joint's). ``remedy`` replaces the planar
-    one on a chain.
+    origin parameter names; ``"arm"`` is one parameter for the whole arm, named ``stem``;
+    ``"sensor"`` one parameter, named ``stem``, of a linear map the sensor applies about its
+    centre c (``sensor_center_mm``): m = c + M·(y − c), ``sensor_map(value) -> (M (3, 3),
+    ∂M/∂value (3, 3))`` in the measurement frame. ``unit`` the parameter's unit
+    (``{unit}``: the joint's). ``remedy`` replaces the planar one on a chain.
 
     ``term(poses, k) -> (P,)``: the effect on joint k's value per unit of its parameter,
     Δq_k = value · term (:class:`ChainPoses`); for an ``"arm"`` effect (k = −1) the
     relative change of every length of the arm, so that each point in the base frame moves
     to (1 + value · term) times itself. Either way the chain fitter's forward model and,
     being linear, its exact derivative. A ``"geometric"`` effect has none (its parameter
-    is the chain's own op offset); every other effect must give one. ``unseen``: why the
-    campaign cannot show the effect when its term is zero on every pose (what column it
-    lacks); ``min_spread``: the least spread (max − min) of the term over the fit poses
+    is the chain's own op offset), nor a ``"sensor"`` one; every other effect must give
+    one. ``unseen``: why the campaign cannot show the effect when its term is zero on every
+    pose (what column it lacks; for a sensor map, that the campaign gives no centre); ``min_spread``: the least spread (max − min) of the term over the fit poses
     that tells the effect from a constant one, ``still`` what it cannot be told from below
     it. ``lower``: the least value the parameter can physically take (a width, a give
     that cannot be negative; None: unbounded): a fit that wants it below is left without
@@ -233,11 +235,25 @@ class OnChain:
     min_spread: float = 0.0
     still: str = ""
     lower: float | None = None
+    sensor_map: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = field(default=None,
+                                                                                 repr=False)
 
     def __post_init__(self):
-        if (self.term is None) != (self.joints == "geometric"):
+        if (self.term is None) != (self.joints in ("geometric", "sensor")):
             raise ValueError(f"OnChain({self.joints!r}): a joint term is given exactly when "
-                             "the effect is not geometric")
+                             "the effect is neither geometric nor the sensor's")
+        if (self.sensor_map is None) != (self.joints != "sensor"):
+            raise ValueError(f"OnChain({self.joints!r}): a sensor map is given exactly when "
+                             "the effect is the sensor's")
+
+
+def planar_map(m2: np.ndarray, zz: float) -> np.ndarray:
+    """A map of the x–y plane (2, 2) as a map of the measurement frame (3, 3) that
+    multiplies z by ``zz``: a camera's map seen by a sensor of any axes."""
+    out = np.zeros((3, 3))
+    out[:2, :2] = m2
+    out[2, 2] = zz
+    return out
 
 
 def constant_term(poses: ChainPoses, k: int) -> np.ndarray:

@@ -1,12 +1,13 @@
-"""camera_rotation: camera rotated about its centre (format: m = c + R(φ)·(p − c))."""
+"""camera_rotation: camera rotated about its centre (format: m = c + R(φ)·(p − c)). On a
+chain the sensor turns its readings about the z axis through ``sensor_center_mm``."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from cell.effects.base import CameraCentre, Effect, ParamSpec
-from cell.effects.camera_scale import CHECK_CAMERA
+from cell.effects.base import CameraCentre, Effect, OnChain, ParamSpec, planar_map
+from cell.effects.camera_scale import CHECK_CAMERA, NO_CENTRE
 
 
 def _rot(a_rad: float) -> np.ndarray:
@@ -26,9 +27,17 @@ def d_camera_rotation(x):
                                                    [math.cos(a), -math.sin(a)]])
 
 
+def chain_rotation(phi_deg: float):
+    """The rotation about z in the measurement frame: M = R_z(φ), ∂M/∂φ (φ in deg)."""
+    m, dm = d_camera_rotation([phi_deg])
+    return planar_map(m, 1.0), planar_map(dm, 0.0)
+
+
 EFFECT = Effect(
     "camera_rotation", "vision", "vision", (), False,
     (ParamSpec("camera_rotation_deg", "deg", "rotation about the camera centre", (-5.0, 5.0),
                (0.01, 0.1)),),
     "position", "camera rotated about its centre", camera_rotation, d_camera_rotation,
-    needs=(CameraCentre(),), remedy=CHECK_CAMERA)
+    needs=(CameraCentre(),), remedy=CHECK_CAMERA,
+    chain=OnChain("sensor", "camera_rotation_deg", "deg", sensor_map=chain_rotation,
+                  unseen=NO_CENTRE, remedy=CHECK_CAMERA))

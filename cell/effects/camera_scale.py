@@ -1,10 +1,12 @@
-"""camera_scale: camera scale error about its centre (format: m = c + (1 + s)·(p − c))."""
+"""camera_scale: camera scale error about its centre (format: m = c + (1 + s)·(p − c)). On a
+chain the sensor scales every axis it sees about its centre ``sensor_center_mm``."""
 from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import CameraCentre, Effect, ParamSpec, Remedy
+from cell.effects.base import CameraCentre, Effect, OnChain, ParamSpec, Remedy, planar_map
 
+NO_CENTRE = "model.yaml gives no sensor_center_mm"
 CHECK_CAMERA = Remedy("camera", "Check the camera calibration ({what}).",
                       ("cellctl calibrate-camera --board board.yaml --images DIR --out cal.json",))
 
@@ -20,9 +22,16 @@ def d_camera_scale(x):
     return (1.0 + float(x[0])) * np.eye(2), np.eye(2)
 
 
+def chain_scale(s: float):
+    """The scale in the measurement frame: M = (1 + s)·I₃, ∂M/∂s = I₃."""
+    m, dm = d_camera_scale([s])
+    return planar_map(m, 1.0 + s), planar_map(dm, 1.0)
+
+
 EFFECT = Effect(
     "camera_scale", "vision", "vision", (), False,
     (ParamSpec("camera_scale_rel", "1", "scale about the camera centre", (-0.05, 0.05),
                (2e-4, 2e-3)),),
     "position", "camera scale error about its centre", camera_scale, d_camera_scale,
-    needs=(CameraCentre(),), remedy=CHECK_CAMERA)
+    needs=(CameraCentre(),), remedy=CHECK_CAMERA,
+    chain=OnChain("sensor", "camera_scale_rel", "1", sensor_map=chain_scale, unseen=NO_CENTRE))

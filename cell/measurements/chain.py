@@ -314,7 +314,9 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
     with staged_dir(d, force) as tmp:
         model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
         if tuple(model.get("sensor_axes", ())) == ("x", "y", "z"):
-            del model["sensor_axes"]             # the default: files written before it stay alike
+            del model["sensor_axes"]             # the defaults: files written before them
+        if model.get("sensor_center_mm", 0) is None:   # stay alike
+            del model["sensor_center_mm"]
         (tmp / "model.yaml").write_text(yaml.safe_dump(model, sort_keys=False), encoding="utf-8")
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
@@ -343,7 +345,8 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     as the chain campaign they are: two revolute joints in standard DH (a = ``l1_mm``,
     ``l2_mm``; α, d, θ zero; ``joint_limits_deg`` as limits), the tool centre a known marker
     at the flange, measured in the base frame by a sensor that sees x and y
-    (``sensor_axes: [x, y]``); ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
+    (``sensor_axes: [x, y]``) whose centre is the camera's (``sensor_center_mm``);
+    ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
     moves (``paths.csv``) are not part of it; ``directory`` is where ``c`` was read from
     (messages name its files). Raises CampaignFormatError for a campaign without points."""
     if c.points is None:
@@ -354,9 +357,10 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     rows = [DHRow(name=f"j{k + 1}", type="revolute", a_mm=float(a), alpha_deg=0.0, d_mm=0.0,
                   theta_deg=0.0, limits=None if lim is None else tuple(lim))
             for k, (a, lim) in enumerate(zip((m.l1_mm, m.l2_mm), limits))]
+    centre = None if m.camera is None else (*map(float, m.camera.center_mm), 0.0)
     spec = ChainSpec(format=FORMAT, kinematics="dh", joints=rows, measurement_frame="base",
                      markers={0: (0.0, 0.0, 0.0)}, sensor_axes=("x", "y"),
-                     source=c.source or "planar campaign")
+                     sensor_center_mm=centre, source=c.source or "planar campaign")
     p = c.points
     n = len(p["sample"])
     chain = build_chain(spec, Path(directory) / "model.yaml")

@@ -67,6 +67,7 @@ def pydantic_models() -> tuple[type, type, type]:
         gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
         source: str = ""
         sensor_axes: tuple[Literal["x", "y", "z"], ...] = AXES
+        sensor_center_mm: tuple[float, float, float] | None = None
 
         @field_validator("sensor_axes")
         @classmethod
@@ -167,6 +168,10 @@ def _plain_spec(data) -> dict | None:
     out["coupling"] = [Coupling(**c) for c in terms]
     out["tool_mm"], out["gravity"] = _numbers(out["tool_mm"], 3), _numbers(out["gravity"], 3)
     out["markers"] = _plain_markers(out["markers"])
+    if out["sensor_center_mm"] is not None:
+        out["sensor_center_mm"] = _numbers(out["sensor_center_mm"], 3)
+        if out["sensor_center_mm"] is None:
+            return None
     if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None \
             or not _plain_axes(out["sensor_axes"]):
         return None
@@ -216,8 +221,11 @@ class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models(
     """``model.yaml`` of a chain campaign. ``gravity`` (this project's addition) is the
     direction of gravity in the base frame, default −z; it only matters for the
     gravity-compliance effect. ``sensor_axes`` (this project's addition) the axes the
-    sensor sees, two or three of x, y, z in that order (default all three). Every number must be finite. Validated on construction as
-    the pydantic model of :func:`pydantic_models` (module docstring): bad input raises
+    sensor sees, two or three of x, y, z in that order (default all three).
+    ``sensor_center_mm`` (this project's addition, optional) the point of the measurement
+    frame a camera-like sensor's scale and rotation errors act about (its optical centre;
+    the rotation is about the frame's z axis). Every number must be finite. Validated on
+    construction as the pydantic model of :func:`pydantic_models` (module docstring): bad input raises
     pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as
     pydantic's."""
 
@@ -235,6 +243,7 @@ class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models(
     gravity: tuple[float, float, float] = (0.0, 0.0, -1.0)
     source: str = ""
     sensor_axes: tuple[str, ...] = AXES
+    sensor_center_mm: tuple[float, float, float] | None = None
 
     def as_input(self) -> dict:
         """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""

@@ -270,7 +270,8 @@ def test_every_effect_is_one_complete_definition():
             assert e.deriv is not None and e.stage in fx.STAGES, name
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
     assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
-                                      "thermal_drift", "gravity_compliance"]
+                                      "thermal_drift", "camera_scale", "camera_rotation",
+                                      "gravity_compliance"]
 
 
 def test_the_chain_vocabulary_comes_from_the_registry():
@@ -278,10 +279,12 @@ def test_the_chain_vocabulary_comes_from_the_registry():
     assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
     assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
                                    "gear_ratio": "transmission", "backlash": "transmission",
-                                   "thermal_drift": "thermal", "gravity_compliance": "transmission"}
+                                   "thermal_drift": "thermal", "camera_scale": "vision",
+                                   "camera_rotation": "vision", "gravity_compliance": "transmission"}
     assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
                                     "gear_ratio": "angle", "backlash": "direction",
-                                    "thermal_drift": "temperature",
+                                    "thermal_drift": "temperature", "camera_scale": "position",
+                                    "camera_rotation": "position",
                                     "gravity_compliance": "position"}
 
 

@@ -2,13 +2,15 @@
 
 Measurement model (one measured point ``y`` of marker m on pose p)::
 
-    y = R_s · ((1 + g_p) · T_tip(q_p; e) · m_m) + t_s
+    y = R_s · ((1 + g_p) · T_tip(q_p; e) · m_m) + t_s,    measured: c + M(e) · (y − c)
 
 ``R_s, t_s`` (the sensor frame, when ``measurement_frame: sensor``) and ``m_m`` (marker
 positions in the tip frame, when ``markers: unknown``) are **registration**: nuisance
 fitted first and with every candidate. ``e`` are the error parameters of the chain
 vocabulary (:func:`vocabulary`); ``g_p`` the growth of the whole arm on pose p that its
-parameters give (thermal: α·(T_p − 20 °C); 0 without one). Fits are damped Gauss–Newton
+parameters give (thermal: α·(T_p − 20 °C); 0 without one); ``M(e)`` the product of the
+sensor's own maps about its centre ``c`` (``sensor_center_mm``: a camera's scale and
+rotation; I without one). Fits are damped Gauss–Newton
 with exact Jacobians (:mod:`cell.kinematics.evaluate`); the sensor rotation is updated
 multiplicatively.
 
@@ -50,7 +52,8 @@ DEPENDS_ON = {n: e.depends_on for n, e in fx.CHAIN_EFFECTS.items()}
 class Param:
     """One error parameter: ``effect`` of the chain vocabulary, 0-based ``joint``, the op it
     adds to and its unit (deg, mm, 1, deg/m, 1/K); ``joint`` and ``op`` are −1 for a
-    parameter of the whole arm (:attr:`arm`)."""
+    parameter on no joint: of the whole arm (:attr:`arm`) or of the sensor
+    (:attr:`sensor`)."""
 
     name: str
     effect: str
@@ -59,20 +62,29 @@ class Param:
     unit: str
 
     @property
+    def on_joint(self) -> bool:
+        return self.joint >= 0
+
+    @property
+    def sensor(self) -> bool:
+        """A parameter of the sensor's map about its centre (a camera's scale, rotation)."""
+        return fx.CHAIN_EFFECTS[self.effect].chain.joints == "sensor"
+
+    @property
     def arm(self) -> bool:
-        """A parameter of the whole arm (thermal growth), on no joint."""
-        return self.joint < 0
+        """A parameter of the whole arm (thermal growth)."""
+        return self.joint < 0 and not self.sensor
 
 
 def vocabulary(chain: Chain) -> list[Param]:
     """All error parameters the chain defines, offsets first (the identifiability priority):
     per effect of :data:`EFFECTS`, in its order, the parameters its definition's
     :class:`cell.effects.OnChain` names (per joint, per revolute joint, the chain's
-    geometric parameters, or one for the whole arm)."""
+    geometric parameters, or one for the whole arm or the sensor)."""
     out = []
     for name, e in fx.CHAIN_EFFECTS.items():
         use = e.chain
-        if use.joints == "arm":
+        if use.joints in ("arm", "sensor"):
             out.append(Param(use.stem, name, -1, -1, use.unit))
             continue
         if use.joints == "geometric":
@@ -108,8 +120,9 @@ class Data:
     motion (0: unknown); ``temp_c`` (P,) each pose's temperature (the mean ``temp_c`` of
     its rows; None: no column); ``axes`` the axes of the measurement frame the sensor sees
     (0, 1, 2 = x, y, z; ``sensor_axes``), ``xyz`` (M, len(axes)) holds those components
-    only; ``frames`` the nominal forward kinematics of the poses (:meth:`nominal_frames`),
-    None until asked."""
+    only; ``centre`` (3,) mm the sensor's centre in the measurement frame
+    (``sensor_center_mm``; None: not given); ``frames`` the nominal forward kinematics of
+    the poses (:meth:`nominal_frames`), None until asked."""
 
     chain: Chain
     readings: np.ndarray
@@ -124,6 +137,7 @@ class Data:
     place: np.ndarray | None = None
     temp_c: np.ndarray | None = None
     axes: tuple[int, ...] = (0, 1, 2)
+    centre: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
@@ -164,7 +178,8 @@ class Data:
                 cc.xyz if len(axes) == 3 else cc.xyz[:, list(axes)], len(cc.markers),
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
                 _levers(cc.chain, frames), cc.dirs, temp_c=cc.pose_temps(), axes=axes,
-                frames=frames)
+                centre=None if cc.spec.sensor_center_mm is None
+                else np.asarray(cc.spec.sensor_center_mm, float), frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
@@ -176,7 +191,8 @@ class Data:
         temp = None if self.temp_c is None else np.full(P, float(np.mean(self.temp_c)))
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, self.dims)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, frames), dirs, np.arange(P), temp, self.axes, frames)
+                    _levers(self.chain, frames), dirs, np.arange(P), temp, self.axes, self.centre,
+                    frames)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -187,7 +203,7 @@ class Data:
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
                     self.levers[keep], self.dirs[keep],
                     temp_c=None if self.temp_c is None else self.temp_c[keep], axes=self.axes,
-                    frames=_take(self.frames, keep))
+                    centre=self.centre, frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
         """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
@@ -200,7 +216,7 @@ class Data:
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
                     self.levers[poses], self.dirs[poses],
                     temp_c=None if self.temp_c is None else self.temp_c[poses], axes=self.axes,
-                    frames=_take(self.frames, np.flatnonzero(poses)))
+                    centre=self.centre, frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
     def n_poses(self) -> int:
@@ -288,6 +304,8 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
     poses = _poses(d)
     for p, v in zip(params, values):
         term = fx.CHAIN_EFFECTS[p.effect].chain.term
+        if p.sensor:
+            continue
         if term is None:
             geo[p.op] = geo.get(p.op, 0.0) + v
         elif p.arm:
@@ -300,13 +318,13 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
 def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, jac: bool = False
           ) -> tuple[np.ndarray, np.ndarray | None]:
     """Predicted points (M, dims) in the measurement frame, the axes the sensor sees (the
-    arm grown by the growth of :func:`joint_deltas`, about the base frame's origin); with
-    ``jac`` also the (dims·M, n)
-    Jacobian, columns: sensor rotation (3) and translation (3) if ``d.sensor``, marker
-    positions (3 each) if free, then ``params``. At zero ``values`` the frames are the
-    Data's nominal ones and the Jacobian's blocks are kept per registration and parameter
-    (:meth:`Data.zero_blocks`): screening, identifiability and the registration-only fit
-    ask for the same columns many times."""
+    arm grown by the growth of :func:`joint_deltas`, about the base frame's origin, and
+    read through the sensor's maps about its centre, :func:`sensor_maps`); with ``jac``
+    also the (dims·M, n) Jacobian, columns: sensor rotation (3) and translation (3) if
+    ``d.sensor``, marker positions (3 each) if free, then ``params``. At zero ``values``
+    the frames are the Data's nominal ones and the Jacobian's blocks are kept per
+    registration and parameter (:meth:`Data.zero_blocks`): screening, identifiability and
+    the registration-only fit ask for the same columns many times."""
     zero = not np.any(values)
     grow = None
     if zero:
@@ -318,8 +336,11 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     xb = kin.points(tips, d.obs_pose, local)
     scale = None if grow is None else (1.0 + grow)[d.obs_pose][:, None]     # (M, 1)
     y = (xb if scale is None else xb * scale) @ reg.R.T + reg.t
+    maps = sensor_maps(params, values)
+    M = None if zero or not maps or d.centre is None else maps[-1][1]
+    read = y if M is None else d.centre + (y - d.centre) @ M.T
     if not jac:
-        return _seen(d, y), None
+        return _seen(d, read), None
     kept = d.zero_blocks(reg) if zero else {}
     blocks = kept.get(None)
     if blocks is None:
@@ -333,7 +354,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
             for m in range(d.n_markers):
                 cols.append(Rt * (d.obs_marker == m)[:, None, None])
         blocks = kept[None] = [c.reshape(len(y), 3, -1) for c in cols]
-    blocks = list(blocks)
+    blocks = list(blocks) if M is None else [np.einsum("ij,mjk->mik", M, b) for b in blocks]
     twists: dict[int, np.ndarray] = {}        # one op's twist serves all its parameters
     poses = None
     for p in params:
@@ -342,22 +363,51 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
             term = fx.CHAIN_EFFECTS[p.effect].chain.term
             if poses is None and term is not None:
                 poses = _poses(d)
-            if p.arm:                          # ∂(s·x)/∂v = term · x
-                g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
+            if p.sensor:                       # ∂(c + M·(y − c))/∂v = (∂M/∂v)·(y − c)
+                g = np.zeros_like(y) if d.centre is None else \
+                    (y - d.centre) @ dict(maps)[p.name].T
             else:
-                g = twists.get(p.op)
-                if g is None:
-                    g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
-                if term is not None:
-                    g = g * term(poses, p.joint)[d.obs_pose][:, None]
-                if scale is not None:          # the grown arm moves (1 + growth) as far
-                    g = g * scale
+                if p.arm:                      # ∂(s·x)/∂v = term · x
+                    g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
+                else:
+                    g = twists.get(p.op)
+                    if g is None:
+                        g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+                    if term is not None:
+                        g = g * term(poses, p.joint)[d.obs_pose][:, None]
+                    if scale is not None:      # the grown arm moves (1 + growth) as far
+                        g = g * scale
+                if M is not None:              # and the sensor reads it through its maps
+                    g = g @ M.T
             g = kept[p] = g[:, :, None]
         blocks.append(g)
     J = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(y), 3, 0))
     if d.dims < 3:
         J = J[:, list(d.axes), :]
-    return _seen(d, y), J.reshape(d.dims * len(y), -1)
+    return _seen(d, read), J.reshape(d.dims * len(y), -1)
+
+
+def sensor_maps(params: list[Param], values: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The sensor's maps about its centre at ``values``: per sensor parameter (in
+    ``params`` order), its name and ∂M/∂value of the whole map M = M₁·M₂·…; last, the
+    whole map under the name ``""``. Empty without sensor parameters."""
+    own = [(p.name, fx.CHAIN_EFFECTS[p.effect].chain.sensor_map(float(v)))
+           for p, v in zip(params, values) if p.sensor]
+    if not own:
+        return []
+    out = []
+    for i, (name, _) in enumerate(own):
+        before, after = np.eye(3), np.eye(3)
+        for k, (_, (m, _)) in enumerate(own):
+            if k < i:
+                before = before @ m
+            elif k > i:
+                after = after @ m
+        out.append((name, before @ own[i][1][1] @ after))
+    whole = np.eye(3)
+    for _, (m, _) in own:
+        whole = whole @ m
+    return out + [("", whole)]
 
 
 def _seen(d: Data, y: np.ndarray) -> np.ndarray:

@@ -66,7 +66,7 @@ class Candidate:
 
     @property
     def joints(self) -> list[str]:
-        return [f"j{k + 1}" for k in sorted({p.joint for p in self.fit.params if not p.arm})]
+        return [f"j{k + 1}" for k in sorted({p.joint for p in self.fit.params if p.on_joint})]
 
 
 @dataclass

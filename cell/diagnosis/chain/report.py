@@ -84,7 +84,7 @@ def _components(c: rank.Candidate) -> list[dict]:
     for e in c.effects:
         idx = [nr + i for i, p in enumerate(f.params) if p.effect == e]
         disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, c.fit.resid.shape[1])
-        joints = {f"j{p.joint + 1}" for p in f.params if p.effect == e and not p.arm}
+        joints = {f"j{p.joint + 1}" for p in f.params if p.effect == e and p.on_joint}
         out.append({"effect": e, "joints": sorted(joints, key=lambda s: int(s[1:])),
                     "rms_mm": _r(F.rms3(disp))})
     return sorted(out, key=lambda x: -(x["rms_mm"] or 0))

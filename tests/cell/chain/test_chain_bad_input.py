@@ -148,3 +148,16 @@ def test_a_zero_gravity_is_refused(tmp_path):
     _edit_model(d, gravity=[0, 0, 0])
     with pytest.raises(CampaignFormatError, match="gravity must be a non-zero direction"):
         read_campaign(d)
+
+
+@pytest.mark.parametrize("centre, where", [([400.0, 0.0], "sensor_center_mm.2"),
+                                           ([400.0, float("nan"), 0.0], "sensor_center_mm.1"),
+                                           ("middle", "sensor_center_mm")])
+def test_a_sensor_centre_that_is_not_three_finite_numbers_is_refused(tmp_path, centre, where):
+    d = chainsim.make(tmp_path / "c", {}, poses=10)
+    _edit_model(d, sensor_center_mm=centre)
+    before = (d / "model.yaml").read_bytes()
+    with pytest.raises(CampaignFormatError) as exc:
+        read_campaign(d)
+    assert exc.value.file.endswith("model.yaml") and exc.value.column == where, str(exc.value)
+    assert exc.value.line and (d / "model.yaml").read_bytes() == before

@@ -66,10 +66,14 @@ def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modifie
 
 
 def test_every_jacobian_column_matches_finite_differences(tmp_path):
-    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True, temps=True)
+    # every parameter of the vocabulary at once, the sensor's scale and rotation about a
+    # centre among them: each column is taken through the others' maps
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True, temps=True,
+                      model_extra={"sensor_center_mm": [120.0, -80.0, 400.0]})
     cc = read_campaign(d)
     data = F.Data.of(cc)
     params = F.vocabulary(cc.chain)
+    assert {p.name for p in params if p.sensor} == {"camera_scale_rel", "camera_rotation_deg"}
     v0 = np.linspace(-0.01, 0.01, len(params))
     reg = F.initial_registration(data)
     y0, J = F.model(data, reg, params, v0, jac=True)

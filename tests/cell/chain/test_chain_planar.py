@@ -4,6 +4,8 @@ chain ``model.yaml``, the chain diagnosis on the components the sensor sees, and
 (:func:`cell.measurements.chain.planar_as_chain`)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -111,3 +113,29 @@ def test_a_joint_zero_that_steps_mid_campaign_is_not_a_constant_offset(tmp_path,
     camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", [odd], tseed, design, rows))
     rep = diagnose_chain(planar_as_chain(camp, tmp_path / "p"))
     assert rep["cause"]["confidence"] != "high" or rep["unexplained"], rep["cause"]
+
+
+@pytest.mark.parametrize("part, name, value", [
+    (parts.Part("camera_scale", 0, {"gain_excess": 1.2e-3}), "camera_scale_rel", 1.2e-3),
+    (parts.Part("camera_rotation", 0, {"turn_rad": math.radians(0.05)}), "camera_rotation_deg",
+     0.05),
+])
+def test_a_planar_campaigns_camera_map_is_named_by_the_chain_engine(tmp_path, part, name, value):
+    # the planar validation's independent truth turns or scales the camera's view about its
+    # centre; read as a chain campaign the sensor's centre is the camera's, and the chain
+    # engine names the camera's map (format: "Chain effects", camera_scale / camera_rotation)
+    design = planar_truth.as_design(planar_truth.Design(places=0, directions=True))
+    rows = planar_truth.draw_rows(12, design)
+    camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", [part], 12, design, rows))
+    cc = planar_as_chain(camp, tmp_path / "p")
+    assert cc.spec.sensor_center_mm == (*camp.model.camera.center_mm, 0.0)
+    rep = diagnose_chain(cc)
+    assert rep["cause"]["label"] == part.kind, rep["cause"]
+    lo, hi = rep["cause"]["ci95"][name]
+    assert lo < value < hi
+    # without the centre neither map can be told: both are reported, with the reason
+    bare = planar_as_chain(camp, tmp_path / "p")
+    bare.spec.sensor_center_mm = None
+    rep = diagnose_chain(bare)
+    assert rep["not_identifiable"][name] == "model.yaml gives no sensor_center_mm"
+    assert rep["cause"]["label"] != part.kind
