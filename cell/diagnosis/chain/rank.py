@@ -51,6 +51,7 @@ NOISE_FACTOR = 2.0    # fit rms above this many noise rms (3-D) is more than noi
 PREDICT_FACTOR = 1.5  # a named cause predicting left-out poses worse than this × noise: doubt
 PAIR_TOPS = 3         # pairs of the best this many single effects are fitted together
 MIN_FOLDS = 3         # fewer places: nothing is predicted out of sample
+UP = ", 95 % upper bound"   # what the noise figures of the decision's messages are
 
 
 @dataclass
@@ -308,7 +309,8 @@ def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
 
 def decide(s: Search, noise_mm: float | None) -> Decision:
     """Name a cause, ``none``, and whether most of the gap is left unexplained.
-    ``noise_mm`` is σ per axis of one point measurement (None: unknown).
+    ``noise_mm`` is what σ per axis of one point measurement may be, at most (the 95 %
+    upper bound of its estimate, :func:`cell.diagnosis.noise.upper95`; None: unknown).
 
     The candidate with the lowest leave-out error is tested against registration alone
     (over poses, each left out alone: is there an effect at all);
@@ -378,14 +380,14 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     noise3 = None if noise_mm is None else noise_mm * math.sqrt(s.fit_d.dims)
     if noise3 is not None and chosen is not None and chosen.fit.cv_rms > PREDICT_FACTOR * noise3:
         warnings.append(f"{chosen.label} predicts left-out poses only to {chosen.fit.cv_rms:.3f} mm "
-                        f"rms, {chosen.fit.cv_rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D): "
+                        f"rms, {chosen.fit.cv_rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D{UP}): "
                         "part of the gap is something it does not hold, or the noise is larger "
                         "than measured")
     gap = f0.rms
     if noise3 is not None and gap <= NOISE_FACTOR * noise3:
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
-                         f"({noise3:.3f} mm {s.fit_d.dims}-D); the named cause is small")
+                         f"({noise3:.3f} mm {s.fit_d.dims}-D{UP}); the named cause is small")
         return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals,
                         tied, dr.rivals)
     before = s.nominal.hold_in_rms
@@ -406,7 +408,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                        f"{100 * shrink:.0f} %: most of the gap is left")
     if noise3 is not None and chosen.fit.rms > NOISE_FACTOR * noise3:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
-                       f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D)")
+                       f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D{UP})")
     return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied,
                     dr.rivals)
 

@@ -22,6 +22,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.chain import robust
 from cell.diagnosis.chain.noise import estimate
+from cell.diagnosis.noise import upper95
 from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
 from cell.measurements import CampaignFormatError
 from cell.measurements.chain import ChainCampaign
@@ -51,19 +52,19 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
 
 def _noise(cc: ChainCampaign, fit_d: F.Data, f0: F.Fit, given: float | None,
            keep: np.ndarray | None = None, best: F.Fit | None = None
-           ) -> tuple[float | None, str, str | None]:
-    """(σ per axis for the decision, where it came from, the reason to call the gap
-    unexplained when revisited poses disagree beyond the sensor noise, or None): a given σ
-    first, else :func:`cell.diagnosis.chain.noise.estimate`, its last resort the remainder
-    of ``best`` (the candidate that predicts left-out poses best; default ``f0``). ``keep``
-    (M,) marks the campaign's points that are not outliers; ``fit_d`` holds only such
-    points."""
+           ) -> tuple[float | None, float, str, str | None]:
+    """(σ per axis, its degrees of freedom (inf: given), where it came from, the reason to
+    call the gap unexplained when revisited poses disagree beyond the sensor noise, or
+    None): a given σ first, else :func:`cell.diagnosis.chain.noise.estimate`, its last
+    resort the remainder of ``best`` (the candidate that predicts left-out poses best;
+    default ``f0``). ``keep`` (M,) marks the campaign's points that are not outliers;
+    ``fit_d`` holds only such points."""
     q = fit_d.chain.model_values(fit_d.readings)[fit_d.obs_pose]
     n = estimate(cc, fit_d.xyz, fit_d.obs_pose, fit_d.obs_marker, f0.reg.markers,
                  fit_d.known_markers is None, keep, remainder=(q, (best or f0).resid))
     if given is not None:
-        return given, "given", n.disagree
-    return n.sigma, n.source, n.disagree
+        return given, math.inf, "given", n.disagree
+    return n.sigma, n.dof, n.source, n.disagree
 
 
 def _r(v, nd: int = 6):
@@ -127,8 +128,13 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     keep = np.ones(len(cc.xyz), bool)
     keep[fit_mask[cc.obs_pose]] = ~outl.fit
     keep[~fit_mask[cc.obs_pose]] = ~outl.hold
-    noise_mm, noise_src, drift = _noise(cc, fit_d, f0, noise_mm, keep, robust.reference(s))
-    dec = rank.decide(s, noise_mm)
+    noise_mm, noise_dof, noise_src, drift = _noise(cc, fit_d, f0, noise_mm, keep,
+                                                   robust.reference(s))
+    # judged against what the noise may be, not its estimate: a σ from one revisited pose
+    # (two degrees of freedom) must not make a gap look systematic
+    noise_hi = None if noise_mm is None else \
+        noise_mm if math.isinf(noise_dof) else upper95(noise_mm, noise_dof)
+    dec = rank.decide(s, noise_hi)
     dec.warnings += outl.warnings
     if outl.n:
         dec.notes.append(f"{outl.n} measured point(s) lie beyond {outl.cut_mm:.3f} mm of the best "
@@ -224,6 +230,8 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
         "outliers": robust.describe(outl, fit_all, hold_d, cc.pose_ids, np.flatnonzero(fit_mask),
                                     np.flatnonzero(~fit_mask), cc.markers),
         "noise": {"sigma_mm": _r(noise_mm, 7), "source": noise_src,
+                  "dof": None if noise_mm is None or math.isinf(noise_dof) else int(noise_dof),
+                  "upper95_mm": _r(noise_hi, 7),
                   "fit_rms_mm": _r((dec.chosen or s.nominal).fit.rms),
                   "cv_rms_mm": _r((dec.chosen or s.nominal).fit.cv_rms),
                   "registration_cv_rms_mm": _r(f0.cv_rms)},

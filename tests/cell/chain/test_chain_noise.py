@@ -3,14 +3,18 @@ sensor σ whatever the arm does; revisits that disagree beyond it are caught; a 
 middle of a campaign is no longer taken for noise."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.stats import f as f_dist
 
 from cell.diagnosis.chain.noise import revisits_disagree, rigid_noise_mm
+from cell.diagnosis.chain.rank import NOISE_FACTOR
 from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth import chain as truth
+from cell.stats import chi2_ppf
 from cell.truth.chain_campaign import MARKERS, make
 
 
@@ -50,3 +54,21 @@ def test_consistent_revisits_are_the_noise_and_raise_nothing(tmp_path):
     rep = diagnose_chain(read_campaign(d))
     assert rep["noise"]["source"] == "repeats (6 revisited poses)"
     assert not rep["unexplained"] and rep["cause"]["effect"] == "joint_offset"
+
+
+def test_a_noise_from_one_revisited_pose_is_judged_by_its_upper_bound(tmp_path):
+    # seed 7: the one revisited pose happens to agree to 0.0021 mm per axis where the
+    # sensor's noise is 0.005 mm; judged by that estimate, the right cause's fit error
+    # (0.0065 mm 2-D) looked like 3× the noise and the gap "unexplained". Two degrees of
+    # freedom say σ may be up to 4.4× the estimate (95 %): the tests use that bound
+    rows = [{"name": f"j{k}", "type": "revolute", "a_mm": a, "alpha_deg": 0.0, "d_mm": 0.0,
+             "theta_deg": 0.0} for k, a in ((1, 325.0), (2, 275.0))]
+    d = make(tmp_path / "c", {"offset": {"j2": 0.05}}, poses=60, noise_mm=0.005, seed=7,
+             sensor=False, rows=rows, markers=[[0.0, 0.0, 0.0]], repeats=1,
+             model_extra={"sensor_axes": ["x", "y"], "markers": {1: [0.0, 0.0, 0.0]}})
+    rep = diagnose_chain(read_campaign(d))
+    n = rep["noise"]
+    assert n["source"] == "repeats (1 revisited poses)" and n["dof"] == 2
+    assert n["upper95_mm"] == pytest.approx(n["sigma_mm"] * math.sqrt(2 / chi2_ppf(0.05, 2)), abs=1e-6)
+    assert n["fit_rms_mm"] > NOISE_FACTOR * n["sigma_mm"] * math.sqrt(2)   # the old rule's doubt
+    assert rep["cause"]["label"] == "joint_offset" and not rep["unexplained"], rep["remainder"]
