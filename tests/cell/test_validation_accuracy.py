@@ -12,10 +12,14 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
   78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses), measured when the chain fit bounded
-  backlash and compliance at zero and checked the remainder for a ripple, by ``cellctl
-  diagnose validate --chain --trials 80 --seed 1``: right 36, ambiguous 38, ambiguous with
-  the truth missing 4, unexplained 2, wrong 0; 40 of 41 intervals cover (when thermal growth
+* chain, 80 vocabulary trials (seed 1, 60 poses), measured when the chain decision took
+  untestable effects as rivals of what they mimic (a backlash without jK_dir columns, a
+  thermal growth without temp_c) and judged the fit against the noise's 95 % upper bound,
+  by ``cellctl diagnose validate --chain --trials 80 --seed 1``: right 33, ambiguous 43,
+  ambiguous with the truth missing 4, unexplained 0, wrong 0; 34 of 35 intervals cover
+  (before: right 36, ambiguous 38, truth missing 4, unexplained 2, 40 of 41 intervals, when
+  the chain fit bounded backlash and compliance at zero and checked the remainder for a
+  ripple; when thermal growth
   joined the chain vocabulary, half the campaigns recording ``temp_c`` while the arm warms
   up: ambiguous 39, truth missing 3, the rest the same;
   before, with other truths: without thermal growth right 39, ambiguous 39, truth missing 1,
@@ -23,7 +27,8 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   before the chain's outlier step, cell/diagnosis/chain/robust.py: right 18, ambiguous 12,
   unexplained 50);
 * chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
-  12, ambiguous with the truth missing 11, right (none) 1, wrong 0 (before the outlier step:
+  11, ambiguous with the truth missing 12, right (none) 1, wrong 0 (before the noise's upper
+  bound: unexplained 12, truth missing 11; before the outlier step:
   unexplained 19, wrong 1; glitches had made most of them unexplained).
 
 Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
@@ -33,9 +38,8 @@ Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
 cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
-in cell/kinematics/evaluate.py forward(): right 16, unexplained 49, wrong 2; the twist in
-cell/kinematics/evaluate.py: right 13, unexplained 58, wrong 4; both also leave fewer than 15
-intervals to check).
+in cell/kinematics/evaluate.py forward(): right 14, unexplained 42, wrong 3; the twist in
+cell/kinematics/evaluate.py: right 12, unexplained 56, wrong 5).
 """
 import math
 
@@ -112,9 +116,9 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 36 - 5, v
-    assert v["right"] + v["ambiguous"] >= 74 - 5, v
-    assert v["unexplained"] <= 2 + 5, v
+    assert v["right"] >= 33 - 5, v
+    assert v["right"] + v["ambiguous"] >= 76 - 5, v
+    assert v["unexplained"] <= 0 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 
 
@@ -126,4 +130,4 @@ def test_chain_outside_the_vocabulary():
     s = chain.summarise(chain.run(24, SEED, outside_share=1.0))
     v = s["outside_verdicts"]
     assert sum(v.values()) == 24 and v["wrong"] == 0, s["wrong"]
-    assert v["unexplained"] >= 12 - 3, v
+    assert v["unexplained"] >= 11 - 3, v

@@ -256,21 +256,57 @@ class Decision:
     rivals: list = field(default_factory=list)
     tied: list = field(default_factory=list)
     drift_rivals: list[dict] = field(default_factory=list)
+    untestable: list[dict] = field(default_factory=list)
 
     @property
     def confidence(self) -> str:
         """``ambiguous`` when :attr:`rivals` (or a drifting sensor frame,
         :attr:`drift_rivals`) predict left-out poses as well as the named cause (the
-        campaign cannot tell them apart), ``low`` when :attr:`warnings` says something else
-        to check before acting, or the cause leaves most of the gap unexplained, else
-        ``high``."""
-        if self.rivals or self.drift_rivals:
+        campaign cannot tell them apart), or an effect the campaign cannot test may stand
+        behind it (:attr:`untestable`, :func:`untestable_rivals`); ``low`` when
+        :attr:`warnings` says something else to check before acting, or the cause leaves
+        most of the gap unexplained, else ``high``."""
+        if self.rivals or self.drift_rivals or self.untestable:
             return "ambiguous"
         return "low" if self.warnings or self.unexplained else "high"
 
 
 def _components(c: Candidate) -> set:
     return {(p.effect, p.joint) for p in c.fit.params}
+
+
+def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
+    """Effects the campaign cannot test that a candidate of ``shown`` (the named cause and
+    its rivals) can stand in for (:attr:`cell.effects.Effect.mimics`, on a shared joint;
+    the rule of the planar family, :func:`cell.diagnosis.crossval.untestable_rivals`):
+    rivals no prediction can rule out until the missing variable is measured. Untestable
+    is a parameter dropped because the campaign lacks its column (its effect's
+    :attr:`~cell.effects.OnChain.unseen`), because the column hardly varies
+    (:attr:`~cell.effects.OnChain.still`), or because it is seen only as a sum with
+    another (a backlash always approached from one side is an offset). Per effect: its
+    rival entry (``label``, ``effects``, ``joints``, ``testable`` false and ``why``, as
+    the planar report's untestable rivals)."""
+    voc = {p.name: p for p in F.vocabulary(s.fit_d.chain)}
+    named = set().union(*(_components(c) for c in shown)) if shown else set()
+    out = []
+    for e, ident in s.idents.items():
+        eff = fx.CHAIN_EFFECTS[e]
+        use = eff.chain
+        joints, why = set(), ""
+        for name, reason in ident.dropped.items():
+            p = voc.get(name)
+            if p is None or p.effect != e or not (reason in (use.unseen, use.still)
+                                                  or reason.startswith("seen only as a sum")):
+                continue
+            shared = {(m, k) for m, k in named if m in eff.mimics and (not p.on_joint or k == p.joint)}
+            if shared:
+                joints |= {k for _, k in shared} if p.on_joint else set()
+                why = why or reason
+        if why:
+            js = [f"j{k + 1}" for k in sorted(j for j in joints if j >= 0)]
+            out.append({"label": e + (f" on {', '.join(js)}" if js else ""), "effects": [e],
+                        "joints": js, "testable": False, "why": f"not testable: {why}"})
+    return out
 
 
 def choose(s: Search) -> tie.Choice:
@@ -339,6 +375,11 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     runner = next((c for c in s.ranking if c is not chosen), None) if chosen is not None else None
     rp = tie.p_worse(runner.fit.cv_fold, chosen.fit.cv_fold) if runner else None
     warnings: list[str] = []
+    untested = untestable_rivals(s, [chosen] + list(rivals)) if chosen is not None else []
+    for u in untested:
+        warnings.append(f"the cause may be {u['label']}, which this campaign cannot test "
+                        f"({u['why'].removeprefix('not testable: ')}): measure what it lacks "
+                        "and diagnose again")
     if rivals:
         warnings.append("the campaign cannot tell the cause from " + ", ".join(
             c.label for c in rivals) + ": they predict left-out poses as well (cause.rivals; "
@@ -389,7 +430,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm {s.fit_d.dims}-D{UP}); the named cause is small")
         return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals,
-                        tied, dr.rivals)
+                        tied, dr.rivals, untested)
     before = s.nominal.hold_in_rms
     after = chosen.hold_in_rms if chosen else before
     shrink = 1 - after / before if before > 0 else 0.0
@@ -410,7 +451,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
         reasons.append(f"after {chosen.label} the fit error ({chosen.fit.rms:.3f} mm) is still "
                        f"{chosen.fit.rms / noise3:.1f}× the noise ({noise3:.3f} mm {s.fit_d.dims}-D{UP})")
     return Decision(chosen, p, runner, rp, bool(reasons), reasons, notes, warnings, rivals, tied,
-                    dr.rivals)
+                    dr.rivals, untested)
 
 
 POSE_DRAWS = 4000     # configurations drawn inside the limits to choose them from

@@ -180,7 +180,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     cause["rivals"] = [{"label": c.label, "effects": list(c.effects), "joints": c.joints,
                         "k": len(c.fit.params), "cv_rms_mm": _r(c.fit.cv_rms),
                         "holdout_rms_mm": _r(c.hold_rms), "params": _params(c)[0]}
-                       for c in dec.rivals] + dec.drift_rivals
+                       for c in dec.rivals] + dec.drift_rivals + dec.untestable
     cause["separating_poses"] = rank.separating_poses(s, dec.chosen, dec.rivals, noise_mm)
     cause["test"] = {"p_value": _r(dec.p_value, 8), "alpha": rank.ALPHA,
                      "method": "one-sided Wilcoxon signed-rank over fit poses of the "

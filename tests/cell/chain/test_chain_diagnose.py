@@ -27,7 +27,10 @@ NOISE = 0.05
      {"j2_compliance_deg_per_m": 0.3, "j3_compliance_deg_per_m": 0.2}),
 ])
 def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, effects, effect, joints, truth):
-    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", effects, seed=3)), NOISE)
+    # approach directions and temperatures recorded: a backlash or a thermal growth the
+    # campaign can test is ruled out
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", effects, seed=3, dirs=True,
+                                                     temps=True)), NOISE)
     assert rep["cause"]["effect"] == effect
     assert rep["cause"]["joints"] == joints
     assert not rep["unexplained"]
@@ -44,6 +47,22 @@ def test_a_hidden_chain_effect_is_named_with_intervals_that_cover_it(tmp_path, e
         assert entry["identifiable"] and entry["rank"] == entry["columns"] \
             == rep["registration"]["parameters"] + entry["k"]
         assert 1.0 <= entry["condition"] < 1e4, entry["label"]
+
+
+def test_without_directions_an_untestable_backlash_stays_a_rival(tmp_path):
+    # the same offsets without jK_dir columns: a backlash of j2 and j3 approached from one
+    # side would show as these offsets, and nothing in the campaign can rule it out
+    rep = diagnose_chain(read_campaign(chainsim.make(
+        tmp_path / "c", {"offset": {"j2": 0.05, "j3": -0.08}}, seed=3)), NOISE)
+    c = rep["cause"]
+    assert c["effect"] == "joint_offset" and c["joints"] == ["j2", "j3"] and not rep["unexplained"]
+    assert c["confidence"] == "ambiguous"
+    untested = [r for r in c["rivals"] if r.get("testable") is False]
+    assert [(r["effects"], r["joints"]) for r in untested] == [(["backlash"], ["j2", "j3"])]
+    assert untested[0]["why"].startswith("not testable: no jK_dir column")
+    assert any(w.startswith("the cause may be backlash on j2, j3, which this campaign cannot "
+                            "test") for w in c["warnings"])
+    assert not c["separating_poses"]       # no pose can separate what the campaign cannot test
 
 
 def test_conditioning_sees_a_combination_the_data_cannot_separate():
@@ -85,7 +104,8 @@ def test_a_sensor_scale_taken_for_longer_links_is_not_a_confident_cause(tmp_path
 
 
 def test_the_instrument_scale_warning_names_itself(tmp_path):
-    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {}, seed=5, lens=3e-3)), NOISE)
+    rep = diagnose_chain(read_campaign(chainsim.make(tmp_path / "c", {}, seed=5, lens=3e-3,
+                                                     dirs=True, temps=True)), NOISE)
     c = rep["cause"]
     assert c["effect"] == "link_length"          # what the links alone would make of it
     assert c["confidence"] == "low"

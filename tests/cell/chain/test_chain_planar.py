@@ -37,7 +37,7 @@ def _scara(tmp_path, effects, extra=SEEN_XY, **kw):
     ({"ratio": {"j1": 1e-3}}, "gear_ratio", "j1_gear_ratio_rel", 1e-3),
 ])
 def test_a_scara_seen_in_x_and_y_is_diagnosed_as_a_chain(tmp_path, effects, label, name, value):
-    cc = read_campaign(_scara(tmp_path, effects))
+    cc = read_campaign(_scara(tmp_path, effects, dirs=True, temps=True))   # nothing untestable
     assert cc.axes == (0, 1)
     rep = diagnose_chain(cc)
     assert rep["cause"]["label"] == label and rep["cause"]["confidence"] == "high", rep["cause"]
