@@ -28,9 +28,10 @@ def d_backlash(x, jidx, a, dirs):
     return cols, None
 
 
+WIDTH = ParamSpec("backlash_deg", "deg", "total lost-motion width", (0.0, 2.0), (0.01, 0.1), False)
+
 EFFECT = Effect(
-    "backlash", "transmission", "joint", PLANAR_JOINTS, True,
-    (ParamSpec("backlash_deg", "deg", "total lost-motion width", (0.0, 2.0), (0.01, 0.1), False),),
+    "backlash", "transmission", "joint", PLANAR_JOINTS, True, (WIDTH,),
     "direction", "lost motion: the joint depends on the approach direction", backlash, d_backlash,
     mimics=("joint_offset", "gear_ratio", "cyclic_error"),
     needs=(BothDirections(),),
@@ -40,4 +41,4 @@ EFFECT = Effect(
                                 "drive: {what}{on}."),
                   term=lambda poses, k: -0.5 * poses.dirs[:, k],     # Δq_k = −dir_k·b/2
                   unseen="no jK_dir column: the direction of the joint's last motion is "
-                         "not known", lower=0.0))
+                         "not known", lower=WIDTH.bounds[0], upper=WIDTH.bounds[1]))

@@ -220,11 +220,13 @@ class OnChain:
     being linear, its exact derivative. A ``"geometric"`` effect has none (its parameter
     is the chain's own op offset), nor a ``"sensor"`` one; every other effect must give
     one. ``unseen``: why the campaign cannot show the effect when its term is zero on every
-    pose (what column it lacks; for a sensor map, that the campaign gives no centre); ``min_spread``: the least spread (max − min) of the term over the fit poses
-    that tells the effect from a constant one, ``still`` what it cannot be told from below
-    it. ``lower``: the least value the parameter can physically take (a width, a give
-    that cannot be negative; None: unbounded): a fit that wants it below is left without
-    it."""
+    pose (what column it lacks; for a sensor map, that the campaign gives no centre);
+    ``min_spread``: the least spread (max − min) of the term over the fit poses that tells
+    the effect from a constant one, ``still`` what it cannot be told from below it.
+    ``lower`` / ``upper``: the least and the most the parameter can physically take (a
+    width or a give that cannot be negative; the effect's own hard limits, its
+    :attr:`ParamSpec.bounds`; None: unbounded): a fit that wants it beyond is left
+    without it."""
 
     joints: str
     stem: str = ""
@@ -235,6 +237,7 @@ class OnChain:
     min_spread: float = 0.0
     still: str = ""
     lower: float | None = None
+    upper: float | None = None
     sensor_map: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = field(default=None,
                                                                                  repr=False)
 

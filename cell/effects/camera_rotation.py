@@ -33,11 +33,13 @@ def chain_rotation(phi_deg: float):
     return planar_map(m, 1.0), planar_map(dm, 0.0)
 
 
+TURN = ParamSpec("camera_rotation_deg", "deg", "rotation about the camera centre", (-5.0, 5.0),
+                 (0.01, 0.1))
+
 EFFECT = Effect(
-    "camera_rotation", "vision", "vision", (), False,
-    (ParamSpec("camera_rotation_deg", "deg", "rotation about the camera centre", (-5.0, 5.0),
-               (0.01, 0.1)),),
+    "camera_rotation", "vision", "vision", (), False, (TURN,),
     "position", "camera rotated about its centre", camera_rotation, d_camera_rotation,
     needs=(CameraCentre(),), remedy=CHECK_CAMERA,
     chain=OnChain("sensor", "camera_rotation_deg", "deg", sensor_map=chain_rotation,
-                  unseen=NO_CENTRE, remedy=CHECK_CAMERA))
+                  unseen=NO_CENTRE, remedy=CHECK_CAMERA, lower=TURN.bounds[0],
+                  upper=TURN.bounds[1]))

@@ -28,10 +28,12 @@ def chain_scale(s: float):
     return planar_map(m, 1.0 + s), planar_map(dm, 1.0)
 
 
+SCALE = ParamSpec("camera_scale_rel", "1", "scale about the camera centre", (-0.05, 0.05),
+                  (2e-4, 2e-3))
+
 EFFECT = Effect(
-    "camera_scale", "vision", "vision", (), False,
-    (ParamSpec("camera_scale_rel", "1", "scale about the camera centre", (-0.05, 0.05),
-               (2e-4, 2e-3)),),
+    "camera_scale", "vision", "vision", (), False, (SCALE,),
     "position", "camera scale error about its centre", camera_scale, d_camera_scale,
     needs=(CameraCentre(),), remedy=CHECK_CAMERA,
-    chain=OnChain("sensor", "camera_scale_rel", "1", sensor_map=chain_scale, unseen=NO_CENTRE))
+    chain=OnChain("sensor", "camera_scale_rel", "1", sensor_map=chain_scale, unseen=NO_CENTRE,
+                  lower=SCALE.bounds[0], upper=SCALE.bounds[1]))

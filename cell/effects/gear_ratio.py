@@ -30,12 +30,14 @@ def d_gear_ratio(x, jidx, a, dirs):
     return cols, dda
 
 
+RATIO = ParamSpec("gear_ratio_rel", "1", "ε = N_nominal/N_true − 1", (-0.05, 0.05), (2e-4, 2e-3))
+
 EFFECT = Effect(
-    "gear_ratio", "transmission", "joint", PLANAR_JOINTS, True,
-    (ParamSpec("gear_ratio_rel", "1", "ε = N_nominal/N_true − 1", (-0.05, 0.05), (2e-4, 2e-3)),),
+    "gear_ratio", "transmission", "joint", PLANAR_JOINTS, True, (RATIO,),
     "angle", "joint angle scaled by a wrong gear ratio", gear_ratio, d_gear_ratio,
     mimics=("joint_offset",),     # on a joint that never moves: a constant angle error
     needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
     remedy=CALIBRATE_JOINT,
     chain=OnChain("all", "gear_ratio_rel", "1", remedy=CALIBRATE_CHAIN,
-                  term=lambda poses, k: poses.q[:, k]))    # Δq_k = ε·q_k
+                  term=lambda poses, k: poses.q[:, k],     # Δq_k = ε·q_k
+                  lower=RATIO.bounds[0], upper=RATIO.bounds[1]))

@@ -32,10 +32,12 @@ def d_thermal_drift(x, jidx, links_mm, temp_c):
             np.tile(alpha * links_mm, (len(temp_c), 1)))
 
 
+EXPANSION = ParamSpec("thermal_expansion_per_k", "1/K", "linear expansion of both links",
+                      (-2e-5, 2e-4), (10e-6, 30e-6), False)
+
 EFFECT = Effect(
     "thermal_drift", "thermal", "link", (), False,
-    (ParamSpec("thermal_expansion_per_k", "1/K", "linear expansion of both links", (-2e-5, 2e-4),
-               (10e-6, 30e-6), False),
+    (EXPANSION,
      ParamSpec("thermal_ref_temp_c", "°C", "temperature of the nominal lengths (known)",
                (-50.0, 100.0), (REF_TEMP_C, REF_TEMP_C), False, fitted=False, default=REF_TEMP_C)),
     "temperature", "both links grow with temperature", thermal_drift, d_thermal_drift,
@@ -52,4 +54,5 @@ EFFECT = Effect(
                   unseen="no temp_c column: the temperature of the poses is not known",
                   min_spread=MIN_TEMP_SPREAD_C,
                   still=f"temperature spread under {MIN_TEMP_SPREAD_C} °C over the fit poses: "
-                        "growth cannot be told from constant link lengths"))
+                        "growth cannot be told from constant link lengths",
+                  lower=EXPANSION.bounds[0], upper=EXPANSION.bounds[1]))

@@ -78,6 +78,7 @@ class Search:
     ranking: list[Candidate]
     idents: dict[str, F.Identifiability] = field(default_factory=dict)
     hold_keep: np.ndarray | None = None   # holdout points that are not outliers (None: all)
+    beyond: dict[str, float] = field(default_factory=dict)   # left out: name -> value wanted
 
 
 class Screen:
@@ -151,23 +152,47 @@ def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candida
     return c
 
 
-def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None
-               ) -> Candidate | None:
+def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None,
+               beyond: dict | None = None) -> Candidate | None:
     """``params`` fitted on ``fit_d`` and judged on ``hold_d``, within their physical bounds
-    (:attr:`cell.effects.OnChain.lower`): while the fit wants a parameter below its bound,
-    the one furthest below (in standard errors) is left out and the rest fitted again.
-    None when an effect of ``effects`` is left without a parameter (the campaign shows it
-    only with a value it cannot have)."""
+    (:attr:`cell.effects.OnChain.lower`, ``upper``): while the fit wants a parameter beyond
+    its bounds, the one furthest beyond (in standard errors) is left out and the rest
+    fitted again (``beyond`` collects each name and the value its fit wanted). None when an
+    effect of ``effects`` is left without a parameter (the campaign shows it only with a
+    value it cannot have)."""
     params = list(params)
     while True:
         f = F.fit(fit_d, params, f0.reg)
-        below = [((v - lo) / max(se, 1e-300), p) for p, v, se in zip(params, f.values, f.se)
-                 if (lo := fx.CHAIN_EFFECTS[p.effect].chain.lower) is not None and v < lo]
-        if not below:
+        out = [(_beyond(p, v) / max(se, 1e-300), p)
+               for p, v, se in zip(params, f.values, f.se) if _beyond(p, v) > 0]
+        if not out:
             return _held(label, effects, f, hold_d, keep, ident)
-        params.remove(min(below, key=lambda t: t[0])[1])
+        worst = max(out, key=lambda t: t[0])[1]
+        if beyond is not None:
+            beyond.setdefault(worst.name, float(f.values[params.index(worst)]))
+        params.remove(worst)
         if {p.effect for p in params} != set(effects):
             return None
+
+
+def _beyond(p: F.Param, v: float) -> float:
+    """How far ``v`` lies outside parameter ``p``'s physical bounds (0 within)."""
+    use = fx.CHAIN_EFFECTS[p.effect].chain
+    return max(0.0 if use.lower is None else use.lower - v,
+               0.0 if use.upper is None else v - use.upper)
+
+
+def _beyond_note(s: Search, name: str, v: float) -> str:
+    """Says that parameter ``name`` wanted ``v``, beyond its physical bounds."""
+    p = next(q for q in F.vocabulary(s.fit_d.chain) if q.name == name)
+    use = fx.CHAIN_EFFECTS[p.effect].chain
+    unit = "" if p.unit == "1" else f" {p.unit}"
+    lo, hi = use.lower, use.upper
+    span = f"{lo:g} … {hi:g}" if lo is not None and hi is not None else \
+        f"≥ {lo:g}" if lo is not None else f"≤ {hi:g}"
+    return (f"{name} fitted to {v:.4g}{unit}, beyond what its effect can physically be "
+            f"({span}{unit}), so no candidate carries it: check the part and the model's "
+            "units rather than calibrating it in")
 
 
 def _confounded_offsets(idents: dict[str, F.Identifiability], offsets: list[F.Param]) -> None:
@@ -194,7 +219,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     f0 = F.fit(fit_d, [])
     nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)
-    idents, picks, ranking = {}, {}, []
+    idents, picks, ranking, beyond = {}, {}, [], {}
     offsets = [p for p in voc if p.effect == "joint_offset"]
     for e in effects:
         pool = [p for p in voc if p.effect == e]
@@ -210,7 +235,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         if e not in idents:
             continue
         picks[e] = screen(fit_d, f0, idents[e].kept)
-        c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep) \
+        c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep, beyond) \
             if picks[e] else None
         if c is not None:
             ranking.append(c)
@@ -224,12 +249,12 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
         ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
         both = screen(fit_d, f0, ident.kept)
-        c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep) \
+        c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep, beyond) \
             if {p.effect for p in both} == {a, b} else None
         if c is not None:
             ranking.append(c)
     ranking.sort(key=lambda c: c.fit.cv_rms)
-    return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep)
+    return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep, beyond)
 
 
 def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
@@ -404,6 +429,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     if chosen is not None and s.hold_d.n_poses and not chosen.hold_in_rms < s.nominal.hold_in_rms:
         warnings.append(f"{chosen.label} does not predict the holdout poses better than registration "
                         f"alone ({s.nominal.hold_in_rms:.4f} -> {chosen.hold_in_rms:.4f} mm rms)")
+    notes += [_beyond_note(s, name, v) for name, v in s.beyond.items()]
     reasons: list[str] = []
     mine = _components(chosen) if chosen is not None else set()
     smaller = [s.nominal] + [c for c in s.ranking if c is not chosen and _components(c) < mine] \

@@ -77,3 +77,17 @@ def test_a_fit_that_wants_a_negative_give_or_width_leaves_that_parameter_out(tmp
               if "compliance" in n or "backlash" in n]
     assert all(v >= 0 for _, _, v in values), values
     assert "gravity_compliance" not in rep["cause"]["label"]
+
+
+def test_a_fit_that_wants_a_gear_ratio_beyond_its_hard_limit_leaves_it_out(tmp_path):
+    # a 9 % ratio error is no gear's (gear_ratio's ParamSpec allows ±5 %: a wrong
+    # transmission or a wrong unit, not a calibration): no candidate carries one beyond it
+    d = chainsim.make(tmp_path / "c", {"ratio": {"j2": 0.09}}, poses=60, noise_mm=NOISE, seed=6,
+                      dirs=True, temps=True)
+    rep = diagnose_chain(read_campaign(d), NOISE)
+    ratios = [(r["label"], n, v) for r in rep["ranking"] for n, v in r["params"].items()
+              if "gear_ratio" in n]
+    assert all(abs(v) <= 0.05 for _, _, v in ratios), ratios
+    assert "gear_ratio" not in rep["cause"]["label"] or rep["unexplained"], rep["cause"]
+    assert any(n.startswith("j2_gear_ratio_rel fitted to 0.09, beyond what its effect can "
+                            "physically be (-0.05 … 0.05)") for n in rep["remainder"]["notes"])
