@@ -36,7 +36,7 @@ from cell.controller_core import (Audit, CancelCycle, ClearInterrupted, Controll
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
                                   ScanInputs, SettleCycle, StartCalibration, StartCycle, StationFaultIn)
 from cell.cycle import CancelToken, CycleOutcome, CycleRunner
-from cell.cyclelog import CycleLog
+from cell.cyclelog import CycleLog, CycleStatus
 from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.publish import Publisher
@@ -280,13 +280,13 @@ class CellController:
 
         def run():
             if self.calibrator is None:
-                box["out"] = CycleOutcome("aborted", Fault.CALIBRATION_REFUSED,
+                box["out"] = CycleOutcome(CycleStatus.ABORTED, Fault.CALIBRATION_REFUSED,
                                           "this cell has no calibration service (no hand camera)")
             else:
                 box["out"] = self.calibrator.run_safely(a.select, cancel)
 
-        self._task_outcome = lambda: box.get("out") or CycleOutcome("aborted", Fault.INTERNAL,
-                                                                    "calibration task ended without an outcome")
+        self._task_outcome = lambda: box.get("out") or CycleOutcome(
+            CycleStatus.ABORTED, Fault.INTERNAL, "calibration task ended without an outcome")
         self._job = self.cycle_worker.submit(run)
         log.info("calibration_task_started", select=a.select)
 

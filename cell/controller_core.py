@@ -39,14 +39,19 @@ from dataclasses import dataclass, field
 from typing import Literal, Union
 
 from cell.cycle import CycleOutcome
+from cell.cyclelog import CycleStatus
 from cell.faults import Fault
 from cell.log import get_logger
 from cell.statemachine import CYCLE_STEPS, Event, State, StateMachine
+from drivers.plc.register_map import PLC_MAP, RecipeStatus
 
 log = get_logger("controller")
 
-EXECUTE, RESET, ABORT, ACK, CALIBRATE = 1, 2, 4, 8, 16   # command_word bits (drivers/plc/register_map.py)
-RECIPE_OK, RECIPE_UNKNOWN, RECIPE_REJECTED, RECIPE_BUSY = 0, 1, 2, 3
+# command_word's bits and recipe_status's values, as the register map defines them
+EXECUTE, RESET, ABORT, ACK, CALIBRATE = (PLC_MAP.mask("command_word", b) for b in (
+    "execute", "reset", "abort", "acknowledge", "calibrate"))
+RECIPE_OK, RECIPE_UNKNOWN, RECIPE_REJECTED, RECIPE_BUSY = (
+    RecipeStatus.OK, RecipeStatus.UNKNOWN, RecipeStatus.REJECTED, RecipeStatus.BUSY)
 
 
 @dataclass(frozen=True)
@@ -343,9 +348,9 @@ class ControllerCore:
         self._publish(out)
         if out.calibration is not None:
             self._publish_calibration(out.calibration)
-        if out.status == "done" and self.sm.state is State.CALIBRATING:
+        if out.status == CycleStatus.DONE and self.sm.state is State.CALIBRATING:
             self.sm.fire(Event.STEP_DONE)            # CALIBRATING → DONE: written and applied
-        elif out.status == "done" and self.sm.state in CYCLE_STEPS:
+        elif out.status == CycleStatus.DONE and self.sm.state in CYCLE_STEPS:
             self._follow(State.LOGGING)
             self.sm.fire(Event.STEP_DONE)            # LOGGING → DONE: the row is on disk
             self.cycle_count += 1
@@ -363,12 +368,13 @@ class ControllerCore:
             return
         state = self.sm.state
         if state is State.DONE:
-            told = ("done", 0, "")
+            told = (CycleStatus.DONE, 0, "")
         elif state is State.ABORTED:
-            told = ("aborted", 0, "abort by PLC")
+            told = (CycleStatus.ABORTED, 0, "abort by PLC")
         else:
-            told = (out.status if out.status != "done" else "aborted", self.fault_code,
-                    self.fault_text if out.status == "done" or self.fault_code != out.fault_code else "")
+            done = out.status == CycleStatus.DONE
+            told = (CycleStatus.ABORTED if done else out.status, self.fault_code,
+                    self.fault_text if done or self.fault_code != out.fault_code else "")
         self._actions.append(SettleCycle(rec.started_at, rec.id, *told))
 
     def _publish(self, out: CycleOutcome) -> None:

@@ -26,7 +26,7 @@ from cell.clock import Clock, MonotonicClock
 from cell.compensation.base import CompensationResult
 from cell.compensation.lattice import run_lattice
 from cell.compensation.paper import run_paper
-from cell.cyclelog import CycleLog, CycleRecord, utc_now
+from cell.cyclelog import CycleLog, CycleRecord, CycleStatus, utc_now
 from cell.errors import KinematicsError, TrajectoryError
 from cell.faults import CellFault, Fault, station_fault
 from cell.kinematics import Scara
@@ -91,7 +91,7 @@ class CycleSettings:
 
 @dataclass
 class CycleOutcome:
-    status: str                       #: "done", "fault" or "aborted"
+    status: CycleStatus
     fault_code: int = 0
     fault_text: str = ""
     record: CycleRecord | None = None
@@ -127,7 +127,7 @@ class OffsetMemory:
         calibration starts learning afresh."""
         memory = cls(n=n)
         calibration = calibration_of(robot)
-        for rec in cyclelog.cycles(limit=50 * n, status="done"):
+        for rec in cyclelog.cycles(limit=50 * n, status=CycleStatus.DONE):
             if rec.target_mm is None or not rec.trace or rec.calibration != calibration:
                 continue
             try:
@@ -213,7 +213,7 @@ class CycleRunner:
         """:meth:`run`, keeping the outcome in :attr:`outcome` (the cycle task's target)."""
         self.outcome = None
         if active is None:
-            self.outcome = CycleOutcome("aborted", cancel.code, cancel.text or "no recipe")
+            self.outcome = CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text or "no recipe")
         else:
             self.outcome = self.run(active, part_id, cancel)
         return self.outcome
@@ -224,13 +224,13 @@ class CycleRunner:
         self.progress = State.APPROACH
         r = active.recipe
         rec = CycleRecord(part_id=part_id, recipe=r.name, recipe_hash=active.hash, started_at=utc_now(),
-                          finished_at="", status="aborted", cycle_time_s=0.0,
+                          finished_at="", status=CycleStatus.ABORTED, cycle_time_s=0.0,
                           method=r.compensation.method, calibration=calibration_of(self.robot))
         t_start = self.clock.now()
         spec = MotionSpec(r.motion.sync, r.motion.segment_ms / 1000.0, r.motion.time_law,
                           r.approach.joint_speed_deg_s)
         arm = None
-        outcome = CycleOutcome("aborted")
+        outcome = CycleOutcome(CycleStatus.ABORTED)
         try:
             self._begin(rec)
             arm = CellArm(self.robot, self.mover, self.camera, r.approach.z_mm, spec, cancel,
@@ -249,24 +249,24 @@ class CycleRunner:
             self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part, cancel))
             self.progress = State.LOGGING
             self.memory.learn(r.name, np.subtract(result.final.command_units, nominal))
-            outcome = CycleOutcome("done")
+            outcome = CycleOutcome(CycleStatus.DONE)
         except CycleCancelled:
-            outcome = CycleOutcome("aborted", cancel.code, cancel.text)
+            outcome = CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
         except CellFault as exc:
-            outcome = CycleOutcome("fault" if self.progress is State.VERIFY else "aborted",
-                                   exc.code, exc.detail)
+            ended = CycleStatus.FAULT if self.progress is State.VERIFY else CycleStatus.ABORTED
+            outcome = CycleOutcome(ended, exc.code, exc.detail)
         except KinematicsError as exc:
-            outcome = CycleOutcome("aborted", Fault.UNREACHABLE, str(exc))
+            outcome = CycleOutcome(CycleStatus.ABORTED, Fault.UNREACHABLE, str(exc))
         except Exception as exc:                 # noqa: BLE001 -- every failure must reach the PLC
             code = getattr(getattr(exc, "record", None), "code", None)
             if code is not None:                 # a joint-station fault (StationFaultError)
-                outcome = CycleOutcome("aborted", station_fault(code), str(exc))
+                outcome = CycleOutcome(CycleStatus.ABORTED, station_fault(code), str(exc))
             else:
                 log.exception("cycle_internal_error", part_id=part_id)
-                outcome = CycleOutcome("aborted", Fault.INTERNAL, repr(exc))
-        if cancel.cancelled and outcome.status != "done":
+                outcome = CycleOutcome(CycleStatus.ABORTED, Fault.INTERNAL, repr(exc))
+        if cancel.cancelled and outcome.status != CycleStatus.DONE:
             # the scan loop's reason is the cause; what the motion raised (a quick stop) follows
-            outcome = CycleOutcome("aborted", cancel.code, cancel.text)
+            outcome = CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
         rec.status, rec.fault_code, rec.fault_text = outcome.status, outcome.fault_code, outcome.fault_text
         rec.motion = arm.motion_summary() if arm is not None else {"mode": spec.mode, "moves": 0}
         rec.finished_at = utc_now()
@@ -329,8 +329,8 @@ class CycleRunner:
             rec.id = self.log.add_cycle(rec)
         except Exception as exc:                 # noqa: BLE001
             log.error("cycle_log_write_failed", error=repr(exc), part_id=rec.part_id)
-            if outcome.status == "done":
-                outcome.status, outcome.fault_code = "fault", Fault.LOG_WRITE_FAILED
+            if outcome.status == CycleStatus.DONE:
+                outcome.status, outcome.fault_code = CycleStatus.FAULT, Fault.LOG_WRITE_FAILED
                 outcome.fault_text = f"cycle log write failed: {exc}"
         outcome.log_write_s = self.clock.now() - t0
         log.info("cycle_end", part_id=rec.part_id, recipe=rec.recipe, status=outcome.status,

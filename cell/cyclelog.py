@@ -23,6 +23,7 @@ and its own content): recipe activations and refusals, applied calibrations;
 from __future__ import annotations
 
 import hashlib
+import enum
 import json
 import sqlite3
 import threading
@@ -94,6 +95,15 @@ CREATE TABLE IF NOT EXISTS recipe_versions (
 """
 
 
+class CycleStatus(enum.StrEnum):
+    """How a cycle (or a calibration run in its place) ended: the log's ``status`` column
+    (its CHECK constraint holds the same three)."""
+
+    DONE = "done"
+    FAULT = "fault"
+    ABORTED = "aborted"
+
+
 def utc_now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
 
@@ -108,7 +118,7 @@ class CycleRecord:
     recipe_hash: str
     started_at: str
     finished_at: str
-    status: str
+    status: CycleStatus
     cycle_time_s: float
     step_times: dict[str, float] = field(default_factory=dict)
     method: str | None = None
@@ -245,8 +255,8 @@ class CycleLog:
             db.execute("INSERT OR REPLACE INTO open_cycle VALUES (1, ?, ?, ?, ?, 'running', NULL)",
                        (part_id, recipe, recipe_hash, started_at))
 
-    def settle_cycle(self, started_at: str, cycle_id: int | None, status: str, fault_code: int,
-                     fault_text: str) -> bool:
+    def settle_cycle(self, started_at: str, cycle_id: int | None, status: CycleStatus,
+                     fault_code: int, fault_text: str) -> bool:
         """The PLC has been told ``status``/``fault_code`` for the cycle that started at
         ``started_at``: correct its row if it says otherwise, and close the cycle. Returns
         True if the row was corrected."""
@@ -299,7 +309,8 @@ class CycleLog:
                 return None
         return dict(r) if r else None
 
-    def cycles(self, limit: int | None = None, status: str | None = None) -> list[CycleRecord]:
+    def cycles(self, limit: int | None = None, status: CycleStatus | None = None
+               ) -> list[CycleRecord]:
         """Cycles in id order (the last ``limit`` if given)."""
         where = " WHERE status = ?" if status else ""
         args: tuple = (status,) if status else ()
@@ -340,7 +351,7 @@ class CycleLog:
         tgt = (r["target_x_mm"], r["target_y_mm"]) if r["target_x_mm"] is not None else None
         return CycleRecord(
             id=r["id"], part_id=r["part_id"], recipe=r["recipe"], recipe_hash=r["recipe_hash"],
-            started_at=r["started_at"], finished_at=r["finished_at"], status=r["status"],
+            started_at=r["started_at"], finished_at=r["finished_at"], status=CycleStatus(r["status"]),
             method=r["method"], target_mm=tgt, initial_error_mm=r["initial_error_mm"],
             final_error_mm=r["final_error_mm"], verify_error_mm=r["verify_error_mm"], moves=r["moves"],
             cycle_time_s=r["cycle_time_s"], step_times=json.loads(r["step_times_json"]),

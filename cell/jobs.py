@@ -15,6 +15,7 @@ from apscheduler.schedulers.background import BackgroundScheduler
 
 from cell.clock import Clock, MonotonicClock
 from cell.config import SchedulerSection
+from cell.cyclelog import CycleStatus
 from cell.log import get_logger
 
 log = get_logger("jobs")
@@ -88,7 +89,7 @@ class CellJobs:
         return report
 
     def drift(self) -> bool:
-        cycles = self.c.log.cycles(limit=self.s.drift_window, status="done")
+        cycles = self.c.log.cycles(limit=self.s.drift_window, status=CycleStatus.DONE)
         errors = [c.initial_error_mm for c in cycles if c.initial_error_mm is not None]
         due = drift_due(errors, self.s.drift_window, self.s.drift_threshold_mm)
         if due != self.c.recalibration_due:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cell.cyclelog import CycleLog, CycleRecord
+from cell.cyclelog import CycleLog, CycleRecord, CycleStatus
 
 #: parts before a rolling statistic is drawn (fewer say little about a trend)
 MIN_PERIODS = 5
@@ -118,7 +118,7 @@ def title_of(cycles: list[CycleRecord]) -> str:
     t0, t1 = min(when(c) for c in cycles), max(when(c) for c in cycles)
     span = (f"{t0:%Y-%m-%d %H:%M} – {t1:%H:%M} UTC" if t0.date() == t1.date()
             else f"{t0:%Y-%m-%d %H:%M} – {t1:%Y-%m-%d %H:%M} UTC")
-    done = sum(c.status == "done" for c in cycles)
+    done = sum(c.status == CycleStatus.DONE for c in cycles)
     return (f"Accuracy trend, recipe{'s' if len(names) > 1 else ''} {', '.join(names)}: "
             f"{span}; {done} parts done, {len(cycles) - done} faulted/aborted")
 
@@ -139,7 +139,7 @@ def plot_trend(cycles: list[CycleRecord], limits: Limits, size_in=(11.0, 7.5), d
     w = limits.window
     for k, name in enumerate(sorted({c.recipe for c in cycles})):
         col = RECIPE_COLOURS[k % len(RECIPE_COLOURS)]
-        idx = [i for i, c in enumerate(cycles) if c.recipe == name and c.status == "done"
+        idx = [i for i, c in enumerate(cycles) if c.recipe == name and c.status == CycleStatus.DONE
                and c.final_error_mm is not None]
         if not idx:
             continue
@@ -178,7 +178,7 @@ def plot_trend(cycles: list[CycleRecord], limits: Limits, size_in=(11.0, 7.5), d
     ax0.annotate(f"recalibration threshold {limits.threshold_mm:g} mm", (1.0, limits.threshold_mm),
                  xycoords=("axes fraction", "data"), xytext=(-4, -3), textcoords="offset points",
                  ha="right", va="top", fontsize=8)
-    bad = [xs[i] for i, c in enumerate(cycles) if c.status != "done"]
+    bad = [xs[i] for i, c in enumerate(cycles) if c.status != CycleStatus.DONE]
     for ax in (ax0, ax1):
         lines = [ax.axvline(x, color="tab:red", lw=0.9, alpha=0.55) for x in bad]
         if ax is ax1:

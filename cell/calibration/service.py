@@ -31,6 +31,7 @@ import numpy as np
 from cell.calibration import calfile
 from cell.config import CellConfig
 from cell.cycle import CycleCancelled, CycleOutcome
+from cell.cyclelog import CycleStatus
 from cell.errors import CalibrationError, CellError
 from cell.faults import Fault
 from cell.jsonsafe import json_safe
@@ -284,28 +285,28 @@ class CellCalibrator:
             if select == 0:
                 out = self.kinematics(cancel=cancel)
                 if not out.holdout.passed:
-                    return CycleOutcome("fault", Fault.CALIBRATION_FIT,
+                    return CycleOutcome(CycleStatus.FAULT, Fault.CALIBRATION_FIT,
                                         f"held-out check failed, nothing written: {out.holdout.reason}",
                                         calibration={"residual_um": 1000 * out.holdout.rms_xy_after_mm,
                                                      "residual_udeg": 0})
-                return CycleOutcome("done", calibration={
+                return CycleOutcome(CycleStatus.DONE, calibration={
                     "residual_um": 1000 * out.holdout.rms_xy_after_mm, "residual_udeg": 0,
                     "version": self.version})
             if not 1 <= select <= 4 or JOINT_NAMES[select - 1] == "j3":
-                return CycleOutcome("aborted", Fault.CALIBRATION_REFUSED,
+                return CycleOutcome(CycleStatus.ABORTED, Fault.CALIBRATION_REFUSED,
                                     f"calibration_select {select}: no such calibration (0 kinematics, "
                                     "1, 2, 4 joint; j3 is prismatic)")
             _, result = self.joint(JOINT_NAMES[select - 1], cancel=cancel)
-            return CycleOutcome("done", calibration={"residual_um": 0,
+            return CycleOutcome(CycleStatus.DONE, calibration={"residual_um": 0,
                                                      "residual_udeg": 1e6 * result.residual_rms_deg})
         except CycleCancelled:
-            return CycleOutcome("aborted", cancel.code, cancel.text)
+            return CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
         except CalibrationError as exc:
             if cancel.cancelled:
-                return CycleOutcome("aborted", cancel.code, cancel.text)
-            return CycleOutcome("fault", CALIBRATION_FAULTS[exc.fault], str(exc))
+                return CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
+            return CycleOutcome(CycleStatus.FAULT, CALIBRATION_FAULTS[exc.fault], str(exc))
         except CellError as exc:
-            return CycleOutcome("fault", Fault.CALIBRATION_FIT, str(exc))
+            return CycleOutcome(CycleStatus.FAULT, Fault.CALIBRATION_FIT, str(exc))
         except Exception as exc:                       # noqa: BLE001 -- the PLC must hear of it
             log.exception("calibration_failed", error=repr(exc))
-            return CycleOutcome("fault", Fault.INTERNAL, f"calibration failed: {exc!r}")
+            return CycleOutcome(CycleStatus.FAULT, Fault.INTERNAL, f"calibration failed: {exc!r}")

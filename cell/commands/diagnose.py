@@ -152,7 +152,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
         magic = f.read(len(SQLITE_MAGIC))
     if magic != SQLITE_MAGIC:
         raise CampaignFormatError(p, "neither a campaign directory nor an SQLite cycle log")
-    from cell.cyclelog import CycleLog
+    from cell.cyclelog import CycleLog, CycleStatus
     from cell.export import cycles_to_campaign
     from cell.robots import PRESETS
     if robot not in PRESETS:
@@ -160,7 +160,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
     g = PRESETS[robot]
     log = CycleLog(p, readonly=True)
     try:
-        c = cycles_to_campaign(log.cycles(status="done"), g.l1_mm, g.l2_mm,
+        c = cycles_to_campaign(log.cycles(status=CycleStatus.DONE), g.l1_mm, g.l2_mm,
                                command_unit_deg=g.unit[0],
                                camera_center_mm=tuple(camera_center) if camera_center else None)
     except ValueError as exc:

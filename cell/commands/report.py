@@ -12,6 +12,7 @@ from pathlib import Path
 
 from cell import paths
 from cell.commands import file_in_the_way, open_log_readonly, plot_file, preset_name
+from cell.cyclelog import CycleStatus
 from cell.errors import ConfigError
 
 DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
@@ -61,8 +62,8 @@ def run_report(args: argparse.Namespace) -> int:
     print("|---|---|---|---|---|---|---|---|")
     for i in range(0, len(cycles), args.block):
         blk = cycles[i:i + args.block]
-        done = [c for c in blk if c.status == "done" and c.final_error_mm is not None]
-        faults = sum(c.status != "done" for c in blk)
+        done = [c for c in blk if c.status == CycleStatus.DONE and c.final_error_mm is not None]
+        faults = sum(c.status != CycleStatus.DONE for c in blk)
         if done:
             ini = np.array([c.initial_error_mm for c in done])
             fin = np.array([c.final_error_mm for c in done])
@@ -114,7 +115,7 @@ def run_export(args: argparse.Namespace) -> int:
     blocker = file_in_the_way(Path(args.out))
     if blocker is not None:
         raise ConfigError(f"{args.out}: {blocker} is not a folder; nothing written")
-    cycles = open_log_readonly(args.db).cycles(status="done")
+    cycles = open_log_readonly(args.db).cycles(status=CycleStatus.DONE)
     try:
         campaign = cycles_to_campaign(cycles, robot.g.l1_mm, robot.g.l2_mm, command_unit_deg=robot.g.unit[0])
     except ValueError as exc:

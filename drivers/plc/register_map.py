@@ -124,6 +124,15 @@ class Register:
         return self.lo <= value <= self.max_value
 
 
+class RecipeStatus(enum.IntEnum):
+    """The values of ``recipe_status`` (its register's meaning says the same to the PLC)."""
+
+    OK = 0          # recipe_ack = recipe_select
+    UNKNOWN = 1     # no recipe of that number
+    REJECTED = 2    # the last edit failed validation; the previous version stays active
+    BUSY = 3        # a change asked while a cycle runs: refused
+
+
 def _b(index: int, name: str, meaning: str) -> Bit:
     return Bit(index, name, meaning)
 
@@ -193,7 +202,7 @@ REGISTERS: tuple[Register, ...] = (
     Register(20, "recipe_select", _U16, _RW, hi=999, meaning="Recipe number the PLC asks for. Applied "
              "when the controller is not busy; answered in recipe_ack and recipe_status."),
     Register(21, "recipe_ack", _U16, _RO, hi=999, meaning="Number of the active recipe."),
-    Register(22, "recipe_status", _U16, _RO, hi=3, meaning="0 ok (recipe_ack = recipe_select), "
+    Register(22, "recipe_status", _U16, _RO, hi=max(RecipeStatus), meaning="0 ok (recipe_ack = recipe_select), "
              "1 unknown recipe, 2 last edit rejected (file failed validation; previous version "
              "stays active), 3 change refused while busy."),
     Register(24, "part_id", _U32, _RW, meaning="Identifier of the next part; latched at the execute "
@@ -370,6 +379,11 @@ class RegisterMap:
         if reg.type is not RegType.BITFIELD:
             raise PlcMapError(f"register {name} is {reg.type.value}, not a bit field")
         return {b.name: bool(value >> b.index & 1) for b in reg.bits}
+
+    def mask(self, name: str, *bits: str) -> int:
+        """The mask of the named bits of bit-field register ``name`` (the constants a program
+        tests a word against); an unknown bit -> error."""
+        return self.with_bits(name, 0, dict.fromkeys(bits, True))
 
     def with_bits(self, name: str, value: int, flags: Mapping[str, bool]) -> int:
         """``value`` with the named bits of register ``name`` set/cleared; unknown bit -> error."""

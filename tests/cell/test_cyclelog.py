@@ -3,7 +3,7 @@ import sqlite3
 
 import pytest
 
-from cell.cyclelog import CycleLog, CycleRecord, utc_now
+from cell.cyclelog import _SCHEMA, CycleLog, CycleRecord, CycleStatus, utc_now
 
 
 def record(i, **kw):
@@ -29,6 +29,19 @@ def test_pragmas_and_round_trip(tmp_path):
     log.close()
     again = CycleLog(tmp_path / "cell.sqlite")
     assert again.count() == 3
+
+
+def test_statuses_are_the_logs_and_read_back_as_such(tmp_path):
+    # the enum and the table's CHECK constraint name the same three statuses
+    assert "CHECK (status IN ('done', 'fault', 'aborted'))" in _SCHEMA
+    assert [s.value for s in CycleStatus] == ["done", "fault", "aborted"]
+    log = CycleLog(tmp_path / "cell.sqlite")
+    log.add_cycle(record(1, status=CycleStatus.FAULT))
+    log.add_cycle(record(2))
+    got = log.cycles()
+    assert [c.status for c in got] == [CycleStatus.FAULT, CycleStatus.DONE]
+    assert all(isinstance(c.status, CycleStatus) for c in got)
+    assert [c.part_id for c in log.cycles(status=CycleStatus.DONE)] == [2]
 
 
 def test_bad_status_is_refused_and_nothing_written(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from cell.commands import registers as registers_cmd
 from drivers.plc.register_map import (
     MAP_VERSION, PLC_MAP, REGISTERS, Access, Bit, IllegalDataAddress, IllegalDataValue,
-    PlcMapError, Register, RegisterMap, RegType,
+    PlcMapError, RecipeStatus, Register, RegisterMap, RegType,
 )
 
 # The registers the PLC programmer relies on: name -> (type, access)
@@ -133,6 +133,23 @@ def test_bits_round_trip():
     assert v == 0x0101
     assert PLC_MAP.bits("status_word", v)["plc_link_ok"] and not PLC_MAP.bits("status_word", v)["busy"]
     assert PLC_MAP.with_bits("status_word", v, {"ready": False}) == 0x0100
+
+
+def test_masks_and_recipe_statuses_are_the_maps():
+    # the PLC's contract (docs: command_word bits 0..4, recipe_status 0..3), and the
+    # controller takes its constants from the map, not from numbers of its own
+    from cell import controller_core as core
+    assert PLC_MAP.mask("command_word", "execute") == 1 and PLC_MAP.mask("command_word") == 0
+    assert PLC_MAP.mask("command_word", "reset", "acknowledge") == 0b1010
+    assert (core.EXECUTE, core.RESET, core.ABORT, core.ACK, core.CALIBRATE) == (1, 2, 4, 8, 16)
+    with pytest.raises(PlcMapError, match="command_word: no bit named 'start'"):
+        PLC_MAP.mask("command_word", "start")
+    meaning = PLC_MAP["recipe_status"].meaning
+    for status, words in ((RecipeStatus.OK, "0 ok"), (RecipeStatus.UNKNOWN, "1 unknown recipe"),
+                          (RecipeStatus.REJECTED, "2 last edit rejected"),
+                          (RecipeStatus.BUSY, "3 change refused while busy")):
+        assert words in meaning, status
+    assert PLC_MAP["recipe_status"].hi == max(RecipeStatus) == core.RECIPE_BUSY == 3
 
 
 @pytest.mark.parametrize("address, words, exc, message", [
