@@ -12,7 +12,6 @@ from pathlib import Path
 
 from cell import paths
 from cell.commands import file_in_the_way, open_log_readonly, plot_file, preset_name
-from cell.cyclelog import CycleStatus
 from cell.errors import ConfigError
 
 DEFAULT_DB = paths.DEFAULT_DB   #: in the project folder, whatever the shell's (cell.paths)
@@ -44,6 +43,8 @@ def run_report(args: argparse.Namespace) -> int:
     """Every input is checked (block, config, recipes, PNG file, log) and the plot written
     before the first line is printed: a bad input never follows a printed table."""
     import numpy as np
+
+    from cell.cyclelog import CycleStatus
     if args.block < 1:
         raise ConfigError(f"--block {args.block} must be ≥ 1")
     sched = _scheduler(args.config)
@@ -108,6 +109,7 @@ def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from cell.cyclelog import CycleStatus
     from cell.export import cycles_to_campaign
     from cell.kinematics import Scara
     from cell.measurements import write_campaign
