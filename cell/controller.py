@@ -41,7 +41,7 @@ from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.publish import Publisher
 from cell.recipe_store import RecipeStore
-from cell.recipes import ActiveRecipe
+from cell.recipes import ActiveRecipe, RecipeAction
 from cell.statemachine import State, StateMachine
 from cell.worker import Job, Worker
 
@@ -320,4 +320,4 @@ class CellController:
         entries = job.result or []
         numbers = frozenset(a.recipe.number for a in self.recipes.active.values())
         return RecipesIn(numbers, refreshed=True, changed=bool(entries),
-                         rejected=any(e.action == "reject" and not e.example for e in entries))
+                         rejected=any(e.action == RecipeAction.REJECT and not e.example for e in entries))

@@ -47,7 +47,8 @@ from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
 from cell.recipe_notes import attribution
-from cell.recipes import ActiveRecipe, AuditEntry, CellCheck, example_refusal, line_of, parse_recipe
+from cell.recipes import (ActiveRecipe, AuditEntry, CellCheck, RecipeAction, example_refusal, line_of,
+                          parse_recipe)
 from cell.yamlio import decode_utf8
 
 log = get_logger("recipes")
@@ -163,7 +164,7 @@ class RecipeStore:
         for name, a in list(new.items()):
             if a.path not in present:
                 del new[name]
-                entries.append(AuditEntry("unknown", "remove", a.path, a.hash, "ok", name))
+                entries.append(AuditEntry("unknown", RecipeAction.REMOVE, a.path, a.hash, "ok", name))
         if entries:
             changes = [(e.who, f"recipe_{e.action}", e.target, e.hash, e.result, versions.get(i))
                        for i, e in enumerate(entries)]
@@ -186,10 +187,10 @@ class RecipeStore:
         for e in entries:
             if e.example:                          # refused by design, not an edit gone wrong
                 log.info("recipe_example_not_activated", file=e.target)
-            elif e.action == "reject":
+            elif e.action == RecipeAction.REJECT:
                 self.last_rejection = e.result
                 log.warning("recipe_rejected", file=e.target, error=e.result)
-            elif e.action == "activate":
+            elif e.action == RecipeAction.ACTIVATE:
                 log.info("recipe_activated", recipe=e.recipe, hash=e.hash[:12])
             else:
                 log.info("recipe_removed", recipe=e.recipe)
@@ -240,7 +241,7 @@ class RecipeStore:
             if self.check is not None:
                 self.check(recipe, text, str(path))
             if not recipe.production and not self.allow_examples:
-                return AuditEntry(who, "reject", str(path), h, example_refusal(recipe, text, str(path)),
+                return AuditEntry(who, RecipeAction.REJECT, str(path), h, example_refusal(recipe, text, str(path)),
                                   recipe.name, example=True), None, h
             clash = next((a for a in new.values() if a.recipe.number == recipe.number
                           and a.recipe.name != recipe.name), None)
@@ -248,17 +249,17 @@ class RecipeStore:
                 raise ConfigError(f"{path}:{line_of(text, 'number')}: number: recipe number "
                                   f"{recipe.number} is already used by {clash.path}")
         except ConfigError as exc:
-            return AuditEntry(who, "reject", str(path), h, str(exc)), None, h
+            return AuditEntry(who, RecipeAction.REJECT, str(path), h, str(exc)), None, h
         except Exception as exc:                   # noqa: BLE001 -- a check's own failure
             # an edit is never left undecided (and so unaudited, retried forever): whatever
             # stopped the check, the file is rejected with the reason and the last good
             # version stays active
             log.error("recipe_check_failed", file=str(path), error=repr(exc))
-            return AuditEntry(who, "reject", str(path), h,
+            return AuditEntry(who, RecipeAction.REJECT, str(path), h,
                               f"{path}: could not be checked ({type(exc).__name__}: {exc}); "
                               "the last good version stays active"), None, h
         active = ActiveRecipe(recipe, h, text, str(path))
-        return AuditEntry(who, "activate", str(path), h, "ok", recipe.name), active, h
+        return AuditEntry(who, RecipeAction.ACTIVATE, str(path), h, "ok", recipe.name), active, h
 
     def _read(self, path: Path, open_path: str) -> tuple[bytes, str | None]:
         """At most ``max_bytes`` + 1 bytes of a regular file (never follows a symlink, never

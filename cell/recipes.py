@@ -7,6 +7,7 @@ in :mod:`cell.recipe_store`.
 """
 from __future__ import annotations
 
+import enum
 import hashlib
 import json
 from dataclasses import dataclass
@@ -144,10 +145,18 @@ class ActiveRecipe:
     path: str
 
 
+class RecipeAction(enum.StrEnum):
+    """What the recipe store did with a recipe file (the audit log's ``action``)."""
+
+    ACTIVATE = "activate"
+    REJECT = "reject"
+    REMOVE = "remove"
+
+
 @dataclass(frozen=True)
 class AuditEntry:
     who: str
-    action: str          # "activate", "reject", "remove"
+    action: RecipeAction
     target: str          # file path
     hash: str
     result: str          # "ok" or the error message
