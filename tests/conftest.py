@@ -1,4 +1,8 @@
-"""Project-wide pytest options: ``--hw`` runs the tests marked ``@pytest.mark.hw`` on real devices.
+"""Project-wide pytest options: ``--hw`` runs the tests marked ``@pytest.mark.hw`` on real devices;
+``--slow`` runs the tests marked ``@pytest.mark.slow`` (the long end-to-end tier, about half
+the suite's CPU), which otherwise run only under ``CI=true``: a developer's ``python3 dev.py
+test`` takes a few minutes, and CI (``.ci/run``: ``python3 dev.py test --slow``) still runs
+every test before anything lands.
 
 Under ``CI=true`` (CI runs ``python3 dev.py test`` so) a test may skip only if it is marked
 ``hw``: any other skip, whatever raised it (a ``skipif``, ``pytest.skip``, a missing tool
@@ -13,15 +17,20 @@ from tests.tools import under_ci
 def pytest_addoption(parser):
     parser.addoption("--hw", action="store_true", default=False,
                      help="run @pytest.mark.hw tests against real hardware (camera, CAN interface)")
+    parser.addoption("--slow", action="store_true", default=False,
+                     help="run the long end-to-end tests (@pytest.mark.slow); CI=true always does")
 
 
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--hw"):
-        return
-    skip = pytest.mark.skip(reason="needs real hardware: run with --hw")
+    hw = None if config.getoption("--hw") else \
+        pytest.mark.skip(reason="needs real hardware: run with --hw")
+    slow = None if config.getoption("--slow") or under_ci() else \
+        pytest.mark.skip(reason="the slow tier: run with --slow (CI=true runs it)")
     for item in items:
-        if "hw" in item.keywords:
-            item.add_marker(skip)
+        if hw is not None and "hw" in item.keywords:
+            item.add_marker(hw)
+        if slow is not None and "slow" in item.keywords:
+            item.add_marker(slow)
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -5,6 +5,7 @@ with the warning in the calibration file and in the audit trail."""
 import json
 
 import numpy as np
+import pytest
 import yaml
 
 from cell.calibration import calfile
@@ -51,6 +52,7 @@ def _plant(tmp_path):
             "--out", str(tmp_path / "robot.json")]
 
 
+@pytest.mark.slow
 def test_a_worse_calibration_is_refused_dry_run_included(tmp_path, capsys):
     for extra in ([], ["--dry-run"]):
         assert main(_plant(tmp_path) + extra) == 2
@@ -60,6 +62,7 @@ def test_a_worse_calibration_is_refused_dry_run_included(tmp_path, capsys):
         assert "nothing written" in err and not (tmp_path / "robot.json").exists()
 
 
+@pytest.mark.slow
 def test_accept_worse_writes_with_the_warning_in_the_file_and_the_audit(tmp_path, capsys):
     db = tmp_path / "cell.sqlite"
     assert main(_plant(tmp_path) + ["--accept-worse", "--db", str(db)]) == 0

@@ -20,6 +20,7 @@ def test_joint_calibration_prints_json_and_writes_the_plot(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_kinematic_calibration_writes_a_file_the_cell_accepts(tmp_path, capsys):
     out = tmp_path / "robot.json"
     assert main(["calibrate", "kinematics", "--sim", "--poses", "8", "--holdout", "4",
@@ -32,6 +33,7 @@ def test_kinematic_calibration_writes_a_file_the_cell_accepts(tmp_path, capsys):
     assert doc["version"] == 1 and doc["report"]["holdout"]["passed"]
 
 
+@pytest.mark.slow
 def test_dry_run_writes_nothing(tmp_path, capsys, monkeypatch):
     out = tmp_path / "robot.json"
     monkeypatch.setenv("CELL_PROGRESS", "1")          # as on a terminal: the bar goes to stderr only

@@ -169,6 +169,7 @@ def test_symlinks_planted_in_the_folders_do_not_redirect_a_save(hmi, rdir, tmp_p
 
 
 # ---------------------------------------------------------------------------- login throttle memory
+@pytest.mark.slow
 def test_failed_names_that_cannot_be_user_names_are_not_kept(rdir, tmp_path, hmi):
     from cell.hmi.throttle import LoginThrottle
     throttle = LoginThrottle(ManualClock(0.0))

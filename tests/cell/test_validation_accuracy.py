@@ -48,6 +48,8 @@ import pytest
 from cell.diagnosis import validate as planar
 from cell.diagnosis.chain import validate as chain
 
+pytestmark = pytest.mark.slow     # about a minute of CPU: the slow tier (tests/conftest.py)
+
 SEED = 1
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from cell.cyclelog import CycleLog
 from cell.faults import Fault
 from cell.statemachine import State
@@ -17,6 +19,7 @@ def small(h, poses=10, holdout=6):
             update={"poses": poses, "holdout": holdout, "runs": 1})})
 
 
+@pytest.mark.slow
 def test_kinematic_calibration_from_the_plc_is_written_applied_and_recorded(harness):
     h = harness
     small(h)

@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from tests.system.conftest import REPO
@@ -22,6 +23,7 @@ def cellctl(cwd, *args, timeout=300):
                           capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_commands_run_from_another_folder(tmp_path):
     out = cellctl(tmp_path, "run", "--sim", "--cycles", "6", "--db", "run.sqlite")
     assert out.returncode == 0, out.stderr[-2000:]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from cell.cyclelog import CycleLog
@@ -53,6 +54,7 @@ def test_run_beside_a_serving_controller_is_refused_and_moves_nothing(tmp_path):
     assert serve.returncode == 0
 
 
+@pytest.mark.slow
 def test_fresh_runs_keep_every_previous_log(tmp_path):
     cfg, path = _config(tmp_path)
     log = tmp_path / "cell.sqlite"

@@ -13,6 +13,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from tests.system.conftest import REPO
 
 ANSI_OR_CR = re.compile(r"\x1b\[|\r")
@@ -160,6 +162,7 @@ def _deep_stroke_config(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_a_run_cut_short_by_a_plc_time_out_still_prints_the_parts_before(tmp_path, capsys):
     """A real time-out: the simulated PLC waits its 30 s of simulated time for done while
     part 2's cycle is still moving (see :func:`_deep_stroke_config`)."""

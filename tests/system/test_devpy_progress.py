@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.system.conftest import REPO
 
 PYPROJECT = """\
@@ -87,6 +89,7 @@ def said(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if line.startswith("dev.py: ")]
 
 
+@pytest.mark.slow
 def test_building_the_venv_says_each_step_and_how_long_it_took(tmp_path):
     root = clone(tmp_path)
     out = dev_py(root, tmp_path, "cellctl", "hello")
@@ -112,6 +115,7 @@ def test_building_the_venv_says_each_step_and_how_long_it_took(tmp_path):
     assert "installing the pinned packages" in lines[1] and "ready in " in lines[2]
 
 
+@pytest.mark.slow
 def test_a_failed_install_says_so_and_the_next_run_tries_again(tmp_path):
     """pip failing (no network, a package not found) ended dev.py in a CalledProcessError
     traceback."""

@@ -91,6 +91,7 @@ def answer(s: socket.socket) -> bytes:
 
 
 # ---------------------------------------------------------------------------- 1: check floods
+@pytest.mark.slow
 def test_a_flood_of_recipe_checks_is_refused_busy_and_the_pages_stay_up(tmp_path, files):
     """40 checks at once that never end (the alias bomb before yamlio refused aliases): only
     as many run as there are slots; the others are answered 503 at once, and the status
@@ -281,6 +282,7 @@ def _closed_while_dribbling(s: socket.socket, feed: bytes) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_running_out_of_descriptors_logs_a_line_not_a_traceback_per_attempt(tmp_path, files):
     """The cap above what 128 descriptors allow, so accepting fails (EMFILE) while 300
     connections are held: one line for it, no traceback; once the held requests time out

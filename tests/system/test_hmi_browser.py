@@ -39,6 +39,7 @@ def type_recipe(driver, text: str) -> None:
          WAIT_S, "the typed text in the editor")
 
 
+@pytest.mark.slow
 def test_login_bad_edit_refused_good_edit_activated_between_cycles(tmp_path):
     require_browser()
     with SimCellWithHmi(tmp_path / "cell") as cell, chromium(tmp_path, 1400, 1000) as driver:

@@ -71,6 +71,7 @@ def _umask_mode() -> int:
     return 0o666 & ~mask
 
 
+@pytest.mark.slow
 def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
     """``cellctl calibrate-camera … --out cal.json`` and ``calibrate joint --png`` wrote their
     files 0600 (``tempfile.mkstemp``'s mode): run as root as deploy/INSTALL.md step 3 does,

@@ -54,8 +54,14 @@ def test_a_changed_figure_is_found_and_shown():
     assert gone.problem == "the command prints no table with these columns"
 
 
+#: the tables whose commands take 3 s or more: the slow tier (tests/conftest.py)
+LONG = {"can", "validate", "chain", "chain-oov", "vision", "cell-latency", "diagnose-cpu", "scan",
+        "load-main", "diagnosis-speed", "chain-speed"}
+
+
 @pytest.mark.timeout(900)
-@pytest.mark.parametrize("name", [s.name for s in check.SOURCES if not s.slow])
+@pytest.mark.parametrize("name", [pytest.param(s.name, marks=pytest.mark.slow) if s.name in LONG
+                                  else s.name for s in check.SOURCES if not s.slow])
 def test_readme_tables_match_what_their_command_prints(name):
     source = next(s for s in check.SOURCES if s.name == name)
     findings, _, ran = check.check(source, readme_lines(), use_probe=True, timeout=800)

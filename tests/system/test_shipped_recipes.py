@@ -31,6 +31,7 @@ def test_recipes_are_shipped():
     assert [p.stem for p in SHIPPED if _recipe(p).production], "no production recipe shipped"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", [p for p in SHIPPED if _recipe(p).production], ids=lambda p: p.stem)
 def test_every_production_recipe_runs_100_parts_within_its_tolerance(path, tmp_path):
     recipe = _recipe(path)

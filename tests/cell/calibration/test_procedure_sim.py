@@ -89,6 +89,7 @@ def test_the_plc_hears_which_kind_of_failure_it_was(cell):
     assert out.fault_code == Fault.CALIBRATION_MEASUREMENT and "target not measured (no_target)" in out.fault_text
 
 
+@pytest.mark.slow
 def test_kinematic_calibration_passes_its_held_out_check_and_is_written(cell):
     cfg, dev, cal = cell
     out = cal.kinematics()
@@ -116,6 +117,7 @@ def test_without_anchors_the_boards_rotation_merges_into_j1s_zero(cell):
     assert out.document is None
 
 
+@pytest.mark.slow
 def test_failed_held_out_check_writes_nothing_and_reports_fault_603(cell):
     cfg, dev, cal = cell
     strict = CellCalibrator(cfg.model_copy(update={"calibration": cfg.calibration.model_copy(
