@@ -63,7 +63,10 @@ class Noise:
 
 
 def upper95(sigma: float, dof: float) -> float:
-    """95 % upper confidence bound of a σ estimated with ``dof`` degrees of freedom."""
+    """95 % upper confidence bound of a σ estimated with ``dof`` degrees of freedom: σ itself
+    for infinitely many (a σ that is given, not estimated), ∞ for none or NaN."""
+    if dof == math.inf:
+        return float(sigma)
     if not math.isfinite(dof) or dof <= 0:
         return math.inf
     return sigma * math.sqrt(dof / float(chi2_ppf(0.05, dof)))
@@ -76,7 +79,7 @@ def mad(v: np.ndarray) -> float:
 
 
 def given(sigma_mm: float) -> Noise:
-    return Noise(float(sigma_mm), "given", "--noise-mm", math.inf, float(sigma_mm))
+    return Noise(float(sigma_mm), "given", "--noise-mm", math.inf, upper95(sigma_mm, math.inf))
 
 
 def from_paths(sigma_mm: float | None, n: int) -> Noise | None:

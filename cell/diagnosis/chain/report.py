@@ -132,8 +132,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
                                                    robust.reference(s))
     # judged against what the noise may be, not its estimate: a σ from one revisited pose
     # (two degrees of freedom) must not make a gap look systematic
-    noise_hi = None if noise_mm is None else \
-        noise_mm if math.isinf(noise_dof) else upper95(noise_mm, noise_dof)
+    noise_hi = None if noise_mm is None else upper95(noise_mm, noise_dof)
     dec = rank.decide(s, noise_hi)
     dec.warnings += outl.warnings
     if outl.n:

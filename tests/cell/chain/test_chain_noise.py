@@ -11,6 +11,7 @@ from scipy.stats import f as f_dist
 
 from cell.diagnosis.chain.noise import revisits_disagree, rigid_noise_mm
 from cell.diagnosis.chain.rank import NOISE_FACTOR
+from cell.diagnosis.noise import upper95
 from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
 from cell.truth import chain as truth
@@ -70,5 +71,7 @@ def test_a_noise_from_one_revisited_pose_is_judged_by_its_upper_bound(tmp_path):
     n = rep["noise"]
     assert n["source"] == "repeats (1 revisited poses)" and n["dof"] == 2
     assert n["upper95_mm"] == pytest.approx(n["sigma_mm"] * math.sqrt(2 / chi2_ppf(0.05, 2)), abs=1e-6)
+    # a σ that is given has no uncertainty of its own; one from nothing has no bound
+    assert upper95(0.005, math.inf) == 0.005 and upper95(0.005, 0) == math.inf
     assert n["fit_rms_mm"] > NOISE_FACTOR * n["sigma_mm"] * math.sqrt(2)   # the old rule's doubt
     assert rep["cause"]["label"] == "joint_offset" and not rep["unexplained"], rep["remainder"]
