@@ -41,4 +41,4 @@ EFFECT = Effect(
                                 "drive: {what}{on}."),
                   term=lambda poses, k: -0.5 * poses.dirs[:, k],     # Δq_k = −dir_k·b/2
                   unseen="no jK_dir column: the direction of the joint's last motion is "
-                         "not known", lower=WIDTH.bounds[0], upper=WIDTH.bounds[1]))
+                         "not known", bounds=WIDTH.bounds))

@@ -223,10 +223,9 @@ class OnChain:
     pose (what column it lacks; for a sensor map, that the campaign gives no centre);
     ``min_spread``: the least spread (max − min) of the term over the fit poses that tells
     the effect from a constant one, ``still`` what it cannot be told from below it.
-    ``lower`` / ``upper``: the least and the most the parameter can physically take (a
-    width or a give that cannot be negative; the effect's own hard limits, its
-    :attr:`ParamSpec.bounds`; None: unbounded): a fit that wants it beyond is left
-    without it."""
+    ``bounds``: (least, most) the parameter can physically take (the effect's own hard
+    limits, its :attr:`ParamSpec.bounds`; a width or a give that cannot be negative, (0,
+    None); None: unbounded on that side): a fit that wants it beyond is left without it."""
 
     joints: str
     stem: str = ""
@@ -236,8 +235,7 @@ class OnChain:
     unseen: str = ""
     min_spread: float = 0.0
     still: str = ""
-    lower: float | None = None
-    upper: float | None = None
+    bounds: tuple[float | None, float | None] = (None, None)
     sensor_map: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = field(default=None,
                                                                                  repr=False)
 

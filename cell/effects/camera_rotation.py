@@ -41,5 +41,4 @@ EFFECT = Effect(
     "position", "camera rotated about its centre", camera_rotation, d_camera_rotation,
     needs=(CameraCentre(),), remedy=CHECK_CAMERA,
     chain=OnChain("sensor", "camera_rotation_deg", "deg", sensor_map=chain_rotation,
-                  unseen=NO_CENTRE, remedy=CHECK_CAMERA, lower=TURN.bounds[0],
-                  upper=TURN.bounds[1]))
+                  unseen=NO_CENTRE, remedy=CHECK_CAMERA, bounds=TURN.bounds))

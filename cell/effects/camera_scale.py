@@ -36,4 +36,4 @@ EFFECT = Effect(
     "position", "camera scale error about its centre", camera_scale, d_camera_scale,
     needs=(CameraCentre(),), remedy=CHECK_CAMERA,
     chain=OnChain("sensor", "camera_scale_rel", "1", sensor_map=chain_scale, unseen=NO_CENTRE,
-                  lower=SCALE.bounds[0], upper=SCALE.bounds[1]))
+                  bounds=SCALE.bounds))

@@ -40,4 +40,4 @@ EFFECT = Effect(
     remedy=CALIBRATE_JOINT,
     chain=OnChain("all", "gear_ratio_rel", "1", remedy=CALIBRATE_CHAIN,
                   term=lambda poses, k: poses.q[:, k],     # Δq_k = ε·q_k
-                  lower=RATIO.bounds[0], upper=RATIO.bounds[1]))
+                  bounds=RATIO.bounds))

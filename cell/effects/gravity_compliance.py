@@ -16,6 +16,6 @@ EFFECT = Effect(
                   "under the gravity load."),
     chain=OnChain("revolute", "compliance_deg_per_m", "deg/m",
                   term=lambda poses, k: poses.levers[:, k],     # Δq_k = c·τ_k
-                  lower=0.0))    # the joint gives way, never against the load. No upper
-# bound: a plausible give per metre of a unit weight's lever depends on the arm (the best
+                  bounds=(0.0, None)))   # the joint gives way, never against the load. No
+# upper bound: a plausible give per metre of a unit weight's lever depends on the arm (the best
 # candidates on the real TIAGo set give its wrist 27 deg/m, beyond its ParamSpec's ±10)

@@ -55,4 +55,4 @@ EFFECT = Effect(
                   min_spread=MIN_TEMP_SPREAD_C,
                   still=f"temperature spread under {MIN_TEMP_SPREAD_C} °C over the fit poses: "
                         "growth cannot be told from constant link lengths",
-                  lower=EXPANSION.bounds[0], upper=EXPANSION.bounds[1]))
+                  bounds=EXPANSION.bounds))

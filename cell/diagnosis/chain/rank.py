@@ -78,7 +78,7 @@ class Search:
     ranking: list[Candidate]
     idents: dict[str, F.Identifiability] = field(default_factory=dict)
     hold_keep: np.ndarray | None = None   # holdout points that are not outliers (None: all)
-    beyond: dict[str, float] = field(default_factory=dict)   # left out: name -> value wanted
+    beyond: dict[str, tuple[F.Param, float]] = field(default_factory=dict)  # left out, value wanted
 
 
 class Screen:
@@ -155,21 +155,21 @@ def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candida
 def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None,
                beyond: dict | None = None) -> Candidate | None:
     """``params`` fitted on ``fit_d`` and judged on ``hold_d``, within their physical bounds
-    (:attr:`cell.effects.OnChain.lower`, ``upper``): while the fit wants a parameter beyond
-    its bounds, the one furthest beyond (in standard errors) is left out and the rest
-    fitted again (``beyond`` collects each name and the value its fit wanted). None when an
-    effect of ``effects`` is left without a parameter (the campaign shows it only with a
-    value it cannot have)."""
+    (:attr:`cell.effects.OnChain.bounds`): while the fit wants a parameter beyond its
+    bounds, the one furthest beyond (in standard errors) is left out and the rest fitted
+    again (``beyond`` collects, by name, each such parameter and the value its fit wanted).
+    None when an effect of ``effects`` is left without a parameter (the campaign shows it
+    only with a value it cannot have)."""
     params = list(params)
     while True:
         f = F.fit(fit_d, params, f0.reg)
-        out = [(_beyond(p, v) / max(se, 1e-300), p)
-               for p, v, se in zip(params, f.values, f.se) if _beyond(p, v) > 0]
+        out = [(far / max(se, 1e-300), p, v) for p, v, se in zip(params, f.values, f.se)
+               if (far := _beyond(p, v)) > 0]
         if not out:
             return _held(label, effects, f, hold_d, keep, ident)
-        worst = max(out, key=lambda t: t[0])[1]
+        _, worst, wanted = max(out, key=lambda t: t[0])
         if beyond is not None:
-            beyond.setdefault(worst.name, float(f.values[params.index(worst)]))
+            beyond.setdefault(worst.name, (worst, float(wanted)))
         params.remove(worst)
         if {p.effect for p in params} != set(effects):
             return None
@@ -177,20 +177,17 @@ def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None,
 
 def _beyond(p: F.Param, v: float) -> float:
     """How far ``v`` lies outside parameter ``p``'s physical bounds (0 within)."""
-    use = fx.CHAIN_EFFECTS[p.effect].chain
-    return max(0.0 if use.lower is None else use.lower - v,
-               0.0 if use.upper is None else v - use.upper)
+    lo, hi = fx.CHAIN_EFFECTS[p.effect].chain.bounds
+    return max(0.0 if lo is None else lo - v, 0.0 if hi is None else v - hi)
 
 
-def _beyond_note(s: Search, name: str, v: float) -> str:
-    """Says that parameter ``name`` wanted ``v``, beyond its physical bounds."""
-    p = next(q for q in F.vocabulary(s.fit_d.chain) if q.name == name)
-    use = fx.CHAIN_EFFECTS[p.effect].chain
+def _beyond_note(p: F.Param, v: float) -> str:
+    """Says that parameter ``p`` wanted ``v``, beyond its physical bounds."""
     unit = "" if p.unit == "1" else f" {p.unit}"
-    lo, hi = use.lower, use.upper
+    lo, hi = fx.CHAIN_EFFECTS[p.effect].chain.bounds
     span = f"{lo:g} … {hi:g}" if lo is not None and hi is not None else \
         f"≥ {lo:g}" if lo is not None else f"≤ {hi:g}"
-    return (f"{name} fitted to {v:.4g}{unit}, beyond what its effect can physically be "
+    return (f"{p.name} fitted to {v:.4g}{unit}, beyond what its effect can physically be "
             f"({span}{unit}), so no candidate carries it: check the part and the model's "
             "units rather than calibrating it in")
 
@@ -429,7 +426,7 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     if chosen is not None and s.hold_d.n_poses and not chosen.hold_in_rms < s.nominal.hold_in_rms:
         warnings.append(f"{chosen.label} does not predict the holdout poses better than registration "
                         f"alone ({s.nominal.hold_in_rms:.4f} -> {chosen.hold_in_rms:.4f} mm rms)")
-    notes += [_beyond_note(s, name, v) for name, v in s.beyond.items()]
+    notes += [_beyond_note(p, v) for p, v in s.beyond.values()]
     reasons: list[str] = []
     mine = _components(chosen) if chosen is not None else set()
     smaller = [s.nominal] + [c for c in s.ranking if c is not chosen and _components(c) < mine] \
