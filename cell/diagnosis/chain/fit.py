@@ -22,6 +22,7 @@ prediction error (:attr:`Fit.cv_rms`), never per-point counts alone.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -336,8 +337,9 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     xb = kin.points(tips, d.obs_pose, local)
     scale = None if grow is None else (1.0 + grow)[d.obs_pose][:, None]     # (M, 1)
     y = (xb if scale is None else xb * scale) @ reg.R.T + reg.t
-    maps = sensor_maps(params, values)
-    M = None if zero or not maps or d.centre is None else maps[-1][1]
+    M, dM = sensor_maps(params, values)
+    if zero or d.centre is None:            # the identity, or nothing to map about
+        M = None
     read = y if M is None else d.centre + (y - d.centre) @ M.T
     if not jac:
         return _seen(d, read), None
@@ -364,8 +366,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
             if poses is None and term is not None:
                 poses = _poses(d)
             if p.sensor:                       # ∂(c + M·(y − c))/∂v = (∂M/∂v)·(y − c)
-                g = np.zeros_like(y) if d.centre is None else \
-                    (y - d.centre) @ dict(maps)[p.name].T
+                g = np.zeros_like(y) if d.centre is None else (y - d.centre) @ dM[p.name].T
             else:
                 if p.arm:                      # ∂(s·x)/∂v = term · x
                     g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
@@ -387,27 +388,23 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     return _seen(d, read), J.reshape(d.dims * len(y), -1)
 
 
-def sensor_maps(params: list[Param], values: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """The sensor's maps about its centre at ``values``: per sensor parameter (in
-    ``params`` order), its name and ∂M/∂value of the whole map M = M₁·M₂·…; last, the
-    whole map under the name ``""``. Empty without sensor parameters."""
-    own = [(p.name, fx.CHAIN_EFFECTS[p.effect].chain.sensor_map(float(v)))
+def sensor_maps(params: list[Param], values: np.ndarray
+                ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """The sensor's whole map about its centre at ``values``, M = M₁·M₂·… over its
+    parameters in ``params`` order (None without any), and per parameter name ∂M/∂value
+    (the others' maps on either side of its own derivative)."""
+    own = [(p.name, *fx.CHAIN_EFFECTS[p.effect].chain.sensor_map(float(v)))
            for p, v in zip(params, values) if p.sensor]
     if not own:
-        return []
-    out = []
-    for i, (name, _) in enumerate(own):
-        before, after = np.eye(3), np.eye(3)
-        for k, (_, (m, _)) in enumerate(own):
-            if k < i:
-                before = before @ m
-            elif k > i:
-                after = after @ m
-        out.append((name, before @ own[i][1][1] @ after))
-    whole = np.eye(3)
-    for _, (m, _) in own:
-        whole = whole @ m
-    return out + [("", whole)]
+        return None, {}
+    ms = [m for _, m, _ in own]
+    return _product(ms), {name: _product([*ms[:i], dm, *ms[i + 1:]])
+                          for i, (name, _, dm) in enumerate(own)}
+
+
+def _product(mats: list[np.ndarray]) -> np.ndarray:
+    """M₁·M₂·… of 3 × 3 matrices (I for none)."""
+    return functools.reduce(np.matmul, mats, np.eye(3))
 
 
 def _seen(d: Data, y: np.ndarray) -> np.ndarray:
