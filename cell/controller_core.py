@@ -47,11 +47,9 @@ from drivers.plc.register_map import PLC_MAP, RecipeStatus
 
 log = get_logger("controller")
 
-# command_word's bits and recipe_status's values, as the register map defines them
+# command_word's bits, as the register map defines them
 EXECUTE, RESET, ABORT, ACK, CALIBRATE = (PLC_MAP.mask("command_word", b) for b in (
     "execute", "reset", "abort", "acknowledge", "calibrate"))
-RECIPE_OK, RECIPE_UNKNOWN, RECIPE_REJECTED, RECIPE_BUSY = (
-    RecipeStatus.OK, RecipeStatus.UNKNOWN, RecipeStatus.REJECTED, RecipeStatus.BUSY)
 
 
 @dataclass(frozen=True)
@@ -203,7 +201,7 @@ class ControllerCore:
         self.execute_refused = False
         self.cycle_count = 0
         self.recipe_number = 0
-        self.recipe_status = RECIPE_OK
+        self.recipe_status = RecipeStatus.OK
         self.last_outcome: CycleOutcome | None = None
         self.calibration_version = 0             #: version of the robot calibration in use
         self._pending_select: int | None = None
@@ -311,7 +309,7 @@ class ControllerCore:
             self._select_recipe(self._pending_select)   # asked while busy: applied once idle
             self._pending_select = None
         if self._pending_select is not None:
-            self.recipe_status = RECIPE_BUSY
+            self.recipe_status = RecipeStatus.BUSY
         if not self.sm.state.busy and not self._cycle_running and now >= self._next_refresh:
             self._next_refresh = now + s.recipe_refresh_s
             self._actions.append(RefreshRecipes())
@@ -491,7 +489,7 @@ class ControllerCore:
         if number == 0:
             return
         if number not in self._recipes.numbers:
-            self.recipe_status = RECIPE_UNKNOWN
+            self.recipe_status = RecipeStatus.UNKNOWN
             log.warning("recipe_select_unknown", number=number, plc=self._selected_by)
             return
         if number != self.recipe_number:
@@ -499,17 +497,17 @@ class ControllerCore:
             self._actions.append(Audit(self._selected_by, "recipe_select", str(number),
                                        f"active (was {self.recipe_number})"))
         self.recipe_number = number
-        self.recipe_status = RECIPE_OK
+        self.recipe_status = RecipeStatus.OK
 
     def _take_recipes(self, r: RecipesIn) -> None:
         self._recipes = r
         if r.refreshed:
             if r.rejected:
-                self.recipe_status = RECIPE_REJECTED
-            elif r.changed and self.recipe_status == RECIPE_REJECTED:
-                self.recipe_status = RECIPE_OK
+                self.recipe_status = RecipeStatus.REJECTED
+            elif r.changed and self.recipe_status == RecipeStatus.REJECTED:
+                self.recipe_status = RecipeStatus.OK
         if self.recipe_number and self.recipe_number not in r.numbers:
-            self.recipe_status = RECIPE_UNKNOWN
+            self.recipe_status = RecipeStatus.UNKNOWN
 
     # ------------------------------------------------------------------ outputs
     def _outputs(self, recalibration_due: bool) -> ScanOutputs:

@@ -149,7 +149,7 @@ def test_masks_and_recipe_statuses_are_the_maps():
                           (RecipeStatus.REJECTED, "2 last edit rejected"),
                           (RecipeStatus.BUSY, "3 change refused while busy")):
         assert words in meaning, status
-    assert PLC_MAP["recipe_status"].hi == max(RecipeStatus) == core.RECIPE_BUSY == 3
+    assert PLC_MAP["recipe_status"].hi == max(RecipeStatus) == RecipeStatus.BUSY == 3
 
 
 @pytest.mark.parametrize("address, words, exc, message", [
