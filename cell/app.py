@@ -104,7 +104,7 @@ class Cell:
             runner = self.runner = CycleRunner(self.robot, self.motion, camera, self.cyclelog,
                                  CycleSettings(c.move_timeout_s, c.reach_tol_deg, c.tool_phi_deg,
                                                self.config.robot.elbow),
-                                 OffsetMemory.from_log(self.cyclelog, self.robot, self.config.robot.elbow),
+                                 OffsetMemory.from_log(self.cyclelog, self.robot),
                                  clock=self.clock)
             settings = ControllerSettings(self.config.controller.scan_s, self.config.plc.heartbeat_timeout_s,
                                           self.config.controller.recipe_refresh_s)

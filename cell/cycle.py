@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.clock import Clock, MonotonicClock
-from cell.compensation.base import CompensationResult
-from cell.compensation.lattice import run_lattice
+from cell.compensation.base import CompensationResult, Step
+from cell.compensation.lattice import nearest_lattice, run_lattice, via_point
 from cell.compensation.paper import run_paper
 from cell.cyclelog import CycleLog, CycleRecord, CycleStatus, utc_now
 from cell.errors import KinematicsError, TrajectoryError
@@ -37,6 +37,8 @@ from cell.recipes import ActiveRecipe
 from cell.statemachine import State
 
 log = get_logger("cycle")
+
+VERIFY_NOTE = "verify correction"   #: trace note of a move made after a verification above tolerance
 
 
 class CycleCancelled(Exception):
@@ -102,39 +104,78 @@ class CycleOutcome:
 
 @dataclass
 class OffsetMemory:
-    """Seed 000's step (5): per recipe, the joint offsets (last command − nominal IK command,
-    in command units) of the last ``n`` completed cycles; their rounded mean is where the
-    next cycle starts."""
+    """Seed 000's step (5), learned in millimetres: per recipe, how far the measured arrivals
+    of the last ``n`` completed cycles lay from the robot model's prediction (base frame;
+    each cycle contributes the mean over its arrivals). The next cycle's first command is
+    the whole-unit command the model, shifted by their mean, predicts nearest the target
+    (:meth:`start`). An empty memory starts from the model's own prediction, so a
+    calibrated robot starts from its calibration; only cycles run with the robot's
+    calibration count (:meth:`from_log`).
+
+    Seed 000 learns whole command units instead. A mean of commands chosen for different
+    targets, rounded, moves the first arrival by a whole unit when the model is already
+    right; a residual in mm keeps what the arrivals measured."""
 
     n: int = 10
     history: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
-    def offset(self, recipe: str) -> np.ndarray:
+    def offset_mm(self, recipe: str) -> np.ndarray:
+        """Mean residual (x, y) mm of ``recipe``'s remembered cycles; zero when none."""
         h = self.history.get(recipe)
-        return np.rint(np.mean(h, axis=0)).astype(np.int64) if h else np.zeros(2, np.int64)
+        return np.mean(h, axis=0) if h else np.zeros(2)
 
-    def learn(self, recipe: str, offset_units) -> None:
+    def scatter_mm(self, recipe: str) -> float:
+        """How far one cycle's residual typically lies from their mean (rms of the 2-D
+        distance, mm) over ``recipe``'s remembered cycles: the arrivals' scatter
+        (repeatability, measurement noise, drift). A correction predicted to gain less
+        than this is as likely to lose. 0 with fewer than 3 cycles remembered."""
+        h = self.history.get(recipe)
+        if not h or len(h) < 3:
+            return 0.0
+        a = np.asarray(h)
+        return float(np.sqrt(np.sum((a - a.mean(axis=0)) ** 2) / (len(a) - 1)))
+
+    def learn(self, recipe: str, residual_mm) -> None:
+        """Remember one cycle's residual (see :meth:`residual`); None is ignored."""
+        if residual_mm is None:
+            return
         h = self.history.setdefault(recipe, [])
-        h.append(np.asarray(offset_units, dtype=np.int64))
+        h.append(np.asarray(residual_mm, dtype=float))
         del h[:-self.n]
 
+    def start(self, robot: Scara, recipe: str, target, elbow: str = "right") -> np.ndarray:
+        """First command (whole units) for ``target``: the one the model plus the learned
+        residual predicts nearest it. :raises KinematicsError: unreachable target."""
+        q = robot.to_units(robot.ik_planar(*target, elbow=elbow))
+        bias = self.offset_mm(recipe)
+        if not bias.any():
+            return q
+        predicted = robot.fk_planar(*robot.from_units(q)) + bias
+        return nearest_lattice(robot, q, predicted, np.asarray(target, dtype=float))[0]
+
+    @staticmethod
+    def residual(robot: Scara, steps) -> np.ndarray | None:
+        """Mean of measured − predicted (x, y) mm over the measured arrivals of a trace
+        (:class:`~cell.compensation.base.Step` dicts); None if it has none. Backlash
+        pre-moves of traces written before arrivals took up backlash through via points
+        measured a point on the other side of the band, and moves after the verification
+        measure at the place height: neither counts."""
+        res = [np.subtract(s["point_mm"], robot.fk_planar(*s["joints_deg"])) for s in steps
+               if s.get("moved") and s.get("note") != "backlash pre-move"
+               and not s.get("note", "").startswith(VERIFY_NOTE)]
+        return np.mean(res, axis=0) if res else None
+
     @classmethod
-    def from_log(cls, cyclelog: CycleLog, robot: Scara, elbow: str = "right", n: int = 10) -> "OffsetMemory":
-        """Rebuild the memory from the last completed cycles in the log (each row holds the
-        target and the trace's last command), so a restart does not forget what was learned.
-        Only cycles that ran with ``robot``'s calibration count: offsets learned against
-        another model (the nominal one, or an older calibration) refer to it, so a new
-        calibration starts learning afresh."""
+    def from_log(cls, cyclelog: CycleLog, robot: Scara, n: int = 10) -> "OffsetMemory":
+        """Rebuild the memory from the last completed cycles in the log (each row holds its
+        trace), so a restart does not forget what was learned. Only cycles that ran with
+        ``robot``'s calibration count: residuals against another model (the nominal one, or
+        an older calibration) refer to it, so a new calibration starts learning afresh."""
         memory = cls(n=n)
         calibration = calibration_of(robot)
-        for rec in cyclelog.cycles(limit=50 * n, status=CycleStatus.DONE):
-            if rec.target_mm is None or not rec.trace or rec.calibration != calibration:
-                continue
-            try:
-                nominal = robot.to_units(robot.ik_planar(*rec.target_mm, elbow=elbow))
-            except KinematicsError:
-                continue
-            memory.learn(rec.recipe, robot.to_units(rec.trace[-1]["joints_deg"]) - nominal)
+        for rec in cyclelog.cycles(limit=50 * n, status=CycleStatus.DONE):   # oldest first
+            if rec.trace and rec.calibration == calibration:
+                memory.learn(rec.recipe, cls.residual(robot, rec.trace))
         return memory
 
 
@@ -170,10 +211,20 @@ class CellArm:
         self.reports.append(report)
         self.cancel.check()
 
-    def move_and_measure(self, command_units) -> np.ndarray:
-        q = self.robot.from_units(command_units)
-        self.move(self.joints(q[0], q[1], self.z_mm))
+    def arrive(self, command_units, z_mm: float, via_units=None) -> None:
+        """Move θ1, θ2 to ``command_units`` at height ``z_mm``, through ``via_units`` first
+        if given (see :class:`~cell.compensation.base.Arm`)."""
+        for units in ([] if via_units is None else [via_units]) + [command_units]:
+            q = self.robot.from_units(units)
+            self.move(self.joints(q[0], q[1], z_mm))
+
+    def move_and_measure(self, command_units, via_units=None) -> np.ndarray:
+        self.arrive(command_units, self.z_mm, via_units)
         return self.camera.tool(self.cancel)
+
+    def units_now(self) -> np.ndarray:
+        """θ1, θ2 of the last command, in (fractional) command units."""
+        return self.last_joints[:2] / self.robot.from_units([1, 1])
 
     def motion_summary(self) -> dict:
         """Mode, moves, segments and the mean per-joint delay of this cycle's moves."""
@@ -239,16 +290,15 @@ class CycleRunner:
             image = self._step(rec, State.CAPTURE, cancel, lambda: self.camera.grab(cancel))
             part = self._step(rec, State.LOCATE, cancel, lambda: self._locate(image, r))
             rec.target_mm = (float(part[0]), float(part[1]))
-            nominal = self.robot.to_units(self.robot.ik_planar(*part, elbow=self.settings.elbow))
-            result = self._step(rec, State.COMPENSATE, cancel, lambda: self._compensate(arm, r, part, nominal))
+            result = self._step(rec, State.COMPENSATE, cancel, lambda: self._compensate(arm, r, part))
             rec.initial_error_mm, rec.moves = result.initial_error_mm, result.moves
             rec.final_error_mm = result.final_error_mm
             rec.trace = [s.as_dict() for s in result.steps]
-            last = self.robot.from_units(result.final.command_units)
-            self._step(rec, State.FINAL_MOVE, cancel, lambda: arm.move(arm.joints(last[0], last[1], r.place.z_mm)))
-            self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part, cancel))
+            last = result.final.command_units
+            self._step(rec, State.FINAL_MOVE, cancel, lambda: arm.arrive(last, r.place.z_mm))
+            self._step(rec, State.VERIFY, cancel, lambda: self._verify(rec, r, part, arm, last, cancel))
             self.progress = State.LOGGING
-            self.memory.learn(r.name, np.subtract(result.final.command_units, nominal))
+            self.memory.learn(r.name, OffsetMemory.residual(self.robot, rec.trace))
             outcome = CycleOutcome(CycleStatus.DONE)
         except CycleCancelled:
             outcome = CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
@@ -304,21 +354,55 @@ class CycleRunner:
                             f"{off:.3f} mm from nominal > search radius {r.part.search_radius_mm} mm")
         return part
 
-    def _verify(self, rec: CycleRecord, r, part: np.ndarray, cancel: CancelToken) -> None:
-        rec.verify_error_mm = float(np.hypot(*(self.camera.tool(cancel) - part)))
-        if rec.verify_error_mm > r.verify.tolerance_mm:
-            raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"verified error {rec.verify_error_mm:.4f} mm "
-                            f"> tolerance {r.verify.tolerance_mm} mm")
+    def _verify(self, rec: CycleRecord, r, part: np.ndarray, arm: CellArm, command,
+                cancel: CancelToken) -> None:
+        """Measure the placed tool against the part. Above tolerance, finish the part rather
+        than fault it: while ``compensation.extra_moves`` allows and a whole-unit command is
+        predicted within tolerance, lift to the approach height, move there (taking up
+        backlash from the robot's side), place and measure again; each such move counts in
+        the cycle's moves and trace. Faults (VERIFY_OUT_OF_TOLERANCE) when no command is
+        predicted within tolerance or the extra moves are spent, saying which."""
+        tol, allowed = r.verify.tolerance_mm, r.compensation.extra_moves
+        margin = r.compensation.backlash_margin_units
+        dirs = np.asarray(self.robot.approach_dirs) if margin > 0 else None
+        command = np.asarray(command, dtype=np.int64)
+        point, extra = self.camera.tool(cancel), 0
+        while True:
+            rec.verify_error_mm = float(np.hypot(*(point - part)))
+            if rec.verify_error_mm <= tol:
+                return
+            best, predicted = nearest_lattice(self.robot, command, point, part)
+            what = f"verified error {rec.verify_error_mm:.4f} mm > tolerance {tol} mm"
+            if predicted > tol or tuple(best) == tuple(command):
+                raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"{what}; no whole-unit command is "
+                                f"predicted within it (nearest {predicted:.4f} mm)")
+            if extra >= allowed:
+                raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"{what}; compensation.extra_moves = "
+                                f"{allowed} spent (the next move was predicted to {predicted:.4f} mm)")
+            via = via_point(dirs, margin, command, best)
+            arm.arrive(command, r.approach.z_mm)
+            arm.arrive(best, r.approach.z_mm, via)
+            arm.arrive(best, r.place.z_mm)
+            command, extra = best, extra + 1
+            point = self.camera.tool(cancel)
+            rec.moves += 1
+            joints = self.robot.from_units(best)
+            rec.trace.append(Step(
+                (int(best[0]), int(best[1])), (round(float(joints[0]), 9), round(float(joints[1]), 9)),
+                (float(point[0]), float(point[1])), float(np.hypot(*(point - part))), True,
+                note=f"{VERIFY_NOTE}, predicted {predicted:.4f} mm",
+                via_units=None if via is None else (int(via[0]), int(via[1]))).as_dict())
 
-    def _compensate(self, arm: CellArm, r, part: np.ndarray, nominal: np.ndarray) -> CompensationResult:
+    def _compensate(self, arm: CellArm, r, part: np.ndarray) -> CompensationResult:
         c = r.compensation
-        start = nominal + self.memory.offset(r.name)
+        start = self.memory.start(self.robot, r.name, part, self.settings.elbow)
         if c.method == "paper":
             return run_paper(self.robot, arm, part, k=c.k, start_units=start,
                              repeatability_mm=c.repeatability_mm)
+        gain = max(c.min_gain_mm, self.memory.scatter_mm(r.name))
         return run_lattice(self.robot, arm, part, start_units=start, max_moves=c.max_moves,
-                           min_gain_mm=c.min_gain_mm, backlash_margin_units=c.backlash_margin_units,
-                           approach_dirs=np.sign(self.robot.from_units(start) - arm.last_joints[:2]))
+                           min_gain_mm=gain, backlash_margin_units=c.backlash_margin_units,
+                           approach_dirs=self.robot.approach_dirs, from_units=arm.units_now())
 
     def _write(self, rec: CycleRecord, outcome: CycleOutcome) -> CycleRecord:
         """Write the cycle's row (the LOGGING step). Its own duration cannot be inside the row

@@ -50,8 +50,15 @@ class CompensationSpec(_Strict):
     max_moves: int = Field(default=4, ge=1, le=20, description="lattice: move budget incl. first arrival")
     min_gain_mm: float = Field(default=0.002, ge=0, le=1)
     backlash_margin_units: int = Field(default=5, ge=0, le=1000,
-                                       description="lattice: overshoot before a joint reversal, command "
-                                                   "units (0 = off); keep it above the backlash")
+                                       description="lattice: every arrival takes up the backlash from "
+                                                   "the calibrated side, through a via point this many "
+                                                   "command units short of it when a joint would "
+                                                   "arrive the other way (0 = off); keep it above "
+                                                   "the backlash")
+    extra_moves: int = Field(default=2, ge=0, le=5,
+                             description="moves allowed after a verified error above tolerance: "
+                                         "lift, move to the whole-unit command predicted nearest, "
+                                         "place and verify again (0: fault at once)")
     k: int = Field(default=16, ge=1, le=256, description="paper: first grid spacing, command units")
     repeatability_mm: float = Field(default=0.02, ge=0, le=1)
 

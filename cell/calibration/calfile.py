@@ -59,13 +59,16 @@ class CalibratedScara(Scara):
     Commands stay in the nominal robot's terms (a command θ_cmd turns the joint to
     θ_cmd + Δθ); forward kinematics, its Jacobian and the inverse use the calibrated
     geometry, so a planned first move lands closer. Limits and command units are the
-    nominal ones. ``calibration`` is the id of the file it came from.
+    nominal ones. ``calibration`` is the id of the file it came from; ``approach_dirs`` the
+    side its poses took up backlash from (the zeros hold half of each band from that side).
     """
 
-    def __init__(self, nominal: Scara, offsets_deg, link_deltas_mm, calibration: str):
+    def __init__(self, nominal: Scara, offsets_deg, link_deltas_mm, calibration: str,
+                 approach_dirs=Scara.approach_dirs):
         super().__init__(nominal.g)
         self.offsets = np.asarray(offsets_deg, dtype=float)
         self.calibration = calibration
+        self.approach_dirs = (int(approach_dirs[0]), int(approach_dirs[1]))
         g = nominal.g
         self._true = Scara(g.model_copy(update={"l1_mm": g.l1_mm + float(link_deltas_mm[0]),
                                                 "l2_mm": g.l2_mm + float(link_deltas_mm[1])}))
@@ -94,10 +97,23 @@ class CalibratedScara(Scara):
 
 
 def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
-    """The robot a loaded calibration describes (see :data:`APPLIED`)."""
+    """The robot a loaded calibration describes (see :data:`APPLIED`). A file without
+    ``approach_dirs`` was measured from below (+1, +1): the procedure has approached every
+    pose that way since the format's first version."""
     p = {k: float(v["value"]) for k, v in doc["parameters"].items()}
     return CalibratedScara(nominal, (p.get("j1.theta", 0.0), p.get("j2.theta", 0.0)),
-                           (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc))
+                           (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc),
+                           approach_dirs(doc))
+
+
+def approach_dirs(doc: dict) -> tuple[int, int]:
+    """The side (θ1, θ2: +1 or −1) the calibration's poses were approached from.
+    :raises ValueError: anything but two of +1 / −1."""
+    dirs = doc.get("approach_dirs", list(Scara.approach_dirs))
+    if not isinstance(dirs, list) or len(dirs) != 2 or any(d not in (1, -1) or isinstance(d, bool)
+                                                           for d in dirs):
+        raise ValueError(f"approach_dirs = {dirs!r}: must be two of +1 / -1 (θ1, θ2)")
+    return int(dirs[0]), int(dirs[1])
 
 
 def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: dict,
@@ -109,6 +125,7 @@ def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: 
     ``accept_worse: true`` (None: the check passed, ``accept_worse: false``)."""
     return {"format": FORMAT, "version": 0, "created_at": created_at, "cell": cell,
             "robot": {"name": robot.g.name, "fingerprint": robot_fingerprint(robot)},
+            "approach_dirs": list(Scara.approach_dirs),
             "applied": sorted(APPLIED), "parameters": parameters, "report": report, "data": data,
             "accept_worse": warning is not None, "warning": warning}
 
@@ -187,10 +204,15 @@ def load(path, robot: Scara, cell: str) -> dict:
                                f"({doc.get('robot', {}).get('name')!r}, fingerprint {theirs}); this "
                                f"cell's robot is {robot.g.name!r} ({ours})")
     try:
+        approach_dirs(doc)
+    except ValueError as exc:
+        raise CalibrationError(f"{path}: corrupt robot calibration: {exc}") from None
+    try:
         for name, v in doc["parameters"].items():
             if not np.isfinite(float(v["value"])):
                 raise ValueError(name)
         calibrated_robot(robot, doc)
     except (KeyError, TypeError, ValueError, KinematicsError) as exc:
         raise CalibrationError(f"{path}: corrupt robot calibration: bad parameter {exc}") from None
+
     return doc

@@ -32,7 +32,7 @@ from cell.vision.calibration import CircleGridBoard, PlaneCalibration, locate
 
 VIEW_MARGIN_MM = 2.0        #: kept between the target's edge and the image edge
 APPROACH_DEG = 0.5          #: every measured pose is approached from this far below (θ1, θ2)
-_BELOW = np.array([APPROACH_DEG, APPROACH_DEG, 0.0, 0.0])
+_BELOW = APPROACH_DEG * np.array([*Scara.approach_dirs, 0, 0], dtype=float)
 CALIBRATION_MOTION = MotionSpec(mode="corrected", segment_s=0.02, time_law="smooth", joint_speed=60.0)
 
 

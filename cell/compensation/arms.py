@@ -27,7 +27,11 @@ class NominalArm:
         q = self.robot.from_units(command_units)
         return self.robot.fk_planar(q[0], q[1])
 
-    def move_and_measure(self, command_units: np.ndarray) -> np.ndarray:
+    def move_and_measure(self, command_units: np.ndarray, via_units=None) -> np.ndarray:
+        """See :class:`~cell.compensation.base.Arm`; this arm has no backlash, so a via
+        point changes nothing but is checked against the limits like the command."""
+        if via_units is not None:
+            self.robot.check_limits(self.robot.from_units(via_units), joints=(0, 1))
         q = self.robot.from_units(command_units)
         self.robot.check_limits(q, joints=(0, 1))
         self.moves += 1

@@ -16,11 +16,12 @@ import numpy as np
 class Arm(Protocol):
     """A robot plus a measurer of its tool centre in the robot base frame."""
 
-    def move_and_measure(self, command_units: np.ndarray) -> np.ndarray:
+    def move_and_measure(self, command_units: np.ndarray, via_units=None) -> np.ndarray:
         """Move θ1, θ2 to ``command_units`` (ints, one command unit each) and return the
-        measured (x_mm, y_mm). Raises :class:`~cell.errors.MeasurementError` if no
-        measurement could be taken, :class:`~cell.errors.KinematicsError` if the
-        command is outside the joint limits."""
+        measured (x_mm, y_mm). With ``via_units``, pass through that command first, without
+        stopping to measure: how an arrival takes up backlash from a chosen side.
+        Raises :class:`~cell.errors.MeasurementError` if no measurement could be taken,
+        :class:`~cell.errors.KinematicsError` if a command is outside the joint limits."""
         ...
 
 
@@ -31,6 +32,8 @@ class Step:
     ``moved`` is False when the method chose to stay where it was (the measured point is
     then the previous one and no motion happened). ``spacing_units`` is the grid spacing k
     the decision was made with (0 for the first arrival and for methods without a grid).
+    ``via_units`` is the command the arrival passed through first to take up backlash from
+    the approach side (None: straight there).
     """
 
     command_units: tuple[int, int]
@@ -40,18 +43,23 @@ class Step:
     moved: bool
     spacing_units: int = 0
     note: str = ""
+    via_units: tuple[int, int] | None = None
 
     def as_dict(self) -> dict:
-        return {"joints_deg": list(self.joints_deg), "point_mm": list(self.point_mm),
-                "error_mm": self.error_mm, "moved": self.moved,
-                "spacing_units": self.spacing_units, "note": self.note}
+        out = {"joints_deg": list(self.joints_deg), "point_mm": list(self.point_mm),
+               "error_mm": self.error_mm, "moved": self.moved,
+               "spacing_units": self.spacing_units, "note": self.note}
+        if self.via_units is not None:
+            out["via_units"] = list(self.via_units)
+        return out
 
 
 @dataclass
 class CompensationResult:
     """Full trace of one compensation run.
 
-    ``moves`` counts physical moves including the first arrival; ``final_error_mm`` is the
+    ``moves`` counts arrivals (each one measured) including the first; a via point an arrival
+    passes through on its way is part of that arrival. ``final_error_mm`` is the
     measured distance between the last point and the target (what the camera saw, which on
     a real cell includes measurement noise).
     """
@@ -94,19 +102,21 @@ class Recorder:
         self.command: np.ndarray | None = None
         self.point: np.ndarray | None = None
 
-    def move(self, command_units, spacing: int = 0, note: str = "") -> np.ndarray:
-        """Move to ``command_units``, measure, record the step; return the measured point."""
+    def move(self, command_units, spacing: int = 0, note: str = "", via=None) -> np.ndarray:
+        """Move to ``command_units`` (through ``via`` first, if given), measure, record the
+        step; return the measured point."""
         cmd = np.asarray(command_units, dtype=np.int64)
-        self.point = np.asarray(self.arm.move_and_measure(cmd), dtype=float)
+        via = None if via is None else np.asarray(via, dtype=np.int64)
+        self.point = np.asarray(self.arm.move_and_measure(cmd, via_units=via), dtype=float)
         self.command = cmd
-        self._record(True, spacing, note)
+        self._record(True, spacing, note, via)
         return self.point
 
     def stay(self, spacing: int = 0, note: str = "") -> None:
         """Record a decision to stay at the current command (no motion)."""
         self._record(False, spacing, note)
 
-    def _record(self, moved: bool, spacing: int, note: str) -> None:
+    def _record(self, moved: bool, spacing: int, note: str, via=None) -> None:
         assert self.command is not None and self.point is not None
         joints = self.command * self.unit_deg
         self.result.steps.append(Step(
@@ -114,4 +124,5 @@ class Recorder:
             joints_deg=(round(float(joints[0]), 9), round(float(joints[1]), 9)),
             point_mm=(float(self.point[0]), float(self.point[1])),
             error_mm=float(np.hypot(*(self.point - self.target))),
-            moved=moved, spacing_units=spacing, note=note))
+            moved=moved, spacing_units=spacing, note=note,
+            via_units=None if via is None else (int(via[0]), int(via[1]))))

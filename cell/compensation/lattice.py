@@ -15,7 +15,8 @@ point predicted closest to the target:
    box around q + J⁻¹(P0 − p), sized from the lattice's smallest singular value, so the
    search is exact for the predicted distances, not a fixed neighbourhood.
 4. Stop when the best candidate is the current command, was visited already, or gains less
-   than ``min_gain_mm`` (a measurement-noise guard); otherwise move and go to 2.
+   than ``min_gain_mm`` (a measurement-noise guard); otherwise move and go to 2. With a
+   backlash side, each arrival takes up the lost motion from it (see :func:`run_lattice`).
 
 On the nominal model this reaches the nearest lattice point in at most two moves.
 """
@@ -68,19 +69,21 @@ def nearest_lattice(robot: Scara, q_units: np.ndarray, point: np.ndarray,
 
 def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
                 start_offset_units=(0, 0), max_moves: int = 4, min_gain_mm: float = 0.002,
-                approach_dirs=None, backlash_margin_units: int = 0) -> CompensationResult:
+                approach_dirs=None, backlash_margin_units: int = 0,
+                from_units=None) -> CompensationResult:
     """Compensate towards ``target_mm`` = (x, y) by nearest-lattice jumps (see module doc).
 
-    ``max_moves`` bounds the physical moves including the first arrival (and pre-moves);
-    ``min_gain_mm`` is the least predicted improvement worth a move (keep it near the
-    measurement noise).
+    ``max_moves`` bounds the arrivals including the first; ``min_gain_mm`` is the least
+    predicted improvement worth a move (keep it near the measurement noise).
 
-    Backlash: with ``approach_dirs`` (the sign each joint moved in to reach the first
-    command) and ``backlash_margin_units`` > 0, every arrival keeps each joint's approach
-    direction. A jump that would reverse a joint first overshoots by the margin (a
-    "pre-move", measured and recorded but not used) and comes back, so the lost motion is
-    the same at every arrival and the measurement absorbs it. Without it, a reversal moves
-    the tool by the backlash and predictions made across it are off by that much.
+    Backlash: with ``approach_dirs`` (the side, +1 or −1 per joint, every arrival takes up
+    the lost motion from) and ``backlash_margin_units`` > 0, every arrival comes from that
+    side. A joint that would arrive the other way first passes through a via point the
+    margin beyond the command (not measured; part of the arrival), so the lost motion is
+    the same at every arrival and the measurement absorbs it. ``from_units`` is where the
+    joints are before the first arrival (None: unknown, so it comes through a via point
+    on both joints). Without a side, a reversal moves the tool by the backlash and
+    predictions made across it are off by that much.
 
     Raises KinematicsError for an unreachable target or ``max_moves`` < 1.
     """
@@ -89,25 +92,37 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
     target = np.asarray(target_mm, dtype=float)
     if start_units is None:
         start_units = robot.to_units(robot.ik_planar(*target)) + np.asarray(start_offset_units)
+    start_units = np.asarray(start_units, dtype=np.int64)
     dirs = None
     if approach_dirs is not None and backlash_margin_units > 0:
         dirs = np.where(np.asarray(approach_dirs) < 0, -1, 1)
     rec = Recorder("lattice", arm, target, robot.from_units([1, 1]))
-    point = rec.move(start_units, note="first arrival")
+    before = None if from_units is None else np.asarray(from_units, dtype=float)
+    point = rec.move(start_units, note="first arrival",
+                     via=via_point(dirs, backlash_margin_units, before, start_units))
     visited = {tuple(rec.command)}
     while rec.result.moves < max_moves:
         best, predicted = nearest_lattice(robot, rec.command, point, target)
         gain = np.hypot(*(point - target)) - predicted
         if tuple(best) in visited or gain < min_gain_mm:
             break
-        if dirs is not None:
-            step = np.sign(best - rec.command)
-            reverse = (step != 0) & (step != dirs)
-            if reverse.any():
-                if rec.result.moves + 2 > max_moves:
-                    break
-                rec.move(best - dirs * backlash_margin_units * reverse, note="backlash pre-move")
-        point = rec.move(best, note=f"predicted {predicted:.4f} mm")
+        point = rec.move(best, note=f"predicted {predicted:.4f} mm",
+                         via=via_point(dirs, backlash_margin_units, rec.command, best))
         visited.add(tuple(best))
     return rec.result
 
+
+def via_point(dirs, margin: int, before, command) -> np.ndarray | None:
+    """The via point an arrival at ``command`` from ``before`` passes through so that every
+    joint arrives from its side ``dirs`` (None: no side kept, or every joint already does).
+    ``before`` None (unknown) sends every joint through the via point."""
+    if dirs is None:
+        return None
+    if before is None:
+        wrong = np.ones(2, dtype=bool)
+    else:
+        step = np.sign(command - before)
+        wrong = (step != 0) & (step != dirs)
+    if not wrong.any():
+        return None
+    return np.asarray(command, dtype=np.int64) - dirs * margin * wrong

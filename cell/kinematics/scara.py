@@ -98,7 +98,16 @@ def _finite(name: str, value: float) -> float:
 
 
 class Scara:
-    """Forward/inverse kinematics, Jacobian, limits and command units for one geometry."""
+    """Forward/inverse kinematics, Jacobian, limits and command units for one geometry.
+
+    ``approach_dirs`` is the side (+1 or −1 for θ1, θ2) every measured arrival takes up the
+    joints' backlash from: moving up, as the calibration procedures approach every pose
+    (:meth:`cell.calibration.procedure.HandRig.approach`). A model fitted on such arrivals
+    predicts arrivals made the same way; a calibrated robot carries the side its file
+    records.
+    """
+
+    approach_dirs: tuple[int, int] = (1, 1)
 
     def __init__(self, geometry: "Geometry"):
         self.g = geometry

@@ -172,3 +172,72 @@ def test_paper_tie_takes_shortest_travel(robot):
     assert first.note == "tie: shortest travel"
     assert np.hypot(*(Ju @ [0, 16])) < np.hypot(*(Ju @ [16, 0]))     # P3 is the shorter move
     assert np.subtract(first.command_units, START).tolist() == [0, 16]
+
+
+class BacklashArm(NominalArm):
+    """The nominal arm with lost motion ``b_deg`` on θ1 and θ2: a joint lands at
+    command − dir·b/2, dir the sign of its last motion. Records each arrival's directions."""
+
+    def __init__(self, robot, b_deg=0.04, at_units=(0, 0)):
+        super().__init__(robot)
+        self.b = b_deg
+        self.at = np.asarray(at_units, dtype=float)
+        self.dirs = np.zeros(2)
+        self.arrivals: list[list[float]] = []
+
+    def _go(self, units):
+        step = np.sign(np.asarray(units, dtype=float) - self.at)
+        self.dirs = np.where(step != 0, step, self.dirs)
+        self.at = np.asarray(units, dtype=float)
+
+    def true_position(self, command_units):
+        q = self.robot.from_units(command_units) - self.dirs * self.b / 2
+        return self.robot.fk_planar(q[0], q[1])
+
+    def move_and_measure(self, command_units, via_units=None):
+        if via_units is not None:
+            self._go(via_units)
+        self._go(command_units)
+        self.arrivals.append(self.dirs.tolist())
+        return super().move_and_measure(command_units)
+
+
+@pytest.mark.parametrize("side", [(1, 1), (-1, 1), (1, -1)])
+def test_every_arrival_takes_up_backlash_from_the_given_side(robot, side):
+    """From joints on the other side of the first command, the first arrival passes through a
+    via point; later corrections that reverse a joint do too. Vias are not arrivals."""
+    target = (247.85, 933.42)
+    start = robot.to_units(robot.ik_planar(*target)) + np.array([4, -3])   # a model 4, −3 off
+    arm = BacklashArm(robot, at_units=start + 20 * np.array(side))        # comes the wrong way
+    res = run_lattice(robot, arm, target, start_units=start, max_moves=4, approach_dirs=side,
+                      backlash_margin_units=5, from_units=arm.at)
+    assert arm.arrivals == [list(map(float, side))] * res.moves
+    first = res.steps[0]
+    assert first.via_units == tuple(int(v) for v in start - 5 * np.array(side))
+    assert res.moves >= 2 and res.moves == len(arm.arrivals)
+    # the lost motion is the same at every arrival, so the lattice reaches the true nearest point
+    cands = start + np.array(list(itertools.product(range(-8, 9), repeat=2)))
+    floor = min(np.hypot(*(arm.true_position(c) - target)) for c in cands)
+    assert res.final_error_mm == pytest.approx(floor, abs=1e-6)
+
+
+def test_an_arrival_from_the_side_needs_no_via_point(robot):
+    target = (247.85, 933.42)
+    start = robot.to_units(robot.ik_planar(*target))
+    arm = BacklashArm(robot, at_units=start - 50)
+    res = run_lattice(robot, arm, target, start_units=start, max_moves=1, approach_dirs=(1, 1),
+                      backlash_margin_units=5, from_units=arm.at)
+    assert res.steps[0].via_units is None and arm.arrivals == [[1.0, 1.0]]
+    assert "via_units" not in res.steps[0].as_dict()
+
+
+def test_without_a_side_a_reversal_costs_the_backlash(robot):
+    """The counter-case: margin 0 keeps no side, and the reversal the correction needs lands
+    the arm off its prediction by the lost motion."""
+    target = (247.85, 933.42)
+    start = robot.to_units(robot.ik_planar(*target)) + np.array([4, -3])
+    arm = BacklashArm(robot, at_units=start - 20)
+    res = run_lattice(robot, arm, target, start_units=start, max_moves=2, approach_dirs=(1, 1),
+                      backlash_margin_units=0, from_units=arm.at)
+    assert all(s.via_units is None for s in res.steps)
+    assert [-1.0, 1.0] in arm.arrivals or [1.0, -1.0] in arm.arrivals or [-1.0, -1.0] in arm.arrivals

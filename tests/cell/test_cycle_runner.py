@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from cell.clock import ManualClock
-from cell.cycle import CancelToken, CycleCancelled, CycleRunner, CycleSettings, OffsetMemory
+from cell.cycle import (VERIFY_NOTE, CancelToken, CycleCancelled, CycleRunner, CycleSettings,
+                        OffsetMemory)
 from cell.cyclelog import CycleLog
 from cell.faults import CellFault, Fault
 from cell.kinematics import Scara
@@ -145,12 +146,15 @@ class BrokenLog(CycleLog):
         raise sqlite3.OperationalError("disk I/O error")
 
 
-def active(mode: str | None = None) -> ActiveRecipe:
+def active(mode: str | None = None, edits=()) -> ActiveRecipe:
+    """bracket-a as shipped, in sync ``mode``, with ``edits`` (old, new) made to its text."""
     path = REPO_RECIPES / "bracket-a.yaml"
     text = path.read_text(encoding="utf-8")
     if mode is not None:
-        assert "  sync: corrected" in text
-        text = text.replace("  sync: corrected", f"  sync: {mode}", 1)
+        edits = [("  sync: corrected", f"  sync: {mode}"), *edits]
+    for old, new in edits:
+        assert old in text
+        text = text.replace(old, new, 1)
     return ActiveRecipe(parse_recipe(text, str(path)), content_hash(text), text, str(path))
 
 
@@ -214,7 +218,9 @@ def test_done_cycle_streams_every_move_in_the_recipes_mode_and_logs_one_row(tmp_
     assert list(row.step_times) == STEPS
     assert row.target_mm == pytest.approx(PART)
     assert row.moves == out.record.moves >= 2          # first arrival + a correction
-    assert len(rig.st.streams) == row.moves + 2      # approach + compensation + final move
+    vias = sum(1 for step in row.trace if "via_units" in step)
+    assert vias >= 1                                 # the approach pose lies on the wrong side
+    assert len(rig.st.streams) == row.moves + vias + 2   # approach + arrivals + final move
     assert row.verify_error_mm <= recipe.recipe.verify.tolerance_mm
     assert row.initial_error_mm > row.final_error_mm
     assert row.cycle_time_s == pytest.approx(T_WAIT * len(rig.st.streams))   # up to the write
@@ -410,17 +416,63 @@ def test_part_outside_the_search_window_is_fault_308(rig):
     assert rig.st.streams and len(rig.st.streams) == 1     # the approach only
 
 
-def test_verify_out_of_tolerance_is_status_fault_402(rig):
+def test_a_part_placed_off_tolerance_is_finished_by_an_extra_move(rig):
+    """The tool lands 0.25 mm off once lowered: the cycle lifts it, moves to the command the
+    placed measurement predicts nearest, places and verifies again, and the part is done."""
     rig.cam.place_shift = np.array([0.25, 0.0])
     out = rig.run()
+    assert (out.status, out.fault_code) == ("done", 0)
+    [row] = rig.rows()
+    assert row.verify_error_mm <= 0.08
+    last = row.trace[-1]
+    assert last["note"].startswith(VERIFY_NOTE) and last["error_mm"] == pytest.approx(row.verify_error_mm)
+    assert row.moves == sum(1 for step in row.trace if step["moved"])
+    zs = [start[2] for _, _, start in rig.st.streams] + [rig.st.pos[2]]
+    approach_z, place_z = active().recipe.approach.z_mm, active().recipe.place.z_mm
+    # placed, lifted, (via point,) moved, lowered
+    tail = [place_z] + [approach_z] * (3 if "via_units" in last else 2) + [place_z]
+    assert zs[-len(tail):] == pytest.approx(tail)
+    assert len(rig.memory.history["bracket-a"]) == 1
+
+
+def test_verify_out_of_tolerance_with_no_extra_move_left_is_status_fault_402(rig):
+    rig.cam.place_shift = np.array([0.25, 0.0])
+    out = rig.run(active(edits=[("  max_moves: 4", "  max_moves: 4\n  extra_moves: 0")]))
     assert (out.status, out.fault_code) == ("fault", Fault.VERIFY_OUT_OF_TOLERANCE)
     assert out.fault_text.startswith("verified error 0.2")
-    assert out.fault_text.endswith("mm > tolerance 0.08 mm")
+    assert "mm > tolerance 0.08 mm; compensation.extra_moves = 0 spent" in out.fault_text
     [row] = rig.rows()
     assert (row.status, row.fault_code) == ("fault", 402)
     assert row.verify_error_mm == pytest.approx(0.25, abs=0.06)
     assert list(row.step_times) == STEPS[:5]           # verify did not finish
     assert rig.memory.history == {}                   # nothing learned from a failed part
+
+
+def test_extra_moves_stop_at_the_recipes_limit(rig):
+    """Every placement lands further off (a drifting fixture, say): after its one extra
+    move the cycle faults and says the moves are spent."""
+    calls = []
+
+    def drift():
+        calls.append(1)
+        rig.cam.place_shift = np.array([0.2 * len(calls), 0.0])
+    rig.cam.on_tool = drift
+    out = rig.run(active(edits=[("  max_moves: 4", "  max_moves: 4\n  extra_moves: 1")]))
+    assert (out.status, out.fault_code) == ("fault", Fault.VERIFY_OUT_OF_TOLERANCE)
+    assert "compensation.extra_moves = 1 spent (the next move was predicted to" in out.fault_text
+    [row] = rig.rows()
+    assert sum(1 for step in row.trace if step["note"].startswith(VERIFY_NOTE)) == 1
+
+
+def test_verify_fault_says_when_no_command_can_reach_the_tolerance(rig):
+    """A tolerance finer than the command lattice: no whole-unit command is predicted within
+    it, so the cycle faults at once instead of moving."""
+    rig.cam.place_shift = np.array([0.25, 0.0])
+    out = rig.run(active(edits=[("  tolerance_mm: 0.08", "  tolerance_mm: 0.003")]))
+    assert (out.status, out.fault_code) == ("fault", Fault.VERIFY_OUT_OF_TOLERANCE)
+    assert "no whole-unit command is predicted within it (nearest " in out.fault_text
+    [row] = rig.rows()
+    assert not any(step["note"].startswith(VERIFY_NOTE) for step in row.trace)
 
 
 def test_station_fault_error_is_200_plus_its_code(rig):

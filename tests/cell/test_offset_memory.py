@@ -1,54 +1,97 @@
-"""Seed 000 step (5) in the cell: learned start offsets, and their recovery from the log."""
+"""Seed 000 step (5) in the cell: what the arrivals measured against the model, the first
+command it gives, and its recovery from the log."""
 import numpy as np
+import pytest
 
-from cell.cycle import OffsetMemory
+from cell.cycle import VERIFY_NOTE, OffsetMemory
 from cell.cyclelog import CycleLog, CycleRecord, utc_now
 from cell.kinematics import Scara
 
+TARGET = (250.0, 930.0)
 
-def test_mean_of_recent_offsets_rounded():
+
+def _step(robot, units, residual_mm, note="first arrival"):
+    q = robot.from_units(np.asarray(units))
+    return {"joints_deg": list(q), "point_mm": list(robot.fk_planar(*q) + residual_mm),
+            "error_mm": 0.01, "moved": True, "note": note}
+
+
+def test_mean_of_the_last_n_residuals_in_mm():
     m = OffsetMemory(n=3)
-    assert m.offset("a").tolist() == [0, 0]
-    for off in ([10, -4], [12, -6], [11, -5], [2, 2]):
-        m.learn("a", off)
-    assert m.offset("a").tolist() == [8, -3]            # mean of the last 3: (25/3, -9/3)
-    assert m.offset("b").tolist() == [0, 0]
+    assert m.offset_mm("a").tolist() == [0.0, 0.0]
+    for res in ([0.10, -0.04], [0.12, -0.06], [0.11, -0.05], [0.02, 0.02]):
+        m.learn("a", res)
+    assert m.offset_mm("a") == pytest.approx([0.25 / 3, -0.03])    # the last 3 only
+    assert m.offset_mm("b").tolist() == [0.0, 0.0]
+    m.learn("a", None)                                           # a trace with no arrival
+    assert len(m.history["a"]) == 3
 
 
-def test_restart_recovers_offsets_from_the_log(tmp_path):
+def test_scatter_is_the_rms_spread_of_the_remembered_residuals():
+    m = OffsetMemory(n=10)
+    m.learn("a", [0.1, 0.0])
+    m.learn("a", [0.1, 0.02])
+    assert m.scatter_mm("a") == 0.0                              # too few to tell
+    m.learn("a", [0.1, 0.04])
+    assert m.scatter_mm("a") == pytest.approx(0.02)              # 2-D, n − 1 in the mean
+
+
+def test_the_first_command_is_the_lattice_point_the_residual_predicts_nearest():
+    """A residual of half a θ2 unit's displacement and more moves the first command; none
+    leaves the model's own inverse kinematics (a calibrated robot starts from its calibration)."""
+    robot = Scara.preset("seed000")
+    m = OffsetMemory()
+    ik = robot.to_units(robot.ik_planar(*TARGET))
+    assert m.start(robot, "a", TARGET).tolist() == ik.tolist()
+    q = robot.from_units(ik)
+    shift = robot.jacobian(*q) @ robot.from_units([3, -2])      # the arm lands 3, −2 units over
+    m.learn("a", shift)
+    start = m.start(robot, "a", TARGET)
+    predicted = robot.fk_planar(*robot.from_units(start)) + shift
+    assert np.hypot(*(predicted - TARGET)) < 0.05
+    assert np.abs(start - ik - [-3, 2]).max() <= 1          # the rounding of IK apart
+
+
+def test_residual_counts_arrivals_only():
+    robot = Scara.preset("seed000")
+    ik = robot.to_units(robot.ik_planar(*TARGET))
+    steps = [_step(robot, ik, [0.02, 0.0]), _step(robot, ik + 5, [0.5, 0.5], "backlash pre-move"),
+             _step(robot, ik + 1, [0.04, 0.0], "predicted 0.01 mm"),
+             _step(robot, ik + 2, [0.9, 0.9], f"{VERIFY_NOTE}, predicted 0.02 mm"),
+             {**_step(robot, ik, [0.7, 0.7]), "moved": False}]
+    assert OffsetMemory.residual(robot, steps) == pytest.approx([0.03, 0.0])
+    assert OffsetMemory.residual(robot, steps[1:2]) is None
+
+
+def _cycle(log, robot, residual, part_id=1, status="done"):
+    ik = robot.to_units(robot.ik_planar(*TARGET))
+    log.add_cycle(CycleRecord(part_id=part_id, recipe="bracket-a", recipe_hash="h", started_at=utc_now(),
+                              finished_at=utc_now(), status=status, cycle_time_s=1.0, target_mm=TARGET,
+                              calibration=getattr(robot, "calibration", ""),
+                              trace=[_step(robot, ik, residual)]))
+
+
+def test_restart_recovers_the_memory_from_the_log(tmp_path):
     robot = Scara.preset("seed000")
     log = CycleLog(tmp_path / "cell.sqlite")
-    target = (250.0, 930.0)
-    nominal = robot.to_units(robot.ik_planar(*target))
     for k in range(4):
-        final = robot.from_units(nominal + np.array([7, -3 + k % 2]))
-        log.add_cycle(CycleRecord(part_id=k, recipe="bracket-a", recipe_hash="h", started_at=utc_now(),
-                                  finished_at=utc_now(), status="done", cycle_time_s=1.0, target_mm=target,
-                                  trace=[{"joints_deg": list(final), "point_mm": list(target),
-                                          "error_mm": 0.01, "moved": True}]))
-    log.add_cycle(CycleRecord(part_id=9, recipe="bracket-a", recipe_hash="h", started_at=utc_now(),
-                              finished_at=utc_now(), status="aborted", cycle_time_s=1.0))
+        _cycle(log, robot, [0.1, -0.02 * (k % 2)], part_id=k)
+    _cycle(log, robot, [5.0, 5.0], part_id=9, status="aborted")
     memory = OffsetMemory.from_log(log, robot)
-    assert memory.offset("bracket-a").tolist() == [7, -2]     # mean of -3, -2, -3, -2 rounds to -2
+    assert memory.offset_mm("bracket-a") == pytest.approx([0.1, -0.01])
 
 
 def test_a_new_calibration_starts_learning_afresh(tmp_path):
-    """Offsets learned against the nominal model (or an older calibration) refer to it: a
+    """Residuals learned against the nominal model (or an older calibration) refer to it: a
     robot with another calibration rebuilds its memory only from its own cycles."""
     from cell.calibration.calfile import CalibratedScara
     nominal = Scara.preset("seed000")
     calibrated = CalibratedScara(nominal, (0.04, -0.05), (0.3, -0.25), "v1-abcdef12")
     log = CycleLog(tmp_path / "cell.sqlite")
-    target = (250.0, 930.0)
-    for robot, off in ((nominal, [7, -3]), (calibrated, [1, 2])):
-        cmd = robot.to_units(robot.ik_planar(*target)) + np.array(off)
-        log.add_cycle(CycleRecord(part_id=1, recipe="bracket-a", recipe_hash="h", started_at=utc_now(),
-                                  finished_at=utc_now(), status="done", cycle_time_s=1.0, target_mm=target,
-                                  calibration=getattr(robot, "calibration", ""),
-                                  trace=[{"joints_deg": list(robot.from_units(cmd)), "point_mm": list(target),
-                                          "error_mm": 0.01, "moved": True}]))
-    assert OffsetMemory.from_log(log, nominal).offset("bracket-a").tolist() == [7, -3]
-    assert OffsetMemory.from_log(log, calibrated).offset("bracket-a").tolist() == [1, 2]
+    _cycle(log, nominal, [0.3, -0.2])
+    _cycle(log, calibrated, [0.01, 0.02])
+    assert OffsetMemory.from_log(log, nominal).offset_mm("bracket-a") == pytest.approx([0.3, -0.2])
+    assert OffsetMemory.from_log(log, calibrated).offset_mm("bracket-a") == pytest.approx([0.01, 0.02])
     other = CalibratedScara(nominal, (0.0, 0.0), (0.0, 0.0), "v2-00000000")
-    assert OffsetMemory.from_log(log, other).offset("bracket-a").tolist() == [0, 0]
+    assert OffsetMemory.from_log(log, other).offset_mm("bracket-a").tolist() == [0.0, 0.0]
     assert [r.calibration for r in log.cycles()] == ["", "v1-abcdef12"]

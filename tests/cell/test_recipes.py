@@ -105,6 +105,8 @@ def test_committed_schema_is_current():
     ("  fiducial_radius_mm: 1.5", "  fiducial_radius_mm: -1.5", r":{line}: part.fiducial_radius_mm: .*greater than 0.2"),
     ("  max_moves: 4", "  max_moves: 4\n  max_movez: 5", r":{line2}: compensation.max_movez: unknown field; did you mean 'max_moves'\?"),
     ("  method: lattice ", "  method: magic ", r":{line}: compensation.method"),
+    ("  max_moves: 4", "  max_moves: 4\n  extra_moves: 9", r":{line2}: compensation.extra_moves: .*less than or equal to 5"),
+    ("  max_moves: 4", "  max_moves: 4\n  extra_moves: -1", r":{line2}: compensation.extra_moves: .*greater than or equal to 0"),
     ("number: 1", "number: one", r":{line}: number"),
     ("name: bracket-a", "name: [bracket", r":\d+: malformed YAML"),
     ("name: bracket-a", "name: other-name", r":{line}: name: .*must match the file name 'bracket-a'"),

@@ -25,12 +25,28 @@ class PlantArm:
         self.moves = 0
         self.true_point = plant.true_tool_xy(clock.now())
 
-    def move_and_measure(self, command_units: np.ndarray) -> np.ndarray:
-        """Move θ1, θ2 to ``command_units`` (2 whole command units), wait for the motion on
-        the clock, update the plant's drive state and return the measured (x_mm, y_mm)
-        (truth with a fresh repeatability draw, through the camera effects, plus
-        measurement noise). Raises KinematicsError for a command that is not 2 whole
-        numbers or is outside the joint limits; nothing moves then."""
+    def move_and_measure(self, command_units: np.ndarray, via_units=None) -> np.ndarray:
+        """Move θ1, θ2 to ``command_units`` (2 whole command units; through ``via_units``
+        first if given), wait for the motion on the clock, update the plant's drive state
+        and return the measured (x_mm, y_mm) (truth with a fresh repeatability draw,
+        through the camera effects, plus measurement noise). Raises KinematicsError for a
+        command that is not 2 whole numbers or is outside the joint limits; nothing moves
+        then."""
+        stops = [self._checked(via_units)] if via_units is not None else []
+        stops.append(self._checked(command_units))
+        for q in stops:
+            start = self.plant.drive_positions()[:2]
+            self.clock.sleep(float(np.max(np.abs(q - start))) / self.plant.config.joint_speed_deg_s)
+            t = self.clock.now()
+            for i in (0, 1):
+                self.plant.update_drive(i, float(q[i]), t)
+        self.moves += 1
+        self.true_point = self.plant.true_tool_xy(t)
+        return self.plant.measured_xy(t)
+
+    def _checked(self, command_units) -> np.ndarray:
+        """θ1, θ2 (deg) of a command, or KinematicsError if it is not 2 whole numbers inside
+        the joint limits."""
         u = np.asarray(command_units)
         if u.shape != (2,) or not np.all(np.isfinite(u.astype(float))) \
                 or not np.all(u.astype(float) == np.round(u.astype(float))):
@@ -38,11 +54,4 @@ class PlantArm:
                                   "(θ1, θ2 command units)")
         q = self.robot.from_units(u.astype(np.int64))
         self.robot.check_limits(q, joints=(0, 1))
-        start = self.plant.drive_positions()[:2]
-        self.clock.sleep(float(np.max(np.abs(q - start))) / self.plant.config.joint_speed_deg_s)
-        t = self.clock.now()
-        for i in (0, 1):
-            self.plant.update_drive(i, float(q[i]), t)
-        self.moves += 1
-        self.true_point = self.plant.true_tool_xy(t)
-        return self.plant.measured_xy(t)
+        return q

@@ -75,6 +75,27 @@ def test_the_cell_runs_nominal_without_a_file_and_refuses_a_bad_one(tmp_path):
         load_active(cfg, SEED000)
 
 
+def test_the_file_records_the_side_its_poses_took_up_backlash_from(tmp_path):
+    """The procedure approaches every pose from below; the calibrated robot carries that side
+    so the cell's arrivals come the same way. A file from before the key was written was
+    measured the same way."""
+    path = tmp_path / "robot.json"
+    written = calfile.write(path, doc())
+    assert written["approach_dirs"] == [1, 1] == list(Scara.approach_dirs)
+    assert calfile.calibrated_robot(SEED000, calfile.load(path, SEED000, "cell-1")).approach_dirs == (1, 1)
+    old = {k: v for k, v in doc().items() if k != "approach_dirs"}
+    assert calfile.calibrated_robot(SEED000, calfile.write(path, old)).approach_dirs == (1, 1)
+
+
+@pytest.mark.parametrize("dirs", [[1, 0], [1], "up", [1, -1, 1], [True, 1], [2, 1]])
+def test_a_file_with_a_bad_approach_side_is_refused(tmp_path, dirs):
+    path = tmp_path / "robot.json"
+    calfile.write(path, {**doc(), "approach_dirs": dirs})       # checksummed: a writer's bug
+    with pytest.raises(CalibrationError, match=r"approach_dirs = .*must be two of \+1 / -1") as info:
+        calfile.load(path, SEED000, "cell-1")
+    assert str(path) in str(info.value)
+
+
 def test_calibrated_robot_is_the_nominal_one_with_its_zeros_and_links():
     robot = calfile.calibrated_robot(SEED000, {**doc(), "version": 1, "sha256": "0" * 64})
     q = np.array([30.0, 45.0])
