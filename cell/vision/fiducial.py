@@ -339,6 +339,10 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
             problems.append(str(exc))
             kinds.append(exc.kind)
             continue
+        if not min_radius_px <= fix.radius_px <= max_radius_px:
+            ignored.append(f"disc of radius {fix.radius_px:.1f} px at {_where(region)} (outside "
+                           f"{min_radius_px:g}..{max_radius_px:g} px)")
+            continue
         found.append(fix)
     if problems:
         raise VisionError("; ".join(problems), kinds[0])

@@ -136,6 +136,18 @@ def test_two_targets_when_one_expected():
     assert exc.value.kind == "multiple"
 
 
+def test_a_disc_outside_the_radius_range_is_not_a_target():
+    """Probe: the cell's tool search (radius 3 mm ± 30 %) accepted the part's 1.5 mm
+    fiducial beside it (its area passed the loose area bound) and faulted 303, "found 2"."""
+    img = _shot([Fiducial(-30.0, 0.0, 12.0), Fiducial(-6.0, 2.0, 6.0)])
+    [big] = find_fiducials(img, expected=1, min_radius_px=8.4, max_radius_px=15.6)
+    assert np.allclose(big.uv, MODEL.project([(-30.0, 0.0)])[0], atol=0.3)   # its neighbour pulls the fit
+    [small] = find_fiducials(img, expected=1, min_radius_px=4.2, max_radius_px=7.8)
+    assert np.allclose(small.uv, MODEL.project([(-6.0, 2.0)])[0], atol=0.3)
+    with pytest.raises(VisionError, match=r"disc of radius [56]\.\d px .*outside 8\.4\.\.15\.6 px"):
+        find_fiducials(_shot([Fiducial(-6.0, 2.0, 6.0)]), min_radius_px=8.4, max_radius_px=15.6)
+
+
 def test_target_cut_by_image_edge():
     img = _shot([Fiducial(-60.0, 0.0, 10.0)])                # centre 3.5 px from the left edge
     with pytest.raises(VisionError, match=r"cut by the image edge") as exc:
