@@ -179,6 +179,26 @@ class OffsetMemory:
         return memory
 
 
+def compensate(robot: Scara, arm, memory: OffsetMemory, recipe, target, *, elbow: str = "right",
+               from_units=None) -> CompensationResult:
+    """One part's compensation as the cell runs it (the COMPENSATE step), on any
+    :class:`~cell.compensation.base.Arm`: the first command from ``memory`` (the model plus
+    the learned residual), then ``recipe.compensation``'s method. The lattice takes up
+    backlash from ``robot.approach_dirs`` at every arrival (``from_units``: where θ1, θ2 are
+    before the first one, command units; None: unknown) and moves only for a gain above
+    the recipe's ``min_gain_mm`` and the memory's scatter. Does not learn: the caller
+    teaches ``memory`` once the part is verified."""
+    c = recipe.compensation
+    start = memory.start(robot, recipe.name, target, elbow)
+    if c.method == "paper":
+        return run_paper(robot, arm, target, k=c.k, start_units=start,
+                         repeatability_mm=c.repeatability_mm)
+    gain = max(c.min_gain_mm, memory.scatter_mm(recipe.name))
+    return run_lattice(robot, arm, target, start_units=start, max_moves=c.max_moves,
+                       min_gain_mm=gain, backlash_margin_units=c.backlash_margin_units,
+                       approach_dirs=robot.approach_dirs, from_units=from_units)
+
+
 class CellArm:
     """The compensation's "robot + measurer" on the cell: move θ1, θ2 to a command by
     streaming the recipe's seed 002 segments, wait until arrived, measure the tool."""
@@ -394,15 +414,8 @@ class CycleRunner:
                 via_units=None if via is None else (int(via[0]), int(via[1]))).as_dict())
 
     def _compensate(self, arm: CellArm, r, part: np.ndarray) -> CompensationResult:
-        c = r.compensation
-        start = self.memory.start(self.robot, r.name, part, self.settings.elbow)
-        if c.method == "paper":
-            return run_paper(self.robot, arm, part, k=c.k, start_units=start,
-                             repeatability_mm=c.repeatability_mm)
-        gain = max(c.min_gain_mm, self.memory.scatter_mm(r.name))
-        return run_lattice(self.robot, arm, part, start_units=start, max_moves=c.max_moves,
-                           min_gain_mm=gain, backlash_margin_units=c.backlash_margin_units,
-                           approach_dirs=self.robot.approach_dirs, from_units=arm.units_now())
+        return compensate(self.robot, arm, self.memory, r, part, elbow=self.settings.elbow,
+                          from_units=arm.units_now())
 
     def _write(self, rec: CycleRecord, outcome: CycleOutcome) -> CycleRecord:
         """Write the cycle's row (the LOGGING step). Its own duration cannot be inside the row

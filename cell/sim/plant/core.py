@@ -119,6 +119,18 @@ class Plant:
         xy = fx.simulate_points(self.robot.g, self._static_effects, q, d, None, [temp])
         return xy[0] + offset
 
+    def true_points(self, cmd_deg, dirs, t_s: float) -> np.ndarray:
+        """True tool centres (N,2) mm, noise-free, for N commanded θ1, θ2 ``cmd_deg`` (N,2)
+        arrived at with last-motion directions ``dirs`` (N,2) or (2,) at time ``t_s``: what
+        each command would reach before the arrival's repeatability draw, without touching
+        the drive state (how a benchmark finds the best command the plant allows).
+        Raises TrajectoryError for a non-finite time, KinematicsError for bad commands."""
+        temp = self._temp_checked(t_s)
+        cmd = np.asarray(cmd_deg, dtype=float)
+        d = np.broadcast_to(np.asarray(dirs, dtype=float), cmd.shape)
+        return fx.simulate_points(self.robot.g, self._static_effects, cmd, d, None,
+                                  np.full(len(cmd), temp))
+
     def true_tool_pose(self, t_s: float) -> np.ndarray:
         """True tool pose (x_mm, y_mm, phi_deg) at ``t_s``: the centre of
         :meth:`true_tool_xy` and the orientation θ1 + θ2 + θ4 of the TRUE joint angles (the
