@@ -100,6 +100,8 @@ SOURCES: tuple[Source, ...] = (
            probe=("bench/bench_link_storm.py", "--quick", "--rounds", "1"), slow=True),
     Source("compensation", ".venv/bin/python bench/bench_compensation.py",
            ("bench/bench_compensation.py",), 2, (cols(), cols("ms per target"))),
+    Source("full-plant", ".venv/bin/python bench/bench_full_plant.py", ("bench/bench_full_plant.py",), 1,
+           (cols(),), slow=True),
     Source("line-delay", ".venv/bin/python bench/bench_line_delay.py", ("bench/bench_line_delay.py",), 1),
     Source("timelaws", ".venv/bin/python bench/bench_timelaws.py", ("bench/bench_timelaws.py",), 2,
            (cols("fit µs"), cols())),

@@ -399,7 +399,7 @@ class CycleRunner:
             if extra >= allowed:
                 raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"{what}; compensation.extra_moves = "
                                 f"{allowed} spent (the next move was predicted to {predicted:.4f} mm)")
-            via = via_point(dirs, margin, command, best)
+            via = via_point(dirs, margin, command, best, self.robot)
             arm.arrive(command, r.approach.z_mm)
             arm.arrive(best, r.approach.z_mm, via)
             arm.arrive(best, r.place.z_mm)

@@ -99,7 +99,7 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
     rec = Recorder("lattice", arm, target, robot.from_units([1, 1]))
     before = None if from_units is None else np.asarray(from_units, dtype=float)
     point = rec.move(start_units, note="first arrival",
-                     via=via_point(dirs, backlash_margin_units, before, start_units))
+                     via=via_point(dirs, backlash_margin_units, before, start_units, robot))
     visited = {tuple(rec.command)}
     while rec.result.moves < max_moves:
         best, predicted = nearest_lattice(robot, rec.command, point, target)
@@ -107,17 +107,20 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
         if tuple(best) in visited or gain < min_gain_mm:
             break
         point = rec.move(best, note=f"predicted {predicted:.4f} mm",
-                         via=via_point(dirs, backlash_margin_units, rec.command, best))
+                         via=via_point(dirs, backlash_margin_units, rec.command, best, robot))
         visited.add(tuple(best))
     return rec.result
 
 
-def via_point(dirs, margin: int, before, command) -> np.ndarray | None:
+def via_point(dirs, margin: int, before, command, robot: Scara | None = None) -> np.ndarray | None:
     """The via point an arrival at ``command`` from ``before`` passes through so that every
     joint arrives from its side ``dirs`` (None: no side kept, or every joint already does).
-    ``before`` None (unknown) sends every joint through the via point."""
+    ``before`` None (unknown) sends every joint through the via point. With ``robot``, a via
+    point outside its joint limits is left out (None): near a limit the arrival comes
+    straight, and its measurement absorbs the backlash."""
     if dirs is None:
         return None
+    dirs = np.asarray(dirs)
     if before is None:
         wrong = np.ones(2, dtype=bool)
     else:
@@ -125,4 +128,10 @@ def via_point(dirs, margin: int, before, command) -> np.ndarray | None:
         wrong = (step != 0) & (step != dirs)
     if not wrong.any():
         return None
-    return np.asarray(command, dtype=np.int64) - dirs * margin * wrong
+    via = np.asarray(command, dtype=np.int64) - dirs * margin * wrong
+    if robot is not None:
+        try:
+            robot.check_limits(robot.from_units(via), joints=(0, 1))
+        except KinematicsError:
+            return None
+    return via

@@ -241,3 +241,15 @@ def test_without_a_side_a_reversal_costs_the_backlash(robot):
                       backlash_margin_units=0, from_units=arm.at)
     assert all(s.via_units is None for s in res.steps)
     assert [-1.0, 1.0] in arm.arrivals or [1.0, -1.0] in arm.arrivals or [-1.0, -1.0] in arm.arrivals
+
+
+def test_a_via_point_beyond_a_joint_limit_is_left_out(robot):
+    """At θ1's upper limit an arrival moving down would need a via point above it: the
+    arrival comes straight instead (the measurement absorbs the backlash)."""
+    from cell.compensation.lattice import via_point
+    hi = robot.to_units([robot.g.limits[0][1], 0.0])[0]
+    command = np.array([hi, 3000])
+    assert via_point((-1, 1), 5, command + [-10, 0], command).tolist() == [hi + 5, 3000]
+    assert via_point((-1, 1), 5, command + [-10, 0], command, robot) is None
+    assert via_point((1, 1), 5, command + [-10, 0], command, robot) is None      # already its side
+    assert via_point((1, 1), 5, command + [0, 10], command, robot).tolist() == [hi, 2995]

@@ -192,6 +192,24 @@ def test_plant_arm_takes_simulated_time_and_lands_within_noise_of_the_truth():
     assert clock.now() == pytest.approx(100.0 + 3.0 / 90.0)
 
 
+def test_plant_arm_passes_a_via_point_so_backlash_is_taken_up_from_its_side():
+    """From above, a via point below the command makes both joints arrive moving up; the
+    true point is then what true_points predicts for that side, and time counts both legs."""
+    p = Plant.from_yaml(DEFAULT)                   # j2 backlash 0.02°
+    clock = ManualClock(0.0)
+    arm = PlantArm(p, clock)
+    arm.move_and_measure(np.array([6100, 3100]))   # from (60°, 30°): up to (61°, 31°)
+    t0 = clock.now()
+    arm.move_and_measure(np.array([6050, 3050]), via_units=np.array([6045, 3045]))
+    assert np.array_equal(p.directions()[:2], [1.0, 1.0])
+    assert clock.now() - t0 == pytest.approx((0.55 + 0.05) / 90.0)
+    want = p.true_points([[60.5, 30.5]], [1, 1], clock.now())[0]
+    assert np.hypot(*(arm.true_point - want)) < 5 * 0.01 * math.sqrt(2)
+    down = p.true_points([[60.5, 30.5]], [-1, -1], clock.now())[0]
+    assert np.hypot(*(want - down)) > 0.1                 # the side matters by the band
+    assert p.drive_positions()[:2].tolist() == [60.5, 30.5]   # true_points moved nothing
+
+
 def test_plant_arm_rejects_bad_commands_without_moving():
     p = plant()
     clock = ManualClock()
@@ -200,6 +218,8 @@ def test_plant_arm_rejects_bad_commands_without_moving():
                        ([6000], "whole numbers")):
         with pytest.raises(KinematicsError, match=words):
             arm.move_and_measure(np.array(bad))
+        with pytest.raises(KinematicsError, match=words):       # a bad via point: not a step
+            arm.move_and_measure(np.array([6010, 3010]), via_units=np.array(bad))
     assert clock.now() == 0.0 and arm.moves == 0
     assert np.array_equal(p.drive_positions()[:2], [60.0, 30.0])
 
