@@ -92,7 +92,8 @@ class Cell:
             self.devices.start()
             v = self.config.vision
             camera = MeasuringCamera(self.camera, self.devices.calibration(), v.tool_radius_mm,
-                                     v.radius_tolerance, v.grab_timeout_s, clock=self.clock)
+                                     v.radius_tolerance, v.grab_timeout_s, clock=self.clock,
+                                     window_mm=v.window_mm)
             self.measuring_camera = camera
             self.calibrator.measuring_camera = camera
             # recipes are checked against these stations: SYNC support, and the segment time

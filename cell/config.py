@@ -50,6 +50,8 @@ class VisionSection(_Section):
     tool_radius_mm: float = Field(default=3.0, gt=0.2, le=20)
     radius_tolerance: float = Field(default=0.3, gt=0, lt=1)
     grab_timeout_s: float = Field(default=2.0, gt=0, le=60)   #: a grab that takes longer is fault 301
+    #: a tool search looks this far (mm) around where the model puts the tool, then the whole frame
+    window_mm: float = Field(default=5.0, gt=0, le=100)
 
 
 class RecipesSection(_Section):

@@ -240,7 +240,11 @@ class CellArm:
 
     def move_and_measure(self, command_units, via_units=None) -> np.ndarray:
         self.arrive(command_units, self.z_mm, via_units)
-        return self.camera.tool(self.cancel)
+        return self.camera.tool(self.cancel, self.predicted(command_units))
+
+    def predicted(self, command_units) -> np.ndarray:
+        """Where the robot model puts the tool at ``command_units``: where the camera looks."""
+        return self.robot.fk_planar(*self.robot.from_units(command_units))
 
     def units_now(self) -> np.ndarray:
         """θ1, θ2 of the last command, in (fractional) command units."""
@@ -367,7 +371,8 @@ class CycleRunner:
         arm.move(arm.joints(t1, t2, r.approach.z_mm))
 
     def _locate(self, image: np.ndarray, r) -> np.ndarray:
-        part = self.camera.find(image, r.part.fiducial_radius_mm, "part fiducial")
+        part = self.camera.find(image, r.part.fiducial_radius_mm, "part fiducial",
+                                near_mm=r.part.nominal_xy_mm, within_mm=r.part.search_radius_mm + 1.0)
         off = float(np.hypot(*(part - np.asarray(r.part.nominal_xy_mm))))
         if off > r.part.search_radius_mm:
             raise CellFault(Fault.PART_OUT_OF_WINDOW, f"part found at ({part[0]:.3f}, {part[1]:.3f}) mm, "
@@ -386,7 +391,7 @@ class CycleRunner:
         margin = r.compensation.backlash_margin_units
         dirs = np.asarray(self.robot.approach_dirs) if margin > 0 else None
         command = np.asarray(command, dtype=np.int64)
-        point, extra = self.camera.tool(cancel), 0
+        point, extra = self.camera.tool(cancel, arm.predicted(command)), 0
         while True:
             rec.verify_error_mm = float(np.hypot(*(point - part)))
             if rec.verify_error_mm <= tol:
@@ -404,7 +409,7 @@ class CycleRunner:
             arm.arrive(best, r.approach.z_mm, via)
             arm.arrive(best, r.place.z_mm)
             command, extra = best, extra + 1
-            point = self.camera.tool(cancel)
+            point = self.camera.tool(cancel, arm.predicted(command))
             rec.moves += 1
             joints = self.robot.from_units(best)
             rec.trace.append(Step(

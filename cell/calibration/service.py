@@ -257,7 +257,8 @@ class CellCalibrator:
             v = self.config.vision
             self.measuring_camera = MeasuringCamera(self.devices.camera, self.devices.calibration(),
                                                     v.tool_radius_mm, v.radius_tolerance,
-                                                    v.grab_timeout_s, clock=self.devices.clock)
+                                                    v.grab_timeout_s, clock=self.devices.clock,
+                                                    window_mm=v.window_mm)
         return self.measuring_camera
 
     def _write(self, out: KinematicOutcome, warning: str | None = None) -> None:

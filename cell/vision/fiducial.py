@@ -228,16 +228,36 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
                        method=method, polarity=polarity)
 
 
+def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
+    """Pixels within ``RING_PX + RING_FRACTION·r`` of the circle of radius ``r`` about
+    (uc, vc): the edge, where the image depends on the centre, with enough of both plateaus
+    on either side to fix contrast and ground. Pixels deeper inside or further out carry
+    no information on the centre, only cost."""
+    band = RING_PX + RING_FRACTION * r
+    return np.abs(np.hypot(uu - uc, vv - vc) - r) <= band
+
+
+RING_PX, RING_FRACTION = 5.0, 0.1
+
+
 def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> dict:
-    # the first `free` parameters are fitted, the rest held at p0
-    z, uf, vf = work.ravel(), uu.ravel(), vv.ravel()
+    # the first `free` parameters are fitted, the rest held at p0; over the edge ring only
+    keep = edge_ring(uu, vv, p0[0], p0[1], p0[2])
+    z, uf, vf = work[keep], uu[keep], vv[keep]
     fixed = p0[free:]
+    last: dict = {}
+
+    def model(q):                        # least_squares asks for f and J at the same q
+        key = q.tobytes()
+        if last.get("key") != key:
+            last["key"], last["fj"] = key, _disc_model(np.concatenate([q, fixed]), uf, vf, u0, v0)
+        return last["fj"]
 
     def fun(q):
-        return _disc_model(np.concatenate([q, fixed]), uf, vf, u0, v0)[0] - z
+        return model(q)[0] - z
 
     def jac(q):
-        return _disc_model(np.concatenate([q, fixed]), uf, vf, u0, v0)[1][:, :free]
+        return model(q)[1][:, :free]
 
     sol = least_squares(fun, p0[:free], jac=jac, method="lm", xtol=1e-10, ftol=1e-10)
     p = sol.x
@@ -257,6 +277,11 @@ def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> d
     return dict(u_px=float(uc), v_px=float(vc), radius_px=float(r), contrast=float(abs(a)),
                 background=float(b), edge_sigma_px=float(abs(s)), residual_rms=math.sqrt(res_var),
                 sigma_u_px=math.sqrt(max(cov[0, 0], 0.0)), sigma_v_px=math.sqrt(max(cov[1, 1], 0.0)))
+
+
+#: how far a blob's area radius may lie outside the radius range and still be fitted (the
+#: threshold takes in part of the blurred edge, so the area radius runs ~1 px large)
+SIZE_SLACK_PX = 3.0
 
 
 def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: str = "bright",
@@ -325,6 +350,10 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
             continue
         u, v = float(cents[i][0]) + off_u, float(cents[i][1]) + off_v
         r0 = math.sqrt(area / math.pi)
+        if r0 + SIZE_SLACK_PX < min_radius_px or r0 - SIZE_SLACK_PX > max_radius_px:
+            ignored.append(f"disc of radius about {r0:.1f} px at {_where(region)} (outside "
+                           f"{min_radius_px:g}..{max_radius_px:g} px)")
+            continue                     # plainly another size: not worth a fit
         if method == "moments":
             found.append(FiducialFix(u, v, r0, float("nan"), float("nan"), float("nan"), circ,
                                      float("nan"), float("nan"), float("nan"), 0, region,

@@ -103,6 +103,7 @@ class FakeCamera:
         self.bias = np.array(bias)
         self.place_shift = np.array(place_shift)      #: tool offset once lowered to the place z
         self.calls: list[str] = []
+        self.nears: list = []                         #: (where the cycle said to look, joints)
         self.on_tool = None                           #: hook() at every tool measurement
 
     def grab(self, cancel=None):
@@ -110,14 +111,15 @@ class FakeCamera:
         self.calls.append("grab")
         return np.zeros((8, 8), np.uint8)
 
-    def find(self, image, radius_mm, what):
+    def find(self, image, radius_mm, what, near_mm=None, within_mm=None):
         self.st._seen()
         self.calls.append(f"find {what} r={radius_mm}")
         return self.part.copy()
 
-    def tool(self, cancel=None):
+    def tool(self, cancel=None, near_mm=None):
         self.st._seen()
         self.calls.append("tool")
+        self.nears.append((np.array(near_mm), self.st.pos[:2].copy()))
         if self.on_tool:
             self.on_tool()
         q = self.st.pos
@@ -227,6 +229,8 @@ def test_done_cycle_streams_every_move_in_the_recipes_mode_and_logs_one_row(tmp_
     assert out.log_write_s == 0.125                   # the write's own time, for the PLC
     assert len(row.trace) == len(out.record.trace) >= 1
     assert len(rig.memory.history["bracket-a"]) == 1  # learned from a completed cycle
+    # every tool measurement looks where the model puts the tool at the joints it went to
+    assert rig.cam.nears and all(np.allclose(near, ROBOT.fk_planar(*q)) for near, q in rig.cam.nears)
     rig.log.close()
 
 
@@ -381,16 +385,21 @@ def test_vision_failures_map_to_their_fault_codes(tmp_path, kind, code):
     def locate(image, cal, **find_kwargs):
         searches.append(find_kwargs)
         raise VisionError(f"{kind} at (10, 12) px", kind)
-    cal = SimpleNamespace(width=64, height=48, mm_per_px=lambda x, y: 0.1)
-    rig = Rig(tmp_path, camera=MeasuringCamera(Driver(), cal, tool_radius_mm=2.0, locate=locate))
+    # 0.1 mm per px, the part's nominal place (250, 930) mm at the frame's centre
+    cal = SimpleNamespace(width=640, height=480, mm_per_px=lambda x, y: 0.1,
+                          base_to_pixel=lambda x, y: (319.5 + (x - 250.0) / 0.1, 239.5 - (y - 930.0) / 0.1))
+    camera = MeasuringCamera(Driver(), cal, tool_radius_mm=2.0, locate=locate)
+    rig = Rig(tmp_path, camera=camera)
     out = rig.run()
     assert (out.status, out.fault_code) == ("aborted", code)
     assert out.fault_text == f"part fiducial: {kind} at (10, 12) px"
     assert rig.rows()[0].fault_code == code
     assert list(rig.rows()[0].step_times) == ["approach", "capture"]
-    r_px = active().recipe.part.fiducial_radius_mm / 0.1                # one search, the part's size
-    assert searches == [dict(expected=1, min_radius_px=pytest.approx(r_px * 0.7),
-                             max_radius_px=pytest.approx(r_px * 1.3))]
+    r_px = active().recipe.part.fiducial_radius_mm / 0.1                # the part's size
+    size = dict(expected=1, min_radius_px=pytest.approx(r_px * 0.7), max_radius_px=pytest.approx(r_px * 1.3))
+    # first the window: search radius 3 + 1 mm, radius 1.5 × 1.3, 0.5 mm: 6.45 mm = 64.5 px
+    assert searches == [dict(size, roi=(255, 175, 384, 304)), dict(size, roi=None)]
+    assert camera.window_misses == 1
     rig.log.close()
 
 
