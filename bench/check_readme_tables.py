@@ -102,6 +102,8 @@ SOURCES: tuple[Source, ...] = (
            ("bench/bench_compensation.py",), 2, (cols(), cols("ms per target"))),
     Source("full-plant", ".venv/bin/python bench/bench_full_plant.py", ("bench/bench_full_plant.py",), 1,
            (cols(),), slow=True),
+    Source("fault-sweep", ".venv/bin/python bench/bench_fault_sweep.py", ("bench/bench_fault_sweep.py",), 1,
+           (cols(),), slow=True),
     Source("line-delay", ".venv/bin/python bench/bench_line_delay.py", ("bench/bench_line_delay.py",), 1),
     Source("timelaws", ".venv/bin/python bench/bench_timelaws.py", ("bench/bench_timelaws.py",), 2,
            (cols("fit µs"), cols())),
