@@ -125,15 +125,16 @@ class OffsetMemory:
         return np.mean(h, axis=0) if h else np.zeros(2)
 
     def scatter_mm(self, recipe: str) -> float:
-        """How far one cycle's residual typically lies from their mean (rms of the 2-D
-        distance, mm) over ``recipe``'s remembered cycles: the arrivals' scatter
-        (repeatability, measurement noise, drift). A correction predicted to gain less
+        """How far one cycle's residual typically lies from the last one's (2-D rms of
+        successive differences over √2, mm) over ``recipe``'s remembered cycles: the
+        arrivals' scatter (repeatability, measurement noise), without the slow drift
+        (warm-up) a spread about the mean would count. A correction predicted to gain less
         than this is as likely to lose. 0 with fewer than 3 cycles remembered."""
         h = self.history.get(recipe)
         if not h or len(h) < 3:
             return 0.0
-        a = np.asarray(h)
-        return float(np.sqrt(np.sum((a - a.mean(axis=0)) ** 2) / (len(a) - 1)))
+        d = np.diff(np.asarray(h), axis=0)
+        return float(np.sqrt(np.sum(d ** 2) / (2 * len(d))))
 
     def learn(self, recipe: str, residual_mm) -> None:
         """Remember one cycle's residual (see :meth:`residual`); None is ignored."""

@@ -27,13 +27,18 @@ def test_mean_of_the_last_n_residuals_in_mm():
     assert len(m.history["a"]) == 3
 
 
-def test_scatter_is_the_rms_spread_of_the_remembered_residuals():
+def test_scatter_is_the_arrivals_noise_without_the_drift():
+    """Successive differences: a steady drift (a warming arm) is not noise."""
     m = OffsetMemory(n=10)
     m.learn("a", [0.1, 0.0])
     m.learn("a", [0.1, 0.02])
     assert m.scatter_mm("a") == 0.0                              # too few to tell
-    m.learn("a", [0.1, 0.04])
-    assert m.scatter_mm("a") == pytest.approx(0.02)              # 2-D, n − 1 in the mean
+    m.learn("a", [0.1, 0.0])
+    assert m.scatter_mm("a") == pytest.approx(0.02 / np.sqrt(2))   # √(mean |Δ|² / 2)
+    drift = OffsetMemory(n=10)
+    for k in range(10):
+        drift.learn("a", [0.01 * k, 0.0])                        # 0.09 mm of warm-up
+    assert drift.scatter_mm("a") == pytest.approx(0.01 / np.sqrt(2))
 
 
 def test_the_first_command_is_the_lattice_point_the_residual_predicts_nearest():
