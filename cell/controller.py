@@ -232,8 +232,17 @@ class CellController:
         return StationFaultIn(station_fault(rec.code), str(rec), requested)
 
     def _write(self, status: dict, registers: dict) -> None:
-        self.plc.set_bits("status_word", **status)
+        """Publish a scan's outputs so that a PLC read between the writes never sees a raised
+        flag beside values that are not yet its own (the register map: results are valid
+        before ``done`` is set): the status bits that go down first, then the registers,
+        then the bits that go up. Each of the three is atomic on the link."""
+        down = {k: v for k, v in status.items() if not v}
+        up = {k: v for k, v in status.items() if v}
+        if down:
+            self.plc.set_bits("status_word", **down)
         self.plc.write_many(registers)
+        if up:
+            self.plc.set_bits("status_word", **up)
 
     # ------------------------------------------------------------------ actions
     def _apply(self, actions: list) -> None:
