@@ -504,5 +504,6 @@ class RegisterMap:
         return "\n".join(out)
 
 
-#: The cell controller's register map. 60 registers: 0..59.
+#: The cell controller's register map: 70 registers, 0..69 (the named ones and the gaps
+#: between its blocks).
 PLC_MAP = RegisterMap(REGISTERS, size=70, version=MAP_VERSION)
