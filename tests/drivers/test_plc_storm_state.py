@@ -19,6 +19,7 @@ import time
 import pytest
 from pydantic import ValidationError
 from pymodbus.client import ModbusTlsClient
+from pymodbus.exceptions import ModbusIOException
 
 from cell.clock import ManualClock
 from drivers.plc import TlsConfig
@@ -125,18 +126,33 @@ def test_tls_bursts_and_handshake_garbage_leave_no_state_behind(pki):
         rnd = random.Random(802)
         for _ in range(20):                       # garbage and silence instead of a ClientHello
             _burst(link.tls_port, rnd, 10)
+        assert _settles(server, baseline) == baseline     # the bursts leave nothing behind
         for _ in range(5):                        # real clients, served, then gone
-            # a generous upper bound, not a deadline: on a loaded machine the listener may
-            # still be shedding the bursts' half-open handshakes when the client arrives
-            c = ModbusTlsClient("127.0.0.1", port=link.tls_port, timeout=30, retries=0,
-                                sslctx=client_context(pki["ca"], pki["operator"]))
-            assert c.connect()
-            assert not c.read_holding_registers(0, count=3).isError()
-            c.close()
+            assert _served_over_tls(link.tls_port, pki)
         assert _settles(server, baseline) == baseline
     finally:
         link.stop()
     assert _handlers(modbus) == 0
+
+
+def _served_over_tls(port: int, pki, tries: int = 3) -> bool:
+    """A real TLS client connects and reads. On a loaded machine the listener may still be
+    accepting the bursts' dead connections from the kernel's queue when the client comes,
+    and at the connection cap it sheds a handshake that has not asked anything yet, which
+    can be this one (the cap works as meant; a PLC reconnects). So a client that is shed
+    tries again, up to ``tries`` times; a server that serves no one fails every try. The
+    time-out is a generous upper bound, not a deadline."""
+    for _ in range(tries):
+        c = ModbusTlsClient("127.0.0.1", port=port, timeout=30, retries=0,
+                            sslctx=client_context(pki["ca"], pki["operator"]))
+        try:
+            if c.connect() and not c.read_holding_registers(0, count=3).isError():
+                return True
+        except ModbusIOException:
+            pass
+        finally:
+            c.close()
+    return False
 
 
 def test_a_client_that_never_handshakes_is_closed_after_the_time_out(pki):
