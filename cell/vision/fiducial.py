@@ -228,6 +228,10 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
                        method=method, polarity=polarity)
 
 
+#: the edge ring the disc model is fitted over: ± (RING_PX + RING_FRACTION·r) px about the edge
+RING_PX, RING_FRACTION = 5.0, 0.1
+
+
 def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
     """Pixels within ``RING_PX + RING_FRACTION·r`` of the circle of radius ``r`` about
     (uc, vc): the edge, where the image depends on the centre, with enough of both plateaus
@@ -236,8 +240,6 @@ def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
     band = RING_PX + RING_FRACTION * r
     return np.abs(np.hypot(uu - uc, vv - vc) - r) <= band
 
-
-RING_PX, RING_FRACTION = 5.0, 0.1
 
 
 def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> dict:
