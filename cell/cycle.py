@@ -389,8 +389,6 @@ class CycleRunner:
         the cycle's moves and trace. Faults (VERIFY_OUT_OF_TOLERANCE) when no command is
         predicted within tolerance or the extra moves are spent, saying which."""
         tol, allowed = r.verify.tolerance_mm, r.compensation.extra_moves
-        margin = r.compensation.backlash_margin_units
-        dirs = np.asarray(self.robot.approach_dirs) if margin > 0 else None
         command = np.asarray(command, dtype=np.int64)
         point, extra = self.camera.tool(cancel, arm.predicted(command)), 0
         while True:
@@ -405,19 +403,17 @@ class CycleRunner:
             if extra >= allowed:
                 raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"{what}; compensation.extra_moves = "
                                 f"{allowed} spent (the next move was predicted to {predicted:.4f} mm)")
-            via = via_point(dirs, margin, command, best, self.robot)
+            via = via_point(self.robot.approach_dirs, r.compensation.backlash_margin_units,
+                            command, best, self.robot)
             arm.arrive(command, r.approach.z_mm)
             arm.arrive(best, r.approach.z_mm, via)
             arm.arrive(best, r.place.z_mm)
             command, extra = best, extra + 1
             point = self.camera.tool(cancel, arm.predicted(command))
             rec.moves += 1
-            joints = self.robot.from_units(best)
-            rec.trace.append(Step(
-                (int(best[0]), int(best[1])), (round(float(joints[0]), 9), round(float(joints[1]), 9)),
-                (float(point[0]), float(point[1])), float(np.hypot(*(point - part))), True,
-                note=f"{VERIFY_NOTE}, predicted {predicted:.4f} mm",
-                via_units=None if via is None else (int(via[0]), int(via[1]))).as_dict())
+            rec.trace.append(Step.at(best, self.robot.from_units([1, 1]), point, part,
+                                     note=f"{VERIFY_NOTE}, predicted {predicted:.4f} mm",
+                                     via=via).as_dict())
 
     def _compensate(self, arm: CellArm, r, part: np.ndarray) -> CompensationResult:
         return compensate(self.robot, arm, self.memory, r, part, elbow=self.settings.elbow,

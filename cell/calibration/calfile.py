@@ -214,5 +214,4 @@ def load(path, robot: Scara, cell: str) -> dict:
         calibrated_robot(robot, doc)
     except (KeyError, TypeError, ValueError, KinematicsError) as exc:
         raise CalibrationError(f"{path}: corrupt robot calibration: bad parameter {exc}") from None
-
     return doc

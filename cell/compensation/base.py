@@ -45,6 +45,19 @@ class Step:
     note: str = ""
     via_units: tuple[int, int] | None = None
 
+    @classmethod
+    def at(cls, command, unit_deg, point, target, *, moved: bool = True, spacing: int = 0,
+           note: str = "", via=None) -> "Step":
+        """The step at whole-unit ``command`` (units of ``unit_deg`` per joint) whose
+        measurement ``point`` lies ``error_mm`` from ``target``."""
+        joints = np.asarray(command, dtype=np.int64) * np.asarray(unit_deg, dtype=float)
+        return cls(command_units=(int(command[0]), int(command[1])),
+                   joints_deg=(round(float(joints[0]), 9), round(float(joints[1]), 9)),
+                   point_mm=(float(point[0]), float(point[1])),
+                   error_mm=float(np.hypot(*(np.asarray(point) - np.asarray(target)))),
+                   moved=moved, spacing_units=spacing, note=note,
+                   via_units=None if via is None else (int(via[0]), int(via[1])))
+
     def as_dict(self) -> dict:
         out = {"joints_deg": list(self.joints_deg), "point_mm": list(self.point_mm),
                "error_mm": self.error_mm, "moved": self.moved,
@@ -118,11 +131,5 @@ class Recorder:
 
     def _record(self, moved: bool, spacing: int, note: str, via=None) -> None:
         assert self.command is not None and self.point is not None
-        joints = self.command * self.unit_deg
-        self.result.steps.append(Step(
-            command_units=(int(self.command[0]), int(self.command[1])),
-            joints_deg=(round(float(joints[0]), 9), round(float(joints[1]), 9)),
-            point_mm=(float(self.point[0]), float(self.point[1])),
-            error_mm=float(np.hypot(*(self.point - self.target))),
-            moved=moved, spacing_units=spacing, note=note,
-            via_units=None if via is None else (int(via[0]), int(via[1]))))
+        self.result.steps.append(Step.at(self.command, self.unit_deg, self.point, self.target,
+                                         moved=moved, spacing=spacing, note=note, via=via))

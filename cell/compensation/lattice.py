@@ -93,13 +93,10 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
     if start_units is None:
         start_units = robot.to_units(robot.ik_planar(*target)) + np.asarray(start_offset_units)
     start_units = np.asarray(start_units, dtype=np.int64)
-    dirs = None
-    if approach_dirs is not None and backlash_margin_units > 0:
-        dirs = np.where(np.asarray(approach_dirs) < 0, -1, 1)
     rec = Recorder("lattice", arm, target, robot.from_units([1, 1]))
     before = None if from_units is None else np.asarray(from_units, dtype=float)
     point = rec.move(start_units, note="first arrival",
-                     via=via_point(dirs, backlash_margin_units, before, start_units, robot))
+                     via=via_point(approach_dirs, backlash_margin_units, before, start_units, robot))
     visited = {tuple(rec.command)}
     while rec.result.moves < max_moves:
         best, predicted = nearest_lattice(robot, rec.command, point, target)
@@ -107,20 +104,21 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
         if tuple(best) in visited or gain < min_gain_mm:
             break
         point = rec.move(best, note=f"predicted {predicted:.4f} mm",
-                         via=via_point(dirs, backlash_margin_units, rec.command, best, robot))
+                         via=via_point(approach_dirs, backlash_margin_units, rec.command, best, robot))
         visited.add(tuple(best))
     return rec.result
 
 
 def via_point(dirs, margin: int, before, command, robot: Scara | None = None) -> np.ndarray | None:
     """The via point an arrival at ``command`` from ``before`` passes through so that every
-    joint arrives from its side ``dirs`` (None: no side kept, or every joint already does).
-    ``before`` None (unknown) sends every joint through the via point. With ``robot``, a via
-    point outside its joint limits is left out (None): near a limit the arrival comes
-    straight, and its measurement absorbs the backlash."""
-    if dirs is None:
+    joint arrives from its side ``dirs`` (the sign counts). None when no side is kept
+    (``dirs`` None or ``margin`` ≤ 0) or every joint already arrives from it. ``before``
+    None (unknown) sends every joint through the via point. With ``robot``, a via point
+    outside its joint limits is left out (None): near a limit the arrival comes straight,
+    and its measurement absorbs the backlash."""
+    if dirs is None or margin <= 0:
         return None
-    dirs = np.asarray(dirs)
+    dirs = np.where(np.asarray(dirs) < 0, -1, 1)
     if before is None:
         wrong = np.ones(2, dtype=bool)
     else:
