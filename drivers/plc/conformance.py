@@ -161,6 +161,10 @@ SUPPORTED: dict[int, Callable[[bytes], bool]] = {
 }
 
 
+#: The register functions a server's ``registers`` answerer serves (the rest go to pymodbus).
+REGISTER_FCS = frozenset((0x03, 0x06, 0x10, 0x17))
+
+
 def check_request(pdu: bytes, supported: dict[int, Callable[[bytes], bool]] = SUPPORTED) -> int | None:
     """Spec checks a server makes before touching data: exception code to answer, or None.
 
@@ -183,8 +187,9 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
     """pymodbus connection handler with the spec pre-decoder in front (see module doc).
 
     Frames are queued and answered strictly in arrival order by one worker task; valid
-    requests are decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so
-    the datastore and its action see exactly what a bare pymodbus server would.
+    register requests go to the server's ``registers`` answerer if it has one, the others
+    are decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so the
+    datastore and its action see exactly what a bare pymodbus server would.
 
     Memory: it is an ``asyncio.BufferedProtocol``, so the transport reads into the
     server's one :data:`READ_CHUNK` buffer (:meth:`get_buffer`) instead of allocating
@@ -362,6 +367,10 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         if code is not None:
             self._send_raw(exception_adu(frame, code))
             return
+        if self.server.registers is not None and frame.pdu[0] in REGISTER_FCS:
+            answer = self.server.registers(frame.pdu, self.peer)
+            self._send_raw(struct.pack(">HHHB", frame.tid, 0, len(answer) + 1, frame.unit) + answer)
+            return
         pdu = self.framer.decoder.decode(frame.pdu)
         if pdu is None:  # passed our checks yet pymodbus cannot decode it
             self._send_raw(exception_adu(frame, SERVER_DEVICE_FAILURE))
@@ -405,12 +414,19 @@ class ConformantTcpServer(ModbusTcpServer):
 
     Same constructor as ``ModbusTcpServer`` plus ``guard``: a
     :class:`~drivers.plc.access.ConnectionGuard` (allow-list, cap, time-outs), or None for
-    none (the comparisons in the tests). Start with ``await serve_forever(background=True)``.
+    none (the comparisons in the tests); and ``registers``: ``registers(pdu, peer) ->
+    response PDU`` answers the register functions (FC3, FC6, FC16, FC23) of well-formed
+    requests directly (:meth:`drivers.plc.server.PlcLink.answer_registers`), without
+    pymodbus's decoder and datastore, which cost more than the rest of the request path
+    together; None: pymodbus answers everything. Start with
+    ``await serve_forever(background=True)``.
     """
 
-    def __init__(self, *args, guard: ConnectionGuard | None = None, **kwargs):
+    def __init__(self, *args, guard: ConnectionGuard | None = None,
+                 registers: Callable[[bytes, Peer | None], bytes] | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.guard = guard
+        self.registers = registers
         # every connection of this server reads into this one buffer (see get_buffer)
         self.read_view = memoryview(bytearray(READ_CHUNK))
 

@@ -6,13 +6,14 @@ server (:class:`drivers.plc.conformance.ConformantTcpServer`) runs on its own ev
 the thread ``plc-modbus-server``.
 
 Data path. The register image (``map.size`` words) lives here, guarded by one lock. The
-pymodbus datastore is generated from the map (a ``SimDevice``: one ``SimData`` per
-register and per reserved gap) and its documented ``action`` hook
-is the bridge: on every PLC request it copies the image into pymodbus's registers (so a
-read sees a consistent image, 32-bit pairs never torn) and, for a write, validates the whole
-request against the map *before* anything changes, then applies it to the image and
-queues one :class:`PlcWrite` event per named register. A refused write answers exception
-02/03 and changes nothing.
+register functions (FC3, FC6, FC16, FC23: all a PLC's scan uses) are answered from the
+image itself (:meth:`PlcLink.answer_registers`), read under the lock so 32-bit pairs are
+never torn. A write is validated whole against the map *before* anything changes, then
+applied to the image, and one :class:`PlcWrite` event is queued per named register. A
+refused write answers exception 01/02/03 and changes nothing. The bit functions go through
+pymodbus: its datastore is generated from the map (a ``SimDevice``: one ``SimData`` per
+register and per reserved gap) and its documented ``action`` hook bridges it to the same
+image and the same write decision.
 
 Threads: controller thread(s) <-> ``self._lock`` <-> event-loop thread. Events cross in a
 bounded deque (oldest dropped, counted in ``dropped_writes``).
@@ -20,6 +21,7 @@ bounded deque (oldest dropped, counted in ``dropped_writes``).
 from __future__ import annotations
 
 import collections
+import struct
 import threading
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -173,7 +175,7 @@ class PlcLink:
         self._plain = plain
         self._server = ServerThread(
             lambda address: ConformantTcpServer(build_datastore(self.map, self._action), address=address,
-                                                guard=self.guard),
+                                                guard=self.guard, registers=self.answer_registers),
             name="plc-modbus-server")
         self.tls = tls
         self.tls_guard: ConnectionGuard | None = None
@@ -184,6 +186,7 @@ class PlcLink:
             self._tls_server = ServerThread(
                 lambda address: ConformantTlsServer(build_datastore(self.map, self._action), address=address,
                                                     guard=self.tls_guard, sslctx=tls.context,
+                                                    registers=self.answer_registers,
                                                     roles=dict(tls.roles),
                                                     handshake_timeout_s=tls.handshake_timeout_s),
                 name="plc-modbus-tls-server")
@@ -357,49 +360,86 @@ class PlcLink:
 
     async def _action(self, func_code: int, start: int, address: int, count: int,
                       registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
-        """pymodbus ``SimDevice`` action: runs for every request pymodbus accepted so far."""
+        """pymodbus ``SimDevice`` action, for the requests pymodbus serves (the bit
+        functions): decide a write, then give pymodbus the whole current image to answer from."""
+        code = self._plc_write(func_code, address, values, CURRENT_PEER.get()) if values is not None else None
+        with self._lock:
+            registers[:len(self._image)] = self._image
+        return ExcCodes(code) if code is not None else None
+
+    def answer_registers(self, pdu: bytes, peer: Peer | None) -> bytes:
+        """The response PDU to a register request (FC3, FC6, FC16, FC23), answered from the
+        image. ``pdu`` has passed :func:`~drivers.plc.conformance.check_request` (function,
+        quantities, byte counts and length are well-formed). A read beyond the map answers
+        02; a write is decided as :meth:`_plc_write` decides it (FC23 writes, then reads, as
+        the spec and pymodbus order it)."""
+        fc = pdu[0]
+        if fc == 3:
+            start, qty = struct.unpack_from(">HH", pdu, 1)
+            return self._read_pdu(fc, start, qty)
+        if fc == 6:
+            address, value = struct.unpack_from(">HH", pdu, 1)
+            code = self._plc_write(fc, address, [value], peer)
+            return pdu if code is None else bytes((fc | 0x80, code))
+        if fc == 16:
+            address, qty = struct.unpack_from(">HH", pdu, 1)
+            code = self._plc_write(fc, address, list(struct.unpack_from(f">{qty}H", pdu, 6)), peer)
+            return pdu[:5] if code is None else bytes((fc | 0x80, code))
+        if fc == 23:
+            read_at, read_qty, write_at, write_qty = struct.unpack_from(">HHHH", pdu, 1)
+            code = self._plc_write(fc, write_at, list(struct.unpack_from(f">{write_qty}H", pdu, 10)), peer)
+            return self._read_pdu(fc, read_at, read_qty) if code is None else bytes((fc | 0x80, code))
+        raise ValueError(f"function code {fc} is not a register function")
+
+    def _read_pdu(self, fc: int, start: int, qty: int) -> bytes:
+        with self._lock:
+            if start + qty > len(self._image):
+                return bytes((fc | 0x80, ExcCodes.ILLEGAL_ADDRESS))
+            words = self._image[start:start + qty]
+        return struct.pack(f">BB{qty}H", fc, 2 * qty, *words)
+
+    def _plc_write(self, func_code: int, address: int, values: list[int] | list[bool],
+                   peer: Peer | None) -> int | None:
+        """Decide and apply one PLC write request: None if applied, else the Modbus exception
+        code answered (the map refuses it, or ``peer`` may not write it; counted and logged)."""
         events: list[PlcWrite] = []
         rejected: PlcWriteRejected | None = None
-        peer = CURRENT_PEER.get()
         not_owner: str | None = None
         lacking: str | None = None
         with self._lock:
-            if values is not None:
-                try:
-                    if func_code in _BIT_FCS:
-                        current = {r.name: self._image[r.address] for r in self.map
-                                   if r.type is RegType.BITFIELD}
-                        new = self.map.decode_plc_bit_write(address, list(values), current)
-                    else:
-                        new = self.map.decode_plc_write(address, [int(v) for v in values])
-                except PlcWriteRejected as exc:
-                    self._rejected += 1
-                    rejected = exc
+            try:
+                if func_code in _BIT_FCS:
+                    current = {r.name: self._image[r.address] for r in self.map
+                               if r.type is RegType.BITFIELD}
+                    new = self.map.decode_plc_bit_write(address, list(values), current)
                 else:
-                    lacking = self._missing_right(peer, new)
-                    not_owner = None if lacking is not None else self._refuse_writer(peer, new)
-                    if lacking is None and not_owner is None:
-                        self._apply_plc_write(new, events, peer)
-                    else:
-                        self._rejected += 1
-                        self._note_refusal(peer, f"role lacks right {lacking}" if lacking is not None
-                                           else "not the link owner")
-            # pymodbus answers from ``registers``: give it the whole current image
-            registers[:len(self._image)] = self._image
+                    new = self.map.decode_plc_write(address, [int(v) for v in values])
+            except PlcWriteRejected as exc:
+                self._rejected += 1
+                rejected = exc
+            else:
+                lacking = self._missing_right(peer, new)
+                not_owner = None if lacking is not None else self._refuse_writer(peer, new)
+                if lacking is None and not_owner is None:
+                    self._apply_plc_write(new, events, peer)
+                else:
+                    self._rejected += 1
+                    self._note_refusal(peer, f"role lacks right {lacking}" if lacking is not None
+                                       else "not the link owner")
         if lacking is not None:
             self.guard.warn.warning("plc_write_refused_role", client=str(peer), role=peer.role,
                                     missing=lacking, fc=func_code, address=address,
                                     registers=sorted(new))
-            return ExcCodes(1)
+            return 1
         if not_owner is not None:
             self.guard.warn.warning("plc_write_not_owner", client=str(peer), owner=not_owner,
                                     fc=func_code, address=address)
-            return ExcCodes(1)
+            return 1
         if rejected is not None:
             self.guard.warn.warning("plc_write_rejected", fc=func_code, address=address,
                                     code=rejected.modbus_code, reason=str(rejected),
                                     client=str(peer or ""))
-            return ExcCodes(rejected.modbus_code)
+            return rejected.modbus_code
         if events:
             with self._events_cv:
                 room = self._events.maxlen - len(self._events)  # type: ignore[operator]

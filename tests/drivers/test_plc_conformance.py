@@ -238,3 +238,60 @@ def test_check_request_and_exception_adu():
 
 def test_conformant_server_is_a_pymodbus_tcp_server():
     assert issubclass(ConformantTcpServer, ModbusTcpServer)
+
+
+# ---------------------------------------------------------------- the image answerer = pymodbus
+def _register_requests() -> list[bytes]:
+    """Register requests a PLC or a fuzzer sends: reads across and beyond the map, writes
+    accepted and refused (read-only, reserved, half a u32, out of range, beyond the map)."""
+    size, rng = PLC_MAP.size, random.Random(5)
+    pdus = [struct.pack(">BHH", 3, a, n) for a, n in ((0, size), (0, 1), (size - 1, 1), (size, 1),
+                                                      (size - 2, 4), (1000, 1), (65535, 1), (3, 125))]
+    for name, value in (("recipe_select", 3), ("recipe_select", 1000), ("part_id", 77), ("plc_heartbeat", 9)):
+        reg = PLC_MAP[name]
+        words = [(value >> 16) & 0xFFFF, value & 0xFFFF] if reg.words == 2 else [value]
+        pdus.append(struct.pack(f">BHHB{len(words)}H", 16, reg.address, len(words), 2 * len(words), *words))
+        pdus.append(struct.pack(">BHH", 6, reg.address, words[-1]))
+        pdus.append(struct.pack(f">BHHHHB{len(words)}H", 23, 0, size, reg.address, len(words),
+                                2 * len(words), *words))
+    for address in (0, 5, 10, 21, 24, 25, size, 200):
+        pdus.append(struct.pack(">BHH", 6, address, 1))
+        pdus.append(struct.pack(">BHHHHB1H", 23, size - 1, 2, address, 1, 2, 1))
+    for _ in range(40):
+        a, n = rng.randrange(0, size + 4), rng.randint(1, 4)
+        pdus.append(struct.pack(f">BHHB{n}H", 16, a, n, 2 * n, *(rng.randrange(0, 4) for _ in range(n))))
+        pdus.append(struct.pack(">BHH", 3, rng.randrange(0, size + 4), rng.randint(1, 8)))
+    return pdus
+
+
+def test_image_answers_match_pymodbus_datastore_answers():
+    """The same requests, in the same order, to two links on the same map: one answers the
+    register functions from its image, the other through pymodbus's decoder and datastore
+    (its ``action`` hook on the same write decision). Every answer, the end image and the
+    write events are the same."""
+    from drivers.plc.server import PlcLink
+
+    direct = PlcLink(PLC_MAP)
+    via_pymodbus = PlcLink(PLC_MAP)
+    via_pymodbus._server = ServerThread(
+        lambda addr: ConformantTcpServer(build_datastore(PLC_MAP, via_pymodbus._action), address=addr,
+                                         guard=via_pymodbus.guard), name="plc-via-pymodbus")
+    ports = [direct.start(), via_pymodbus.start()]
+    try:
+        socks = [socket.create_connection(("127.0.0.1", p), timeout=5) for p in ports]
+        try:
+            for tid, pdu in enumerate(_register_requests(), start=1):
+                answers = []
+                for s in socks:
+                    s.sendall(mbap(tid, pdu))
+                    answers.append(recv_adu(s))
+                assert answers[0] == answers[1], (pdu.hex(), answers[0].hex(), answers[1].hex())
+        finally:
+            for s in socks:
+                s.close()
+        assert direct.snapshot() == via_pymodbus.snapshot()
+        writes = [[(w.name, w.value, w.previous) for w in link.drain_writes()] for link in (direct, via_pymodbus)]
+        assert writes[0] == writes[1] != []
+    finally:
+        direct.stop()
+        via_pymodbus.stop()
