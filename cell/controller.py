@@ -53,6 +53,35 @@ REFUSAL_AUDIT_S = 10.0
 __all__ = ["CellController", "ControllerSettings"]
 
 
+class OutputWriter:
+    """Publishes a scan's outputs to the PLC link so that a PLC read between the writes
+    never sees a raised flag beside values that are not yet its own (the register map:
+    results are valid before ``done`` is set): the ``status_word`` bits that go down first,
+    then the registers, then the bits that go up; each of the three is atomic on the link.
+
+    Only what changed since the last write goes to the link: the controller alone writes
+    its outputs, and each write is validated against the map and takes the link's lock."""
+
+    def __init__(self, plc):
+        self.plc = plc
+        self._status: dict[str, bool] = {}
+        self._registers: dict[str, int] = {}
+
+    def write(self, status: dict[str, bool], registers: dict[str, int]) -> None:
+        old_status, old = self._status, self._registers
+        down = {k: v for k, v in status.items() if not v and old_status.get(k) is not False}
+        up = {k: v for k, v in status.items() if v and old_status.get(k) is not True}
+        changed = {k: v for k, v in registers.items() if old.get(k) != v}
+        if down:
+            self.plc.set_bits("status_word", **down)
+        if changed:
+            self.plc.write_many(changed)
+        if up:
+            self.plc.set_bits("status_word", **up)
+        self._status = {**old_status, **down, **up}
+        self._registers = {**old, **changed}
+
+
 class CellController:
     """Owns the core and the scan task; devices are injected."""
 
@@ -86,6 +115,7 @@ class CellController:
         self._resets: deque[tuple[str, Job]] = deque()      # in the order asked
         self._owner: str | None = None                      # the PLC client that owns the link
         self._next_refusal_audit = 0.0
+        self._outputs = OutputWriter(plc)
 
     # ------------------------------------------------------------------ views (jobs, tests)
     @property
@@ -232,17 +262,7 @@ class CellController:
         return StationFaultIn(station_fault(rec.code), str(rec), requested)
 
     def _write(self, status: dict, registers: dict) -> None:
-        """Publish a scan's outputs so that a PLC read between the writes never sees a raised
-        flag beside values that are not yet its own (the register map: results are valid
-        before ``done`` is set): the status bits that go down first, then the registers,
-        then the bits that go up. Each of the three is atomic on the link."""
-        down = {k: v for k, v in status.items() if not v}
-        up = {k: v for k, v in status.items() if v}
-        if down:
-            self.plc.set_bits("status_word", **down)
-        self.plc.write_many(registers)
-        if up:
-            self.plc.set_bits("status_word", **up)
+        self._outputs.write(status, registers)
 
     # ------------------------------------------------------------------ actions
     def _apply(self, actions: list) -> None:

@@ -5,7 +5,7 @@ Probe: ``done`` was set first and the results written after, each under its own 
 the link's lock, so a PLC read in between saw ``done`` with the previous part's results
 (the register map promises the results are valid before ``done`` is set)."""
 from cell.clock import ManualClock
-from cell.controller import CellController
+from cell.controller import OutputWriter
 from drivers.plc.server import PlcLink
 
 
@@ -26,16 +26,11 @@ class Watched(PlcLink):
         return out
 
 
-def publish(link, status, registers):
-    controller = object.__new__(CellController)        # only _write and its link are used
-    controller.plc = link
-    controller._write(status, registers)
-
-
 def test_done_rises_only_after_the_results_are_in():
     link = Watched()
-    publish(link, {"busy": True, "done": False}, {"part_id_echo": 6, "final_error_um": 0, "moves": 0})
-    publish(link, {"busy": False, "done": True}, {"part_id_echo": 7, "final_error_um": 31, "moves": 2})
+    publish = OutputWriter(link).write
+    publish( {"busy": True, "done": False}, {"part_id_echo": 6, "final_error_um": 0, "moves": 0})
+    publish({"busy": False, "done": True}, {"part_id_echo": 7, "final_error_um": 31, "moves": 2})
     for image in link.seen:
         bits = link.map.bits("status_word", image["status_word"])
         if bits["done"]:
@@ -45,9 +40,24 @@ def test_done_rises_only_after_the_results_are_in():
 
 def test_done_falls_before_the_next_parts_values_replace_the_results():
     link = Watched()
-    publish(link, {"busy": False, "done": True}, {"part_id_echo": 7, "final_error_um": 31, "moves": 2})
+    publish = OutputWriter(link).write
+    publish({"busy": False, "done": True}, {"part_id_echo": 7, "final_error_um": 31, "moves": 2})
     link.seen.clear()
-    publish(link, {"busy": True, "done": False}, {"part_id_echo": 8, "final_error_um": 0, "moves": 0})
+    publish({"busy": True, "done": False}, {"part_id_echo": 8, "final_error_um": 0, "moves": 0})
     for image in link.seen:
         if link.map.bits("status_word", image["status_word"])["done"]:
             assert image["part_id_echo"] == 7
+
+
+def test_only_what_changed_is_written_and_the_order_holds():
+    link = Watched()
+    writer = OutputWriter(link)
+    writer.write({"busy": True, "done": False}, {"part_id_echo": 6, "moves": 0})
+    n = len(link.seen)
+    writer.write({"busy": True, "done": False}, {"part_id_echo": 6, "moves": 0})
+    assert len(link.seen) == n                          # nothing changed: the link is not touched
+    writer.write({"busy": False, "done": True}, {"part_id_echo": 6, "moves": 2})
+    assert len(link.seen) == n + 3                      # busy down, moves, done up
+    assert link.snapshot()["moves"] == 2
+    bits = link.map.bits("status_word", link.seen[n]["status_word"])
+    assert not bits["busy"] and not bits["done"]         # the falling bit went first

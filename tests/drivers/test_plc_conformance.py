@@ -272,11 +272,11 @@ def test_image_answers_match_pymodbus_datastore_answers():
     from drivers.plc.server import PlcLink
 
     direct = PlcLink(PLC_MAP)
-    via_pymodbus = PlcLink(PLC_MAP)
-    via_pymodbus._server = ServerThread(
+    via_pymodbus = PlcLink(PLC_MAP)          # not started: its image is served by the server below
+    pymodbus_server = ServerThread(
         lambda addr: ConformantTcpServer(build_datastore(PLC_MAP, via_pymodbus._action), address=addr,
                                          guard=via_pymodbus.guard), name="plc-via-pymodbus")
-    ports = [direct.start(), via_pymodbus.start()]
+    ports = [direct.start(), pymodbus_server.start()]
     try:
         socks = [socket.create_connection(("127.0.0.1", p), timeout=5) for p in ports]
         try:
@@ -294,4 +294,4 @@ def test_image_answers_match_pymodbus_datastore_answers():
         assert writes[0] == writes[1] != []
     finally:
         direct.stop()
-        via_pymodbus.stop()
+        pymodbus_server.stop()
