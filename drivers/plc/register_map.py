@@ -309,6 +309,8 @@ class RegisterMap:
                                       f"{reg.address + i}")
                 self._by_addr[reg.address + i] = (reg, i)
             self._by_name[reg.name] = reg
+        # (name, address, words) of every register, for decoding a whole image at once
+        self._layout = tuple((r.name, r.address, r.words) for r in self._by_name.values())
 
     # -- look-ups
     def __iter__(self) -> Iterator[Register]:
@@ -371,7 +373,8 @@ class RegisterMap:
         """All named values from a full image of ``size`` words (e.g. one FC3 read of the map)."""
         if len(image) < self.size:
             raise PlcMapError(f"register map: image has {len(image)} words, map needs {self.size}")
-        return {r.name: self.from_words(r.name, image[r.address:r.address + r.words]) for r in self}
+        return {name: (image[a] << 16) | image[a + 1] if words == 2 else image[a]
+                for name, a, words in self._layout}
 
     def bits(self, name: str, value: int) -> dict[str, bool]:
         """Named bits of bit-field register ``name`` in ``value``."""

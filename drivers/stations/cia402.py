@@ -127,6 +127,11 @@ SW_FOLLOWING_ERROR = 1 << 13
 CW_FAULT_RESET_BIT = 1 << 7
 
 
+#: (mask, value, state) in the order :func:`decode_statusword` tries them (an enum member's
+#: ``value`` is a property: looked up once here, not for every TPDO)
+_STATE_BITS = tuple((s.value[0], s.value[1], s) for s in State)
+
+
 def decode_statusword(statusword: int) -> State:
     """The drive state encoded in a statusword (0x6041).
 
@@ -135,8 +140,7 @@ def decode_statusword(statusword: int) -> State:
     """
     if isinstance(statusword, bool) or not isinstance(statusword, int) or not 0 <= statusword <= 0xFFFF:
         raise IllegalTransition(f"statusword {statusword!r} is not a 16-bit unsigned integer")
-    for state in State:
-        mask, value = state.value
+    for mask, value, state in _STATE_BITS:
         if statusword & mask == value:
             return state
     raise IllegalTransition(f"statusword 0x{statusword:04X} encodes no CiA 402 state")
