@@ -77,7 +77,7 @@ class VirtualWire:
         sender._pending -= 1
         msg.is_rx = True
         for bus in list(self.buses):
-            if bus is not sender:
+            if bus is not sender and (bus.wants is None or bus.wants(msg.arbitration_id)):
                 bus._receive(msg)
 
 
@@ -170,6 +170,11 @@ class VirtualCanBus(VirtualBus):
         self._wire = wire
         self.clock = clock
         self._listeners: list | None = None
+        #: ``wants(arbitration_id) -> bool``: frames this bus's owner ignores are not handed
+        #: to it at all (None: every frame). A simulated station sets its network's
+        #: subscriptions, so the four drives do not each run canopen's receive path for
+        #: every other drive's frames
+        self.wants: Callable[[int], bool] | None = None
         self._rx = clock.event()
         self._pending = 0
         self._tx_queue = tx_queue
@@ -258,7 +263,7 @@ class VirtualCanBus(VirtualBus):
         clock's time waits for them, others leave them to the clock). Idempotent."""
         if self._closed:
             return
-        if self._pending and threading.current_thread() in self.clock._actors:
+        if self._pending and self.clock.keeps_time():
             self.clock.sleep_until(self._wire.free_at)
         self._closed = True
         super().shutdown()

@@ -7,8 +7,13 @@ Rules (what makes a run independent of host load):
   from :meth:`VirtualClock.spawn`, or a thread inside :meth:`VirtualClock.attach`) run
   one at a time, handing over a baton whenever they wait on the clock (``sleep``, an
   :meth:`event`, a :meth:`queue`). Timed callbacks (:meth:`call_at`: CAN frames ending
-  their slot on the wire, a drive's timers) run in the clock's own thread, also holding
-  the baton.
+  their slot on the wire, a drive's timers) also run holding the baton. In pure mode the
+  participant that lets go of the baton runs the agenda itself, callbacks included, up to
+  the next wake-up: its own costs no thread switch, another participant's one (through
+  the clock's own thread it took two, and the switches cost more than the callbacks). In
+  paced mode, and whenever no participant holds the baton, the clock's own thread runs it.
+  Either way the agenda's order alone decides what happens, never which thread runs it;
+  a callback may not wait on the clock, in whichever thread it runs.
 * **Time moves only when everybody waits.** The next thing to happen is the earliest
   entry of one agenda (callbacks and wake-ups), ties broken by the order in which they
   were scheduled. Work in flight — a frame on the virtual wire, a Modbus request a
@@ -32,6 +37,7 @@ stuck for good: every waiter gets a ``ClockError`` naming them.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import heapq
 import itertools
 import math
@@ -112,6 +118,8 @@ class VirtualClock:
         self._last_wall = wall()
         self._closed = False
         self._thread: threading.Thread | None = None
+        self._waiting = False                 # the clock's thread waits on _cv
+        self._context = contextvars.Context()  # callbacks run in it, in whichever thread
         self.callbacks_run = 0
         self.handoffs = 0
 
@@ -147,7 +155,7 @@ class VirtualClock:
         # caller holds _mu
         heapq.heappush(self._agenda, (t, next(self._seq), entry))
         self._ensure_thread()
-        self._cv.notify_all()
+        self._signal()
 
     # ------------------------------------------------------------------ participants
     def _me(self, what: str) -> _Actor:
@@ -156,16 +164,30 @@ class VirtualClock:
             raise ClockError(f"VirtualClock: {what} from thread {threading.current_thread().name!r}, "
                              "which does not keep this clock's time; start it with clock.spawn() "
                              "or wrap the code in 'with clock.attach():'")
+        if self._holder is _SCHEDULER:
+            raise ClockError(f"VirtualClock: {what} inside a clock callback (a callback never waits)")
         return a
 
+    def keeps_time(self) -> bool:
+        """The calling thread is a participant that may wait on the clock now (not a
+        callback, which may run in a participant's thread)."""
+        return threading.current_thread() in self._actors and self._holder is not _SCHEDULER
+
     def _park(self, a: _Actor, deadline: float | None) -> str:
-        """Caller holds _mu and the baton: let go, wait to be resumed; returns why."""
+        """Caller holds _mu and the baton: let go, wait to be resumed; returns why.
+
+        In pure mode the parking thread runs the agenda itself (:meth:`_dispatch`) until
+        the baton's next holder is known: its own wake-up costs no thread switch at all,
+        another participant's one switch, where the clock's thread took two."""
         a.token += 1
         if deadline is not None:
             self._push(max(deadline, self._now), _Resume(a, a.token, "timeout"))
         a.go.clear()
-        self._holder = None
-        self._cv.notify_all()
+        if self.pace:
+            self._holder = None
+            self._signal()
+        elif self._dispatch(a):
+            return a.woke_by
         self._mu.release()
         try:
             a.go.wait()
@@ -206,7 +228,7 @@ class VirtualClock:
                 del self._actors[me]
                 if self._holder is a:
                     self._holder = None
-                self._cv.notify_all()
+                self._signal()
 
     def spawn(self, target: Callable[..., Any], name: str, *args: Any) -> "VirtualTask":
         """Start ``target(*args)`` in a participant thread; it first runs once the caller
@@ -229,7 +251,7 @@ class VirtualClock:
                     del self._actors[th]
                     if self._holder is a:
                         self._holder = None
-                    self._cv.notify_all()
+                    self._signal()
 
         th = threading.Thread(target=body, name=name, daemon=True)
         with self._mu:
@@ -268,7 +290,7 @@ class VirtualClock:
         """Stop the clock's thread (pending entries are dropped). Idempotent."""
         with self._mu:
             self._closed = True
-            self._cv.notify_all()
+            self._signal()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
@@ -276,16 +298,16 @@ class VirtualClock:
         with self._mu:
             while not self._closed:
                 if self._holder is not None:
-                    if not self._cv.wait(self._stall_warn_s) and self._holder is not None:
+                    if not self._wait(self._stall_warn_s) and self._holder is not None:
                         self._warn_stall()
                     continue
                 if not self._agenda:
                     if self._actors and not self.pace:
                         self._stuck()
-                    self._cv.wait()
+                    self._wait()
                     continue
                 if not self._actors and not self.pace:
-                    self._cv.wait()                      # nobody to wait for: time stands still
+                    self._wait()                         # nobody to wait for: time stands still
                     continue
                 t, _, entry = self._agenda[0]
                 if self._stale(entry):
@@ -295,23 +317,70 @@ class VirtualClock:
                     continue
                 heapq.heappop(self._agenda)
                 self._now = max(self._now, t)
-                if isinstance(entry, _Resume):
-                    entry.actor.woke_by = entry.why
-                    entry.actor.token += 1               # later wake-ups of this wait are stale
-                    self._holder = entry.actor
-                    self.handoffs += 1
-                    entry.actor.go.set()
-                    continue
-                self._holder = _SCHEDULER
-                self._mu.release()
-                try:
-                    entry.fn(*entry.args)
-                except Exception:                        # noqa: BLE001 -- keep the world turning
-                    log.exception("sim_callback_failed", callback=getattr(entry.fn, "__qualname__", repr(entry.fn)))
-                finally:
-                    self._mu.acquire()
-                    self.callbacks_run += 1
+                self._run_entry(entry)
+                if self._holder is _SCHEDULER:
                     self._holder = None
+
+    def _dispatch(self, me: _Actor) -> bool:
+        """Pure mode, lock held, called by participant ``me`` as it parks: run due agenda
+        entries in this thread, in the agenda's order (callbacks with the lock released and
+        the baton marked as the scheduler's, so the clock's thread keeps out), until one
+        hands the baton on. True if it came back to ``me`` (no wait needed)."""
+        self._holder = _SCHEDULER
+        while not self._closed:
+            if not self._agenda:
+                self._stuck()                            # every participant waits: nothing can come
+                return False
+            t, _, entry = heapq.heappop(self._agenda)
+            if self._stale(entry):
+                continue
+            self._now = max(self._now, t)
+            if isinstance(entry, _Resume) and entry.actor is me:
+                me.woke_by = entry.why
+                me.token += 1
+                self._holder = me
+                return True
+            self._run_entry(entry)
+            if self._holder is not _SCHEDULER:          # handed on
+                return False
+        self._holder = None
+        return False
+
+    def _run_entry(self, entry: Any) -> None:
+        """One due agenda entry (lock held): a wake-up hands the baton to its participant;
+        a callback runs with the lock released, in the clock's own context (the callback's
+        log lines never carry a participant's bound context, whichever thread runs it)."""
+        if isinstance(entry, _Resume):
+            entry.actor.woke_by = entry.why
+            entry.actor.token += 1               # later wake-ups of this wait are stale
+            self._holder = entry.actor
+            self.handoffs += 1
+            entry.actor.go.set()
+            return
+        self._holder = _SCHEDULER
+        self._mu.release()
+        try:
+            self._context.run(entry.fn, *entry.args)
+        except Exception:                        # noqa: BLE001 -- keep the world turning
+            log.exception("sim_callback_failed", callback=getattr(entry.fn, "__qualname__", repr(entry.fn)))
+        finally:
+            self._mu.acquire()
+            self.callbacks_run += 1
+
+    def _wait(self, timeout: float | None = None) -> bool:
+        """The clock's thread waits for a change (lock held); :meth:`_signal` ends the wait."""
+        self._waiting = True
+        try:
+            return self._cv.wait(timeout)
+        finally:
+            self._waiting = False
+
+    def _signal(self) -> None:
+        """Something changed (lock held): wake the clock's thread if it waits. Only it waits
+        on ``_cv``; a change made while it runs (a callback scheduling another) needs no
+        signal, and ``Condition.notify_all`` costs as much as the change itself."""
+        if self._waiting:
+            self._cv.notify()
 
     @staticmethod
     def _stale(entry: Any) -> bool:
@@ -328,7 +397,7 @@ class VirtualClock:
         self._last_wall = wall
         due = self._origin + t
         if due > wall:
-            self._cv.wait(due - wall)
+            self._wait(due - wall)
             return False
         # a little late: catch up; stalled: stretch, never jump by more than max_lag_s
         self._origin = max(self._origin, wall - t - self.max_lag_s)
@@ -366,7 +435,7 @@ class VirtualTask:
 
     def join(self, timeout: float | None = None) -> bool:
         """A participant waits in clock time; any other thread waits in wall time."""
-        if threading.current_thread() in self._clock._actors:
+        if self._clock.keeps_time():
             return self._done.wait(timeout)
         if self._thread is not None:
             self._thread.join(timeout)

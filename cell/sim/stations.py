@@ -178,6 +178,9 @@ class SimStation:
         connect_network(net)
         net.subscribe(0, self._on_nmt)
         net.subscribe(0x80, self._on_sync)
+        # only what this drive subscribes to (canopen's own notify skips the rest as well,
+        # after noting the sender for a node scan this drive never makes)
+        net.bus.wants = net.subscribers.__contains__
         self.network = net
         self.machine.apply(Internal.SELF_TEST_DONE)
         self.node.nmt.send_command(0x81)   # reset node → INITIALISING, boot-up frame
