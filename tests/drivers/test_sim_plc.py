@@ -395,3 +395,25 @@ def test_bad_arguments_are_refused_and_name_the_value(scan_s, shown):
     sim = SimPlc("127.0.0.1", 1)
     with pytest.raises(PlcMapError, match="no bit named 'go'"):
         sim.set_command(go=True)
+
+
+def test_fast_register_responses_decode_as_pymodbus_does():
+    import random
+    import struct as st
+
+    from pymodbus.exceptions import ModbusIOException
+    from pymodbus.pdu.register_message import ReadHoldingRegistersResponse, ReadWriteMultipleRegistersResponse
+
+    from cell.sim.plc import _ReadWriteRegistersResponse, _RegistersResponse
+    rng = random.Random(3)
+    for n in (1, 2, 70, 125):
+        words = [rng.randrange(0, 65536) for _ in range(n)]
+        data = st.pack(f">B{n}H", 2 * n, *words)
+        for ours, theirs in ((_RegistersResponse, ReadHoldingRegistersResponse),
+                             (_ReadWriteRegistersResponse, ReadWriteMultipleRegistersResponse)):
+            a, b = ours(), theirs()
+            a.decode(data)
+            b.decode(data)
+            assert a.registers == b.registers == words and a.function_code == b.function_code
+    with pytest.raises(ModbusIOException):
+        _RegistersResponse().decode(bytes([8, 0, 1]))          # byte count beyond the packet
