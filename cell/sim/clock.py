@@ -118,7 +118,7 @@ class VirtualClock:
         self._last_wall = wall()
         self._closed = False
         self._thread: threading.Thread | None = None
-        self._waiting = False                 # the clock's thread waits on _cv
+        self._waiting = ""                    # what the clock's thread waits for on _cv, if it waits
         self._context = contextvars.Context()  # callbacks run in it, in whichever thread
         self.callbacks_run = 0
         self.handoffs = 0
@@ -155,7 +155,8 @@ class VirtualClock:
         # caller holds _mu
         heapq.heappush(self._agenda, (t, next(self._seq), entry))
         self._ensure_thread()
-        self._signal()
+        if self._waiting and self._waiting != "holder":  # it waits for the agenda, not the baton
+            self._cv.notify()
 
     # ------------------------------------------------------------------ participants
     def _me(self, what: str) -> _Actor:
@@ -298,16 +299,16 @@ class VirtualClock:
         with self._mu:
             while not self._closed:
                 if self._holder is not None:
-                    if not self._wait(self._stall_warn_s) and self._holder is not None:
+                    if not self._wait(self._stall_warn_s, "holder") and self._holder is not None:
                         self._warn_stall()
                     continue
                 if not self._agenda:
                     if self._actors and not self.pace:
                         self._stuck()
-                    self._wait()
+                    self._wait(None, "agenda")
                     continue
                 if not self._actors and not self.pace:
-                    self._wait()                         # nobody to wait for: time stands still
+                    self._wait(None, "actors")           # nobody to wait for: time stands still
                     continue
                 t, _, entry = self._agenda[0]
                 if self._stale(entry):
@@ -367,18 +368,20 @@ class VirtualClock:
             self._mu.acquire()
             self.callbacks_run += 1
 
-    def _wait(self, timeout: float | None = None) -> bool:
-        """The clock's thread waits for a change (lock held); :meth:`_signal` ends the wait."""
-        self._waiting = True
+    def _wait(self, timeout: float | None, what: str) -> bool:
+        """The clock's thread waits (lock held) for ``what``: ``"holder"`` (the baton to be
+        let go), ``"agenda"`` (an entry, or an earlier one) or ``"actors"`` (a participant)."""
+        self._waiting = what
         try:
             return self._cv.wait(timeout)
         finally:
-            self._waiting = False
+            self._waiting = ""
 
     def _signal(self) -> None:
-        """Something changed (lock held): wake the clock's thread if it waits. Only it waits
-        on ``_cv``; a change made while it runs (a callback scheduling another) needs no
-        signal, and ``Condition.notify_all`` costs as much as the change itself."""
+        """The baton was let go or the clock closes (lock held): wake the clock's thread if it
+        waits. Only it waits on ``_cv``. A new agenda entry wakes it only if it waits for one
+        (:meth:`_push`): while a participant holds the baton, each wake-up would be for
+        nothing, and the participants schedule thousands of entries per simulated second."""
         if self._waiting:
             self._cv.notify()
 
@@ -397,7 +400,7 @@ class VirtualClock:
         self._last_wall = wall
         due = self._origin + t
         if due > wall:
-            self._wait(due - wall)
+            self._wait(due - wall, "agenda")
             return False
         # a little late: catch up; stalled: stretch, never jump by more than max_lag_s
         self._origin = max(self._origin, wall - t - self.max_lag_s)
