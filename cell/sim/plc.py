@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import struct
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException, ModbusIOException
@@ -65,11 +65,36 @@ class _RegistersResponse(ReadHoldingRegistersResponse):
                                     function_code=self.function_code)
         self.registers = list(struct.unpack_from(f">{n // 2}H", data, 1))
 
+    def __str__(self) -> str:
+        # pymodbus formats every decoded response for a debug line, logged or not; its text
+        # lists every field of the PDU and cost as much as the decode
+        return f"{type(self).__name__}({len(self.registers)} registers)"
+
 
 class _ReadWriteRegistersResponse(_RegistersResponse):
     """The same for FC23's response (read/write multiple registers)."""
 
     function_code = 23
+
+
+class _InputImage(Mapping[str, int]):
+    """One scan's input image, a register decoded only when it is read: a scan reads all
+    of the map, a waiting handshake step looks at two or three registers of it."""
+
+    __slots__ = ("_words", "_layout")
+
+    def __init__(self, words: list[int], layout: dict[str, tuple[int, int]]):
+        self._words, self._layout = words, layout
+
+    def __getitem__(self, name: str) -> int:
+        a, n = self._layout[name]
+        return (self._words[a] << 16) | self._words[a + 1] if n == 2 else self._words[a]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._layout)
+
+    def __len__(self) -> int:
+        return len(self._layout)
 
 
 class SimPlcError(CellError):
@@ -98,7 +123,8 @@ class SimPlc:
             self._client.register(response)
         self._cv = threading.RLock()             # guards the images (short holds only)
         self._waiters: list = []                 # (ready, event): set by the scan that makes ready() true
-        self._inputs: dict[str, int] = {}
+        self._layout = {r.name: (r.address, r.words) for r in register_map}
+        self._inputs: Mapping[str, int] = {}
         self._outputs = {n: 0 for n in OUTPUTS}    # wanted values (replaced at start)
         self._written = dict(self._outputs)        # values last sent (or refused)
         self._heartbeat = 0
@@ -379,7 +405,7 @@ class SimPlc:
                 self._waiters.remove(entry)
                 entry[1].set()
 
-    def _exchange(self, heartbeat: int | None) -> dict[str, int] | None:
+    def _exchange(self, heartbeat: int | None) -> Mapping[str, int] | None:
         """Read the whole map; with ``heartbeat``, write it first in the same FC23."""
         try:
             if heartbeat is None:
@@ -394,7 +420,10 @@ class SimPlc:
         if rr.isError():
             self._link_error("read", rr)
             return None
-        return self.map.decode_image(rr.registers)
+        if len(rr.registers) < self.map.size:
+            self._link_error("read", f"{len(rr.registers)} registers, the map has {self.map.size}")
+            return None
+        return _InputImage(rr.registers, self._layout)
 
     def _write(self, name: str, value: int) -> int:
         """Write one register; 0 if accepted, the Modbus exception code if refused, -1 on I/O error."""
