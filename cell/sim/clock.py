@@ -58,10 +58,38 @@ log = get_logger("sim.clock")
 _SCHEDULER = object()     # the baton holder while a callback runs
 
 
+class _Gate:
+    """A participant's go signal: ``threading.Event``'s meaning on one bare lock (an Event
+    is a Condition written in Python, whose notify and wait every hand-off paid). ``set``
+    and ``clear`` are called with the clock's lock held; only the participant itself waits
+    on (and clears) its gate."""
+
+    __slots__ = ("_lock", "_open")
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._lock.acquire()
+        self._open = False
+
+    def set(self) -> None:
+        if not self._open:
+            self._open = True
+            self._lock.release()
+
+    def clear(self) -> None:
+        if self._open:
+            self._open = False
+            self._lock.acquire()
+
+    def wait(self) -> None:
+        self._lock.acquire()
+        self._lock.release()
+
+
 @dataclass(eq=False)
 class _Actor:
     name: str
-    go: threading.Event = field(default_factory=threading.Event)
+    go: _Gate = field(default_factory=_Gate)
     token: int = 0            # id of the current wait; stale wake-ups carry an older one
     woke_by: str = ""         # "event", "timeout", "start" or "stuck"
 
