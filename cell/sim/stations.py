@@ -96,6 +96,21 @@ class _DriveNetwork(canopen.Network):
             raise
 
 
+def _byte_layout(pdo_map) -> list[tuple[int, int, int, object]] | None:
+    """(index, byte offset, bytes, OD variable) of each variable a PDO maps, or None if one
+    does not sit on whole bytes (then canopen's own per-variable path is taken). The same
+    bytes as canopen's ``set_data`` / ``get_data`` for whole-byte variables, without their
+    per-call formatting for a debug line: a drive sends or takes a PDO every few ms."""
+    out = []
+    for v in pdo_map.map:
+        if not v.length:
+            continue
+        if v.offset % 8 or v.length % 8 or len(v.od) != v.length:
+            return None
+        out.append((v.index, v.offset // 8, v.length // 8, v.od))
+    return out
+
+
 class SimStation:
     """One simulated station. :meth:`start` plugs it into the bus; :meth:`stop` unplugs it.
 
@@ -156,6 +171,7 @@ class SimStation:
         self._hb_last: float | None = None
         self._hb_timed_out = False
         self._dirty_tpdo = True
+        self._layouts: dict[int, list | None] = {}     # id(PDO map) -> _byte_layout, at NMT start
         self._last_tpdo = -1e9
         self._last_pub: float | None = None
         self._t = self.clock.now()
@@ -311,6 +327,8 @@ class SimStation:
         if data[0] == 0x01:  # start: (re)read the PDO configuration the master wrote
             self.node.rpdo.read()
             self.node.tpdo.read()
+            maps = [self.node.rpdo[n] for n in (1, 2, 3)] + [self.node.tpdo[1]]
+            self._layouts = {id(m): _byte_layout(m) for m in maps}
             with self._lock:
                 self._dirty_tpdo = True
         with self._lock:
@@ -342,7 +360,12 @@ class SimStation:
         if len(pdo_map.data) * 8 < pdo_map.length:
             self._emcy(EMCY_PDO_LENGTH, f"{pdo_map.name}: {len(pdo_map.data)} bytes, mapped {pdo_map.length} bits")
             return
-        vals = {v.index: v.od.decode_raw(v.get_data()) for v in pdo_map.map if v.length}
+        layout = self._layouts.get(id(pdo_map))
+        if layout is None:
+            vals = {v.index: v.od.decode_raw(v.get_data()) for v in pdo_map.map if v.length}
+        else:
+            data = pdo_map.data
+            vals = {index: od.decode_raw(data[at:at + n]) for index, at, n, od in layout}
         now = self.clock.now()
         with self._lock:
             if 0x6040 in vals:
@@ -512,9 +535,14 @@ class SimStation:
             return
         live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
                 0x606C: int(round(self._velocity()))}
-        for var in tx.map:
-            if var.length:
-                var.set_data(var.od.encode_raw(live.get(var.index, 0)))
+        layout = self._layouts.get(id(tx))
+        if layout is None:
+            for var in tx.map:
+                if var.length:
+                    var.set_data(var.od.encode_raw(live.get(var.index, 0)))
+        else:
+            for index, at, n, od in layout:
+                tx.data[at:at + n] = od.encode_raw(live.get(index, 0))
         try:
             tx.transmit()
         except can.CanError as exc:
