@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import re
 from typing import Any
 
 import can
@@ -41,7 +40,6 @@ def _crc15_table() -> list[int]:
 
 
 _CRC15_TABLE = _crc15_table()
-_LONG_RUNS = re.compile(r"0{4,}|1{4,}")     # shorter runs never hold a stuff bit
 
 
 def _crc15(value: int, nbits: int) -> int:
@@ -58,15 +56,51 @@ def _crc15(value: int, nbits: int) -> int:
     return crc
 
 
-def _stuff_bits(bits: str) -> int:
-    """Stuff bits CAN inserts in ``bits`` ('0'/'1'): one after every 5 equal bits; a stuff
-    bit counts towards the run that follows it when that run has its value."""
-    stuffed, carry_to = 0, -1
-    for run in _LONG_RUNS.finditer(bits):
-        start, end = run.span()
-        n = end - start + (start == carry_to)
-        stuffed += n // 5
-        carry_to = end if n % 5 == 0 else -1
+def _stuff_step(state: int, bit: int) -> tuple[int, int]:
+    """One bit through CAN's stuffing: (next state, stuff bits inserted). A state is 0
+    (no bit yet) or 1 + 4·value + (run length − 1) for a run of 1..4 equal bits; the fifth
+    equal bit is followed by a complementary stuff bit, which starts a run of one."""
+    if state and (state - 1) // 4 == bit:
+        run = (state - 1) % 4 + 2
+        if run == 5:
+            return 1 + 4 * (1 - bit), 1
+        return 1 + 4 * bit + run - 1, 0
+    return 1 + 4 * bit, 0
+
+
+def _stuff_tables() -> tuple[list[list[tuple[int, int]]], list[list[tuple[int, int]]]]:
+    """Per state: the (next state, stuff bits) of one bit, and of each byte (MSB first)."""
+    bit_table = [[_stuff_step(st, b) for b in (0, 1)] for st in range(9)]
+    byte_table = []
+    for st0 in range(9):
+        row = []
+        for byte in range(256):
+            st, n = st0, 0
+            for k in range(7, -1, -1):
+                st, d = bit_table[st][(byte >> k) & 1]
+                n += d
+            row.append((st, n))
+        byte_table.append(row)
+    return bit_table, byte_table
+
+
+_STUFF_BIT, _STUFF_BYTE = _stuff_tables()
+
+
+def _stuff_bits(value: int, nbits: int) -> int:
+    """Stuff bits CAN inserts in the ``nbits``-bit sequence ``value`` (MSB first): one after
+    every 5 equal bits; a stuff bit counts towards the run that follows it when that run
+    has its value. The leading ``nbits % 8`` bits go one at a time, the rest a byte at a
+    time through a table of the stuffing's states."""
+    state = stuffed = 0
+    lead = nbits % 8
+    for i in range(lead):
+        state, d = _STUFF_BIT[state][(value >> (nbits - 1 - i)) & 1]
+        stuffed += d
+    rest = nbits - lead
+    for byte in (value & ((1 << rest) - 1)).to_bytes(rest // 8, "big"):
+        state, d = _STUFF_BYTE[state][byte]
+        stuffed += d
     return stuffed
 
 
@@ -101,7 +135,7 @@ def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int
     value = (head << 4 | dlc) << 8 * len(data) | int.from_bytes(data, "big")
     n += 4 + 8 * len(data)
     value, n = value << 15 | _crc15(value, n), n + 15
-    return n + _stuff_bits(format(value, f"0{n}b")) + _FIXED_TAIL_BITS
+    return n + _stuff_bits(value, n) + _FIXED_TAIL_BITS
 
 
 def frame_time_s(msg: can.Message, bitrate: int) -> float:
