@@ -286,7 +286,7 @@ def cpu_per_part(a: dict, b: dict) -> None:
         print(f"- {r['n']} parts: {r['done']} done, exit {r['rc']}, simulated {r['sim_s']:.3f} s, "
               f"`run_sim` {r['wall_s']:.2f} s wall, process CPU {r['process_s']:.2f} s")
     print()
-    print(f"| thread | side | CPU s, {a['n']} parts | CPU s, {b['n']} parts | ms / part |")
+    print("| thread | side | CPU s, short run | CPU s, long run | ms / part |")
     print("|---|---|---:|---:|---:|")
     names = sorted(set(a["threads"]) | set(b["threads"]),
                    key=lambda t: -per(a["threads"].get(t, 0.0), b["threads"].get(t, 0.0)))

@@ -117,6 +117,8 @@ SOURCES: tuple[Source, ...] = (
     Source("cell-latency", ".venv/bin/python bench/bench_cell.py", ("bench/bench_cell.py",), 2, (ALL, ALL),
            skip=4, probe=("bench/bench_cell.py", "--quick", "--runs", "1", "--cycles", "1", "--rounds", "1"),
            note="section 3"),
+    Source("cycle-cpu", ".venv/bin/python bench/bench_cycle_cpu.py", ("bench/bench_cycle_cpu.py",), 4,
+           (ALL, ALL, ALL, ALL), slow=True, probe=("bench/bench_cycle_cpu.py", "--quick")),
     Source("load-main", ".venv/bin/python bench/load_harness.py", ("bench/load_harness.py",), 1, (ALL,),
            probe=("bench/load_harness.py", "--phase", "main", "--rounds", "1", "--copies", "1", "--hogs", "1"),
            note="phase 1 (its header names --cycles: 10/10)"),
