@@ -1,4 +1,4 @@
-"""Check that every README table is still what its command prints.
+"""Check that every table of the README and of ``docs/`` is still what its command prints.
 
     .venv/bin/python bench/check_readme_tables.py            # every table (some commands take minutes)
     .venv/bin/python bench/check_readme_tables.py --fast     # only the commands under a minute
@@ -6,9 +6,10 @@
     .venv/bin/python bench/check_readme_tables.py --update   # re-print the tables that differ into README.md
     .venv/bin/python bench/check_readme_tables.py --list     # which README tables each command covers
 
-Each README table is printed by a command written above it (a heading, or "`COMMAND`
-printed:"). :data:`SOURCES` lists them: the command, where its tables start in the README
-(the command as written there, in backticks) and how many follow, and for each table which
+Each table is printed by a command written above it (a heading, or "`COMMAND` printed:"),
+in the README or in a page of ``docs/`` (a source's page is the first of ``docs/*.md``, then
+the README, that writes its command). :data:`SOURCES` lists them: the command, where its
+tables start (the command as written there, in backticks) and how many follow, and for each table which
 columns are wall time (measured on whatever machine runs it, so never compared). Each
 command is run from the repository root, its output's Markdown tables are matched to the
 README's by their header row, and every cell not in a wall-time column must be equal. A
@@ -48,6 +49,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
+DOCS = REPO / "docs"
 ALL = "*"          #: a table whose every value is wall time: only its columns are compared
 
 
@@ -165,7 +167,14 @@ SOURCES: tuple[Source, ...] = (
 #: different commits (the storm's 16-round memory table)
 HANDWRITTEN = ("| command | for | what it does |", "| code | meaning |",
                "| message says | cause | what to do |", "| right | lets the role change |",
-               "| run | round high-water, MB (rounds 1–16) | slope, rounds 9–16 | verdict |")
+               "| run | round high-water, MB (rounds 1–16) | slope, rounds 9–16 | verdict |",
+               "| page | for | what it holds |",
+               # docs/: guides, written by hand
+               "| # | place | what goes there | written from |",
+               "| field | what to give | example (`motor_cyclic_error`) |",
+               "| module | what it decides |", "| | planar (`cell/diagnosis/`) | chain (`cell/diagnosis/chain/`) |",
+               "| seed | what it is | where it lives here | how you meet it |",
+               "| Attack | Defence | Code | Test |", "| What | Value | Where |")
 
 
 # ---------------------------------------------------------------------------- Markdown tables
@@ -207,9 +216,38 @@ def tables_in(lines: list[str]) -> list[Table]:
     return out
 
 
-def uncovered(lines: list[str]) -> list[Table]:
-    """README tables that no source covers and that are not :data:`HANDWRITTEN`."""
-    covered = {t.start for s in SOURCES for t in readme_tables(s, lines)}
+def pages() -> list[Path]:
+    """The documents whose tables are checked: ``docs/*.md``, then the README."""
+    return [*sorted(DOCS.glob("*.md")), README]
+
+
+def read_pages() -> dict[Path, list[str]]:
+    return {p: p.read_text().splitlines() for p in pages()}
+
+
+def home(source: Source, texts: dict[Path, list[str]]) -> Path:
+    """The page that writes ``source``'s command above its tables: the first (``docs/``,
+    then the README) where the command is followed by as many tables (ValueError: none;
+    a page that only names the command in passing is not its home)."""
+    for path, lines in texts.items():
+        try:
+            readme_tables(source, lines)
+        except ValueError:
+            continue
+        return path
+    raise ValueError(f"no page (README.md, docs/*.md) writes `{source.marker}` above its "
+                     f"{source.count} table(s)")
+
+
+def shown(path: Path) -> str:
+    return str(path.relative_to(REPO))
+
+
+def uncovered(lines: list[str], sources=None) -> list[Table]:
+    """Tables of a page (``lines``) that none of ``sources`` (default: every source, as the
+    README's tables were checked) covers and that are not :data:`HANDWRITTEN`."""
+    sources = SOURCES if sources is None else sources
+    covered = {t.start for s in sources for t in readme_tables(s, lines)}
     return [t for t in tables_in(lines) if t.start not in covered and t.lines[0].strip() not in HANDWRITTEN]
 
 
@@ -218,12 +256,12 @@ def readme_tables(source: Source, lines: list[str]) -> list[Table]:
     needle = f"`{source.marker}`"
     at = next((i for i, line in enumerate(lines) if needle in line), None)
     if at is None:
-        raise ValueError(f"README.md no longer writes {needle} above a table")
+        raise ValueError(f"the page no longer writes {needle} above a table")
     found = [t for t in tables_in(lines[at:])][source.skip:source.skip + source.count]
     for t in found:
         t.start += at
     if len(found) < source.count:
-        raise ValueError(f"README.md has {len(found)} tables after {needle}, expected {source.count}")
+        raise ValueError(f"the page has {len(found)} tables after {needle}, expected {source.count}")
     return found
 
 
@@ -252,6 +290,7 @@ class Finding:
     problem: str                     #: "" when the table matches
     diff: str = ""
     new_lines: list[str] | None = None   #: the table this run printed (for --update)
+    page: Path = README              #: the document the table is in
 
 
 def row_line(values: list[str]) -> str:
@@ -330,20 +369,22 @@ def check(source: Source, lines: list[str], use_probe: bool, timeout: float = 72
 
 
 def update(findings: list[Finding]) -> int:
-    """Write the changed tables into README.md (re-read now: others may have edited it)."""
-    lines = README.read_text().splitlines(keepends=True)
-    plain = [line.rstrip("\n") for line in lines]
+    """Write the changed tables into their pages (re-read now: others may have edited them)."""
     done = 0
-    for f in sorted((f for f in findings if f.new_lines), key=lambda f: -f.readme_line):
-        source = next(s for s in SOURCES if s.name == f.source)
-        table = next((t for t in readme_tables(source, plain) if t.start + 1 == f.readme_line), None)
-        if table is None:
-            print(f"{f.source}: README table at line {f.readme_line} moved; run again", file=sys.stderr)
-            continue
-        lines[table.start:table.start + len(table.lines)] = [line + "\n" for line in f.new_lines]
+    for path in {f.page for f in findings if f.new_lines}:
+        lines = path.read_text().splitlines(keepends=True)
         plain = [line.rstrip("\n") for line in lines]
-        done += 1
-    README.write_text("".join(lines))
+        for f in sorted((f for f in findings if f.new_lines and f.page == path), key=lambda f: -f.readme_line):
+            source = next(s for s in SOURCES if s.name == f.source)
+            table = next((t for t in readme_tables(source, plain) if t.start + 1 == f.readme_line), None)
+            if table is None:
+                print(f"{f.source}: {shown(path)} table at line {f.readme_line} moved; run again",
+                      file=sys.stderr)
+                continue
+            lines[table.start:table.start + len(table.lines)] = [line + "\n" for line in f.new_lines]
+            plain = [line.rstrip("\n") for line in lines]
+            done += 1
+        path.write_text("".join(lines))
     return done
 
 
@@ -357,42 +398,46 @@ def main(argv=None) -> int:
     ap.add_argument("--update", action="store_true", help="write the tables that differ into README.md")
     ap.add_argument("--list", action="store_true", help="list the sources and their README tables")
     args = ap.parse_args(argv)
-    lines = README.read_text().splitlines()
+    texts = read_pages()
     chosen = [s for s in SOURCES if (not args.only or s.name in args.only) and not (args.fast and s.slow)
               and (args.full or s.deterministic or s.probe)]
     if args.only and (unknown := set(args.only) - {s.name for s in SOURCES}):
         ap.error(f"unknown source(s) {sorted(unknown)}; known: {[s.name for s in SOURCES]}")
     if args.list:
-        for t in uncovered(lines):
-            print(f"README.md:{t.start + 1}: no source prints this table: {t.lines[0][:90]}")
+        homes = {s.name: home(s, texts) for s in SOURCES}
+        for path, lines in texts.items():
+            for t in uncovered(lines, [s for s in SOURCES if homes[s.name] == path]):
+                print(f"{shown(path)}:{t.start + 1}: no source prints this table: {t.lines[0][:90]}")
         for s in SOURCES:
             kind = "deterministic" if s.deterministic else "wall time: columns only"
             print(f"{s.name}: `{' '.join(s.argv)}` ({kind}{', slow' if s.slow else ''}"
                   f"{'; ' + s.note if s.note else ''})")
-            for k, t in enumerate(readme_tables(s, lines)):
+            for k, t in enumerate(readme_tables(s, texts[homes[s.name]])):
                 wall = s.wall_columns(k)
                 ign = " (every value is wall time)" if wall == ALL else \
                     f" (wall time, not compared: {', '.join(sorted(wall))})" if wall else ""
-                print(f"    README.md:{t.start + 1}: {t.lines[0][:90]}{ign}")
+                print(f"    {shown(homes[s.name])}:{t.start + 1}: {t.lines[0][:90]}{ign}")
         return 0
     findings, bad = [], 0
     for s in chosen:
         try:
-            got, took, ran = check(s, lines, use_probe=not args.full)
+            page = home(s, texts)
+            got, took, ran = check(s, texts[page], use_probe=not args.full)
         except (ValueError, RuntimeError, subprocess.TimeoutExpired) as exc:
             print(f"FAIL {s.name}: {exc}")
             bad += 1
             continue
         for f in got:
+            f.page = page
             status = "ok  " if not f.problem else "DIFF"
-            print(f"{status} {s.name}: README.md:{f.readme_line} ({took:.0f} s, `{' '.join(ran)}`)"
+            print(f"{status} {s.name}: {shown(page)}:{f.readme_line} ({took:.0f} s, `{' '.join(ran)}`)"
                   f"{': ' + f.problem if f.problem else ''}", flush=True)
             if f.problem:
                 bad += 1
                 print(f.diff, flush=True)
         findings += got
     if args.update:
-        print(f"updated {update(findings)} table(s) in README.md")
+        print(f"updated {update(findings)} table(s)")
     for s in SOURCES:
         if s not in chosen and (not args.only or s.name in args.only):
             why = "slow: run without --fast" if args.fast and s.slow else "needs --full (no short run)"

@@ -1,5 +1,5 @@
 """One part's cycle, as the recipe says: approach, capture, locate, compensate, final move,
-verify, log. Runs in the cycle task (see the README's architecture page).
+verify, log. Runs in the cycle task (see docs/architecture.md).
 
 :class:`CycleRunner` publishes the step it is in (:attr:`CycleRunner.progress`) and times
 each step on the injected clock; the scan loop follows it with the state machine. It never

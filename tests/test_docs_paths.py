@@ -25,3 +25,33 @@ def test_the_glossary_says_where_each_seed_lives():
     for seed in ("000", "001", "002", "003", "004"):
         assert f"| **{seed}** |" in text, seed
     assert len(PATH.findall(text)) >= 10
+
+
+LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _anchors(path: Path) -> set[str]:
+    """GitHub's anchors of a page's headings (lower case, punctuation dropped, spaces → -)."""
+    out = set()
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("#"):
+            out.add(re.sub(r"[^\w\- ]", "", line.lstrip("#").strip().lower()).replace(" ", "-"))
+    return out
+
+
+@pytest.mark.parametrize("page", ["README.md"] + sorted(f"docs/{p.name}" for p in (REPO / "docs").glob("*.md")))
+def test_every_link_of_a_page_lands(page):
+    """Relative links of the README and docs/ reach a file that exists, and a heading there
+    when they name one (the README's sections moved into docs/ with their links)."""
+    src = REPO / page
+    broken = []
+    for target in LINK.findall(src.read_text(encoding="utf-8")):
+        if re.match(r"[a-z]+:", target):
+            continue
+        file, _, anchor = target.partition("#")
+        dest = (src.parent / file).resolve() if file else src
+        if not dest.exists():
+            broken.append(target)
+        elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+            broken.append(target)
+    assert not broken, f"{page}: links that land nowhere: {broken}"

@@ -1,4 +1,4 @@
-"""``cellctl registers``: print the PLC register map (Markdown for the README, CSV for PLC tools).
+"""``cellctl registers``: print the PLC register map (Markdown for docs/plc.md, CSV for PLC tools).
 
 Generated from :data:`drivers.plc.register_map.PLC_MAP`, the one table the Modbus server
 serves, so the printed reference cannot drift from what the PLC sees.

@@ -1,7 +1,7 @@
 """The PLC register map: ONE named table, from which everything else is generated.
 
-The pymodbus datastore (:mod:`drivers.plc.server`), the Markdown register reference for the
-README (:meth:`RegisterMap.to_markdown`) and ``cellctl registers --format md|csv`` are all
+The pymodbus datastore (:mod:`drivers.plc.server`), the Markdown register reference in
+docs/plc.md (:meth:`RegisterMap.to_markdown`) and ``cellctl registers --format md|csv`` are all
 built from :data:`PLC_MAP`; nothing else lists addresses.
 
 Address base: ``Register.address`` is the **protocol address**, i.e. the
@@ -478,7 +478,7 @@ class RegisterMap:
         return buf.getvalue()
 
     def to_markdown(self) -> str:
-        """Register reference for the README: address base, table, bit tables, handshake."""
+        """Register reference for docs/plc.md: address base, table, bit tables, handshake."""
         esc = lambda s: s.replace("|", "\\|")  # noqa: E731
         out = [f"### PLC register map (map_version {self.version})", "",
                "All entries are holding registers (FC3 read; the PLC writes RW entries with "

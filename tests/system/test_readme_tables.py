@@ -1,4 +1,5 @@
-"""The README's tables are what their commands print (bench/check_readme_tables.py).
+"""The tables of the README and of docs/ are what their commands print
+(bench/check_readme_tables.py).
 
 Every command not marked ``slow`` is run here; the slow ones (bench_cell,
 bench_calibration, the storm, soak and load benches, the ``--combos`` and
@@ -23,17 +24,13 @@ sys.modules[_spec.name] = check            # dataclasses look their module up th
 _spec.loader.exec_module(check)
 
 
-def readme_lines() -> list[str]:
-    return check.README.read_text().splitlines()
-
-
-def test_every_readme_table_has_its_command_or_is_written_by_hand():
-    lines = readme_lines()
-    for source in check.SOURCES:                   # each command still above its tables
-        check.readme_tables(source, lines)
-    left = check.uncovered(lines)
-    assert not left, "README tables no command in bench/check_readme_tables.py prints:\n" + "\n".join(
-        f"README.md:{t.start + 1}: {t.lines[0]}" for t in left)
+def test_every_table_has_its_command_or_is_written_by_hand():
+    texts = check.read_pages()
+    homes = {s.name: check.home(s, texts) for s in check.SOURCES}   # each command above its tables
+    left = [(path, t) for path, lines in texts.items()
+            for t in check.uncovered(lines, [s for s in check.SOURCES if homes[s.name] == path])]
+    assert not left, "tables no command in bench/check_readme_tables.py prints:\n" + "\n".join(
+        f"{check.shown(path)}:{t.start + 1}: {t.lines[0]}" for path, t in left)
 
 
 def test_a_changed_figure_is_found_and_shown():
@@ -64,8 +61,10 @@ LONG = {"can", "validate", "chain", "chain-oov", "vision", "cell-latency", "diag
                                   else s.name for s in check.SOURCES if not s.slow])
 def test_readme_tables_match_what_their_command_prints(name):
     source = next(s for s in check.SOURCES if s.name == name)
-    findings, _, ran = check.check(source, readme_lines(), use_probe=True, timeout=800)
+    texts = check.read_pages()
+    page = check.home(source, texts)
+    findings, _, ran = check.check(source, texts[page], use_probe=True, timeout=800)
     bad = [f for f in findings if f.problem]
-    assert not bad, "\n\n".join(f"README.md:{f.readme_line}: {f.problem} (`{' '.join(ran)}`)\n{f.diff}"
+    assert not bad, "\n\n".join(f"{check.shown(page)}:{f.readme_line}: {f.problem} (`{' '.join(ran)}`)\n{f.diff}"
                                 for f in bad) + \
         f"\n\nIf the change is meant, re-print: .venv/bin/python bench/check_readme_tables.py --only {name} --update"
