@@ -52,7 +52,7 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
     m = np.ones(fd.n_path, bool) if keep is None else np.asarray(keep, bool)
     rows = rows_of(replace(fd, points=None, cache={}))
     meas = rows.meas[m].ravel()
-    static = [e for e in static if e.spec.stage != "comms"]
+    static = [e for e in static if e.spec.stage != fx.Stage.COMMS]
 
     def fun(x):
         return meas - evaluate(rows, static, path_temp_c, lags_ms=x)[0][m].ravel()

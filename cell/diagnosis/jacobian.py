@@ -147,7 +147,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
     m = sum(len(e.fit_names) for e in effects) + int(with_path_temp) + 2 * (lags_ms is not None)
     # stage 1: comms (path rows only)
     a, dirs = r.cmd, r.dirs
-    comms = [e for e in effects if e.spec.stage == "comms"]
+    comms = [e for e in effects if e.spec.stage == fx.Stage.COMMS]
     da_dlam = None
     if (comms or lags_ms is not None) and r.n_path:
         if len(comms) + (lags_ms is not None) > 1:
@@ -171,7 +171,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
         starts.append(k)
         k += len(e.fit_names)
     for e, k0 in zip(effects, starts):
-        if e.spec.stage != "joint":
+        if e.spec.stage != fx.Stage.JOINT:
             continue
         x = e.full_vector()
         theta += e.spec.fn(x, e.jidx, a, dirs)
@@ -189,7 +189,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
     L = np.tile(r.links, (n, 1))
     dL_dT = np.zeros((n, 2)) if jac else None
     for e, k0 in zip(effects, starts):
-        if e.spec.stage != "link":
+        if e.spec.stage != fx.Stage.LINK:
             continue
         x = e.full_vector()
         L += e.spec.fn(x, e.jidx, r.links, temp)
@@ -205,7 +205,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
     c1, s1, c12, s12 = np.cos(t1), np.sin(t1), np.cos(t12), np.sin(t12)
     p = np.column_stack([L[:, 0] * c1 + L[:, 1] * c12, L[:, 0] * s1 + L[:, 1] * s12])
     # stage 5: camera
-    vis = [(e, k0) for e, k0 in zip(effects, starts) if e.spec.stage == "vision"]
+    vis = [(e, k0) for e, k0 in zip(effects, starts) if e.spec.stage == fx.Stage.VISION]
     M = np.eye(2)
     vis_cols: dict[int, np.ndarray] = {}
     out = p
@@ -238,7 +238,7 @@ def evaluate(r: Rows, effects: Sequence[fx.EffectInstance], path_temp_c: float |
     for i, c in vis_cols.items():
         J[:, :, i] = c
     for e, k0 in zip(effects, starts):
-        if e.spec.stage == "comms" and da_dlam is not None:
+        if e.spec.stage == fx.Stage.COMMS and da_dlam is not None:
             J[:, :, k0] = through_theta(dth_da * da_dlam * dlam_dx)
     nxt = k
     if with_path_temp:

@@ -229,7 +229,7 @@ def _moves(t: dict, path: Path, lines, rng, split_source) -> list[Move]:
 # ------------------------------------------------------------------ replay
 def delayed_commands(d: DiagData, effects: Sequence[fx.EffectInstance]) -> list[np.ndarray]:
     """Per move, the commands the joints actually had after the comms stage (stage 1)."""
-    comms = [e for e in effects if e.spec.stage == "comms"]
+    comms = [e for e in effects if e.spec.stage == fx.Stage.COMMS]
     out = []
     for m in d.moves:
         a = m.cmd
@@ -243,7 +243,7 @@ def path_inputs(d: DiagData, effects: Sequence[fx.EffectInstance]) -> tuple[np.n
     """(actual joints (n_path,2), directions (n_path,2)) of all path samples under ``effects``;
     directions follow the (delayed) motion from each move's ``dirs0`` as in
     :func:`cell.effects.simulate_path`."""
-    if not any(e.spec.stage == "comms" for e in effects):
+    if not any(e.spec.stage == fx.Stage.COMMS for e in effects):
         cached = d.cache.get("path_inputs")     # no comms stage: the same for every call
         if cached is None:
             cached = d.cache["path_inputs"] = _path_inputs(d, [])
@@ -281,7 +281,7 @@ def predict(d: DiagData, effects: Sequence[fx.EffectInstance], path_temp_c: floa
         cmd.append(a)
         dirs.append(dd)
         temp.append(np.full(len(a), t_ref if path_temp_c is None else path_temp_c))
-    xy = fx.simulate_points(d.geometry, [e for e in effects if e.spec.stage != "comms"],
+    xy = fx.simulate_points(d.geometry, [e for e in effects if e.spec.stage != fx.Stage.COMMS],
                             np.concatenate(cmd), np.concatenate(dirs), None,
                             np.concatenate(temp), d.center if d.center is not None else (0.0, 0.0))
     return xy[:d.n_points], xy[d.n_points:]

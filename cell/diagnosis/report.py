@@ -38,6 +38,7 @@ from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_c
 from cell.diagnosis.fit import (FitResult, TableStats, combined, component_sizes,
                                 hold_residuals)
 from cell.diagnosis.replay import DiagData, path_noise_mm, prepare, residuals
+from cell.effects import Stage
 from cell.measurements import Campaign
 
 
@@ -194,7 +195,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
                         "candidate, not a diagnosis")
     # the lags are fitted with the cause's static part only when the cause explains the gap
     trusted = dec.chosen is not None and not rem.unexplained
-    static = [e for e in dec.chosen.effects if e.spec.stage != "comms"] if trusted else []
+    static = [e for e in dec.chosen.effects if e.spec.stage != Stage.COMMS] if trusted else []
     dl = delay_mod.station_lags(d, static, dec.chosen.path_temp_c if trusted else None,
                                 s.outliers.keep_fit[s.fit_d.n_points:])
 

@@ -41,7 +41,7 @@ from __future__ import annotations
 from cell.effects.base import (PLANAR_JOINTS, STAGES, SUBSYSTEMS, AngleSpan, BothDirections,
                                CameraCentre, ChainPoses, Effect, Layout, Linear, MovingCommands,
                                OnChain,
-                               ParamSpec, PhaseCoverage, Remedy, Requirement, TempSpread)
+                               ParamSpec, PhaseCoverage, Remedy, Requirement, Stage, TempSpread)
 from cell.effects.vocabulary import CHAIN_EFFECTS, EFFECTS, REGISTRY
 from cell.effects.instances import (EffectInstance, make_effect, reference_temp_c, split_vector,
                                    stack_vectors)
@@ -51,7 +51,7 @@ from cell.effects.compose import (DEFAULT_STATIONS, STATION_NAMES, camera_view, 
 from cell.effects.comm_delay import comm_delay  # noqa: E402  (the function, not the module)
 from cell.errors import ConfigError  # noqa: F401  (kept: callers catch fx.ConfigError)
 
-__all__ = ["PLANAR_JOINTS", "STAGES", "SUBSYSTEMS", "STATION_NAMES", "DEFAULT_STATIONS",
+__all__ = ["PLANAR_JOINTS", "Stage", "STAGES", "SUBSYSTEMS", "STATION_NAMES", "DEFAULT_STATIONS",
            "ParamSpec", "Effect", "Layout", "Requirement", "TempSpread", "BothDirections",
            "AngleSpan", "PhaseCoverage", "CameraCentre", "MovingCommands", "Remedy", "OnChain",
            "ChainPoses", "Linear", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",

@@ -15,13 +15,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 PLANAR_JOINTS = ("j1", "j2")
 SUBSYSTEMS = ("kinematics", "transmission", "thermal", "vision", "comms")
-STAGES = ("joint", "link", "vision", "comms")
+
+
+class Stage(StrEnum):
+    """Where between command and measurement an effect acts, which fixes the signature of
+    its ``fn`` and ``deriv`` (:class:`Effect`)."""
+
+    JOINT = "joint"
+    LINK = "link"
+    VISION = "vision"
+    COMMS = "comms"
+
+
+STAGES = tuple(Stage)
 
 
 @dataclass(frozen=True)
@@ -318,7 +331,7 @@ class Effect:
 
     name: str
     subsystem: str
-    stage: str
+    stage: Stage
     joints: tuple[str, ...]
     per_joint: bool
     params: tuple[ParamSpec, ...]
@@ -331,6 +344,9 @@ class Effect:
     remedy: Remedy | None = None
     chain: OnChain | None = None
     linear: Linear | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "stage", Stage(self.stage))   # an unknown stage fails here, by name
 
     @property
     def planar(self) -> bool:

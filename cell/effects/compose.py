@@ -6,7 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
-from cell.effects.base import PLANAR_JOINTS
+from cell.effects.base import PLANAR_JOINTS, Stage
 from cell.effects.instances import EffectInstance
 from cell.errors import ConfigError, KinematicsError, TrajectoryError
 from cell.kinematics import planar_xy
@@ -64,7 +64,7 @@ def true_joints(effects: Sequence[EffectInstance], cmd_deg: np.ndarray, dirs: np
     """Stage 2: true joint angles (N,2) deg from commanded angles and last-motion directions."""
     q = np.array(cmd_deg, dtype=float)
     for e in effects:
-        if e.spec.stage == "joint":
+        if e.spec.stage == Stage.JOINT:
             q += e.spec.fn(e.full_vector(), e.jidx, cmd_deg, dirs)
     return q
 
@@ -74,7 +74,7 @@ def true_links(geometry, effects: Sequence[EffectInstance], temp_c: np.ndarray) 
     nominal = _links(geometry)
     links = np.tile(nominal, (len(temp_c), 1))
     for e in effects:
-        if e.spec.stage == "link":
+        if e.spec.stage == Stage.LINK:
             links += e.spec.fn(e.full_vector(), e.jidx, nominal, temp_c)
     return links
 
@@ -92,7 +92,7 @@ def camera_view(effects: Sequence[EffectInstance], xy_mm: np.ndarray, camera_cen
         raise ConfigError(f"camera_center_mm = {camera_center_mm!r} must be 2 finite mm values")
     out = np.asarray(xy_mm, dtype=float)
     for e in effects:
-        if e.spec.stage == "vision":
+        if e.spec.stage == Stage.VISION:
             out = e.spec.fn(e.full_vector(), out, c)
     return out
 
@@ -164,7 +164,7 @@ def simulate_path(nominal_geometry, effects: Sequence[EffectInstance], cmd_deg, 
         return np.zeros((0, 2))
     actual = cmd
     for e in effects:
-        if e.spec.stage == "comms":
+        if e.spec.stage == Stage.COMMS:
             actual = e.spec.fn(e.full_vector(), order, t, actual)
     dirs = path_directions(actual, d0)
     temp = _series("temp_c", temp_c, n, effects)

@@ -262,12 +262,21 @@ def test_least_squares_recovers_a_backlash_and_an_offset():
 
 
 # ------------------------------------------------------------------ one definition per effect
+def test_an_effect_of_an_unknown_stage_is_refused_by_name():
+    base = fx.EFFECTS["backlash"]
+    with pytest.raises(ValueError, match="'wrist'"):
+        fx.Effect(base.name, base.subsystem, "wrist", base.joints, base.per_joint, base.params,
+                  base.depends_on, base.summary)
+    assert fx.Effect(base.name, base.subsystem, "joint", base.joints, base.per_joint, base.params,
+                     base.depends_on, base.summary).stage is fx.Stage.JOINT
+
+
 def test_every_effect_is_one_complete_definition():
     for name, e in fx.REGISTRY.items():
         assert e.subsystem in fx.SUBSYSTEMS and e.remedy is not None, name
         assert set(e.mimics) <= set(fx.EFFECTS), name
         if e.planar:
-            assert e.deriv is not None and e.stage in fx.STAGES, name
+            assert e.deriv is not None and isinstance(e.stage, fx.Stage), name
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
     assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
                                       "thermal_drift", "camera_scale", "camera_rotation",

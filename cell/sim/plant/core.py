@@ -38,7 +38,7 @@ class Plant:
         self.config = config
         self.robot = Scara(config.nominal_geometry())  # the nominal model
         self.effects = config.effect_instances()
-        self._static_effects = [e for e in self.effects if e.spec.stage != "vision"]
+        self._static_effects = [e for e in self.effects if e.spec.stage != fx.Stage.VISION]
         self._center = np.array(config.camera_center_mm, dtype=float)
         arrive, meas, camp = np.random.SeedSequence(config.seed).spawn(3)
         self._rng_arrive = np.random.default_rng(arrive)
