@@ -28,9 +28,11 @@ stop is sent from the scan itself (a few CAN frames).
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
+
+import structlog
 
 from cell.clock import Clock, MonotonicClock
-import structlog
 
 from cell.controller_core import (Audit, CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
@@ -44,6 +46,10 @@ from cell.recipe_store import RecipeStore
 from cell.recipes import ActiveRecipe, RecipeAction
 from cell.statemachine import State, StateMachine
 from cell.worker import Job, Worker
+
+if TYPE_CHECKING:
+    from cell.motion import JointMotion
+    from drivers.plc import PlcPort
 
 log = get_logger("controller")
 
@@ -85,7 +91,7 @@ class OutputWriter:
 class CellController:
     """Owns the core and the scan task; devices are injected."""
 
-    def __init__(self, plc, motion, runner: CycleRunner, cyclelog: CycleLog, recipes: RecipeStore,
+    def __init__(self, plc: PlcPort, motion: JointMotion, runner: CycleRunner, cyclelog: CycleLog, recipes: RecipeStore,
                  settings: ControllerSettings = ControllerSettings(), clock: Clock | None = None,
                  calibrator=None, publisher: Publisher | None = None):
         """:param calibrator: runs calibrations the PLC starts (``run_safely(select, cancel)
@@ -213,7 +219,7 @@ class CellController:
 
     def _tag_owner(self) -> None:
         """Every log line of the scan thread names the PLC client that owns the link."""
-        owner = getattr(self.plc, "owner", None)
+        owner = self.plc.owner
         if owner != self._owner:
             self._owner = owner
             structlog.contextvars.bind_contextvars(plc_owner=owner)
@@ -222,12 +228,11 @@ class CellController:
     def _audit_refusals(self) -> None:
         """Writes the link refused (not the owner, or a role without the right) go to the
         audit trail every :data:`REFUSAL_AUDIT_S`, summed per client and reason."""
-        take = getattr(self.plc, "take_refusals", None)
         now = self.clock.now()
-        if take is None or now < self._next_refusal_audit:
+        if now < self._next_refusal_audit:
             return
         self._next_refusal_audit = now + REFUSAL_AUDIT_S
-        for r in take():
+        for r in self.plc.take_refusals():
             who = f"plc {r.client}" + (f" ({r.role})" if r.role else "")
             self._apply([Audit(who, "plc_write_refused", r.reason, f"{r.count} refused with exception 01")])
 
@@ -255,7 +260,7 @@ class CellController:
             recalibration_due=self.recalibration_due)
 
     def _station_fault(self) -> StationFaultIn | None:
-        rec = getattr(self.motion, "fault", None)
+        rec = self.motion.fault
         if rec is None:
             return None
         requested = getattr(rec.code, "name", "") == "QUICK_STOP"     # we asked for it

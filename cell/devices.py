@@ -13,13 +13,17 @@ from __future__ import annotations
 import importlib
 import json
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from cell.clock import Clock, MonotonicClock
 from cell.config import CellConfig
 from cell.errors import ConfigError
 from cell.kinematics import Scara
 from cell.vision.calibration import PlaneCalibration
+
+if TYPE_CHECKING:
+    from cell.motion import JointMotion
+    from drivers.camera.base import Camera
 
 #: backend name → "module:class", imported only when chosen
 BACKENDS: dict[str, str] = {
@@ -28,13 +32,15 @@ BACKENDS: dict[str, str] = {
 }
 
 
+@runtime_checkable
 class Devices(Protocol):
-    """What a cell needs below the controller."""
+    """What a cell needs below the controller; :class:`HardwareDevices` and the simulated
+    cell (``cell.sim.assembly.SimDevices``) both give it."""
 
-    clock: Clock        #: the clock everything in the cell takes its time from
-    robot: Scara        #: the nominal robot model
-    motion: Any         #: the joint stations (``drivers.stations.JointStations``)
-    camera: Any         #: the camera (``drivers.camera.Camera``)
+    clock: Clock          #: the clock everything in the cell takes its time from
+    robot: Scara          #: the nominal robot model
+    motion: JointMotion   #: the joint stations (``drivers.stations.JointStations``)
+    camera: Camera        #: the camera over the work plane (``drivers.camera.base.Camera``)
 
     def start(self) -> None:
         """Bring the devices up (stations enabled, camera open)."""
@@ -48,9 +54,21 @@ class Devices(Protocol):
         """Take the devices down; never raises."""
         ...
 
-    # robot calibration (cell.calibration.service): ``hand_camera`` (opened on first use, or
-    # None without one), ``hand_calibration()`` and ``place_fixture(kind, joint)`` (a
-    # simulated cell lays it; on hardware the operator has, and this does nothing)
+    # ---- robot calibration (cell.calibration.service)
+    @property
+    def hand_camera(self) -> Camera | None:
+        """The camera on the robot's hand, opened on first use; None if the cell has none."""
+        ...
+
+    def hand_calibration(self) -> PlaneCalibration:
+        """The hand camera's plane calibration."""
+        ...
+
+    def place_fixture(self, kind: str, joint: str | None = None) -> None:
+        """Lay the calibration fixture for ``kind`` (``"kinematics"`` or ``"joint"`` of
+        ``joint``): the simulated cell places it; on hardware the operator has, and this
+        does nothing."""
+        ...
 
 
 class HardwareDevices:

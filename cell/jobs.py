@@ -77,8 +77,8 @@ class CellJobs:
         """Drive states and camera liveness, logged; a dead device shows up as a fault in the
         scan loop (stations) or at the next capture (camera)."""
         motion = self.c.motion
-        states = {j: s.name for j, s in motion.drive_states().items()} if hasattr(motion, "drive_states") else {}
-        fault = str(motion.fault) if getattr(motion, "fault", None) else None
+        states = {j: s.name for j, s in motion.drive_states().items()}
+        fault = str(motion.fault) if motion.fault else None
         cam = self.c.runner.camera
         report = {"state": self.c.sm.state.name, "drives": states, "station_fault": fault,
                   "camera_frames": cam.frames, "camera_error": cam.last_error,

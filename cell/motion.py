@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -32,11 +32,15 @@ from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.trajectory.line import TIME_LAW_PEAK, TIME_LAWS, Segment, plan_line
 
+if TYPE_CHECKING:
+    from drivers.stations.faults import FaultRecord
+
 Mode = Literal["corrected", "sync", "none"]
 MAX_SEGMENTS = 100_000      #: a longer move is refused (at T = 10 ms: over 16 minutes)
 MODES: tuple[str, ...] = ("corrected", "sync", "none")
 
 
+@runtime_checkable
 class Stations(Protocol):
     """What a move needs of the joint stations (``drivers.stations.JointStations``)."""
 
@@ -46,6 +50,31 @@ class Stations(Protocol):
     def burst_delays(self, targets_deg, velocities_deg_s, base: int = 0x200) -> np.ndarray: ...
     def corrected_velocities(self, targets_deg, deltas_deg, segment_s: float, hint_s=None): ...
     def wait_reached(self, timeout_s: float, tol: float = 0.02) -> None: ...
+
+
+@runtime_checkable
+class JointMotion(Stations, Protocol):
+    """Everything the cell asks of its joint stations: the moves (:class:`Stations`), and
+    bring-up, reset, quick stop, the latched fault and feedback. ``drivers.stations.
+    JointStations`` implements it on a real CAN interface and on the simulated wire alike
+    (the simulated cell simulates the drives, not the driver)."""
+
+    @property
+    def latency_s(self) -> np.ndarray:
+        """Per joint j1..j4, s: each station's measured latency after its frame."""
+        ...
+
+    @property
+    def fault(self) -> FaultRecord | None:
+        """The first fault latched since the last reset (a quick stop asked for included)."""
+        ...
+
+    def start(self) -> None: ...
+    def shutdown(self) -> None: ...
+    def reset(self) -> None: ...
+    def quick_stop_all(self, reason: str = "requested") -> None: ...
+    def actual_positions(self) -> np.ndarray: ...
+    def drive_states(self) -> dict: ...
 
 
 @dataclass(frozen=True)

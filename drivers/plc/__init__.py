@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -23,11 +23,13 @@ from cell.errors import ConfigError
 
 if TYPE_CHECKING:
     from drivers.plc.register_map import RegisterMap
-    from drivers.plc.server import PlcWrite
+    from drivers.plc.server import PlcWrite, Refusal
 
 
+@runtime_checkable
 class PlcPort(Protocol):
-    """What the controller needs from the PLC link (see :class:`drivers.plc.server.PlcLink`)."""
+    """What the controller needs from the PLC link (see :class:`drivers.plc.server.PlcLink`):
+    the register image, the PLC's writes, who owns the link and the writes it refused."""
 
     map: RegisterMap
 
@@ -43,6 +45,9 @@ class PlcPort(Protocol):
     def drain_writes(self) -> list[PlcWrite]: ...
     @property
     def last_heartbeat_change(self) -> float | None: ...
+    @property
+    def owner(self) -> str | None: ...
+    def take_refusals(self) -> list[Refusal]: ...
 
 
 #: Backend name -> "module:class", imported only when chosen.
