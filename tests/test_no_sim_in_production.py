@@ -1,4 +1,5 @@
-"""Production code never imports the simulated cell (cell/sim): the device registry and the
+"""Production code never imports the simulated cell (cell/sim), at load time (the AST of every
+module) nor at run time (a hardware start in a subprocess): the device registry and the
 bus and camera factories name its modules as strings, imported only when a config asks for
 the simulated devices. Every module of cell/ and drivers/ outside cell/sim is scanned with
 the AST, imports inside functions included. The one exception is named with its reason."""
@@ -41,3 +42,33 @@ def test_the_scan_sees_an_import_inside_a_function(tmp_path):
     f = tmp_path / "m.py"
     f.write_text("def f():\n    from cell.sim.plant import Plant\n    return Plant\n")
     assert "cell.sim.plant" in _imports(f)
+
+
+def test_a_hardware_start_loads_no_simulation_module(tmp_path):
+    """At run time: ``cellctl serve --config`` with the shipped hardware config (its CAN
+    interface missing, so the start stops at the drives, after the app, the devices, the
+    drivers, the calibration service and the recipes are loaded) leaves no ``cell.sim``
+    module in ``sys.modules``."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    import yaml
+    cfg = yaml.safe_load((ROOT / "deploy/cell.yaml").read_text())
+    cfg["plc"].update(host="127.0.0.1", allow=[], port=0)
+    cfg["plc"]["tls"]["enabled"] = False
+    cfg["stations"]["channel"] = "cellnocan8"            # no such interface on any machine
+    cfg["log"]["path"] = "cell.sqlite"
+    cfg["recipes"]["directory"] = str(ROOT / "recipes")
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cfg))
+    probe = ("import json, sys\nfrom cell.cli import main\ncode = main(['serve', '--config', 'cell.yaml', "
+             "'--seconds', '1'])\nprint(json.dumps({'code': code, 'sim': sorted(m for m in sys.modules "
+             "if m == 'cell.sim' or m.startswith('cell.sim.')), 'loaded': sorted(m for m in sys.modules "
+             "if m.startswith(('cell.', 'drivers.')))}))")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["code"] == 2, out.stderr[-2000:]                  # stopped at the missing interface
+    assert {"cell.app", "cell.devices", "drivers.stations.driver", "cell.calibration.service"} <= set(got["loaded"])
+    assert got["sim"] == [], got["sim"]
