@@ -10,7 +10,6 @@ module. Every backend gives the same :class:`Devices` face to :class:`cell.app.C
 """
 from __future__ import annotations
 
-import importlib
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
@@ -18,6 +17,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 from cell.clock import Clock, MonotonicClock
 from cell.config import CellConfig
 from cell.errors import ConfigError
+from drivers import registry
 from cell.kinematics import Scara
 from cell.vision.calibration import PlaneCalibration
 
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from cell.motion import JointMotion
     from drivers.camera.base import Camera
 
-#: backend name → "module:class", imported only when chosen
+#: backend name → "module:class" (:mod:`drivers.registry`), imported only when chosen
 BACKENDS: dict[str, str] = {
     "hardware": "cell.devices:HardwareDevices",
     "sim": "cell.sim.assembly:SimDevices",
@@ -140,9 +140,4 @@ def open_devices(config: CellConfig, name: str, *, clock: Clock | None = None, p
         serving an outside PLC).
     :raises ConfigError: unknown backend name, or a bad config value.
     """
-    try:
-        target = BACKENDS[name]
-    except KeyError:
-        raise ConfigError(f"devices: unknown backend {name!r} (known: {', '.join(sorted(BACKENDS))})") from None
-    module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)(config, clock=clock, pace=pace)
+    return registry.load(BACKENDS, name, "devices")(config, clock=clock, pace=pace)

@@ -7,18 +7,18 @@ same from the cell config's ``camera`` section. Every backend satisfies
 """
 from __future__ import annotations
 
-import importlib
 from typing import Any, Mapping
 
 from cell.errors import ConfigError
+from drivers import registry
 from drivers.camera.base import Camera, CameraError, CameraState, Frame
 
-# name -> (module, class); the module is imported on first use only (OpenCV capture pulls
-# in video back-ends, the sim pulls in the renderer).
-BACKENDS: dict[str, tuple[str, str]] = {
-    "opencv": ("drivers.camera.opencv_capture", "OpenCVCamera"),
-    "folder": ("drivers.camera.folder", "FolderCamera"),
-    "sim": ("cell.sim.camera", "SimCamera"),
+#: name -> "module:class" (:mod:`drivers.registry`); imported on first use only (OpenCV
+#: capture pulls in video back-ends, the sim pulls in the renderer)
+BACKENDS: dict[str, str] = {
+    "opencv": "drivers.camera.opencv_capture:OpenCVCamera",
+    "folder": "drivers.camera.folder:FolderCamera",
+    "sim": "cell.sim.camera:SimCamera",
 }
 
 __all__ = ["BACKENDS", "Camera", "CameraError", "CameraState", "Frame", "backend_class",
@@ -27,10 +27,7 @@ __all__ = ["BACKENDS", "Camera", "CameraError", "CameraState", "Frame", "backend
 
 def backend_class(name: str) -> type:
     """The class of backend ``name``. Raises :class:`ConfigError` for an unknown name."""
-    if name not in BACKENDS:
-        raise ConfigError(f"camera backend {name!r} is unknown; choose one of {sorted(BACKENDS)}")
-    module, cls = BACKENDS[name]
-    return getattr(importlib.import_module(module), cls)
+    return registry.load(BACKENDS, name, "camera.backend")
 
 
 def create(name: str, **options: Any) -> Camera:

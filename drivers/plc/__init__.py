@@ -13,13 +13,12 @@ section is :class:`PlcConfig`.
 """
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from cell.errors import ConfigError
+from drivers import registry
 
 if TYPE_CHECKING:
     from drivers.plc.register_map import RegisterMap
@@ -174,10 +173,4 @@ def open_link(backend: str = "modbus_tcp", **kwargs) -> PlcPort:
 
     Raises :class:`cell.errors.ConfigError` for an unknown backend name.
     """
-    try:
-        target = BACKENDS[backend]
-    except KeyError:
-        raise ConfigError(f"plc.backend: unknown backend {backend!r} "
-                          f"(known: {', '.join(sorted(BACKENDS))})") from None
-    module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)(**kwargs)
+    return registry.load(BACKENDS, backend, "plc.backend")(**kwargs)

@@ -13,13 +13,13 @@ simulated wire uses it for slot times, the driver for the wire part of seed 002'
 from __future__ import annotations
 
 import functools
-import importlib
 from typing import Any
 
 import can
 import canopen
 
 from cell.errors import ConfigError
+from drivers import registry
 
 # ------------------------------------------------------------------------------ bit timing
 _FIXED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, intermission
@@ -162,8 +162,7 @@ def open_bus(interface: str, channel: str, bitrate: int | None = 1_000_000, *,
     :raises can.CanError: the interface exists but could not be opened.
     """
     if interface in BACKENDS:
-        module, func = BACKENDS[interface].split(":")
-        return getattr(importlib.import_module(module), func)(channel, bitrate, clock=clock, **kwargs)
+        return registry.load(BACKENDS, interface, "stations.interface")(channel, bitrate, clock=clock, **kwargs)
     from can.interfaces import VALID_INTERFACES
     if interface not in VALID_INTERFACES:
         raise ConfigError(f"stations.interface = {interface!r} is not a known CAN interface; "

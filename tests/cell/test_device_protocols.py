@@ -48,3 +48,20 @@ def test_the_hardware_devices_and_the_driver_classes_define_every_member():
     assert not missing, f"JointStations lacks {missing}"
     assert {"owner", "take_refusals", "drain_writes"} <= _members(PlcPort)
     assert isinstance(PlcLink(), PlcPort)
+
+
+def test_every_registry_names_an_unknown_backend_and_the_known_ones():
+    import pytest
+
+    from cell.errors import ConfigError
+    from drivers import camera
+    from drivers.plc import open_link
+    from drivers.stations.bus import open_bus
+    with pytest.raises(ConfigError, match=r"devices: unknown backend 'gazebo' \(known: hardware, sim\)"):
+        open_devices(CellConfig(sim=SimSection()), "gazebo")
+    with pytest.raises(ConfigError, match=r"plc.backend: unknown backend 'profinet' \(known: modbus_tcp\)"):
+        open_link("profinet")
+    with pytest.raises(ConfigError, match=r"camera.backend: unknown backend 'gige'"):
+        camera.create("gige")
+    with pytest.raises(ConfigError, match="'nosuchcan' is not a known CAN interface"):
+        open_bus("nosuchcan", "x")

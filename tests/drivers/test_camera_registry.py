@@ -26,7 +26,7 @@ def test_backends_are_imported_only_when_asked_for():
 
 
 def test_unknown_backend_names_the_choices():
-    with pytest.raises(ConfigError, match=r"camera backend 'gige' is unknown; choose one of \['folder', 'opencv', 'sim'\]"):
+    with pytest.raises(ConfigError, match=r"camera.backend: unknown backend 'gige' \(known: folder, opencv, sim\)"):
         create("gige")
 
 
