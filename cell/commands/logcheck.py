@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_check(args: argparse.Namespace) -> int:
     import sqlite3
     from cell.cyclelog import CycleLog
-    from cell.logfile import LogLock
+    from cell.cyclelog.file import LogLock
     path = Path(args.db)
     if not path.is_file():
         raise ConfigError(f"{path}: no cycle log here (pass --db)")

@@ -112,7 +112,7 @@ def _sole_master(cfg, sim: bool):
     a calibration beside a running controller is refused before any drive is touched (the
     simulated cell's devices are this process's own: nothing to hold)."""
     from cell.errors import LogError
-    from cell.logfile import LogLock
+    from cell.cyclelog.file import LogLock
     if sim:
         yield
         return

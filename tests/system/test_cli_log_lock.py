@@ -80,7 +80,7 @@ def test_fresh_runs_keep_every_previous_log(tmp_path):
 def test_keep_previous_never_overwrites_and_moves_the_wal_along(tmp_path):
     from datetime import datetime, timezone
 
-    from cell.logfile import keep_previous
+    from cell.cyclelog.file import keep_previous
     now = datetime(2026, 11, 25, 12, 0, 0, tzinfo=timezone.utc)
     log = tmp_path / "cell.sqlite"
     for i in range(2):
@@ -99,7 +99,7 @@ def test_keep_previous_that_cannot_move_leaves_the_log_in_place(tmp_path):
     """The log's own link succeeds, its -wal's fails (a folder cannot be hard-linked, even
     by root): the log and its sidecar stay where they were and no half copy is left."""
     from cell.errors import LogError
-    from cell.logfile import keep_previous
+    from cell.cyclelog.file import keep_previous
     log = tmp_path / "cell.sqlite"
     log.write_bytes(b"log")
     (tmp_path / "cell.sqlite-wal").mkdir()

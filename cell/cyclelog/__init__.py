@@ -13,7 +13,7 @@ row was being written). A controller that died with a cycle in flight finds it a
 start (:meth:`CycleLog.recover_interrupted`): the cycle is recorded as aborted with fault 503,
 and stays pending (``interrupted``) until the PLC has reset that fault.
 
-Opening (:mod:`cell.logfile`): the controller's log is locked against a second controller
+Opening (:mod:`cell.cyclelog.file`): the controller's log is locked against a second controller
 and checked (``quick_check``) before use; readers open it read-only.
 
 The ``audit`` table is hash-chained (each row stores the SHA-256 of the previous row's hash
@@ -31,10 +31,10 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from cell import logfile
+from cell.cyclelog import file as logfile
 from cell.errors import LogError
 from cell.faults import Fault
-from cell.logfile import LogLock
+from cell.cyclelog.file import LogLock
 
 SCHEMA_VERSION = 4     #: 2 added cycles.motion_json (how the cycle's moves were streamed),
                        #: 3 the open_cycle table (the cycle in flight), 4 cycles.calibration
@@ -154,10 +154,10 @@ class CycleLog:
     :param readonly: open for reading only: no lock, no check, nothing created or changed
         (``report``, ``export``, ``diagnose``; works beside a running controller).
     :param fresh: start an empty log (the simulated cell starts from power-on): the file
-        there is kept under a time-stamped name (:func:`cell.logfile.keep_previous`) — only
+        there is kept under a time-stamped name (:func:`cell.cyclelog.file.keep_previous`) — only
         once this writer holds the lock, so a refused start moves nothing.
     :raises LogError: the file is damaged, not a database, cannot be written (writer), is
-        missing (reader), or another controller holds it (writer); see :mod:`cell.logfile`.
+        missing (reader), or another controller holds it (writer); see :mod:`cell.cyclelog.file`.
     """
 
     def __init__(self, path: Path | str, readonly: bool = False, fresh: bool = False):
