@@ -183,7 +183,7 @@ def wrapper_cost_us(n: int = 200_000) -> float:
 
 
 def child(n: int, db: str) -> int:
-    import cell.app, cell.recipe_validation, cell.sim.assembly, cell.sim.plc  # noqa: F401,E401 -- run_sim imports them lazily
+    import cell.app, cell.recipes.validation, cell.sim.assembly, cell.sim.plc  # noqa: F401,E401 -- run_sim imports them lazily
     from cell import log
     from cell.commands import run as runmod
     log.configure("console", "ERROR")

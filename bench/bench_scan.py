@@ -41,7 +41,7 @@ from cell.controller import CellController, ControllerSettings  # noqa: E402
 from cell.cycle import CycleRunner  # noqa: E402
 from cell.cyclelog import CycleLog  # noqa: E402
 from cell.kinematics import Scara  # noqa: E402
-from cell.recipe_store import RecipeStore  # noqa: E402
+from cell.recipes.store import RecipeStore  # noqa: E402
 from cell.sim.plc import SimPlc  # noqa: E402
 from drivers.plc.server import PlcLink  # noqa: E402
 

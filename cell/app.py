@@ -20,7 +20,7 @@ from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
 from cell.measure import MeasuringCamera
 from cell.publish import Publisher
-from cell.recipe_store import RecipeStore
+from cell.recipes.store import RecipeStore
 from cell.recipes import all_checks, motion_check_from_config, reach_check
 from drivers.plc import open_link
 

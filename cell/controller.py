@@ -42,7 +42,7 @@ from cell.cyclelog import CycleLog, CycleStatus
 from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.publish import Publisher
-from cell.recipe_store import RecipeStore
+from cell.recipes.store import RecipeStore
 from cell.recipes import ActiveRecipe, RecipeAction
 from cell.statemachine import State, StateMachine
 from cell.worker import Job, Worker

@@ -4,7 +4,7 @@
 valid edit between cycles by itself); with ``--config`` also against the cell's joint
 stations (SYNC support, the segment time against the stations' delays). ``diff NAME`` compares the file on disk with the
 version the controller last activated (kept in the cycle log database); ``diff A B``
-compares two files. The checks live in :mod:`cell.recipe_validation`, which the maintenance
+compares two files. The checks live in :mod:`cell.recipes.validation`, which the maintenance
 HMI runs too.
 """
 from __future__ import annotations
@@ -42,12 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _check(path: Path, cell_check=None):
-    from cell.recipe_validation import check_file
+    from cell.recipes.validation import check_file
     return check_file(path, cell_check)
 
 
 def _cell_checks(config: str | None):
-    from cell.recipe_validation import cell_checks
+    from cell.recipes.validation import cell_checks
     check, complete = cell_checks(config)
     if config and not complete:
         print(f"{config}: the stations' latency is measured at start-up; the segment time is "
@@ -56,7 +56,7 @@ def _cell_checks(config: str | None):
 
 
 def _number_clashes(checked: dict[Path, tuple], rdir: Path) -> dict[Path, str]:
-    from cell.recipe_validation import number_clashes
+    from cell.recipes.validation import number_clashes
     return number_clashes(checked, rdir)
 
 

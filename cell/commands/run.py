@@ -145,7 +145,7 @@ def run_sim(args: argparse.Namespace) -> int:
 def _refuse_example(cfg, name: str) -> None:
     """Refuse, before anything starts, to run an example recipe the config does not allow
     (the controller would not activate it; say why and how, not just "not active")."""
-    from cell.recipe_validation import check_file
+    from cell.recipes.validation import check_file
     from cell.recipes import example_refusal
     path = Path(cfg.recipes.directory) / f"{name}.yaml"
     if cfg.recipes.allow_examples or not path.is_file():

@@ -5,7 +5,7 @@ status registers, read-only over Modbus TCP), the accuracy trend, the recipes (v
 against the active version, edit with validation as you type) and the diagnosis reports.
 It never writes the cycle log (the controller holds its writer's lock): a saved recipe
 reaches the cell the way every edit does, through the controller's recipe store, which
-audits it with the user and role of the edit note the HMI leaves (:mod:`cell.recipe_notes`).
+audits it with the user and role of the edit note the HMI leaves (:mod:`cell.recipes.notes`).
 
 Modules: :mod:`~cell.hmi.app` (settings, the shared wiring, the middleware stack),
 :mod:`~cell.hmi.pages` (status, trend, recipes, reports), :mod:`~cell.hmi.auth` (login,

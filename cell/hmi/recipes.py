@@ -1,12 +1,12 @@
 """The HMI's recipe desk: list, view, diff against the active version, validate, save.
 
-Validation is ``cellctl recipe validate``'s (:mod:`cell.recipe_validation`): the schema,
+Validation is ``cellctl recipe validate``'s (:mod:`cell.recipes.validation`): the schema,
 the cell's checks (the robot's reach; with a cell config, the joint stations) and a number
 no other file uses. Saving goes the way of every edit: the controller's
-:class:`~cell.recipe_store.RecipeStore` settles, validates, activates between cycles and
+:class:`~cell.recipes.store.RecipeStore` settles, validates, activates between cycles and
 writes the audit row; the desk only writes the file, atomically (a temporary file made with
-:func:`cell.recipe_notes.temp_file`, fsync, rename over the recipe, fsync of the folder), after an edit note
-(:mod:`cell.recipe_notes`) that puts the user and role in that audit row. Nothing is written
+:func:`cell.recipes.notes.temp_file`, fsync, rename over the recipe, fsync of the folder), after an edit note
+(:mod:`cell.recipes.notes`) that puts the user and role in that audit row. Nothing is written
 for text that fails validation, is too big, or for a file changed since it was loaded.
 
 The active version is read from the cycle log (read-only): the last version the controller
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cell.errors import CellError, ConfigError
-from cell.recipe_notes import temp_file, write_note
-from cell.recipe_validation import check_file, check_text, field_errors, number_clashes
+from cell.recipes.notes import temp_file, write_note
+from cell.recipes.validation import check_file, check_text, field_errors, number_clashes
 
 NAME = re.compile(r"^[a-z0-9][a-z0-9_-]{0,39}$")
 
@@ -48,7 +48,7 @@ class Saved:
 class RecipeDesk:
     """Recipes of ``directory`` for the HMI.
 
-    :param cell_check: the cell's checks (:func:`cell.recipe_validation.checks_for`).
+    :param cell_check: the cell's checks (:func:`cell.recipes.validation.checks_for`).
     :param log_path: the cycle log, opened read-only for the active versions and the audit.
     :param max_bytes: the controller's ``recipes.max_bytes``; bigger text is refused.
     """

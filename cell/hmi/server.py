@@ -66,7 +66,7 @@ def settings_from(config: str | None, users: str, reports: str, plc: tuple[str, 
     from cell.config import CellConfig
     from cell.hmi.recipes import RecipeDesk
     from cell.hmi.users import Users
-    from cell.recipe_validation import checks_for
+    from cell.recipes.validation import checks_for
     cfg = CellConfig.load(config) if config else CellConfig().with_paths()
     check, _ = checks_for(cfg, with_stations=bool(config))
     rdir = Path(recipes or cfg.recipes.directory)

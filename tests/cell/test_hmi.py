@@ -16,8 +16,8 @@ from cell.cyclelog import CycleLog
 from cell.hmi.app import create_app
 from cell.hmi.server import settings_from
 from cell.hmi.users import Users, set_user
-from cell.recipe_notes import note_path
-from cell.recipe_store import RecipeStore
+from cell.recipes.notes import note_path
+from cell.recipes.store import RecipeStore
 
 PASSWORD = "correct horse battery"
 

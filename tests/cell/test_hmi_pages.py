@@ -11,7 +11,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from cell.cyclelog import CycleRecord
-from cell.recipe_store import RecipeStore
+from cell.recipes.store import RecipeStore
 from cell.recipes import motion_check
 from tests.cell.test_hmi import cell, client, editor, hmi, login  # noqa: F401 -- fixtures
 

@@ -19,7 +19,7 @@ from cell.clock import ManualClock
 from cell.hmi.app import create_app
 from cell.hmi.server import settings_from
 from cell.hmi.users import set_user
-from cell.recipe_notes import note_path
+from cell.recipes.notes import note_path
 from tests.cell.test_hmi import PASSWORD, cell, client, csrf, editor, hmi, login  # noqa: F401 -- fixtures
 
 REMOTE = "192.168.10.77"

@@ -14,7 +14,7 @@ import pytest
 from cell.errors import ConfigError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.motion import MotionSpec, Mover, check_mode
-from cell.recipe_store import RecipeStore
+from cell.recipes.store import RecipeStore
 from cell.recipes import motion_check, parse_recipe
 from cell.trajectory.line import TIME_LAWS
 from drivers.stations.streaming import StationCommandError

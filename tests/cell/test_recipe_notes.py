@@ -3,8 +3,8 @@ saved for, and only the exact file it wrote."""
 import hashlib
 import os
 
-from cell.recipe_notes import attribution, note_path, write_note
-from cell.recipe_store import RecipeStore
+from cell.recipes.notes import attribution, note_path, write_note
+from cell.recipes.store import RecipeStore
 
 
 class Audit(list):

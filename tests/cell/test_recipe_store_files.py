@@ -11,7 +11,7 @@ import pytest
 from cell.clock import ManualClock
 from cell.cyclelog import CycleLog
 from cell.errors import ConfigError
-from cell.recipe_store import RecipeAuditError, RecipeStore
+from cell.recipes.store import RecipeAuditError, RecipeStore
 from tests.privileges import as_unprivileged, give_to_nobody, nobody_dir
 
 

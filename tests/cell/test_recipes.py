@@ -5,7 +5,7 @@ import re
 import pytest
 
 from cell.errors import ConfigError
-from cell.recipe_store import RecipeStore
+from cell.recipes.store import RecipeStore
 from cell.recipes import parse_recipe, recipe_schema
 
 from tests.cell.conftest import REPO_RECIPES

@@ -23,7 +23,7 @@ when all of these hold:
 * **Always decided.** A check that fails in a way nobody foresaw (any exception, not only
   a ``ConfigError``) rejects the edit with that reason; no edit is left undecided.
 * **Attributed.** The audit row names the file's owner, or — when an edit note
-  (:mod:`cell.recipe_notes`) describes exactly the bytes and file taken — the user and role
+  (:mod:`cell.recipes.notes`) describes exactly the bytes and file taken — the user and role
   the maintenance HMI saved it for.
 * **Audited first.** Every decision (activate, reject — unreadable, too big, outside the
   folder, invalid — or remove) goes to ``commit`` with the activated text, in one
@@ -46,7 +46,7 @@ from typing import Callable, Mapping
 from cell.clock import Clock, MonotonicClock
 from cell.errors import ConfigError
 from cell.log import get_logger
-from cell.recipe_notes import attribution
+from cell.recipes.notes import attribution
 from cell.recipes import (ActiveRecipe, AuditEntry, CellCheck, RecipeAction, example_refusal, line_of,
                           parse_recipe)
 from cell.yamlio import decode_utf8

@@ -3,7 +3,7 @@
 The running controller holds the cycle log's single-writer lock, so a tool that edits
 recipes for a logged-in user (the maintenance HMI, :mod:`cell.hmi`) cannot write the audit
 row itself. It saves the recipe through the same path as any editor (a new file renamed
-over the old one; the controller's :class:`~cell.recipe_store.RecipeStore` settles,
+over the old one; the controller's :class:`~cell.recipes.store.RecipeStore` settles,
 validates and activates it between cycles) and leaves a note
 ``<recipes>/.edits/<file>.json`` (:class:`EditNote`): user, role, tool, time, and what
 identifies the exact file it wrote: SHA-256 of the bytes, inode, size and modification

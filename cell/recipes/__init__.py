@@ -3,7 +3,7 @@
 A recipe is validated by :class:`Recipe` (units in names, ranges, unknown keys rejected);
 :func:`parse_recipe` names file, line and field of what is wrong. The cell checks recipes
 against its stations with :func:`motion_check`. The active set and how edits reach it are
-in :mod:`cell.recipe_store`.
+in :mod:`cell.recipes.store`.
 """
 from __future__ import annotations
 
