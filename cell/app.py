@@ -18,7 +18,7 @@ from cell.cycle import CycleRunner, CycleSettings, OffsetMemory
 from cell.cyclelog import CycleLog
 from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
-from cell.measure import MeasuringCamera
+from cell.vision.measure import MeasuringCamera
 from cell.publish import Publisher
 from cell.recipes.store import RecipeStore
 from cell.recipes import all_checks, motion_check_from_config, reach_check

@@ -31,7 +31,7 @@ from cell.errors import KinematicsError, TrajectoryError
 from cell.faults import CellFault, Fault, station_fault
 from cell.kinematics import Scara
 from cell.log import get_logger
-from cell.measure import MeasuringCamera
+from cell.vision.measure import MeasuringCamera
 from cell.motion import MotionSpec, MoveReport, Mover
 from cell.recipes import ActiveRecipe
 from cell.statemachine import State

@@ -14,7 +14,7 @@ What is flagged:
    ``setattr`` on a name the scan cannot trace to an import (a local, a fixture) is flagged
    too: patch what we do not own by its import; set the test's own objects directly.
 2. **Assignments and ``del``** onto an attribute or item of a name imported from our
-   packages (``stations.APPLIED_KEEP = 4``, ``cell.measure.locate = f``, ``Cls.meth = f``).
+   packages (``stations.APPLIED_KEEP = 4``, ``cell.vision.measure.locate = f``, ``Cls.meth = f``).
 3. **A function put in place of something ours**: ``x.name = <function>`` where ``name`` is
    defined in ``cell``/``drivers`` (a method, an attribute holding an injected callable) and
    the value is a lambda, a def of the test file, ``functools.partial``, a ``Mock``, or what
@@ -347,8 +347,8 @@ def _flags(source: str) -> list[tuple[int, str]]:
      "st.APPLIED_KEEP"),
     ("def t(monkeypatch):\n    from drivers.plc import memory\n    monkeypatch.setattr(memory, '_state', {})",
      "memory._state"),
-    ("def t(monkeypatch):\n    monkeypatch.setattr('cell.measure.locate', None)", "'cell.measure.locate'"),
-    ("import cell.measure\ndef t():\n    cell.measure.locate = None", "cell.measure.locate"),
+    ("def t(monkeypatch):\n    monkeypatch.setattr('cell.vision.measure.locate', None)", "'cell.vision.measure.locate'"),
+    ("import cell.vision.measure\ndef t():\n    cell.vision.measure.locate = None", "cell.vision.measure.locate"),
     ("from cell.sim.plc import SimPlc\ndef t(mp):\n    mp.setattr(SimPlc, 'run_cycle', f)", "SimPlc.run_cycle"),
     ("from unittest import mock\nfrom cell import effects as fx\ndef t():\n    with mock.patch.object(fx, 'g'):\n"
      "        pass", "fx.g"),

@@ -253,7 +253,7 @@ class CellCalibrator:
 
     def _measuring_camera(self):
         if self.measuring_camera is None:
-            from cell.measure import MeasuringCamera
+            from cell.vision.measure import MeasuringCamera
             v = self.config.vision
             self.measuring_camera = MeasuringCamera(self.devices.camera, self.devices.calibration(),
                                                     v.tool_radius_mm, v.radius_tolerance,

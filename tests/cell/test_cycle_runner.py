@@ -5,7 +5,7 @@ and :class:`cell.cycle.CellArm` use: ``stream``, ``burst_delays`` (fixed per-joi
 ``corrected_velocities`` (from those delays), ``wait_reached``, ``actual_positions``,
 ``cfg.station(j).max_velocity`` and ``quick_stop_all``. A streamed move puts the joints on
 its last target at once; each wait takes 50 ms of a :class:`cell.clock.ManualClock`.
-:class:`FakeCamera` has the :class:`cell.measure.MeasuringCamera` interface: the part lies
+:class:`FakeCamera` has the :class:`cell.vision.measure.MeasuringCamera` interface: the part lies
 at ``part``, the tool where the fake joints put it (nominal kinematics) plus a constant
 ``bias`` (the model error the compensation removes). The cycle log is a real
 :class:`cell.cyclelog.CycleLog` on a temporary SQLite file; the recipe is the shipped
@@ -23,7 +23,7 @@ from cell.cycle import (VERIFY_NOTE, CancelToken, CycleCancelled, CycleRunner, C
 from cell.cyclelog import CycleLog
 from cell.faults import CellFault, Fault
 from cell.kinematics import Scara
-from cell.measure import VISION_FAULTS, MeasuringCamera
+from cell.vision.measure import VISION_FAULTS, MeasuringCamera
 from cell.recipes import ActiveRecipe, content_hash, parse_recipe
 from cell.statemachine import State
 from cell.vision import VisionError

@@ -5,7 +5,7 @@ plane calibration taken from a rendered circle-grid board (cell/sim/assembly.py)
 import numpy as np
 import pytest
 
-from cell.measure import MeasuringCamera
+from cell.vision.measure import MeasuringCamera
 from cell.sim.camera import Fiducial, Optics, render
 from cell.vision import CameraModel
 from cell.vision.calibration import CircleGridBoard, calibrate
