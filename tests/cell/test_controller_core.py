@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import pytest
 
-from cell.controller_core import (ABORT, ACK, EXECUTE, RESET, Audit, CancelCycle, ClearInterrupted,
+from cell.controller.core import (ABORT, ACK, EXECUTE, RESET, Audit, CancelCycle, ClearInterrupted,
                                   ControllerCore, ControllerSettings, DrivesResetIn, PlcWriteIn,
                                   QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
                                   SettleCycle, StartCalibration, StartCycle, StationFaultIn)

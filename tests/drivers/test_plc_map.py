@@ -138,7 +138,7 @@ def test_bits_round_trip():
 def test_masks_and_recipe_statuses_are_the_maps():
     # the PLC's contract (docs: command_word bits 0..4, recipe_status 0..3), and the
     # controller takes its constants from the map, not from numbers of its own
-    from cell import controller_core as core
+    from cell.controller import core
     assert PLC_MAP.mask("command_word", "execute") == 1 and PLC_MAP.mask("command_word") == 0
     assert PLC_MAP.mask("command_word", "reset", "acknowledge") == 0b1010
     assert (core.EXECUTE, core.RESET, core.ABORT, core.ACK, core.CALIBRATE) == (1, 2, 4, 8, 16)

@@ -7,7 +7,7 @@ a second, long-lived task (the "cell-cycle" :class:`~cell.worker.Worker`), so th
 serving the PLC, the heartbeat watchdog and abort while joints move. (Long-lived on
 purpose: OpenCV keeps about 0.9 kB of thread-local state for every thread that calls it,
 which a thread per cycle leaked, about 0.9 MB per 1000 cycles; bench/bench_soak.py.) All
-decisions are in :class:`~cell.controller_core.ControllerCore` (see its module doc for the
+decisions are in :class:`~cell.controller.core.ControllerCore` (see its module doc for the
 handshake); this shell only moves data in and out:
 
 * in: the PLC's writes and heartbeat time, the register image, the stations' latched
@@ -34,7 +34,7 @@ import structlog
 
 from cell.clock import Clock, MonotonicClock
 
-from cell.controller_core import (Audit, CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
+from cell.controller.core import (Audit, CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
                                   ScanInputs, SettleCycle, StartCalibration, StartCycle, StationFaultIn)
 from cell.cycle import CancelToken, CycleOutcome, CycleRunner
