@@ -208,3 +208,34 @@ def test_wall_clock_primitives_are_the_standard_ones():
         t0 = c.now()
         c.sleep(0.001)
         assert c.now() > t0
+
+
+# ------------------------------------------------------------------ who runs the agenda
+def test_a_task_that_waits_runs_the_due_callbacks_itself_and_wakes_without_a_hand_off(clock):
+    """Pure mode: the task that lets go of the baton runs what is due before its own wake-up
+    in its own thread, in the agenda's order, and resumes without a thread switch."""
+    seen = []
+    with clock.attach("main"):
+        for k in range(5):
+            clock.call_later(0.001 * k, lambda k=k: seen.append((k, clock.now(), threading.current_thread().name)))
+        before = clock.handoffs
+        clock.sleep(0.01)
+        assert clock.handoffs == before                       # its own wake-up: no switch
+    assert [(k, t) for k, t, _ in seen] == [(k, pytest.approx(0.001 * k)) for k in range(5)]
+    assert {name for _, _, name in seen} == {threading.current_thread().name}
+
+
+def test_a_callback_may_not_wait_in_whichever_thread_it_runs(clock):
+    errors = []
+
+    def waits():
+        try:
+            clock.sleep(0.001)
+        except ClockError as exc:
+            errors.append(str(exc))
+
+    with clock.attach("main"):
+        clock.call_later(0.001, waits)
+        clock.sleep(0.01)                                     # the callback runs in this thread
+        assert clock.keeps_time()                             # back in the task: it may wait
+    assert len(errors) == 1 and "inside a clock callback" in errors[0]
