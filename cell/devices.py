@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 from cell.clock import Clock, MonotonicClock
 from cell.config import CellConfig
 from cell.errors import ConfigError
-from drivers import registry
 from cell.kinematics import Scara
 from cell.vision.calibration import PlaneCalibration
+from drivers import registry
 
 if TYPE_CHECKING:
     from cell.motion import JointMotion

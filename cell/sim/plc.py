@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import struct
 import threading
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException, ModbusIOException
@@ -36,7 +36,7 @@ from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
-from drivers.plc.register_map import PLC_MAP, RegisterMap
+from drivers.plc.register_map import PLC_MAP, PlcMapError, RegisterMap
 
 
 def _log():
@@ -77,26 +77,6 @@ class _ReadWriteRegistersResponse(_RegistersResponse):
     function_code = 23
 
 
-class _InputImage(Mapping[str, int]):
-    """One scan's input image, a register decoded only when it is read: a scan reads all
-    of the map, a waiting handshake step looks at two or three registers of it."""
-
-    __slots__ = ("_words", "_layout")
-
-    def __init__(self, words: list[int], layout: dict[str, tuple[int, int]]):
-        self._words, self._layout = words, layout
-
-    def __getitem__(self, name: str) -> int:
-        a, n = self._layout[name]
-        return (self._words[a] << 16) | self._words[a + 1] if n == 2 else self._words[a]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._layout)
-
-    def __len__(self) -> int:
-        return len(self._layout)
-
-
 class SimPlcError(CellError):
     """The simulated PLC could not do what was asked (no connection, timeout, refused write)."""
 
@@ -123,7 +103,6 @@ class SimPlc:
             self._client.register(response)
         self._cv = threading.RLock()             # guards the images (short holds only)
         self._waiters: list = []                 # (ready, event): set by the scan that makes ready() true
-        self._layout = {r.name: (r.address, r.words) for r in register_map}
         self._inputs: Mapping[str, int] = {}
         self._outputs = {n: 0 for n in OUTPUTS}    # wanted values (replaced at start)
         self._written = dict(self._outputs)        # values last sent (or refused)
@@ -420,10 +399,11 @@ class SimPlc:
         if rr.isError():
             self._link_error("read", rr)
             return None
-        if len(rr.registers) < self.map.size:
-            self._link_error("read", f"{len(rr.registers)} registers, the map has {self.map.size}")
+        try:
+            return self.map.view(rr.registers)
+        except PlcMapError as exc:                 # a short answer: the server is not ours
+            self._link_error("read", exc)
             return None
-        return _InputImage(rr.registers, self._layout)
 
     def _write(self, name: str, value: int) -> int:
         """Write one register; 0 if accepted, the Modbus exception code if refused, -1 on I/O error."""

@@ -279,6 +279,27 @@ read-only register, half of a 32-bit pair) or 03 (value out of range) and change
 even in a multi-register write where only one value is bad."""
 
 
+class ImageView(Mapping[str, int]):
+    """The named values of a register image, each decoded (high word first for u32) only
+    when it is read: a PLC scan reads the whole map, a handshake step looks at two or three
+    registers of it. Built by :meth:`RegisterMap.view`."""
+
+    __slots__ = ("_words", "_at")
+
+    def __init__(self, words: Sequence[int], at: Mapping[str, tuple[int, int]]):
+        self._words, self._at = words, at
+
+    def __getitem__(self, name: str) -> int:
+        a, n = self._at[name]
+        return (self._words[a] << 16) | self._words[a + 1] if n == 2 else self._words[a]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._at)
+
+    def __len__(self) -> int:
+        return len(self._at)
+
+
 class RegisterMap:
     """An ordered, validated set of :class:`Register` covering addresses ``0 .. size-1``.
 
@@ -309,8 +330,8 @@ class RegisterMap:
                                       f"{reg.address + i}")
                 self._by_addr[reg.address + i] = (reg, i)
             self._by_name[reg.name] = reg
-        # (name, address, words) of every register, for decoding a whole image at once
-        self._layout = tuple((r.name, r.address, r.words) for r in self._by_name.values())
+        # name -> (address, words): what an image view decodes a register from
+        self._at = {r.name: (r.address, r.words) for r in self._by_name.values()}
 
     # -- look-ups
     def __iter__(self) -> Iterator[Register]:
@@ -369,12 +390,16 @@ class RegisterMap:
             raise PlcMapError(f"register {name}: needs {reg.words} words, got {len(words)}")
         return (words[0] << 16) | words[1] if reg.words == 2 else words[0]
 
-    def decode_image(self, image: Sequence[int]) -> dict[str, int]:
-        """All named values from a full image of ``size`` words (e.g. one FC3 read of the map)."""
+    def view(self, image: Sequence[int]) -> ImageView:
+        """The named values of a full image of ``size`` words (e.g. one FC3 read of the map),
+        each decoded when it is read. Raises :class:`PlcMapError` for a short image."""
         if len(image) < self.size:
             raise PlcMapError(f"register map: image has {len(image)} words, map needs {self.size}")
-        return {name: (image[a] << 16) | image[a + 1] if words == 2 else image[a]
-                for name, a, words in self._layout}
+        return ImageView(image, self._at)
+
+    def decode_image(self, image: Sequence[int]) -> dict[str, int]:
+        """All named values of a full image, decoded now (see :meth:`view`)."""
+        return dict(self.view(image))
 
     def bits(self, name: str, value: int) -> dict[str, bool]:
         """Named bits of bit-field register ``name`` in ``value``."""

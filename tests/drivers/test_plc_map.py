@@ -209,3 +209,15 @@ def test_cellctl_registers_refuses_an_unknown_format(capsys):
         _cli(["registers", "--format", "xml"])
     assert info.value.code == 2
     assert "invalid choice: 'xml'" in capsys.readouterr().err
+
+
+def test_an_image_view_decodes_each_register_as_the_whole_decode_does():
+    image = [(7 * a + 3) & 0xFFFF for a in range(PLC_MAP.size)]
+    view = PLC_MAP.view(image)
+    assert dict(view) == PLC_MAP.decode_image(image)
+    part = PLC_MAP["part_id"]
+    assert view["part_id"] == (image[part.address] << 16) | image[part.address + 1]   # u32, high word first
+    with pytest.raises(KeyError):
+        view["no_such_register"]
+    with pytest.raises(PlcMapError, match="image has 69 words, map needs 70"):
+        PLC_MAP.view(image[:-1])
