@@ -178,9 +178,19 @@ def check_request(pdu: bytes, supported: dict[int, Callable[[bytes], bool]] = SU
     return None if check(pdu) else ILLEGAL_DATA_VALUE
 
 
+def exception_pdu(function_code: int, code: int) -> bytes:
+    """The exception PDU answering ``function_code``: (function code | 0x80, ``code``)."""
+    return bytes(((function_code | 0x80) & 0xFF, code))
+
+
+def adu(frame: Frame, pdu: bytes) -> bytes:
+    """MBAP header + ``pdu``, answering ``frame`` (its transaction and unit id)."""
+    return struct.pack(">HHHB", frame.tid, 0, len(pdu) + 1, frame.unit) + pdu
+
+
 def exception_adu(frame: Frame, code: int) -> bytes:
     """MBAP + exception PDU (function code | 0x80, ``code``) answering ``frame``."""
-    return struct.pack(">HHHBBB", frame.tid, 0, 3, frame.unit, (frame.pdu[0] | 0x80) & 0xFF, code)
+    return adu(frame, exception_pdu(frame.pdu[0], code))
 
 
 class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
@@ -368,8 +378,7 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
             self._send_raw(exception_adu(frame, code))
             return
         if self.server.registers is not None and frame.pdu[0] in REGISTER_FCS:
-            answer = self.server.registers(frame.pdu, self.peer)
-            self._send_raw(struct.pack(">HHHB", frame.tid, 0, len(answer) + 1, frame.unit) + answer)
+            self._send_raw(adu(frame, self.server.registers(frame.pdu, self.peer)))
             return
         pdu = self.framer.decoder.decode(frame.pdu)
         if pdu is None:  # passed our checks yet pymodbus cannot decode it

@@ -33,7 +33,8 @@ from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
 from drivers.plc.access import CURRENT_PEER, AccessPolicy, ConnectionGuard, Peer
-from drivers.plc.conformance import ConformantTcpServer, ConformantTlsServer, ServerStartError, ServerThread
+from drivers.plc.conformance import (ConformantTcpServer, ConformantTlsServer, ServerStartError, ServerThread,
+                                     exception_pdu)
 from drivers.plc.register_map import PLC_MAP, PlcWriteRejected, RegisterMap, RegType
 
 
@@ -380,21 +381,21 @@ class PlcLink:
         if fc == 6:
             address, value = struct.unpack_from(">HH", pdu, 1)
             code = self._plc_write(fc, address, [value], peer)
-            return pdu if code is None else bytes((fc | 0x80, code))
+            return pdu if code is None else exception_pdu(fc, code)
         if fc == 16:
             address, qty = struct.unpack_from(">HH", pdu, 1)
             code = self._plc_write(fc, address, list(struct.unpack_from(f">{qty}H", pdu, 6)), peer)
-            return pdu[:5] if code is None else bytes((fc | 0x80, code))
+            return pdu[:5] if code is None else exception_pdu(fc, code)
         if fc == 23:
             read_at, read_qty, write_at, write_qty = struct.unpack_from(">HHHH", pdu, 1)
             code = self._plc_write(fc, write_at, list(struct.unpack_from(f">{write_qty}H", pdu, 10)), peer)
-            return self._read_pdu(fc, read_at, read_qty) if code is None else bytes((fc | 0x80, code))
+            return self._read_pdu(fc, read_at, read_qty) if code is None else exception_pdu(fc, code)
         raise ValueError(f"function code {fc} is not a register function")
 
     def _read_pdu(self, fc: int, start: int, qty: int) -> bytes:
         with self._lock:
             if start + qty > len(self._image):
-                return bytes((fc | 0x80, ExcCodes.ILLEGAL_ADDRESS))
+                return exception_pdu(fc, ExcCodes.ILLEGAL_ADDRESS)
             words = self._image[start:start + qty]
         return struct.pack(f">BB{qty}H", fc, 2 * qty, *words)
 
