@@ -27,7 +27,7 @@ Plants:
 Truths of the DH parameters: ``j1.theta`` / ``j2.theta`` = the joint zero (for j2 less half
 its backlash: the calibration approaches every pose from below); ``j1.a`` / ``j2.a`` = the
 link delta plus the thermal growth at the calibration's mean time; ``base.*`` from the
-board placement of cell/sim/handcam.py. Angle-dependent effects (gear ratio, cyclic
+board placement of drivers/camera/sim_hand.py. Angle-dependent effects (gear ratio, cyclic
 error) have no constant truth; they are left to the residual.
 
     .venv/bin/python bench/bench_calibration.py                # all plants, 30 parts each
@@ -60,9 +60,9 @@ from cell.calibration.service import CellCalibrator  # noqa: E402
 from cell.config import CellConfig, SimSection  # noqa: E402
 from cell.effects import EFFECTS  # noqa: E402
 from cell.sim.assembly import SimDevices  # noqa: E402
-from cell.sim.handcam import BOARD_PLACEMENT  # noqa: E402
-from cell.vision.calibration import DEFAULT_BOARD  # noqa: E402
 from cell.sim.plc import SimPlc, SimPlcError  # noqa: E402
+from cell.vision.calibration import DEFAULT_BOARD  # noqa: E402
+from drivers.camera.sim_hand import BOARD_PLACEMENT  # noqa: E402
 
 DEFAULT = yaml.safe_load((REPO / "deploy/plants/default.yaml").read_text())
 

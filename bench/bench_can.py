@@ -60,11 +60,11 @@ from cell.kinematics import JOINT_NAMES, Scara  # noqa: E402
 from cell.log import configure  # noqa: E402
 from cell.motion import segments_for  # noqa: E402
 from cell.sim.clock import VirtualClock  # noqa: E402
-from cell.sim.stations import SimStationSet  # noqa: E402
 from cell.trajectory.line import joint_positions_at, plan_line, tool_positions  # noqa: E402
 from drivers.stations.bus import frame_time_s  # noqa: E402
 from drivers.stations.config import StationConfig, StationsConfig  # noqa: E402
 from drivers.stations.driver import JointStations  # noqa: E402
+from drivers.stations.sim import SimStationSet  # noqa: E402
 
 ROBOT = Scara.preset("seed002")
 LINES = {

@@ -135,9 +135,9 @@ def accounted(fn, label: str, side: str):
 def install_wrappers() -> None:
     import weakref
     import drivers.stations.driver as driver
-    from cell.sim.camera import SimCamera
-    from cell.sim.canbus import ClockCyclicTask
     from cell.sim.clock import VirtualClock
+    from drivers.camera.sim import SimCamera
+    from drivers.stations.sim_bus import ClockCyclicTask
     ctl_buses = weakref.WeakSet()
     open_bus = driver.open_bus
 

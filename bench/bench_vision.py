@@ -38,10 +38,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cell import progress  # noqa: E402
-from cell.vision.measure import MeasuringCamera  # noqa: E402
-from cell.vision.calibration import CircleGridBoard, calibrate  # noqa: E402
 from cell.vision import CameraModel, find_fiducial, find_fiducials  # noqa: E402
-from cell.sim.camera import Fiducial, Optics, render, render_float  # noqa: E402
+from cell.vision.calibration import CircleGridBoard, calibrate  # noqa: E402
+from cell.vision.measure import MeasuringCamera  # noqa: E402
+from drivers.camera.sim import Fiducial, Optics, render, render_float  # noqa: E402
 
 RADIUS_PX, BLUR_PX, CONTRAST, BACKGROUND = 10.0, 0.9, 160.0, 50.0
 NOISES = (2.0, 10.0)

@@ -343,7 +343,7 @@ def _flags(source: str) -> list[tuple[int, str]]:
 
 
 @pytest.mark.parametrize("source, target", [
-    ("import cell.sim.stations as st\ndef t(monkeypatch):\n    monkeypatch.setattr(st, 'APPLIED_KEEP', 4)",
+    ("import drivers.stations.sim as st\ndef t(monkeypatch):\n    monkeypatch.setattr(st, 'APPLIED_KEEP', 4)",
      "st.APPLIED_KEEP"),
     ("def t(monkeypatch):\n    from drivers.plc import memory\n    monkeypatch.setattr(memory, '_state', {})",
      "memory._state"),
@@ -364,7 +364,7 @@ def _flags(source: str) -> list[tuple[int, str]]:
     ("def spy(f):\n    def w(*a):\n        return f(*a)\n    return w\n\n\ndef t(store):\n"
      "    store.refresh = spy(store.refresh)", "store.refresh"),
     ("from unittest.mock import MagicMock\ndef t(store):\n    store.refresh = MagicMock()", "store.refresh"),
-    ("import cell.sim.canbus as canbus\ndef t():\n    canbus._wires['x'] = None", "canbus._wires['x']"),
+    ("import drivers.stations.sim_bus as canbus\ndef t():\n    canbus._wires['x'] = None", "canbus._wires['x']"),
     ("def t(monkeypatch, rig):\n    monkeypatch.setattr(rig.runner, 'anything', 1)", "rig.runner.anything"),
 ])
 def test_the_scan_flags_a_patch(source, target):

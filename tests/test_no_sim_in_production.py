@@ -1,12 +1,16 @@
-"""Production code never imports the simulated cell (cell/sim), at load time (the AST of every
-module) nor at run time (a hardware start in a subprocess): the device registry and the
-bus and camera factories name its modules as strings, imported only when a config asks for
-the simulated devices. Every module of cell/ and drivers/ outside cell/sim is scanned with
-the AST, imports inside functions included. The one exception is named with its reason."""
+"""Production code never imports simulation code (the simulated cell, cell/sim, and the
+drivers' simulated twins, drivers/*/sim*.py: :func:`drivers.registry.is_simulation`), at
+load time (the AST of every module) nor at run time (a hardware start in a subprocess):
+the device registry and the bus and camera factories name those modules as strings,
+imported only when a config asks for the simulated devices. Every module of cell/ and
+drivers/ that is not simulation code is scanned with the AST, imports inside functions
+included. The one exception is named with its reason."""
 from __future__ import annotations
 
 import ast
 from pathlib import Path
+
+from drivers.registry import is_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 #: ``cellctl run --sim`` is the main job: it starts the simulated PLC (a real Modbus client)
@@ -29,13 +33,22 @@ def test_production_modules_do_not_import_the_simulation():
     for top in ("cell", "drivers"):
         for path in sorted((ROOT / top).rglob("*.py")):
             rel = path.relative_to(ROOT).as_posix()
-            if rel.startswith("cell/sim/"):
+            if is_simulation(rel.removesuffix(".py").removesuffix("/__init__").replace("/", ".")):
                 continue
-            sim = {m for m in _imports(path) if m == "cell.sim" or m.startswith("cell.sim.")}
+            sim = {m for m in _imports(path) if is_simulation(m)}
             sim -= {m for m in sim for a in ALLOWED.get(rel, ()) if m == a or m.startswith(a + ".")}
             if sim:
                 bad.append(f"{rel}: {sorted(sim)}")
     assert not bad, "production code imports the simulation:\n" + "\n".join(bad)
+
+
+def test_simulation_code_is_named_by_where_it_lives():
+    sim = ["cell.sim", "cell.sim.plant.arm", "drivers.camera.sim", "drivers.camera.sim_hand",
+           "drivers.stations.sim", "drivers.stations.sim_bus"]
+    production = ["cell.simple", "cell.devices", "drivers.camera", "drivers.camera.base",
+                  "drivers.stations.bus", "drivers.stations.simulink", "drivers"]
+    assert [m for m in sim if not is_simulation(m)] == []
+    assert [m for m in production if is_simulation(m)] == []
 
 
 def test_the_scan_sees_an_import_inside_a_function(tmp_path):
@@ -63,8 +76,9 @@ def test_a_hardware_start_loads_no_simulation_module(tmp_path):
     cfg["recipes"]["directory"] = str(ROOT / "recipes")
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cfg))
     probe = ("import json, sys\nfrom cell.cli import main\ncode = main(['serve', '--config', 'cell.yaml', "
-             "'--seconds', '1'])\nprint(json.dumps({'code': code, 'sim': sorted(m for m in sys.modules "
-             "if m == 'cell.sim' or m.startswith('cell.sim.')), 'loaded': sorted(m for m in sys.modules "
+             "'--seconds', '1'])\nfrom drivers.registry import is_simulation\n"
+             "print(json.dumps({'code': code, 'sim': sorted(m for m in sys.modules "
+             "if is_simulation(m)), 'loaded': sorted(m for m in sys.modules "
              "if m.startswith(('cell.', 'drivers.')))}))")
     out = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True,
                          timeout=300, env=dict(os.environ, PYTHONPATH=str(ROOT)))

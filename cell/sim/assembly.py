@@ -5,16 +5,16 @@ Only the devices are simulated; the controller talks to them exactly as to real 
 
 * clock: :class:`cell.sim.clock.VirtualClock` (pure for ``cellctl run --sim``, paced to
   wall time for ``cellctl serve --sim``); the controller gets the same clock;
-* joint stations: four CANopen devices (:class:`cell.sim.stations.SimStationSet`) on the
+* joint stations: four CANopen devices (:class:`drivers.stations.sim.SimStationSet`) on the
   virtual wire, driven by the real ``JointStations`` driver, which measures their
   latency on the bus at start-up; each axis reports its position to the plant;
-* camera: :class:`cell.sim.camera.SimCamera` renders the tool's and the part's fiducials
+* camera: :class:`drivers.camera.sim.SimCamera` renders the tool's and the part's fiducials
   at their TRUE positions (the plant's effects included) into 8-bit images, taking
   ``frame_time_s`` of clock time per frame;
 * calibration: at start-up a circle-grid board is rendered through that camera and
   calibrated with the same code a real cell uses (``cell.vision.calibrate``);
 * parts: :class:`PartFeeder` is the conveyor; the PLC (simulated or real) indexes it;
-* hand camera: :class:`cell.sim.handcam.SimHandRig`, the camera on the hand that robot
+* hand camera: :class:`drivers.camera.sim_hand.SimHandRig`, the camera on the hand that robot
   calibration uses, and the fixture in front of it (``place_fixture``, what the operator
   does before a calibration).
 """
@@ -30,14 +30,14 @@ import numpy as np
 from cell.config import CellConfig, SimSection
 from cell.kinematics import JOINT_NAMES, Scara
 from cell.recipes import Recipe
-from cell.sim.camera import Fiducial, Optics, SimCamera
 from cell.sim.clock import VirtualClock
-from cell.sim.handcam import SimHandRig
 from cell.sim.plant import Plant
-from cell.sim.stations import SimStationSet
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration, calibrate
 from cell.vision.camera_model import CameraModel
+from drivers.camera.sim import Fiducial, Optics, SimCamera
+from drivers.camera.sim_hand import SimHandRig
 from drivers.stations import JointStations, StationConfig, StationsConfig
+from drivers.stations.sim import SimStationSet
 
 _channels = itertools.count()
 CAMERA_FRAME_S = 0.02        #: exposure + read-out of one simulated frame, clock seconds

@@ -18,7 +18,7 @@ from drivers.camera.base import Camera, CameraError, CameraState, Frame
 BACKENDS: dict[str, str] = {
     "opencv": "drivers.camera.opencv_capture:OpenCVCamera",
     "folder": "drivers.camera.folder:FolderCamera",
-    "sim": "cell.sim.camera:SimCamera",
+    "sim": "drivers.camera.sim:SimCamera",
 }
 
 __all__ = ["BACKENDS", "Camera", "CameraError", "CameraState", "Frame", "backend_class",

@@ -8,7 +8,7 @@
 * :mod:`.cia402` — the drive state machine; :mod:`.faults` — fault codes, latch, monitors.
 
 The simulated drives and the virtual CAN wire are part of the simulated cell
-(:mod:`cell.sim.stations`, :mod:`cell.sim.canbus`).
+(:mod:`drivers.stations.sim`, :mod:`drivers.stations.sim_bus`).
 """
 from drivers.stations.config import StationConfig, StationsConfig
 from drivers.stations.driver import JointStations, StationStartupError

@@ -1,7 +1,7 @@
 """CAN bus factory (backends by name) and classic-CAN bit timing.
 
 :func:`open_bus` builds the bus named in the config: ``"virtual"`` is the simulated cell's
-wire (:mod:`cell.sim.canbus`, python-can's ``virtual`` interface with a bitrate, on the
+wire (:mod:`drivers.stations.sim_bus`, python-can's ``virtual`` interface with a bitrate, on the
 simulated clock), imported only when a config names it; every other name goes to
 python-can's own interface registry (``socketcan``, ``pcan``, ``kvaser``, ...), imported
 lazily by python-can. :func:`connect_network` hooks a canopen ``Network`` to either. The
@@ -145,7 +145,7 @@ def frame_time_s(msg: can.Message, bitrate: int) -> float:
 
 # ------------------------------------------------------------------------------ factory
 #: our own backends by name ("module:function"), imported only when a config names them
-BACKENDS = {"virtual": "cell.sim.canbus:open_virtual_bus"}
+BACKENDS = {"virtual": "drivers.stations.sim_bus:open_virtual_bus"}
 
 
 def open_bus(interface: str, channel: str, bitrate: int | None = 1_000_000, *,

@@ -1,7 +1,7 @@
 """CiA 402 drive state machine (power drive systems): states, controlword commands,
 statusword coding and an explicit transition table. Pure logic, no I/O.
 
-Both sides use it: the simulated station (:mod:`cell.sim.stations`) steps its
+Both sides use it: the simulated station (:mod:`drivers.stations.sim`) steps its
 :class:`DriveStateMachine` on every controlword it receives; the controller
 (:mod:`drivers.stations.driver`) decodes statuswords and plans the controlword sequence
 that brings a drive to *Operation enabled* (:func:`path_to`).

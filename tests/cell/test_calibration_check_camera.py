@@ -10,9 +10,9 @@ import yaml
 
 from cell.cli import main
 from cell.cyclelog import CycleLog
-from cell.sim.camera import SimCamera
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration
 from cell.vision.camera_model import CameraModel
+from drivers.camera.sim import SimCamera
 
 # the board of tests/cell/test_cli_calibrate.py, seen by a nadir camera at 0.08 mm/px
 BOARD = CircleGridBoard(cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=(234.0, 920.0))

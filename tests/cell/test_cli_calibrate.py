@@ -8,7 +8,7 @@ import yaml
 from cell.cli import main
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration
 from cell.vision.camera_model import CameraModel
-from cell.sim.camera import Fiducial, SimCamera
+from drivers.camera.sim import Fiducial, SimCamera
 
 BOARD = dict(kind="circles", cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0,
              origin_mm=[234.0, 920.0], angle_deg=0.0)

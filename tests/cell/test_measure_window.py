@@ -5,10 +5,10 @@ plane calibration taken from a rendered circle-grid board (cell/sim/assembly.py)
 import numpy as np
 import pytest
 
-from cell.vision.measure import MeasuringCamera
-from cell.sim.camera import Fiducial, Optics, render
 from cell.vision import CameraModel
 from cell.vision.calibration import CircleGridBoard, calibrate
+from cell.vision.measure import MeasuringCamera
+from drivers.camera.sim import Fiducial, Optics, render
 
 CENTRE = (250.0, 930.0)
 MODEL = CameraModel.nadir(640, 512, 0.08, centre_mm=CENTRE)

@@ -81,9 +81,9 @@ def test_the_board_in_a_cell_config_says_which_key_was_meant(tmp_path):
 def _board_images(folder: Path) -> None:
     import cv2
 
-    from cell.sim.camera import SimCamera
     from cell.vision.calibration import CircleGridBoard
     from cell.vision.camera_model import CameraModel
+    from drivers.camera.sim import SimCamera
     board = CircleGridBoard(cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=(234.0, 920.0))
     cam = SimCamera(CameraModel.nadir(640, 512, 0.08, centre_mm=(250.0, 930.0)), lambda: [board], seed=3)
     cam.open()

@@ -14,7 +14,7 @@ import cell.truth
 
 TRUTH = Path(cell.truth.__file__).parent
 FITTER_SIDE = ("cell.diagnosis", "cell.calibration", "cell.effects", "cell.sim",
-               "cell.kinematics", "cell.compensation", "cell.measurements")
+               "cell.kinematics", "cell.compensation", "cell.measurements", "drivers")
 MODULES = sorted(TRUTH.glob("*.py"))
 
 

@@ -12,7 +12,7 @@ from cell.errors import ConfigError
 from cell.vision import (CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics,
                          PlaneCalibration, Pose, VisionError, board_from_dict, calibrate,
                          detect_board, find_fiducial, locate)
-from cell.sim.camera import Fiducial, Optics, render
+from drivers.camera.sim import Fiducial, Optics, render
 from tests.cell.test_vision_fiducial import crb_centre_px
 
 # A tilted, rotated camera with barrel distortion and an off-centre principal point;

@@ -8,7 +8,7 @@ import pytest
 
 from cell.errors import MeasurementError
 from cell.vision import CameraModel, VisionError, find_fiducial, find_fiducials, refine_fiducial
-from cell.sim.camera import Fiducial, Optics, render
+from drivers.camera.sim import Fiducial, Optics, render
 
 # 1 px = 1 mm, optical axis at (0, 0): pixel truth is model.project(centre).
 MODEL = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)

@@ -13,7 +13,7 @@ import pytest
 
 from cell.clock import ManualClock
 from drivers.camera import Camera, CameraError, CameraState, Frame, create
-from cell.sim.camera import Fiducial
+from drivers.camera.sim import Fiducial
 
 W, H, N = 96, 64, 4
 

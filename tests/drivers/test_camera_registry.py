@@ -18,10 +18,10 @@ def test_names_map_to_classes():
 
 def test_backends_are_imported_only_when_asked_for():
     code = ("import sys, drivers.camera as c; "
-            "assert 'cell.sim.camera' not in sys.modules; "
+            "assert 'drivers.camera.sim' not in sys.modules; "
             "assert 'drivers.camera.opencv_capture' not in sys.modules; "
             "c.backend_class('folder'); "
-            "assert 'drivers.camera.folder' in sys.modules and 'cell.sim.camera' not in sys.modules")
+            "assert 'drivers.camera.folder' in sys.modules and 'drivers.camera.sim' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

@@ -8,7 +8,7 @@ from cell.clock import ManualClock
 from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
-from cell.sim.camera import Fiducial, Optics, SimCamera, render, render_float, render_radiance
+from drivers.camera.sim import Fiducial, Optics, SimCamera, render, render_float, render_radiance
 
 NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
 TILTED = CameraModel(Intrinsics(900.0, 900.0, 66.0, 61.0, 128, 128),

@@ -1,4 +1,4 @@
-"""The simulated CAN wire (cell.sim.canbus) on the discrete-event clock: slot timing from
+"""The simulated CAN wire (drivers.stations.sim_bus) on the discrete-event clock: slot timing from
 each frame's exact bits, FIFO order, push delivery to listeners and pull-mode ``recv`` in
 clock time, frames the wire refuses, and what a refused transmit does to the controller
 (SEND_FAILED) and to a station (bus-off → the controller loses its heartbeat).
@@ -16,14 +16,14 @@ import pytest
 from cell.clock import ClockError, MonotonicClock
 from cell.errors import ConfigError
 from cell.kinematics import Scara
-from cell.sim.canbus import VirtualCanBus, VirtualWire, wire_stats
 from cell.sim.clock import VirtualClock
-from cell.sim.stations import SimStationSet
 from drivers.stations.bus import frame_bits, open_bus
 from drivers.stations.cia402 import State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.driver import JointStations
 from drivers.stations.faults import FaultCode, StationFaultError
+from drivers.stations.sim import SimStationSet
+from drivers.stations.sim_bus import VirtualCanBus, VirtualWire, wire_stats
 from tests.drivers.conftest import clock_wait_for, drain, unique_channel
 
 EXACT = 1e-12

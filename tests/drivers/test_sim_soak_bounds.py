@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-import cell.sim.canbus as canbus
-from cell.sim.stations import APPLIED_KEEP, SimStation, SimStationConfig, SimStationSet
 from drivers.stations.driver import JointStations
+from drivers.stations.sim import APPLIED_KEEP, SimStation, SimStationConfig, SimStationSet
+import drivers.stations.sim_bus as canbus
 from tests.drivers.test_stations_sim import CPU, _cell_cfg, _close, _rig, _setpoint
 
 

@@ -24,15 +24,15 @@ import pytest
 
 from cell.clock import MonotonicClock
 from cell.kinematics import Scara
-from cell.sim.canbus import wire_stats
 from cell.sim.clock import VirtualClock
-from cell.sim.stations import SimStationSet
 from cell.trajectory.line import plan_line
 from drivers.stations.bus import frame_bits, frame_time_s, open_bus
 from drivers.stations.cia402 import State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.driver import JointStations, StationCommandError
 from drivers.stations.faults import FaultCode, StationFaultError
+from drivers.stations.sim import SimStationSet
+from drivers.stations.sim_bus import wire_stats
 from tests.drivers.conftest import clock_wait_for, drain, unique_channel
 
 # Short timings keep the tests short in simulated time; on the simulated clock they are

@@ -14,15 +14,15 @@ import pytest
 from pydantic import ValidationError
 
 from cell.kinematics import Scara
-from cell.sim.canbus import wire_stats
 from cell.sim.clock import VirtualClock
-from cell.sim.stations import EMCY_HEARTBEAT, SimStation, SimStationConfig, SimStationSet
 from cell.trajectory.line import plan_line
 from drivers.stations import cia402
 from drivers.stations.bus import connect_network, frame_bits, open_bus
 from drivers.stations.cia402 import State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.driver import EDS_PATH, JointStations, StationStartupError, _remote_node
+from drivers.stations.sim import EMCY_HEARTBEAT, SimStation, SimStationConfig, SimStationSet
+from drivers.stations.sim_bus import wire_stats
 from tests.drivers.conftest import clock_wait_for, unique_channel
 
 CPU = 10_000 * 50 / 360          #: increments per degree once the rig set gear 50:1

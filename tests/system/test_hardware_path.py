@@ -20,14 +20,14 @@ from cell.app import Cell
 from cell.config import CellConfig
 from cell.faults import Fault
 from cell.sim.assembly import stations_config
-from cell.sim.camera import SimCamera
 from cell.sim.clock import VirtualClock
 from cell.sim.plc import SimPlc
-from cell.sim.stations import SimStationSet
 from cell.statemachine import State
 from cell.vision.calibration import CircleGridBoard, calibrate
 from cell.vision.camera_model import CameraModel
+from drivers.camera.sim import SimCamera
 from drivers.plc.register_map import PLC_MAP
+from drivers.stations.sim import SimStationSet
 from tests.system.conftest import REPO, make_config
 
 
@@ -83,7 +83,8 @@ def test_the_hardware_path_imports_no_simulation_module():
             "drivers.camera.opencv_capture, cell.commands.run, cell.commands.report, cell.commands.recipe\n"
             "from cell.devices import HardwareDevices\n"
             "cell.cli.build_parser()\n"
-            "print('\\n'.join(sorted(m for m in sys.modules if m == 'cell.sim' or m.startswith('cell.sim.'))))")
+            "from drivers.registry import is_simulation\n"
+            "print('\\n'.join(sorted(m for m in sys.modules if is_simulation(m))))")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "", f"the hardware path imported simulation modules: {out.stdout.split()}"

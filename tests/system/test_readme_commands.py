@@ -79,7 +79,7 @@ def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
     The project's other outputs (reports, exports) take the umask's mode; so do these now."""
     import cv2
 
-    from cell.sim.camera import SimCamera
+    from drivers.camera.sim import SimCamera
     from cell.vision.calibration import CircleGridBoard
     from cell.vision.camera_model import CameraModel
     board = CircleGridBoard(cols=9, rows=6, pitch_mm=4.0, radius_mm=1.0, origin_mm=(234.0, 920.0))

@@ -2,7 +2,7 @@
 hand camera rendering the plant's TRUE tool pose, OpenCV finding the target.
 
 Truths come from deploy/plants/default.yaml (j1/j2 zeros +0.05°/−0.04°, links +0.3/−0.25 mm,
-j2 backlash 0.02°) and cell/sim/handcam.py (board placed off by BOARD_PLACEMENT); the
+j2 backlash 0.02°) and drivers/camera/sim_hand.py (board placed off by BOARD_PLACEMENT); the
 calibration is told none of them. Everything runs on the simulated clock."""
 import json
 from types import SimpleNamespace
@@ -18,7 +18,7 @@ from cell.errors import CalibrationError
 from cell.faults import Fault
 from cell.kinematics import Scara
 from cell.sim.assembly import SimDevices
-from cell.sim.handcam import BOARD_PLACEMENT
+from drivers.camera.sim_hand import BOARD_PLACEMENT
 
 PLANT_J2_BACKLASH = 0.02         # deploy/plants/default.yaml
 

@@ -7,7 +7,7 @@ joint and link effect of the plant shows in its images, none is told to the cali
 A fixture point at ``w`` (base frame, mm) lies at ``h = R(−φ)·(w − p)`` in the *hand
 frame* (origin on the tool axis, x along the tool's x axis), with ``(p, φ)`` the true tool
 pose; the camera renders the hand frame through a nadir :class:`CameraModel` centred on its
-origin, with the same renderer as the cell camera (:mod:`cell.sim.camera`).
+origin, with the same renderer as the cell camera (:mod:`drivers.camera.sim`).
 
 Fixtures (what the operator would put on the plane; :meth:`SimHandRig.place`):
 
@@ -28,11 +28,11 @@ import numpy as np
 
 from cell.clock import Clock
 from cell.errors import ConfigError
-from cell.sim.camera import Fiducial, Optics, SimCamera
 from cell.sim.plant import Plant
 from cell.vision.calibration import DEFAULT_BOARD, CircleGridBoard, PlaneCalibration, calibrate
 from cell.vision.camera_model import CameraModel
 from drivers.camera.base import CameraState
+from drivers.camera.sim import Fiducial, Optics, SimCamera
 
 HAND_CAMERA_PX = (640, 512)          #: rendered image size of the hand camera
 HAND_MM_PER_PX = 0.1                 #: 64 × 51 mm field on the work plane

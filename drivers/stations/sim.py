@@ -51,13 +51,13 @@ import canopen
 from pydantic import BaseModel, ConfigDict, Field
 
 from cell.log import get_logger
-from cell.sim.canbus import VirtualCanBus
 from cell.sim.clock import Timer, VirtualClock
 from drivers.stations import cia402
 from drivers.stations.bus import connect_network
 from drivers.stations.cia402 import Command, DriveStateMachine, Internal, State
 from drivers.stations.config import JOINT_NAMES
 from drivers.stations.driver import EDS_PATH
+from drivers.stations.sim_bus import VirtualCanBus
 
 EMCY_LIMIT, EMCY_FOLLOWING, EMCY_HEARTBEAT, EMCY_PDO_LENGTH = 0x8612, 0x8611, 0x8130, 0x8210
 #: :attr:`SimStation.applied` keeps at least this many of the latest set-points (at most
