@@ -29,7 +29,7 @@ wire, when the drives apply it). "between": the largest over 20 samples per segm
 settling tail. "chord floor": the same with every joint perfectly in step, i.e. the chord
 error of joint-space interpolation, which no synchronisation removes. "|meas − model|": the
 largest distance between the measured path and seed 002's jitter-free model
-(``cell.trajectory.line.joint_positions_at``: each joint starts segment k λ late and runs
+(``cell.motion.line.joint_positions_at``: each joint starts segment k λ late and runs
 at its commanded speed until it arrives) fed with the delays the controller planned with.
 "late bursts": bursts whose first frame found the wire busy (a heartbeat in flight, or in
 ``none`` mode with T < λ a drive's acknowledgement of the last segment), so they started
@@ -58,9 +58,9 @@ from cell import progress  # noqa: E402
 from cell.errors import TrajectoryError  # noqa: E402
 from cell.kinematics import JOINT_NAMES, Scara  # noqa: E402
 from cell.log import configure  # noqa: E402
-from cell.motion import segments_for  # noqa: E402
+from cell.motion.line import joint_positions_at, plan_line, tool_positions  # noqa: E402
+from cell.motion.mover import segments_for  # noqa: E402
 from cell.sim.clock import VirtualClock  # noqa: E402
-from cell.trajectory.line import joint_positions_at, plan_line, tool_positions  # noqa: E402
 from drivers.stations.bus import frame_time_s  # noqa: E402
 from drivers.stations.config import StationConfig, StationsConfig  # noqa: E402
 from drivers.stations.driver import JointStations  # noqa: E402

@@ -30,7 +30,7 @@ sys.path.insert(0, str(REPO / "bench"))
 
 from bench_calibration import DEFAULT, calibrate, config, run_cell  # noqa: E402
 from cell import log  # noqa: E402
-from cell.cycle import VERIFY_NOTE  # noqa: E402
+from cell.cycle.runner import VERIFY_NOTE  # noqa: E402
 from cell.cyclelog import CycleLog, CycleStatus  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 """Compensation on the full plant: the cell's final error against the best the plant allows.
 
-The cell's compensation step (:func:`cell.cycle.compensate`: the first command from the
+The cell's compensation step (:func:`cell.cycle.runner.compensate`: the first command from the
 learned residual, the lattice, backlash taken up from the calibrated side) drives the
 simulated plant the cell runs (:class:`cell.sim.plant.PlantArm`: joint zeros, link lengths,
 backlash, thermal warm-up, and on ``untold`` gear ratios and motor-side cyclic errors;
@@ -51,7 +51,7 @@ from bench_calibration import calibrate, config, plant  # noqa: E402
 from cell import log  # noqa: E402
 from cell.calibration import calfile  # noqa: E402
 from cell.clock import ManualClock  # noqa: E402
-from cell.cycle import OffsetMemory, compensate  # noqa: E402
+from cell.cycle.runner import OffsetMemory, compensate  # noqa: E402
 from cell.effects import camera_view  # noqa: E402
 from cell.kinematics import Scara  # noqa: E402
 from cell.recipes import parse_recipe  # noqa: E402

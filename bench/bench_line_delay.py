@@ -3,7 +3,7 @@
 Seed 002 robot (l1 = l2 = 200 mm, tool (0, 0, −50)), 4 stations in bus order j1..j4
 (λ_i = σ·i), segments T = 10 ms. A planar line at x = 300 mm, z = −30 mm, phi = 0, centred
 on y = 0, 50 segments (0.5 s), so its length is speed × 0.5 s. Each plan is executed by the
-station simulation of :func:`cell.trajectory.line.simulate_line` (each joint starts every
+station simulation of :func:`cell.motion.line.simulate_line` (each joint starts every
 segment λ_i late, moves at its commanded velocity until it reaches the target, holds).
 
 Reported: the maximum and mean perpendicular deviation from the line over the whole
@@ -21,7 +21,7 @@ import numpy as np
 
 from cell.errors import TrajectoryError
 from cell.kinematics import Scara
-from cell.trajectory.line import joint_delays, max_line_deviation, plan_line, simulate_line
+from cell.motion.line import joint_delays, max_line_deviation, plan_line, simulate_line
 
 T = 0.010
 N_SEGMENTS = 50

@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from cell import log, progress  # noqa: E402
 from cell.clock import MonotonicClock  # noqa: E402
 from cell.controller import CellController, ControllerSettings  # noqa: E402
-from cell.cycle import CycleRunner  # noqa: E402
+from cell.cycle.runner import CycleRunner  # noqa: E402
 from cell.cyclelog import CycleLog  # noqa: E402
 from cell.kinematics import Scara  # noqa: E402
 from cell.recipes.store import RecipeStore  # noqa: E402

@@ -1,6 +1,6 @@
 """Time laws through joint way-points. Prints Markdown tables.
 
-The three laws of :mod:`cell.trajectory.timelaw` (quintic polynomial, quintic B-spline,
+The three laws of :mod:`cell.motion.timelaw` (quintic polynomial, quintic B-spline,
 septic B-spline) on the same way-points and duration:
 
 * ``scara-pick-place``: seed 002 robot, joints from :meth:`Scara.ik` along a pick-and-place
@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from cell.kinematics import Scara
-from cell.trajectory.timelaw import LAWS, plan_timelaw
+from cell.motion.timelaw import LAWS, plan_timelaw
 
 SEED003 = {"quintic-poly": 0.78, "septic-bspline": 0.69}  # % lower peak acceleration, joint 6
 

@@ -14,14 +14,14 @@ from cell.calibration.service import CellCalibrator, load_active
 from cell.clock import Clock, MonotonicClock
 from cell.config import CellConfig
 from cell.controller import CellController, ControllerSettings
-from cell.cycle import CycleRunner, CycleSettings, OffsetMemory
+from cell.cycle.runner import CycleRunner, CycleSettings, OffsetMemory
 from cell.cyclelog import CycleLog
 from cell.devices import Devices, open_devices
 from cell.jobs import CellJobs
-from cell.vision.measure import MeasuringCamera
 from cell.publish import Publisher
-from cell.recipes.store import RecipeStore
 from cell.recipes import all_checks, motion_check_from_config, reach_check
+from cell.recipes.store import RecipeStore
+from cell.vision.measure import MeasuringCamera
 from drivers.plc import open_link
 
 log = cell_log.get_logger("app")

@@ -22,7 +22,7 @@ from cell.vision.calibration import PlaneCalibration
 from drivers import registry
 
 if TYPE_CHECKING:
-    from cell.motion import JointMotion
+    from cell.motion.mover import JointMotion
     from drivers.camera.base import Camera
 
 #: backend name → "module:class" (:mod:`drivers.registry`), imported only when chosen

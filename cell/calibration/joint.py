@@ -50,7 +50,7 @@ import numpy as np
 
 from cell.calibration.joint_result import Estimate, Harmonic, HarmonicTest, JointResult, Row, plot
 from cell.errors import CalibrationError
-from cell.stats import f_sf, t_ppf
+from cell.numerics.stats import f_sf, t_ppf
 
 ALPHA = 0.05            # 95 % intervals; family-wise level of the harmonic F-tests
 MAX_COND = 100.0        # column-scaled design condition beyond which a harmonic is not

@@ -37,7 +37,7 @@ import scipy.linalg as sla
 from cell.calibration.dh import D2R, DHChain, check_measured, error_jacobian
 from cell.errors import CalibrationError
 from cell.kinematics import identifiable
-from cell.stats import t_ppf
+from cell.numerics.stats import t_ppf
 
 RANK_TOL = 1e-4        # share of a unit column outside the kept span it needs (and the rank cut)
 ZERO_TOL = 1e-9        # column norm / largest column norm below which a parameter is unseen

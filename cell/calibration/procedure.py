@@ -26,7 +26,7 @@ from cell.calibration.joint import JointSweep
 from cell.errors import CalibrationError, CellError
 from cell.faults import CellFault
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.motion import MotionSpec, Mover
+from cell.motion.mover import MotionSpec, Mover
 from cell.vision import VisionError
 from cell.vision.calibration import CircleGridBoard, PlaneCalibration, locate
 

@@ -14,7 +14,7 @@ and the controller's CALIBRATING state call it:
   (``on_applied``), or a failing one the caller accepts (``accept_worse``, the command's
   ``--accept-worse``: never from the PLC), with the warning in the file;
 * :meth:`CellCalibrator.run_safely` — the PLC's entry: never raises, returns a
-  :class:`~cell.cycle.CycleOutcome` whose ``calibration`` holds the residuals.
+  :class:`~cell.cycle.runner.CycleOutcome` whose ``calibration`` holds the residuals.
 
 A cancel (abort, heartbeat, station fault) ends a procedure at its next move.
 """
@@ -30,7 +30,7 @@ import numpy as np
 
 from cell.calibration import calfile
 from cell.config import CellConfig
-from cell.cycle import CycleCancelled, CycleOutcome
+from cell.cycle.runner import CycleCancelled, CycleOutcome
 from cell.cyclelog import CycleStatus
 from cell.errors import CalibrationError, CellError
 from cell.faults import Fault

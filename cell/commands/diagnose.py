@@ -11,7 +11,7 @@ shrinks on withheld rows (report format in ``cell/measurements.md``).
     cellctl diagnose validate --both [--trials N] [--seed S] [--out-of-vocabulary SHARE]
 
 CAMPAIGN is a campaign directory in the exchange format, or the cell's own SQLite cycle
-log (exported on the fly with :func:`cell.export.cycles_to_campaign`; the nominal link
+log (exported on the fly with :func:`cell.cyclelog.export.cycles_to_campaign`; the nominal link
 lengths come from ``--robot``). ``validate`` (a special first positional; write
 ``./validate`` for a directory of that name) draws campaigns with a hidden effect from the
 independent forward model (:mod:`cell.truth`), written as files by the truth's own writer
@@ -153,7 +153,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
     if magic != SQLITE_MAGIC:
         raise CampaignFormatError(p, "neither a campaign directory nor an SQLite cycle log")
     from cell.cyclelog import CycleLog, CycleStatus
-    from cell.export import cycles_to_campaign
+    from cell.cyclelog.export import cycles_to_campaign
     from cell.robots import PRESETS
     if robot not in PRESETS:
         raise ConfigError(f"--robot {robot!r}: unknown preset; known: {sorted(PRESETS)}")

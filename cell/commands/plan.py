@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 from cell.commands import float_list, preset_name
 from cell.errors import CellError, TrajectoryError
-from cell.trajectory.names import LAWS, TIMINGS
+from cell.motion.names import LAWS, TIMINGS
 
 if TYPE_CHECKING:
     import numpy as np
@@ -109,7 +109,7 @@ def _robot(args: argparse.Namespace):
 
 def run_line(args: argparse.Namespace) -> int:
     from cell.kinematics import JOINT_NAMES
-    from cell.trajectory.line import joint_delays, max_line_deviation, plan_line, simulate_line
+    from cell.motion.line import joint_delays, max_line_deviation, plan_line, simulate_line
     robot, robot_name, elbow = _robot(args)
     order = _station_order(args.stations)
     T = args.segment_ms / 1e3
@@ -202,7 +202,7 @@ def _plot(path: Path, trajs, samples: int) -> None:
 
 def run_timelaw(args: argparse.Namespace) -> int:
     from cell.commands import plot_file
-    from cell.trajectory.timelaw import plan_timelaw
+    from cell.motion.timelaw import plan_timelaw
     q = parse_waypoints(args.waypoints)
     if args.samples < 2:
         raise TrajectoryError(f"--samples {args.samples} must be at least 2")

@@ -2,7 +2,7 @@
 
 ``report`` prints, per block of consecutive cycles, the initial and final error (mean, p95,
 max), moves and faults, and writes a PNG of the trend against the recipe's tolerance and
-the recalibration threshold (:mod:`cell.trend`).
+the recalibration threshold (:mod:`cell.cyclelog.trend`).
 ``export`` writes the logged cycles as a measurement campaign for ``cellctl diagnose``.
 """
 from __future__ import annotations
@@ -98,9 +98,9 @@ def _recipes_dir(given: str | None) -> Path:
 
 
 def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
-    """The trend PNG (:func:`cell.trend.write_png`): tolerance of each cycle's recipe
+    """The trend PNG (:func:`cell.cyclelog.trend.write_png`): tolerance of each cycle's recipe
     version, the drift watch's recalibration threshold from ``sched`` (None: the defaults)."""
-    from cell.trend import write_png
+    from cell.cyclelog.trend import write_png
     try:
         write_png(Path(db), cycles, path, recipes, sched.drift_threshold_mm if sched else None,
                   sched.drift_window if sched else None)
@@ -110,7 +110,7 @@ def _plot(db: str, cycles, path: Path, recipes: Path, sched) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     from cell.cyclelog import CycleStatus
-    from cell.export import cycles_to_campaign
+    from cell.cyclelog.export import cycles_to_campaign
     from cell.kinematics import Scara
     from cell.measurements import write_campaign
     robot = Scara.preset(args.robot)

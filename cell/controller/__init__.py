@@ -2,7 +2,7 @@
 PLC and carry out what the core asked for.
 
 One task ("cell-scan") runs :meth:`CellController.scan` every ``scan_s`` of the injected
-clock; a part's cycle (:class:`~cell.cycle.CycleRunner`) or a calibration runs as a job of
+clock; a part's cycle (:class:`~cell.cycle.runner.CycleRunner`) or a calibration runs as a job of
 a second, long-lived task (the "cell-cycle" :class:`~cell.worker.Worker`), so the scan keeps
 serving the PLC, the heartbeat watchdog and abort while joints move. (Long-lived on
 purpose: OpenCV keeps about 0.9 kB of thread-local state for every thread that calls it,
@@ -37,18 +37,18 @@ from cell.clock import Clock, MonotonicClock
 from cell.controller.core import (Audit, CancelCycle, ClearInterrupted, ControllerCore, ControllerSettings,
                                   DrivesResetIn, QuickStop, RecipesIn, RefreshRecipes, ResetDrives,
                                   ScanInputs, SettleCycle, StartCalibration, StartCycle, StationFaultIn)
-from cell.cycle import CancelToken, CycleOutcome, CycleRunner
+from cell.cycle.runner import CancelToken, CycleOutcome, CycleRunner
+from cell.cycle.statemachine import State, StateMachine
 from cell.cyclelog import CycleLog, CycleStatus
 from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.publish import Publisher
-from cell.recipes.store import RecipeStore
 from cell.recipes import ActiveRecipe, RecipeAction
-from cell.statemachine import State, StateMachine
+from cell.recipes.store import RecipeStore
 from cell.worker import Job, Worker
 
 if TYPE_CHECKING:
-    from cell.motion import JointMotion
+    from cell.motion.mover import JointMotion
     from drivers.plc import PlcPort
 
 log = get_logger("controller")

@@ -38,11 +38,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, Union
 
-from cell.cycle import CycleOutcome
+from cell.cycle.runner import CycleOutcome
+from cell.cycle.statemachine import CYCLE_STEPS, Event, State, StateMachine
 from cell.cyclelog import CycleStatus
 from cell.faults import Fault
 from cell.log import get_logger
-from cell.statemachine import CYCLE_STEPS, Event, State, StateMachine
 from drivers.plc.register_map import PLC_MAP, RecipeStatus
 
 log = get_logger("controller")

@@ -26,7 +26,7 @@ from cell.diagnosis.places import places
 from cell.diagnosis.replay import DiagData
 from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG  # noqa: F401  (re-exported)
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C  # noqa: F401  (re-exported)
-from cell.stats import distinct
+from cell.numerics.stats import distinct
 
 
 def layout(d: DiagData) -> fx.Layout:

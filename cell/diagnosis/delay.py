@@ -5,7 +5,7 @@ trajectory shifted by λ_j (linear interpolation, held at the first command befo
 exactly as the comm_delay stage does, with the joint's own lag in place of σ·k_j), the
 static part of the diagnosed cause stays in the model (only
 when the cause explains the gap; otherwise the nominal model is used), and
-:func:`cell.lsq.least_squares` fits (λ_1, λ_2) on the fit moves (exact Jacobian,
+:func:`cell.numerics.lsq.least_squares` fits (λ_1, λ_2) on the fit moves (exact Jacobian,
 :mod:`.jacobian`; path samples flagged as outliers left out). Intervals come from the Jacobian as in
 :mod:`.fit`.
 
@@ -28,8 +28,8 @@ from cell import effects as fx
 from cell.diagnosis.fit import Z95, subset
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
-from cell.lsq import least_squares
-from cell.stats import chi2_sf
+from cell.numerics.lsq import least_squares
+from cell.numerics.stats import chi2_sf
 
 LAG_BOUNDS_MS = (-20.0, 200.0)
 

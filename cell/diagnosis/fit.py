@@ -1,7 +1,7 @@
 """Fit one candidate (one or two vocabulary effects) on the fit rows. Pure numerics.
 
 A candidate is a tuple of components ``(effect name, joints)``. :func:`fit_candidate` adds
-it to the simulation and fits its parameters with :func:`cell.lsq.least_squares` (bounded
+it to the simulation and fits its parameters with :func:`cell.numerics.lsq.least_squares` (bounded
 Levenberg–Marquardt, the vocabulary's bounds, the exact Jacobian of :mod:`.jacobian`;
 finite differences on request) on the fit rows only (rows flagged as outliers left out,
 :mod:`.robust`). It starts from the linearised fit of :mod:`.screen` (so a cyclic error
@@ -34,7 +34,7 @@ from cell import effects as fx
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData, PointsData, predict
 from cell.diagnosis.screen import MAX_COND, MAX_CORR, ORDER_COST, ORDERS
-from cell.lsq import least_squares
+from cell.numerics.lsq import least_squares
 
 JACOBIANS = ("analytic", "2-point")
 Z95 = 1.959963984540054

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.stats import chi2_ppf, distinct, median
+from cell.numerics.stats import chi2_ppf, distinct, median
 
 NEIGHBOURS = 8
 MIN_POINTS = 20

@@ -65,7 +65,7 @@ from cell.diagnosis.candidates import merge, single_candidates
 from cell.diagnosis.fit import (MAX_CORR, FitResult, TableStats, fit_candidate, hold_residuals,
                                 label, nominal_result, subset)
 from cell.diagnosis.replay import DiagData
-from cell.stats import chi2_ppf, chi2_sf
+from cell.numerics.stats import chi2_ppf, chi2_sf
 
 ALPHA = 1e-3
 REFINE = 4

@@ -34,7 +34,7 @@ import numpy as np
 from cell import effects as fx
 from cell.kinematics import PlanarArm
 from cell.measurements import Campaign, CampaignFormatError
-from cell.stats import median
+from cell.numerics.stats import median
 
 SPLIT_SEED = 20260501      # seed of the generated 70/30 split (any fixed value: repeatable)
 HOLDOUT_SHARE = 0.3

@@ -46,7 +46,7 @@ from cell.diagnosis import where as where_mod
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 from cell.kinematics import planar_xy
-from cell.stats import chi2_isf, distinct, median
+from cell.numerics.stats import chi2_isf, distinct, median
 
 ALPHA = 0.01
 MAX_SHARE = 0.25

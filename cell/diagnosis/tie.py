@@ -24,7 +24,7 @@ from typing import Callable, Generic, Sequence, TypeVar
 
 import numpy as np
 
-from cell.stats import wilcoxon_greater
+from cell.numerics.stats import wilcoxon_greater
 
 T = TypeVar("T")
 ALPHA = 0.01          # one-sided test over folds

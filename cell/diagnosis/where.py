@@ -37,7 +37,7 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis.replay import DiagData
-from cell.stats import distinct
+from cell.numerics.stats import distinct
 
 ANGLE_ORDERS = (1, 2, 3, 4)     # the harmonic orders the cyclic error is screened at
 SPEC_DEPENDS = ("constant", "angle", "direction", "time", "temperature", "position", "speed")

@@ -64,7 +64,7 @@ def plc_status(host: str, port: int, timeout_s: float = 1.0) -> dict:
     from pymodbus.client import ModbusTcpClient
     from pymodbus.exceptions import ModbusException
 
-    from cell.statemachine import State
+    from cell.cycle.statemachine import State
     from drivers.plc.register_map import PLC_MAP
     out: dict = {"address": f"{host}:{port}", "reachable": False, "error": None}
     client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
@@ -114,7 +114,7 @@ def trend_png(path: Path, recipes_dir: Path | None = None) -> bytes | None:
     """The accuracy-trend PNG of ``cellctl report`` for the log at ``path`` (tolerances
     also from the files of ``recipes_dir``); None without cycles or a readable log."""
     from cell.cyclelog import CycleLog
-    from cell.trend import write_png
+    from cell.cyclelog.trend import write_png
     if not Path(path).is_file():
         return None
     try:

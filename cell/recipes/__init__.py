@@ -210,7 +210,7 @@ def motion_check(supports_sync: bool, delays_s) -> CellCheck:
     """The cell's motion check: ``motion.sync: sync`` needs SYNC support on every station;
     ``corrected`` and ``sync`` need ``motion.segment_ms`` above every station's delay λ
     (``delays_s`` (4,) per joint, s: wire time of a burst plus the measured latency)."""
-    from cell.motion import check_mode
+    from cell.motion.mover import check_mode
 
     def check(recipe: Recipe, text: str, source: str) -> None:
         m = recipe.motion

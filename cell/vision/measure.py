@@ -76,7 +76,7 @@ class MeasuringCamera:
     def grab(self, cancel=None) -> np.ndarray:
         """One 8-bit grey frame.
 
-        :param cancel: the cycle's :class:`~cell.cycle.CancelToken`: a cancel ends the wait
+        :param cancel: the cycle's :class:`~cell.cycle.runner.CancelToken`: a cancel ends the wait
             at once (raises its ``CycleCancelled``).
         :raises CellFault: CAMERA_FAILED if the camera gives no frame, fails, or takes longer
             than ``grab_timeout_s``.

@@ -191,7 +191,7 @@ REGISTERS: tuple[Register, ...] = (
     Register(11, "command_word", _BITS, _RW, meaning="PLC command bits, acted on at rising edges "
              "(see bit table). Undefined bits must stay 0.", bits=_COMMAND_BITS),
     Register(12, "state_code", _U16, _RO, meaning="Numeric code of the controller state "
-             "(cell/statemachine.py State): 1 starting, 2 idle, 10-16 cycle steps (approach, capture, "
+             "(cell/cycle/statemachine.py State): 1 starting, 2 idle, 10-16 cycle steps (approach, capture, "
              "locate, compensate, final move, verify, logging), 20 done, 30 stopping, 31 aborted, "
              "40 fault, 41 resetting, 50 calibrating."),
     Register(13, "fault_code", _U16, _RO, meaning="0 = no fault, else the code of the active (or last "

@@ -54,7 +54,7 @@ class StreamingMixin:
                lead_s: float | None = None) -> StreamReport:
         """Stream line segments (seed 002), blocking until the last one is sent.
 
-        Each ``Segment`` (``cell.trajectory.line``) carries per-joint ``target_deg`` (4,)
+        Each ``Segment`` (``cell.motion.line``) carries per-joint ``target_deg`` (4,)
         and ``velocity_deg_s`` (4,) (magnitudes are used) and starts at ``start_s``.
 
         * ``"reception"``: segment k's set-points go out at ``t0 + start_s`` in bus order

@@ -17,10 +17,10 @@ from cell.controller.core import (ABORT, ACK, EXECUTE, RESET, Audit, CancelCycle
                                   ControllerCore, ControllerSettings, DrivesResetIn, PlcWriteIn,
                                   QuickStop, RecipesIn, RefreshRecipes, ResetDrives, ScanInputs,
                                   SettleCycle, StartCalibration, StartCycle, StationFaultIn)
-from cell.cycle import CycleOutcome
+from cell.cycle.runner import CycleOutcome
+from cell.cycle.statemachine import CYCLE_STEPS, State
 from cell.cyclelog import CycleRecord
 from cell.faults import Fault
-from cell.statemachine import CYCLE_STEPS, State
 from drivers.plc.register_map import PLC_MAP
 
 S = ControllerSettings(scan_s=0.0625, plc_heartbeat_timeout_s=1.0, recipe_refresh_s=64.0)

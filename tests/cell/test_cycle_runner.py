@@ -1,7 +1,7 @@
 """CycleRunner: one part's cycle against fake joint stations and a fake measuring camera.
 
-The fakes stand in for hardware. :class:`FakeStations` has what :class:`cell.motion.Mover`
-and :class:`cell.cycle.CellArm` use: ``stream``, ``burst_delays`` (fixed per-joint delays),
+The fakes stand in for hardware. :class:`FakeStations` has what :class:`cell.motion.mover.Mover`
+and :class:`cell.cycle.runner.CellArm` use: ``stream``, ``burst_delays`` (fixed per-joint delays),
 ``corrected_velocities`` (from those delays), ``wait_reached``, ``actual_positions``,
 ``cfg.station(j).max_velocity`` and ``quick_stop_all``. A streamed move puts the joints on
 its last target at once; each wait takes 50 ms of a :class:`cell.clock.ManualClock`.
@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 
 from cell.clock import ManualClock
-from cell.cycle import (VERIFY_NOTE, CancelToken, CycleCancelled, CycleRunner, CycleSettings,
+from cell.cycle.runner import (VERIFY_NOTE, CancelToken, CycleCancelled, CycleRunner, CycleSettings,
                         OffsetMemory)
+from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog
 from cell.faults import CellFault, Fault
 from cell.kinematics import Scara
-from cell.vision.measure import VISION_FAULTS, MeasuringCamera
 from cell.recipes import ActiveRecipe, content_hash, parse_recipe
-from cell.statemachine import State
 from cell.vision import VisionError
+from cell.vision.measure import VISION_FAULTS, MeasuringCamera
 from drivers.stations.faults import FaultCode, FaultRecord, StationFaultError
 from drivers.stations.streaming import StationCommandError
 

@@ -7,7 +7,7 @@ import inspect
 
 from cell.config import CellConfig, SimSection
 from cell.devices import Devices, HardwareDevices, open_devices
-from cell.motion import JointMotion
+from cell.motion.mover import JointMotion
 from drivers.camera.base import Camera
 from drivers.plc import PlcPort
 from drivers.plc.server import PlcLink

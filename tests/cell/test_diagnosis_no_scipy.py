@@ -1,5 +1,5 @@
 """The planar diagnosis of a campaign loads no scipy (its import was most of the start-up
-CPU of ``cellctl diagnose``): fits by :mod:`cell.lsq`, neighbours and eigen-decompositions
+CPU of ``cellctl diagnose``): fits by :mod:`cell.numerics.lsq`, neighbours and eigen-decompositions
 by numpy. Asserted on the modules loaded, never on time."""
 import subprocess
 import sys

@@ -4,7 +4,7 @@ import pytest
 
 from cell.cli import main
 from cell.cyclelog import CycleLog, CycleRecord
-from cell.export import cycles_to_campaign
+from cell.cyclelog.export import cycles_to_campaign
 from cell.measurements import read_campaign, write_campaign
 
 

@@ -1,10 +1,10 @@
-"""cell.lsq: the bounded Levenberg–Marquardt that replaced scipy's least_squares in the
+"""cell.numerics.lsq: the bounded Levenberg–Marquardt that replaced scipy's least_squares in the
 planar diagnosis, held to closed-form solutions and to scipy (the reference here only)."""
 import numpy as np
 import pytest
 from scipy.optimize import least_squares as scipy_lsq
 
-from cell.lsq import least_squares
+from cell.numerics.lsq import least_squares
 
 T = np.linspace(0.0, 4.0, 60)
 Y = 2.0 * np.exp(-1.3 * T) + 0.3 + 0.01 * np.random.default_rng(0).standard_normal(60)

@@ -1,4 +1,4 @@
-"""cell.motion: Mover planning and streaming against fake stations, check_mode's reasons and
+"""cell.motion.mover: Mover planning and streaming against fake stations, check_mode's reasons and
 the recipe check built on it (cell.recipes.motion_check).
 
 The fake stations return fixed per-joint burst delays λ (or, for ``corrected`` bursts, λ
@@ -13,10 +13,10 @@ import pytest
 
 from cell.errors import ConfigError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.motion import MotionSpec, Mover, check_mode
-from cell.recipes.store import RecipeStore
+from cell.motion.line import TIME_LAWS
+from cell.motion.mover import MotionSpec, Mover, check_mode
 from cell.recipes import motion_check, parse_recipe
-from cell.trajectory.line import TIME_LAWS
+from cell.recipes.store import RecipeStore
 from drivers.stations.streaming import StationCommandError
 
 from tests.cell.conftest import REPO_RECIPES

@@ -3,7 +3,7 @@ command it gives, and its recovery from the log."""
 import numpy as np
 import pytest
 
-from cell.cycle import VERIFY_NOTE, OffsetMemory
+from cell.cycle.runner import VERIFY_NOTE, OffsetMemory
 from cell.cyclelog import CycleLog, CycleRecord, utc_now
 from cell.kinematics import Scara
 

@@ -1,7 +1,7 @@
 """State machine: the happy path, faults and aborts from every busy state, illegal events."""
 import pytest
 
-from cell.statemachine import CYCLE_STEPS, TRANSITIONS, Event, IllegalTransition, State, StateMachine
+from cell.cycle.statemachine import CYCLE_STEPS, TRANSITIONS, Event, IllegalTransition, State, StateMachine
 
 
 def test_full_cycle_then_acknowledge():

@@ -1,18 +1,18 @@
-"""cell.stats against scipy.stats (the reference it avoids importing at run time).
+"""cell.numerics.stats against scipy.stats (the reference it avoids importing at run time).
 
 Grid: dof 1..20, then 25..400; p from 1e-12 to 1 − 1e-9 (both tails, and the middle).
 Tolerances (relative): quantiles 1e-11, tail probabilities 1e-10; the worst seen when
 written was 2e-14 for the chi-square quantiles, 3e-13 for the t quantile and 1e-12 for
 the tails. The tails are checked at scipy's
 own quantile for ``p`` and compared with ``p``: at p = 1 − 1e-9, ``scipy.stats.f.sf``
-rounds to 1.0 where ``1 - f.cdf`` and cell.stats keep the 1e-9."""
+rounds to 1.0 where ``1 - f.cdf`` and cell.numerics.stats keep the 1e-9."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from cell.stats import (chi2_isf, chi2_ppf, chi2_sf, f_sf, t_ppf, t_quantile, t_sf,
+from cell.numerics.stats import (chi2_isf, chi2_ppf, chi2_sf, f_sf, t_ppf, t_quantile, t_sf,
                         wilcoxon_greater)
 
 DOFS = list(range(1, 21)) + [25, 30, 40, 50, 75, 100, 150, 200, 250, 300, 350, 400]
@@ -74,14 +74,14 @@ def test_median_is_numpys_without_loading_numpy_ma():
     import subprocess
     import sys
 
-    from cell.stats import median
+    from cell.numerics.stats import median
     rng = np.random.default_rng(5)
     for n in (1, 2, 3, 10, 11, 64):
         x = rng.normal(size=(n, 3))
         assert median(x[:, 1]) == np.median(x[:, 1])
         assert np.array_equal(median(x, axis=0), np.median(x, axis=0))
     assert np.isnan(median([1.0, np.nan, 3.0])) and np.isnan(median([]))
-    code = ("import sys, numpy as np; from cell.stats import median; median(np.arange(6.0)); "
+    code = ("import sys, numpy as np; from cell.numerics.stats import median; median(np.arange(6.0)); "
             "print('numpy.ma' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

@@ -10,7 +10,7 @@ import pytest
 from cell import cli
 from cell.commands.plan import parse_waypoints
 from cell.errors import TrajectoryError
-from cell.trajectory.timelaw import LAWS, continuity_jumps, knot_times, plan_timelaw
+from cell.motion.timelaw import LAWS, continuity_jumps, knot_times, plan_timelaw
 
 RNG = np.random.default_rng(3)
 # six joints along a smooth path with noise, like seed 003's m×6 joint matrix (seeded)

@@ -9,7 +9,7 @@ import pytest
 from cell import cli
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import Scara
-from cell.trajectory.line import (delay_corrected_velocities, joint_delays, joint_positions_at,
+from cell.motion.line import (delay_corrected_velocities, joint_delays, joint_positions_at,
                                   max_line_deviation, plan_line, simulate_line, station_delays,
                                   tool_positions)
 

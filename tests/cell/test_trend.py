@@ -1,12 +1,12 @@
-"""The accuracy trend picture (``cellctl report``'s PNG, :mod:`cell.trend`): checked on the
+"""The accuracy trend picture (``cellctl report``'s PNG, :mod:`cell.cyclelog.trend`): checked on the
 figure's artists, not its pixels."""
 import numpy as np
 import pytest
 
 from cell.cli import main
 from cell.cyclelog import CycleLog, CycleRecord
+from cell.cyclelog.trend import Limits, plot_trend, rolling, tolerances, x_axis
 from cell.recipes import content_hash
-from cell.trend import Limits, plot_trend, rolling, tolerances, x_axis
 
 RECIPE = """name: {name}
 number: {number}

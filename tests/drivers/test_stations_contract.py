@@ -24,8 +24,8 @@ import pytest
 
 from cell.clock import MonotonicClock
 from cell.kinematics import Scara
+from cell.motion.line import plan_line
 from cell.sim.clock import VirtualClock
-from cell.trajectory.line import plan_line
 from drivers.stations.bus import frame_bits, frame_time_s, open_bus
 from drivers.stations.cia402 import State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig

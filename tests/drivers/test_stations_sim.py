@@ -14,8 +14,8 @@ import pytest
 from pydantic import ValidationError
 
 from cell.kinematics import Scara
+from cell.motion.line import plan_line
 from cell.sim.clock import VirtualClock
-from cell.trajectory.line import plan_line
 from drivers.stations import cia402
 from drivers.stations.bus import connect_network, frame_bits, open_bus
 from drivers.stations.cia402 import State

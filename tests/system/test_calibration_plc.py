@@ -7,9 +7,9 @@ import math
 
 import pytest
 
+from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog
 from cell.faults import Fault
-from cell.statemachine import State
 from tests.waiting import unchanged_over
 
 

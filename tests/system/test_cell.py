@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog
 from cell.faults import Fault, station_fault
-from cell.statemachine import State
 from drivers.plc.register_map import PLC_MAP
 from tests.waiting import unchanged_over
 

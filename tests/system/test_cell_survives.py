@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog
 from cell.faults import Fault
-from cell.statemachine import State
 
 SCAN_S = 0.01
 

@@ -107,7 +107,7 @@ def test_serve_says_why_it_stopped_and_in_what_state(tmp_path):
 
 # A recipe whose z stroke is long and slow: approach at z -5 mm, place at z -100 mm, every
 # joint at most 11 units/s (mm/s for j3). The smooth time law peaks at 1.875 times the mean
-# speed (cell/trajectory/line.py TIME_LAW_PEAK), so a 95 mm stroke takes at least
+# speed (cell/motion/line.py TIME_LAW_PEAK), so a 95 mm stroke takes at least
 # 95 * 1.875 / 11 = 16.2 s of simulated time.
 DEEP_RECIPE = """\
 name: deep-z

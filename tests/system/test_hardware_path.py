@@ -18,11 +18,11 @@ import numpy as np
 
 from cell.app import Cell
 from cell.config import CellConfig
+from cell.cycle.statemachine import State
 from cell.faults import Fault
 from cell.sim.assembly import stations_config
 from cell.sim.clock import VirtualClock
 from cell.sim.plc import SimPlc
-from cell.statemachine import State
 from cell.vision.calibration import CircleGridBoard, calibrate
 from cell.vision.camera_model import CameraModel
 from drivers.camera.sim import SimCamera
@@ -78,7 +78,7 @@ def test_hardware_config_path_starts_moves_and_faults_on_no_target(tmp_path):
 def test_the_hardware_path_imports_no_simulation_module():
     """Everything ``cellctl serve --config`` needs, imported in a fresh interpreter: no module
     of the simulated cell may come along."""
-    code = ("import sys, cell.cli, cell.app, cell.devices, cell.controller, cell.cycle, cell.motion, "
+    code = ("import sys, cell.cli, cell.app, cell.devices, cell.controller, cell.cycle.runner, cell.motion.mover, "
             "cell.jobs, drivers.stations, drivers.plc.server, drivers.camera, drivers.camera.folder, "
             "drivers.camera.opencv_capture, cell.commands.run, cell.commands.report, cell.commands.recipe\n"
             "from cell.devices import HardwareDevices\n"

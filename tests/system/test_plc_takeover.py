@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pymodbus.client import ModbusTcpClient
 
+from cell.cycle.statemachine import State
 from cell.faults import Fault
-from cell.statemachine import State
 from drivers.plc.register_map import PLC_MAP
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cell.diagnosis.chain import fit as F
-from cell.stats import wilcoxon_greater
+from cell.numerics.stats import wilcoxon_greater
 
 MIN_POSES = 12
 N_DRIFT = 6

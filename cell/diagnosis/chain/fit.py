@@ -37,7 +37,7 @@ from cell.kinematics import identifiable
 from cell.kinematics.chain import Chain
 from cell.kinematics.identifiable import STRUCTURAL_TOL
 from cell.measurements import CampaignFormatError
-from cell.stats import t_quantile
+from cell.numerics.stats import t_quantile
 
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
 TERM_EPS = 1e-9           # a joint term below this on every pose (deg, m, K, 1) is zero: the

@@ -31,7 +31,7 @@ from cell.diagnosis.noise import MAD_EFFICIENCY, MIN_POINTS, NEIGHBOURS, local_p
     revisits
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C
 from cell.measurements.chain import ChainCampaign
-from cell.stats import distinct
+from cell.numerics.stats import distinct
 
 DRIFT_ALPHA = 1e-3      # revisits disagree beyond the sensor noise at this significance
 TEMP_BIN_C = MIN_TEMP_SPREAD_C    # visits in one such temperature bin count as one pose

@@ -43,7 +43,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.leaveout import Folds
 from cell.diagnosis.places import separating
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
-from cell.stats import wilcoxon_greater
+from cell.numerics.stats import wilcoxon_greater
 
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap

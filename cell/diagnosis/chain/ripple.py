@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from cell.diagnosis.chain import fit as F
-from cell.stats import wilcoxon_greater
+from cell.numerics.stats import wilcoxon_greater
 
 ORDERS = 4            # cycles per revolution tried: 1 … 4 (seed 004's transmission ripple)
 MIN_SPAN_DEG = 30.0

@@ -39,7 +39,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.noise import MAD_EFFICIENCY, mad, upper95
 from cell.measurements.chain import MIN_MARKER_POSES
-from cell.stats import chi2_isf, distinct, median
+from cell.numerics.stats import chi2_isf, distinct, median
 
 ALPHA = 0.01          # a Gaussian point is flagged anywhere in the campaign with this probability
 MAX_SHARE = 0.05      # more flagged than this share of a set: systematic, none set aside

@@ -13,7 +13,7 @@ from cell.calibration import calfile
 from cell.calibration.procedure import plan_joint
 from cell.calibration.service import CellCalibrator
 from cell.config import CellConfig, SimSection
-from cell.cycle import CancelToken
+from cell.cycle.runner import CancelToken
 from cell.errors import CalibrationError
 from cell.faults import Fault
 from cell.kinematics import Scara

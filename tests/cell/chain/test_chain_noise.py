@@ -11,11 +11,11 @@ from scipy.stats import f as f_dist
 
 from cell.diagnosis.chain.noise import revisits_disagree, rigid_noise_mm
 from cell.diagnosis.chain.rank import NOISE_FACTOR
-from cell.diagnosis.noise import upper95
 from cell.diagnosis.chain.report import diagnose_chain
+from cell.diagnosis.noise import upper95
 from cell.measurements import read_campaign
+from cell.numerics.stats import chi2_ppf
 from cell.truth import chain as truth
-from cell.stats import chi2_ppf
 from cell.truth.chain_campaign import MARKERS, make
 
 

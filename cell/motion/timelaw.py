@@ -39,7 +39,7 @@ import numpy as np
 from scipy.interpolate import BPoly, BSpline, PPoly, make_interp_spline
 
 from cell.errors import TrajectoryError
-from cell.trajectory.names import LAWS, TIMINGS
+from cell.motion.names import LAWS, TIMINGS
 
 __all__ = ["LAWS", "TIMINGS", "JointTrajectory", "Peaks", "knot_times", "plan_timelaw",
            "continuity_jumps"]

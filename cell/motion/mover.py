@@ -30,7 +30,7 @@ import numpy as np
 
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.trajectory.line import TIME_LAW_PEAK, TIME_LAWS, Segment, plan_line
+from cell.motion.line import TIME_LAW_PEAK, TIME_LAWS, Segment, plan_line
 
 if TYPE_CHECKING:
     from drivers.stations.faults import FaultRecord

@@ -11,7 +11,7 @@ was told is done is on disk. The scan loop stops a cycle by *giving* it the reas
 cut short by the quick stop that follows ends the cycle with that reason. A cancelled
 cycle is recorded as ``aborted`` and never resumed.
 
-Every move streams seed 002's interpolation segments (:mod:`cell.motion`) in the recipe's
+Every move streams seed 002's interpolation segments (:mod:`cell.motion.mover`) in the recipe's
 synchronisation mode; the cycle's record keeps the mode, the segments and each station's
 delay of its moves.
 """
@@ -26,15 +26,15 @@ from cell.clock import Clock, MonotonicClock
 from cell.compensation.base import CompensationResult, Step
 from cell.compensation.lattice import nearest_lattice, run_lattice, via_point
 from cell.compensation.paper import run_paper
+from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog, CycleRecord, CycleStatus, utc_now
 from cell.errors import KinematicsError, TrajectoryError
 from cell.faults import CellFault, Fault, station_fault
 from cell.kinematics import Scara
 from cell.log import get_logger
-from cell.vision.measure import MeasuringCamera
-from cell.motion import MotionSpec, MoveReport, Mover
+from cell.motion.mover import MotionSpec, MoveReport, Mover
 from cell.recipes import ActiveRecipe
-from cell.statemachine import State
+from cell.vision.measure import MeasuringCamera
 
 log = get_logger("cycle")
 
