@@ -84,6 +84,16 @@ def test_markdown_lists_every_register_and_bit():
     assert "Execute" in md and "Busy" in md and "Done" in md   # the PLCopen handshake is documented
 
 
+def test_the_plc_page_holds_the_whole_map_as_the_command_prints_it():
+    """docs/plc.md shows the map's heading (with its version), reserved ranges, bit tables and
+    handshake exactly as ``cellctl registers --format md`` prints them, not only its tables:
+    a new register must not leave a stale version or reserved range on the page."""
+    from pathlib import Path
+    page = (Path(__file__).resolve().parents[2] / "docs" / "plc.md").read_text(encoding="utf-8")
+    assert PLC_MAP.to_markdown().strip() in page, \
+        "docs/plc.md differs from `cellctl registers --format md`: paste its output over the section"
+
+
 def test_csv_has_one_row_per_register_and_bit():
     rows = list(csv.DictReader(io.StringIO(PLC_MAP.to_csv())))
     names = [row["name"] for row in rows]
