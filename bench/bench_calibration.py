@@ -7,9 +7,13 @@ For each plant (a plant file of ``deploy/plants`` format, written to a temporary
    whether the truth lies inside the 95 % intervals; the absolute error on held-out poses
    before (nominal model, board place fitted) and after.
 2. **Single-joint calibration (seed 004)** of j2 (and j1): backlash and gear-ratio error
-   against the truth, with their intervals.
+   against the truth, with their intervals, and which terms the calibration file then
+   applies (the backlash always; a gear-ratio or cyclic term only when the kinematic fit
+   redone with it predicts the held-out poses better: :mod:`cell.calibration.joint_terms`),
+   with the held-out error of the file the cell loads.
 3. **The cell before and after**: the same parts (same seed) run by the simulated PLC
-   through ``cell.app.Cell`` with the nominal model and with the calibration loaded:
+   through ``cell.app.Cell`` with the nominal model and with the calibration loaded (and,
+   where the file applies a seed 004 term, with seed 001's file alone):
    first-move error (of the first part, before seed 000's learned offsets exist, and over
    all parts), moves per part, final error, faults.
 
@@ -20,6 +24,8 @@ Plants:
 * ``untold`` — default plus effects outside the DH model: gear-ratio errors on j1 and j2,
   motor-side cyclic errors (periods 360°/80 and 360°/50, the drive ratios of
   deploy/cell.yaml), j1 backlash;
+* ``ripple`` — default plus a cyclic error on j1 (0.03° every 4.5°) and j2 (0.02° every
+  7.2°), whose periods seed 004 is told (as a drive's datasheet gives them);
 * ``random-<seed>`` — joint zeros and link lengths drawn in their typical ranges
   (cell/effects/), j2 backlash, warm-up (random-4's zeros, about 0.19° on both joints, put
   the nominal first arrival 4–5 mm off the part, beside its fiducial).
@@ -80,6 +86,8 @@ def plant(name: str) -> dict:
         for e in eff:
             if e["effect"] == "backlash":
                 e["joints"], e["params"] = ["j1", "j2"], {"j1_backlash_deg": 0.01, "j2_backlash_deg": 0.02}
+    elif name == "ripple":
+        eff.append({"effect": "cyclic_error", "joints": ["j1", "j2"], "params": RIPPLE})
     elif name.startswith("random-"):
         rng = np.random.default_rng(int(name.split("-")[1]))
         for e in eff:
@@ -90,6 +98,12 @@ def plant(name: str) -> dict:
         raise SystemExit(f"unknown plant {name!r}")
     p["effects"] = eff
     return p
+
+
+RIPPLE = {"j1_cyclic_amp_deg": 0.03, "j1_cyclic_phase_deg": 30.0, "j1_cyclic_period_deg": 4.5,
+          "j2_cyclic_amp_deg": 0.02, "j2_cyclic_phase_deg": -60.0, "j2_cyclic_period_deg": 7.2}
+#: the cyclic periods seed 004 is told, per plant (default: 360°, the output gear's)
+PERIODS = {"ripple": {"j1": 4.5, "j2": 7.2}}
 
 
 def params(p: dict, effect: str) -> dict:
@@ -120,7 +134,7 @@ def config(tmp: Path, plant_file: Path, calfile: Path, db: Path) -> CellConfig:
         "calibration": cfg.calibration.model_copy(update={"file": str(calfile)})})
 
 
-def calibrate(cfg: CellConfig, joints: list[str]):
+def calibrate(cfg: CellConfig, joints: list[str], periods: dict):
     dev = SimDevices(cfg)
     try:
         with dev.clock.attach("bench"):
@@ -131,8 +145,8 @@ def calibrate(cfg: CellConfig, joints: list[str]):
                 kin = cal.kinematics()
                 t1 = dev.clock.now()
                 temp = float(dev.plant.temperature(0.5 * (t0 + t1)))
-                jres = {j: cal.joint(j)[1] for j in joints}
-                return kin, jres, temp
+                jres = {j: cal.joint(j, period_deg=periods.get(j, 360.0))[1] for j in joints}
+                return kin, jres, temp, cal.written
             finally:
                 dev.stop()
     finally:
@@ -172,8 +186,8 @@ def run_cell(cfg: CellConfig, parts: int) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--plants", default="default,untold,random-1,random-2,random-3,random-4",
-                    help="comma-separated: default, untold, random-<seed> (default: all four)")
+    ap.add_argument("--plants", default="default,untold,ripple,random-1,random-2,random-3,random-4",
+                    help="comma-separated: default, untold, ripple, random-<seed> (default: all seven)")
     ap.add_argument("--parts", type=int, default=30, help="parts per cell run (default 30)")
     ap.add_argument("--joints", default="j1,j2", help="seed 004 joints (default j1,j2)")
     args = ap.parse_args(argv)
@@ -194,7 +208,8 @@ def main(argv=None) -> int:
             pf.write_text(yaml.safe_dump(pl))
             calf = tmp / f"{name}-robot.json"
             t_start = time.monotonic()
-            kin, jres, temp = calibrate(config(tmp, pf, calf, tmp / f"{name}-cal.sqlite"), joints)
+            kin, jres, temp, final = calibrate(config(tmp, pf, calf, tmp / f"{name}-cal.sqlite"), joints,
+                                               PERIODS.get(name, {}))
             wall = time.monotonic() - t_start
             truth = truths(pl, temp)
             ident = kin.identification
@@ -205,11 +220,14 @@ def main(argv=None) -> int:
                 rows_p.append(f"| {name} | {k} | {t if t is None else f'{t:+.4f}'} | {ident.value(k):+.4f} | "
                               f"[{lo:+.4f}, {hi:+.4f}] | {inside} |")
             h = kin.holdout
+            fh = (final or {}).get("report", {}).get("holdout", {})
+            with_terms = f"{fh['rms_xy_after_mm']:.4f} / {fh['max_xy_after_mm']:.4f}" if fh else "-"
             rows_h.append(f"| {name} | {len(kin.q_fit)} + {h.n_hold} | {h.rms_xy_before_mm:.4f} | "
                           f"{h.rms_xy_after_mm:.4f} | {h.max_xy_before_mm:.4f} | {h.max_xy_after_mm:.4f} | "
                           f"{h.rms_xy_before_mm / h.rms_xy_after_mm:.1f}× | {'yes' if h.passed else 'no'} | "
-                          f"{wall:.0f} |")
+                          f"{with_terms} | {wall:.0f} |")
             bl, gr = params(pl, "backlash"), params(pl, "gear_ratio")
+            applied = {j: ", ".join(["backlash", *e["applied"]]) for j, e in ((final or {}).get("joints") or {}).items()}
             for j, res in jres.items():
                 tb, tg = bl.get(f"{j}_backlash_deg", 0.0), gr.get(f"{j}_gear_ratio_rel", 0.0)
                 b, g = res.backlash_deg, res.gear_ratio_error
@@ -217,11 +235,15 @@ def main(argv=None) -> int:
                               f"{'yes' if b.low <= tb <= b.high else '**no**'} | {tg * 1e6:+.0f} | "
                               f"{g.value * 1e6:+.0f} [{g.low * 1e6:+.0f}, {g.high * 1e6:+.0f}] | "
                               f"{'yes' if g.low <= tg <= g.high else '**no**'} | "
-                              f"{len(res.harmonics)} |")
+                              f"{len(res.harmonics)} | {applied.get(j, '-')} |")
             if not h.passed:
                 rows_c.append(f"| {name} | (not calibrated: held-out check failed) | | | | | |")
                 continue
-            for label, cf in (("nominal", tmp / "none.json"), ("calibrated", calf)):
+            models = [("nominal", tmp / "none.json"), ("calibrated", calf)]
+            if any(e["applied"] for e in ((final or {}).get("joints") or {}).values()):
+                # the file before seed 004 wrote its terms: what they add to the first move
+                models.insert(1, ("seed 001 only", calf.with_name(f"{calf.stem}.v1.json")))
+            for label, cf in models:
                 r = run_cell(config(tmp, pf, cf, tmp / f"{name}-{label}.sqlite"), args.parts)
                 if not len(r["first"]):
                     rows_c.append(f"| {name} | {label} | 0 | - | - | - | - | - | {r['faults']} |")
@@ -239,13 +261,13 @@ def main(argv=None) -> int:
     print("\n".join(rows_p))
     print("\n### Held-out poses: absolute position error, mm\n")
     print("| plant | poses fit + held out | rms before | rms after | max before | max after | rms gain | "
-          "check passed | wall s |")
-    print("|---|---:|---:|---:|---:|---:|---:|---|---:|")
+          "check passed | rms / max with seed 004's terms | wall s |")
+    print("|---|---:|---:|---:|---:|---:|---:|---|---:|---:|")
     print("\n".join(rows_h))
     print("\n### Single-joint calibration (seed 004): truth against estimate [95 % interval]\n")
     print("| plant | joint | backlash truth ° | backlash ° | inside | gear ratio truth ppm | gear ratio ppm | "
-          "inside | harmonics found |")
-    print("|---|---|---:|---|---|---:|---|---|---:|")
+          "inside | harmonics found | the model applies |")
+    print("|---|---|---:|---|---|---:|---|---|---:|---|")
     print("\n".join(rows_j))
     print(f"\n### The cell before and after loading the calibration ({args.parts} parts of bracket-a, "
           "same parts)\n")

@@ -8,13 +8,16 @@ a new calibration gets the next ``version`` and the one it replaces is kept besi
 ``<name>.v<N>.json``; the active file is replaced atomically.
 
 The cell applies the robot's own parameters (:data:`APPLIED`): the joint zeros of θ1, θ2
-and the two link lengths. The board's placement (``base.x``, ``base.y``) is the board's
+and the two link lengths; and from seed 004's sweeps (the optional ``joints`` section,
+:mod:`cell.calibration.joint_terms`) the measured backlash, and the gear-ratio and cyclic
+terms listed as ``applied`` there. The board's placement (``base.x``, ``base.y``) is the board's
 error, not the robot's, and is only reported; the board's rotation cannot be told from
 θ1's zero (they appear only as a sum) and is in ``j1.theta``.
 
 :func:`load` refuses, with :class:`~cell.errors.CalibrationError` naming the file and the
 cause, a file that is missing, not JSON, of another format, altered or cut (checksum), or
-made for another cell or another nominal robot. Nothing is applied then.
+made for another cell or another nominal robot, or whose joint terms do not fit the robot.
+Nothing is applied then.
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ from cell.kinematics import Elbow, Scara
 from cell.robots import Geometry
 
 FORMAT = "cell-robot-calibration/1"
+_IK_STEPS = 6          #: fixed-point steps of the inverse through the joint terms (|d'| ≤ 0.05)
 #: calibration parameter → (what the calibrated robot does with it, unit)
 APPLIED = {"j1.theta": "θ1 zero", "j2.theta": "θ2 zero", "j1.a": "link 1 length",
            "j2.a": "link 2 length"}
@@ -54,26 +58,44 @@ def calibration_id(doc: dict) -> str:
 
 
 class CalibratedScara(Scara):
-    """The nominal robot with the calibrated joint zeros and link lengths.
+    """The nominal robot with the calibrated joint zeros and link lengths, and the joint
+    terms of seed 004 the calibration applies.
 
     Commands stay in the nominal robot's terms (a command θ_cmd turns the joint to
-    θ_cmd + Δθ); forward kinematics, its Jacobian and the inverse use the calibrated
-    geometry, so a planned first move lands closer. Limits and command units are the
-    nominal ones. ``calibration`` is the id of the file it came from; ``approach_dirs`` the
-    side its poses took up backlash from (the zeros hold half of each band from that side).
+    θ_cmd + Δθ + d(θ_cmd), d the applied gear-ratio and cyclic terms, ``joint_effects``);
+    forward kinematics, its Jacobian and the inverse use the calibrated geometry, so a
+    planned first move lands closer. Limits and command units are the nominal ones.
+    ``calibration`` is the id of the file it came from; ``approach_dirs`` the side its poses
+    took up backlash from (the zeros hold half of each band from that side);
+    ``backlash_deg`` the band seed 004 measured on j1, j2 (0: not measured).
     """
 
     def __init__(self, nominal: Scara, offsets_deg, link_deltas_mm, calibration: str,
-                 approach_dirs=Scara.approach_dirs):
+                 approach_dirs=Scara.approach_dirs, joint_effects=(), backlash_deg=(0.0, 0.0)):
         super().__init__(nominal.g)
         self.offsets = np.asarray(offsets_deg, dtype=float)
         self.calibration = calibration
         self.approach_dirs = (int(approach_dirs[0]), int(approach_dirs[1]))
+        self.joint_effects = tuple(joint_effects)
+        self.backlash_deg = (float(backlash_deg[0]), float(backlash_deg[1]))
         g = nominal.g
         self._true = Scara(g.model_copy(update={"l1_mm": g.l1_mm + float(link_deltas_mm[0]),
                                                 "l2_mm": g.l2_mm + float(link_deltas_mm[1])}))
 
+    def _turned(self, q_deg) -> tuple[np.ndarray, np.ndarray]:
+        """(angles the joints turn to, their derivative by the command), each (N, 2), for
+        commands (N, 2): θ_cmd + zero + the applied joint terms."""
+        q = np.asarray(q_deg, dtype=float)
+        if not self.joint_effects:
+            return q + self.offsets, np.ones_like(q)
+        from cell.calibration.joint_terms import joint_delta
+        delta, slope = joint_delta(self.joint_effects, q)
+        return q + self.offsets + delta, 1.0 + slope
+
     def fk_planar(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        if self.joint_effects:
+            t = self._turned([[t1_deg, t2_deg]])[0][0]
+            return self._true.fk_planar(t[0], t[1])
         return self._true.fk_planar(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
 
     @property
@@ -82,14 +104,24 @@ class CalibratedScara(Scara):
         return self._true.g
 
     def fk_planar_batch(self, q_deg) -> np.ndarray:
+        if self.joint_effects:
+            return self._true.fk_planar_batch(self._turned(q_deg)[0])
         return self._true.fk_planar_batch(np.asarray(q_deg, dtype=float) + self.offsets)
 
     def jacobian(self, t1_deg: float, t2_deg: float) -> np.ndarray:
+        if self.joint_effects:
+            t, slope = self._turned([[t1_deg, t2_deg]])
+            return self._true.jacobian(t[0, 0], t[0, 1]) * slope[0]
         return self._true.jacobian(t1_deg + self.offsets[0], t2_deg + self.offsets[1])
 
     def ik_planar(self, x_mm: float, y_mm: float, elbow: Elbow = "right",
                   check_limits: bool = True) -> np.ndarray:
         q = self._true.ik_planar(x_mm, y_mm, elbow=elbow, check_limits=False) - self.offsets
+        if self.joint_effects:            # θ + d(θ) = q, d small and slow: fixed-point steps
+            from cell.calibration.joint_terms import joint_delta
+            target = q.copy()
+            for _ in range(_IK_STEPS):
+                q = target - joint_delta(self.joint_effects, q[None])[0][0]
         q[0] = (q[0] + 180.0) % 360.0 - 180.0
         if check_limits:
             self.check_limits(q, joints=(0, 1))
@@ -99,11 +131,16 @@ class CalibratedScara(Scara):
 def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
     """The robot a loaded calibration describes (see :data:`APPLIED`). A file without
     ``approach_dirs`` was measured from below (+1, +1): the procedure has approached every
-    pose that way since the format's first version."""
+    pose that way since the format's first version. A file without ``joints`` applies no
+    joint term."""
     p = {k: float(v["value"]) for k, v in doc["parameters"].items()}
+    fx, backlash = (), (0.0, 0.0)
+    if doc.get("joints"):
+        from cell.calibration import joint_terms
+        fx, backlash = joint_terms.effects(doc["joints"]), joint_terms.backlash_deg(doc["joints"])
     return CalibratedScara(nominal, (p.get("j1.theta", 0.0), p.get("j2.theta", 0.0)),
                            (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc),
-                           approach_dirs(doc))
+                           approach_dirs(doc), fx, backlash)
 
 
 def approach_dirs(doc: dict) -> tuple[int, int]:
@@ -117,17 +154,19 @@ def approach_dirs(doc: dict) -> tuple[int, int]:
 
 
 def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: dict,
-                 created_at: str, warning: str | None = None) -> dict:
+                 created_at: str, warning: str | None = None, joints: dict | None = None) -> dict:
     """A calibration document (version and checksum are set by :func:`write`).
     ``parameters``: name → {value, se, low, high, unit}; ``report``: identifiability,
     held-out check and fit figures; ``data``: the poses and measurements; ``warning``: why
     a calibration whose check failed was written anyway (``--accept-worse``), stored with
-    ``accept_worse: true`` (None: the check passed, ``accept_worse: false``)."""
+    ``accept_worse: true`` (None: the check passed, ``accept_worse: false``); ``joints``: seed
+    004's terms per joint (:mod:`cell.calibration.joint_terms`), written only when given."""
+    extra = {"joints": joints} if joints else {}
     return {"format": FORMAT, "version": 0, "created_at": created_at, "cell": cell,
             "robot": {"name": robot.g.name, "fingerprint": robot_fingerprint(robot)},
             "approach_dirs": list(Scara.approach_dirs),
             "applied": sorted(APPLIED), "parameters": parameters, "report": report, "data": data,
-            "accept_worse": warning is not None, "warning": warning}
+            "accept_worse": warning is not None, "warning": warning, **extra}
 
 
 def write(path, doc: dict) -> dict:
@@ -207,6 +246,13 @@ def load(path, robot: Scara, cell: str) -> dict:
         approach_dirs(doc)
     except ValueError as exc:
         raise CalibrationError(f"{path}: corrupt robot calibration: {exc}") from None
+    if "joints" in doc:
+        from cell.calibration import joint_terms
+        try:
+            joint_terms.check(doc["joints"])
+        except ValueError as exc:
+            raise CalibrationError(f"{path}: the calibration's joint terms do not fit the robot "
+                                   f"{robot.g.name!r}: {exc}") from None
     try:
         for name, v in doc["parameters"].items():
             if not np.isfinite(float(v["value"])):

@@ -4,11 +4,15 @@
 fixture), the nominal robot, the calibration file. Both the ``cellctl calibrate`` commands
 and the controller's CALIBRATING state call it:
 
-* :meth:`CellCalibrator.joint` — seed 004 on one joint: plan, sweep, analyse;
+* :meth:`CellCalibrator.joint` — seed 004 on one joint: plan, sweep, analyse, and record
+  the joint's terms in the calibration file (:mod:`cell.calibration.joint_terms`): the
+  backlash always applies; a gear-ratio or cyclic term only when the kinematic fit, redone
+  on the file's own poses with it, predicts the held-out poses better;
 * :meth:`CellCalibrator.kinematics` — seed 001: candidate poses over the board, D-optimal
   choice of the fit poses, held-out poses drawn from the rest, a few anchor poses where the
   cell's fixed camera sees the tool (they tie the board's frame, rotation included, to
-  the cell's: without them θ1's zero absorbs the board's rotation), measure all, identify,
+  the cell's: without them θ1's zero absorbs the board's rotation), measure all, identify
+  (with seed 004's terms of the file weighed as above, so the zeros do not absorb them),
   check on the held-out poses (:func:`cell.calibration.kinematic.holdout_check`); only a
   passing result is written (versioned, see :mod:`cell.calibration.calfile`) and applied
   (``on_applied``), or a failing one the caller accepts (``accept_worse``, the command's
@@ -56,6 +60,10 @@ def board_of(config: CellConfig) -> CircleGridBoard:
     if board is None:
         return DEFAULT_BOARD
     return board
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def load_active(config: CellConfig, nominal: Scara) -> tuple[Scara, dict | None]:
@@ -113,6 +121,8 @@ class KinematicOutcome:
     points_fit: list[int]
     points_hold: list[int]
     document: dict | None = None
+    #: seed 004's terms per joint, with what the fit applies (None: no joint calibrated)
+    joints: dict | None = None
 
     def parameters(self, nominal: Scara) -> dict:
         from cell.calibration.dh import scara_chain
@@ -153,6 +163,8 @@ class CellCalibrator:
         self.version = version
         self.on_applied = on_applied
         self.path = path or config.calibration.file
+        #: the calibration document last written (None: nothing written yet)
+        self.written: dict | None = None
 
     # ------------------------------------------------------------------ pieces
     def rig(self, cancel=None) -> HandRig:
@@ -169,9 +181,11 @@ class CellCalibrator:
 
     def joint(self, joint: str, *, runs: int | None = None, step_deg: float | None = None,
               range_deg: float | None = None, period_deg: float = 360.0, cancel=None,
-              progress=None) -> tuple[JointPlan, JointResult]:
+              progress=None, write: bool = True) -> tuple[JointPlan, JointResult]:
         """Seed 004 on ``joint`` (j1, j2, j4): the plan (range kept in view) and the result.
-        Raises CalibrationError (bad joint, target lost, too few points, ...)."""
+        With ``write``, the joint's terms are recorded in the calibration file and applied as
+        the module doc says (:attr:`written` is the document). Raises CalibrationError (bad
+        joint, target lost, too few points, ...)."""
         from cell.calibration.joint import analyse
         from cell.calibration.procedure import plan_joint, sweep_joint
         self.devices.place_fixture("joint", joint)
@@ -193,7 +207,36 @@ class CellCalibrator:
                                                    self.config.calibration.radius_sigma_mm))
         log.info("joint_calibration_done", joint=joint, backlash_deg=result.backlash_deg.value,
                  residual_rms_deg=result.residual_rms_deg)
+        if write:
+            self._record_joint(joint, result)
         return plan, result
+
+    def _active(self) -> dict | None:
+        """The calibration document in use (None: no file yet). Raises CalibrationError for a
+        file that cannot be read or trusted: what it holds is not built on."""
+        if not Path(self.path).exists():
+            return None
+        return calfile.load(self.path, self.nominal, self.config.name)
+
+    def _record_joint(self, joint: str, result: "JointResult") -> None:
+        from cell.calibration import joint_terms as jt
+        doc = self._active() or {}
+        section = {**(doc.get("joints") or {}), joint: jt.entry(result)}
+        data = jt.FitData.of(doc)
+        if data is None:
+            section = jt.annotate(section, None, "no kinematic calibration to weigh it against yet "
+                                                 "(calibrate kinematics does)")
+            new = calfile.new_document(self.nominal, self.config.name, doc.get("parameters", {}),
+                                       doc.get("report", {}), doc.get("data", {}), _now(),
+                                       doc.get("warning"), joints=section)
+            self._store(new)
+            return
+        w = jt.weigh(self.nominal, data, section, min_gain=self.config.calibration.min_gain)
+        fit, hold = doc["data"]["fit"], doc["data"]["holdout"]
+        out = KinematicOutcome(w.identification, w.holdout, data.q_fit, data.m_fit, data.q_hold,
+                               data.m_hold, [f.get("point", 0) for f in fit],
+                               [h.get("point", 0) for h in hold], joints=jt.annotate(section, w))
+        self._write(out, doc.get("warning"))
 
     def kinematics(self, *, poses: int | None = None, holdout: int | None = None, cancel=None,
                    progress=None, write: bool = True, seed: int = 0,
@@ -239,12 +282,19 @@ class CellCalibrator:
         q_fit = np.vstack([cq[fit], *[a.q[None] for a in anchors]])
         m_all = np.vstack([m_fit, m_anchor])
         in_base = np.r_[np.zeros(len(fit), bool), np.ones(len(anchors), bool)]
-        ident = identify(chain, q_fit, m_all, position_only=True, in_base=in_base)
-        check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=q_fit, measured_fit=m_all,
-                              min_gain=c.min_gain, position_only=True, in_base_fit=in_base)
+        joints = (self._active() or {}).get("joints")
+        if joints:                          # seed 004's terms: weighed, never double-counted
+            from cell.calibration import joint_terms as jt
+            w = jt.weigh(self.nominal, jt.FitData(q_fit, m_all, in_base, cq[hold], m_hold), joints,
+                         min_gain=c.min_gain)
+            ident, check, joints = w.identification, w.holdout, jt.annotate(joints, w)
+        else:
+            ident = identify(chain, q_fit, m_all, position_only=True, in_base=in_base)
+            check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=q_fit, measured_fit=m_all,
+                                  min_gain=c.min_gain, position_only=True, in_base_fit=in_base)
         out = KinematicOutcome(ident, check, q_fit, m_all, cq[hold], m_hold,
                                [cands[i].point for i in fit] + [-1] * len(anchors),
-                               [cands[i].point for i in hold])
+                               [cands[i].point for i in hold], joints=joints)
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
         if write and (check.passed or accept_worse):
             self._write(out, None if check.passed else
@@ -268,16 +318,21 @@ class CellCalibrator:
                 "holdout": [{"q": q.tolist(), "measured_mm": m.tolist(), "point": k}
                             for q, m, k in zip(out.q_hold, out.m_hold, out.points_hold)]}
         doc = calfile.new_document(self.nominal, self.config.name, out.parameters(self.nominal),
-                                   json_safe(out.report()), data,
-                                   datetime.now(timezone.utc).isoformat(timespec="seconds"), warning)
+                                   json_safe(out.report()), data, _now(), warning,
+                                   joints=json_safe(out.joints) if out.joints else None)
+        out.document = self._store(doc)
+
+    def _store(self, doc: dict) -> dict:
+        """Write ``doc`` as the active calibration and put it to use; returns it as written."""
         doc = calfile.write(self.path, doc)
-        out.document = doc
+        self.written = doc
         self.version = int(doc["version"])
         log.info("robot_calibration_written", path=str(self.path), version=self.version,
-                 id=calfile.calibration_id(doc), warning=warning)
+                 id=calfile.calibration_id(doc), warning=doc.get("warning"))
         self.robot = calfile.calibrated_robot(self.nominal, doc)
         if self.on_applied is not None:
             self.on_applied(self.robot, doc)
+        return doc
 
     # ------------------------------------------------------------------ the PLC's entry
     def run_safely(self, select: int, cancel) -> CycleOutcome:
@@ -299,7 +354,8 @@ class CellCalibrator:
                                     "1, 2, 4 joint; j3 is prismatic)")
             _, result = self.joint(JOINT_NAMES[select - 1], cancel=cancel)
             return CycleOutcome(CycleStatus.DONE, calibration={"residual_um": 0,
-                                                     "residual_udeg": 1e6 * result.residual_rms_deg})
+                                                     "residual_udeg": 1e6 * result.residual_rms_deg,
+                                                     "version": self.version})
         except CycleCancelled:
             return CycleOutcome(CycleStatus.ABORTED, cancel.code, cancel.text)
         except CalibrationError as exc:

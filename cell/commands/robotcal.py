@@ -4,7 +4,12 @@
   under the hand camera at the all-zero pose; the joint sweeps the range over which the
   target stays in view, forward and back, ``--runs`` times. Prints the per-step table
   (errors per pass, their difference, single-step errors), the backlash, gear-ratio error
-  and cyclic error with 95 % intervals, and writes a PNG of error against angle.
+  and cyclic error with 95 % intervals, and writes a PNG of error against angle. It
+  records the joint's terms in the calibration file (a new version; ``--dry-run`` writes
+  nothing): the backlash always applies (every arrival's via point clears it); a gear-ratio
+  or cyclic term only when the kinematic fit, redone on the file's own poses with it,
+  predicts the held-out poses better. It prints which apply and why the others do not
+  (:mod:`cell.calibration.joint_terms`), and adds a row to the audit trail.
 * ``calibrate kinematics`` — seed 001: the board of known points (``calibration.board``)
   lies on the work plane; the robot visits ``--poses`` poses chosen for identifiability and
   ``--holdout`` more for the check. Prints the held-out error before/after, the identified
@@ -54,6 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="period of the cyclic error, joint deg (default 360; a motor-side cycle of "
                         "a ratio-N drive is 360/N)")
     j.add_argument("--png", help=f"error plot to write, or a folder for it (default {DEFAULT_PNG.format(joint='<joint>')})")
+    j.add_argument("--out", help="calibration file to record the joint's terms in (default: calibration.file)")
+    j.add_argument("--dry-run", action="store_true", help="measure and report; write no calibration")
+    j.add_argument("--db", help="cycle log whose audit trail records the write (default: the cell "
+                                "config's log; none with --sim)")
     _common(j)
     j.set_defaults(func=run_joint)
     k = kinds.add_parser("kinematics", help="seed 001: DH parameters from poses over the board, "
@@ -161,17 +170,37 @@ def run_joint(args: argparse.Namespace) -> int:
     joint = _joint_name(args.joint)
     if args.runs is not None and args.runs < 1:
         raise ConfigError(f"--runs {args.runs} must be ≥ 1")
+    from cell.calibration import calfile
     with progress.bar(f"calibrate {joint}", unit="image") as bar:
-        plan, result = _session(args, lambda cal: cal.joint(
+        cal, (plan, result) = _session(args, lambda cal: (cal, cal.joint(
             joint, runs=args.runs, step_deg=args.step_deg, range_deg=args.range_deg,
-            period_deg=args.period_deg, progress=progress.callback(bar)))
+            period_deg=args.period_deg, progress=progress.callback(bar), write=not args.dry_run)))
     png = png_path(args.png, f"{joint}-errors.png") if args.png else paths.project(DEFAULT_PNG.format(joint=joint))
     png.parent.mkdir(parents=True, exist_ok=True)
     plot(result, png)
+    doc = cal.written
+    terms = (doc.get("joints") or {}).get(joint) if doc else None
+    written = None if doc is None else {"path": str(cal.path), "version": doc["version"],
+                                        "id": calfile.calibration_id(doc), "applied": terms["applied"],
+                                        "why": terms["why"]}
+    if doc is not None:
+        db = args.db or (None if args.sim else cal.config.log.path)
+        if db:
+            audit_calibration(db, "calibration_write", cal.path,
+                              f"{calfile.calibration_id(doc)}: seed 004 {joint}: applied "
+                              f"{', '.join(['backlash', *terms['applied']])}", str(doc.get("sha256", "")))
     if args.json:
-        print(json.dumps({"plan": plan.as_dict(), "result": result.as_dict(), "png": str(png)}, indent=2))
+        print(json.dumps({"plan": plan.as_dict(), "result": result.as_dict(), "png": str(png),
+                          "written": written}, indent=2))
         return 0
     _print_joint(plan, result, png)
+    if written:
+        print(f"written: {written['path']} ({written['id']}); applied: "
+              f"{', '.join(['backlash', *written['applied']])}")
+        if written["why"]:
+            print(f"  not applied: {written['why']}")
+    else:
+        print("written: nothing (--dry-run)")
     return 0
 
 

@@ -109,6 +109,16 @@ def run_lattice(robot: Scara, arm: Arm, target_mm, *, start_units=None,
     return rec.result
 
 
+def margin_units(robot: Scara, recipe_margin: int) -> int:
+    """The via-point margin, command units, that clears the backlash seed 004 measured
+    (``robot.backlash_deg``): the recipe's ``backlash_margin_units``, or 1.5 × the measured
+    band rounded up when that is wider. A recipe margin of 0 (via points off) stays 0."""
+    if recipe_margin <= 0:
+        return recipe_margin
+    need = [math.ceil(1.5 * b / u) for b, u in zip(robot.backlash_deg, robot.g.unit[:2]) if b > 0]
+    return max([recipe_margin, *need])
+
+
 def via_point(dirs, margin: int, before, command, robot: Scara | None = None) -> np.ndarray | None:
     """The via point an arrival at ``command`` from ``before`` passes through so that every
     joint arrives from its side ``dirs`` (the sign counts). None when no side is kept

@@ -24,7 +24,7 @@ import numpy as np
 
 from cell.clock import Clock, MonotonicClock
 from cell.compensation.base import CompensationResult, Step
-from cell.compensation.lattice import nearest_lattice, run_lattice, via_point
+from cell.compensation.lattice import margin_units, nearest_lattice, run_lattice, via_point
 from cell.compensation.paper import run_paper
 from cell.cycle.statemachine import State
 from cell.cyclelog import CycleLog, CycleRecord, CycleStatus, utc_now
@@ -196,7 +196,7 @@ def compensate(robot: Scara, arm, memory: OffsetMemory, recipe, target, *, elbow
                          repeatability_mm=c.repeatability_mm)
     gain = max(c.min_gain_mm, memory.scatter_mm(recipe.name))
     return run_lattice(robot, arm, target, start_units=start, max_moves=c.max_moves,
-                       min_gain_mm=gain, backlash_margin_units=c.backlash_margin_units,
+                       min_gain_mm=gain, backlash_margin_units=margin_units(robot, c.backlash_margin_units),
                        approach_dirs=robot.approach_dirs, from_units=from_units)
 
 
@@ -403,7 +403,8 @@ class CycleRunner:
             if extra >= allowed:
                 raise CellFault(Fault.VERIFY_OUT_OF_TOLERANCE, f"{what}; compensation.extra_moves = "
                                 f"{allowed} spent (the next move was predicted to {predicted:.4f} mm)")
-            via = via_point(self.robot.approach_dirs, r.compensation.backlash_margin_units,
+            via = via_point(self.robot.approach_dirs,
+                            margin_units(self.robot, r.compensation.backlash_margin_units),
                             command, best, self.robot)
             arm.arrive(command, r.approach.z_mm)
             arm.arrive(best, r.approach.z_mm, via)

@@ -104,10 +104,12 @@ class Scara:
     joints' backlash from: moving up, as the calibration procedures approach every pose
     (:meth:`cell.calibration.procedure.HandRig.approach`). A model fitted on such arrivals
     predicts arrivals made the same way; a calibrated robot carries the side its file
-    records.
+    records. ``backlash_deg`` is the lost motion of θ1, θ2 as seed 004 measured it (0: not
+    measured, as for every nominal robot).
     """
 
     approach_dirs: tuple[int, int] = (1, 1)
+    backlash_deg: tuple[float, float] = (0.0, 0.0)
 
     def __init__(self, geometry: "Geometry"):
         self.g = geometry

@@ -62,6 +62,8 @@ def make_config(tmp_path: Path, settle_s: float = 0.0, **plc) -> CellConfig:
     return cfg.model_copy(update={
         "plc": cfg.plc.model_copy(update={"host": "127.0.0.1", "heartbeat_timeout_s": 0.4, **plc}),
         "log": cfg.log.model_copy(update={"path": str(tmp_path / "cell.sqlite")}),
+        # the test's own calibration file: never the project's var/, whatever it holds
+        "calibration": cfg.calibration.model_copy(update={"file": str(tmp_path / "robot-calibration.json")}),
         # edits settle on wall time; these tests write each file in one go and wait on the
         # simulated clock, so they take an edit at the next refresh
         "recipes": cfg.recipes.model_copy(update={"directory": str(rdir), "settle_s": settle_s}),

@@ -3,7 +3,9 @@ CALIBRATING state under the heartbeat watchdog, residuals and the calibration ve
 registers, the new model used by the next cycles (and recorded in their rows)."""
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -66,7 +68,12 @@ def test_joint_calibration_from_the_plc_reports_its_residual(harness):
     plant, robot = h.cell.devices.plant, h.cell.devices.robot
     predicted_udeg = 1e6 * math.degrees(plant.config.repeatability_mm / robot.g.l2_mm)
     assert 0.7 * predicted_udeg < res["calibration_residual_udeg"] < 1.4 * predicted_udeg
-    assert res["calibration_version"] == 0                        # a joint calibration writes no model
+    # the joint's terms are recorded (a new version of the file) and applied: the backlash,
+    # and no gear-ratio or cyclic term, as the default plant has none
+    assert res["calibration_version"] == 1
+    doc = json.loads(Path(h.cell.calibrator.path).read_text())
+    assert doc["joints"]["j2"]["applied"] == [] and doc["parameters"] == {}
+    assert h.cell.runner.robot.backlash_deg[1] > 0.015 and h.cell.runner.robot.joint_effects == ()
 
 
 def test_heartbeat_loss_mid_calibration_stops_the_joints_and_faults_101(harness):
