@@ -9,15 +9,28 @@ from cell.cli import main
 from cell.kinematics import Scara
 
 
-def test_joint_calibration_prints_json_and_writes_the_plot(tmp_path, capsys):
-    png = tmp_path / "plots" / "j2.png"
-    assert main(["calibrate", "joint", "j2", "--sim", "--runs", "1", "--png", str(png), "--json"]) == 0
+def test_joint_calibration_prints_json_writes_the_plot_and_records_its_terms(tmp_path, capsys):
+    png, cal = tmp_path / "plots" / "j2.png", tmp_path / "robot.json"
+    assert main(["calibrate", "joint", "j2", "--sim", "--runs", "1", "--png", str(png), "--json",
+                 "--out", str(cal)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["plan"]["joint"] == "j2" and out["plan"]["range_reason"].startswith("target in view")
     b = out["result"]["backlash_deg"]
     assert b["low"] <= 0.02 <= b["high"]                      # the plant's j2 backlash
     assert len(out["result"]["table"]) == out["plan"]["positions"]
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # no kinematic calibration yet: the terms are recorded, none but the backlash applied
+    doc = calfile.load(cal, Scara.preset("seed000"), "cell-1")
+    assert out["written"]["version"] == doc["version"] == 1 and out["written"]["applied"] == []
+    assert "no kinematic calibration to weigh it against yet" in doc["joints"]["j2"]["why"]
+    assert calfile.calibrated_robot(Scara.preset("seed000"), doc).backlash_deg[1] == pytest.approx(b["high"], rel=1e-7)
+
+
+def test_joint_dry_run_writes_no_calibration(tmp_path, capsys):
+    cal = tmp_path / "robot.json"
+    assert main(["calibrate", "joint", "j2", "--sim", "--runs", "1", "--png", str(tmp_path / "j2.png"),
+                 "--out", str(cal), "--dry-run"]) == 0
+    assert "written: nothing (--dry-run)" in capsys.readouterr().out and not cal.exists()
 
 
 @pytest.mark.slow

@@ -95,9 +95,11 @@ def test_calibration_outputs_get_the_umask_mode_not_0600(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert (tmp_path / "cal.json").stat().st_mode & 0o777 == _umask_mode()
 
-    out = cellctl(tmp_path, "calibrate", "joint", "j4", "--sim", "--runs", "1", "--png", "j4.png")
+    out = cellctl(tmp_path, "calibrate", "joint", "j4", "--sim", "--runs", "1", "--png", "j4.png",
+                  "--out", "robot.json")
     assert out.returncode == 0, out.stderr[-2000:]
     assert (tmp_path / "j4.png").stat().st_mode & 0o777 == _umask_mode()
+    assert (tmp_path / "robot.json").stat().st_mode & 0o777 == _umask_mode()
 
 
 def _catches(pid: int, sig: int) -> bool:
