@@ -134,10 +134,11 @@ def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
     pose that way since the format's first version. A file without ``joints`` applies no
     joint term."""
     p = {k: float(v["value"]) for k, v in doc["parameters"].items()}
-    fx, backlash = (), (0.0, 0.0)
-    if doc.get("joints"):
+    fx, backlash = [], (0.0, 0.0)
+    if doc.get("joints") or doc.get("gear_ratio"):
         from cell.calibration import joint_terms
-        fx, backlash = joint_terms.effects(doc["joints"]), joint_terms.backlash_deg(doc["joints"])
+        fx = joint_terms.effects(doc.get("joints")) + joint_terms.gear_effects(doc.get("gear_ratio"))
+        backlash = joint_terms.backlash_deg(doc.get("joints"))
     return CalibratedScara(nominal, (p.get("j1.theta", 0.0), p.get("j2.theta", 0.0)),
                            (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc),
                            approach_dirs(doc), fx, backlash)
@@ -154,14 +155,16 @@ def approach_dirs(doc: dict) -> tuple[int, int]:
 
 
 def new_document(robot: Scara, cell: str, parameters: dict, report: dict, data: dict,
-                 created_at: str, warning: str | None = None, joints: dict | None = None) -> dict:
+                 created_at: str, warning: str | None = None, joints: dict | None = None,
+                 gear_ratio: dict | None = None) -> dict:
     """A calibration document (version and checksum are set by :func:`write`).
     ``parameters``: name → {value, se, low, high, unit}; ``report``: identifiability,
     held-out check and fit figures; ``data``: the poses and measurements; ``warning``: why
     a calibration whose check failed was written anyway (``--accept-worse``), stored with
     ``accept_worse: true`` (None: the check passed, ``accept_worse: false``); ``joints``: seed
-    004's terms per joint (:mod:`cell.calibration.joint_terms`), written only when given."""
-    extra = {"joints": joints} if joints else {}
+    004's terms per joint and ``gear_ratio`` seed 001's own gear-ratio estimates
+    (:mod:`cell.calibration.joint_terms`), each written only when given."""
+    extra = {k: v for k, v in (("joints", joints), ("gear_ratio", gear_ratio)) if v}
     return {"format": FORMAT, "version": 0, "created_at": created_at, "cell": cell,
             "robot": {"name": robot.g.name, "fingerprint": robot_fingerprint(robot)},
             "approach_dirs": list(Scara.approach_dirs),
@@ -246,10 +249,13 @@ def load(path, robot: Scara, cell: str) -> dict:
         approach_dirs(doc)
     except ValueError as exc:
         raise CalibrationError(f"{path}: corrupt robot calibration: {exc}") from None
-    if "joints" in doc:
+    if "joints" in doc or "gear_ratio" in doc:
         from cell.calibration import joint_terms
         try:
-            joint_terms.check(doc["joints"])
+            if "joints" in doc:
+                joint_terms.check(doc["joints"])
+            if "gear_ratio" in doc:
+                joint_terms.check_gear_ratio(doc["gear_ratio"])
         except ValueError as exc:
             raise CalibrationError(f"{path}: the calibration's joint terms do not fit the robot "
                                    f"{robot.g.name!r}: {exc}") from None

@@ -28,6 +28,15 @@ What the cell does with them:
   the held-out poses better, rms and max each, than without it (:func:`weigh`). The terms
   are applied to the commanded joint angles in the fit too, so the joint zeros do not
   absorb them a second time.
+* **the gear ratio seed 001 sees.** The kinematic calibration's poses span most of each
+  joint's range, so its fit can carry a gear-ratio error that seed 004's sweep cannot: ε of
+  j1 and j2 fitted beside the DH errors (:func:`fit_gear_ratios`). The file's top-level
+  ``gear_ratio`` section holds the estimates; one whose interval leaves out 0 is applied
+  under the same held-out rule, on top of the seed 004 terms chosen::
+
+    "gear_ratio": {"j1": {"value": 3.1e-04, "low": 2.8e-04, "high": 3.4e-04},
+                   "j2": {"value": -4.9e-04, "low": -5.3e-04, "high": -4.5e-04},
+                   "applied": ["j1", "j2"], "why": ""}
 """
 from __future__ import annotations
 
@@ -105,6 +114,30 @@ def check(section) -> None:
                              "so no term of it can be applied")
         if "cyclic_error" in applied and not harmonics:
             raise ValueError(f"{where}.applied: cyclic_error applied but no harmonic measured")
+
+
+def check_gear_ratio(section) -> None:
+    """Refuse a top-level ``gear_ratio`` section that does not fit the robot.
+
+    :raises ValueError: naming the key (``gear_ratio.j3: ...``)."""
+    if not isinstance(section, dict):
+        raise ValueError(f"gear_ratio: must be a mapping, got {type(section).__name__}")
+    for joint, e in section.items():
+        if joint in ("applied", "why"):
+            continue
+        if joint not in PLANAR_JOINTS:
+            raise ValueError(f"gear_ratio.{joint}: not a joint the kinematic fit gives a gear ratio "
+                             f"({', '.join(PLANAR_JOINTS)})")
+        _estimate(section, joint, "gear_ratio", RATIO.bounds)
+    applied = section.get("applied", [])
+    if not isinstance(applied, list) or any(j not in section or j in ("applied", "why") for j in applied):
+        raise ValueError(f"gear_ratio.applied = {applied!r}: must list joints the section estimates")
+
+
+def gear_effects(section: Mapping | None) -> list[EffectInstance]:
+    """The gear-ratio effects of the kinematic fit's applied estimates."""
+    s = section or {}
+    return [make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": s[j]["value"]}) for j in s.get("applied", [])]
 
 
 def _finite(v) -> bool:
@@ -211,6 +244,8 @@ class Weighing:
     identification: "Identification"
     holdout: "HoldoutCheck"
     why: dict[str, str]
+    #: the file's ``gear_ratio`` section: seed 001's estimates, which it applies and why
+    gear_ratio: dict | None = None
 
 
 def candidates(section: Mapping | None) -> list[tuple[str, str]]:
@@ -252,7 +287,8 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
         except CalibrationError as exc:
             return applied, None, str(exc)
         hc = holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
-                           min_gain=min_gain, position_only=True, in_base_fit=data.in_base)
+                           min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
+                           commanded=(data.q_fit, data.q_hold))
         return applied, ident, hc
 
     trials = {subset: fit(subset) for n in range(len(cands) + 1)
@@ -267,6 +303,7 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
         if (trial[1] is not None and h.passed and h.rms_xy_after_mm < b.rms_xy_after_mm
                 and h.max_xy_after_mm <= b.max_xy_after_mm and h.rms_xy_after_mm < best[2].rms_xy_after_mm):
             best = trial
+    best, gear = _with_gear_ratios(nominal, data, section, best, min_gain=min_gain)
     why = {}
     for joint, term in cands:
         if term in best[0].get(joint, ()):
@@ -277,7 +314,82 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
                                   f"held-out poses with it alone: rms {b.rms_xy_after_mm:.4f} → "
                                   f"{h.rms_xy_after_mm:.4f} mm, max {b.max_xy_after_mm:.4f} → "
                                   f"{h.max_xy_after_mm:.4f} mm (measured over ±{reach:.1f}° only)")
-    return Weighing(best[0], best[1], best[2], why)
+    return Weighing(best[0], best[1], best[2], why, gear)
+
+
+def fit_gear_ratios(nominal: "Scara", data: FitData, fixed: Sequence[EffectInstance] = (),
+                    joints: Sequence[str] = PLANAR_JOINTS, iterations: int = 8) -> dict[str, dict]:
+    """Seed 001's own estimate of the gear-ratio error ε of ``joints``, with 95 % intervals:
+    ε and the DH errors fitted together on the kinematic poses, with the ``fixed`` terms
+    applied to the commanded angles. Each step refits the DH errors at the current ε, then
+    takes one Gauss–Newton step in ε with the DH columns beside it (∂/∂ε_j is the column
+    of j's zero times the commanded angle). Intervals from that last design, Student's t.
+
+    :raises CalibrationError: the fit without ε fails (singular design)."""
+    from cell.calibration.dh import scara_chain
+    from cell.calibration.kinematic import _as_measured, _weighted, identify, jacobian, residuals
+    from cell.numerics.stats import t_ppf
+    chain = scara_chain(nominal.g)
+    cols = [PLANAR_JOINTS.index(j) for j in joints]
+    eps = np.zeros(len(joints))
+    for _ in range(iterations):
+        fx = [*fixed, *(make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": float(e)})
+                        for j, e in zip(joints, eps))]
+        qf = corrected(fx, data.q_fit)
+        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
+        J = jacobian(chain, qf, ident.p, w=0.0, in_base=data.in_base)
+        extra = [J[:, chain.index(f"{j}.theta")] * np.repeat(data.q_fit[:, c], 3)
+                 for j, c in zip(joints, cols)]
+        A = np.column_stack([J[:, [chain.index(n) for n in ident.kept]], *extra])
+        r = _weighted(residuals(chain, qf, _as_measured(chain, qf, data.m_fit, True), ident.p,
+                                data.in_base), 0.0)
+        step = np.linalg.lstsq(A, r, rcond=None)[0][-len(joints):]
+        eps = eps + step
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    dof = 2 * len(data.q_fit) - A.shape[1]
+    s2 = float(np.sum(r ** 2)) / dof
+    se = np.sqrt(np.diag(np.linalg.pinv(A.T @ A))[-len(joints):] * s2)
+    half = t_ppf(0.975, dof) * se
+    return {j: {"value": float(e), "low": float(e - h), "high": float(e + h)}
+            for j, e, h in zip(joints, eps, half)}
+
+
+def _with_gear_ratios(nominal, data, section, best, *, min_gain):
+    """Stage two of :func:`weigh`: seed 001's gear ratios on top of the seed 004 terms
+    chosen (``best``); applied when significant and when they predict the held-out poses
+    better, as a seed 004 term must. Returns (best, the ``gear_ratio`` section)."""
+    from cell.calibration.dh import scara_chain
+    from cell.calibration.kinematic import holdout_check, identify
+    from cell.errors import CalibrationError
+    fixed = effects(section, best[0])
+    try:
+        est = fit_gear_ratios(nominal, data, fixed)
+    except CalibrationError as exc:
+        return best, {"applied": [], "why": f"the fit with gear ratios failed: {exc}"}
+    sig = [j for j, e in est.items() if e["low"] > 0 or e["high"] < 0]
+    gear = {**est, "applied": [], "why": ""}
+    if not sig:
+        gear["why"] = "no joint's gear ratio is told from 0 by its 95 % interval"
+        return best, gear
+    chain = scara_chain(nominal.g)
+    fx = [*fixed, *(make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": est[j]["value"]}) for j in sig)]
+    qf, qh = corrected(fx, data.q_fit), corrected(fx, data.q_hold)
+    try:
+        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
+    except CalibrationError as exc:
+        gear["why"] = f"the fit with them failed: {exc}"
+        return best, gear
+    h = holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
+                      min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
+                      commanded=(data.q_fit, data.q_hold))
+    b = best[2]
+    if h.passed and h.rms_xy_after_mm < b.rms_xy_after_mm and h.max_xy_after_mm <= b.max_xy_after_mm:
+        gear["applied"] = sig
+        return (best[0], ident, h), gear
+    gear["why"] = (f"held-out poses with {', '.join(sig)}'s: rms {b.rms_xy_after_mm:.4f} → "
+                   f"{h.rms_xy_after_mm:.4f} mm, max {b.max_xy_after_mm:.4f} → {h.max_xy_after_mm:.4f} mm")
+    return best, gear
 
 
 def annotate(section: Mapping | None, weighing: Weighing | None, reason: str = "") -> dict:

@@ -495,7 +495,7 @@ def _errors(chain, q, m, p):
 
 def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_fit,
                   min_gain: float = 0.1, max_ratio: float = 3.0, position_only: bool = False,
-                  in_base_fit=None) -> HoldoutCheck:
+                  in_base_fit=None, commanded=None) -> HoldoutCheck:
     """Check calibrated errors ``p`` on held-out poses (q_hold, measured_hold) that the fit
     did not use.
 
@@ -515,7 +515,10 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
       beyond chance: the model does not generalise.
 
     ``in_base_fit`` flags the anchor poses among the fit data (held-out poses are board
-    poses). Raises CalibrationError for bad shapes or non-finite input (naming the pose).
+    poses). ``commanded`` (q_fit, q_hold): the commanded joints when ``q_fit`` and
+    ``q_hold`` carry joint terms the calibration applies: "before" is then the nominal robot
+    on the commands, as without them. Raises CalibrationError for bad shapes or non-finite
+    input (naming the pose).
     """
     from cell.calibration import check as C
     p = chain.check_errors(p)
@@ -523,8 +526,10 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     mh = _as_measured(chain, qh, measured_hold, position_only, "measured_hold")
     qf = chain.check_joints(q_fit, "q_fit")
     mf = _as_measured(chain, qf, measured_fit, position_only, "measured_fit")
-    before = fit_base(chain, qf, mf, position_only=position_only, in_base=in_base_fit).p
-    rb, mb, pb, pmb = _errors(chain, qh, mh, before)
+    qf0, qh0 = (qf, qh) if commanded is None else (chain.check_joints(commanded[0], "q_fit"),
+                                                    chain.check_joints(commanded[1], "q_hold"))
+    before = fit_base(chain, qf0, mf, position_only=position_only, in_base=in_base_fit).p
+    rb, mb, pb, pmb = _errors(chain, qh0, mh, before)
     ra, ma, pa, pma = _errors(chain, qh, mh, p)
     fit_rms = float(np.sqrt(np.mean(np.sum(residuals(chain, qf, mf, p, in_base_fit)[:, :2] ** 2, axis=1))))
     if position_only:

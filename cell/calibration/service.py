@@ -123,6 +123,8 @@ class KinematicOutcome:
     document: dict | None = None
     #: seed 004's terms per joint, with what the fit applies (None: no joint calibrated)
     joints: dict | None = None
+    #: seed 001's own gear-ratio estimates, which apply and why (None: not fitted)
+    gear_ratio: dict | None = None
 
     def parameters(self, nominal: Scara) -> dict:
         from cell.calibration.dh import scara_chain
@@ -235,7 +237,8 @@ class CellCalibrator:
         fit, hold = doc["data"]["fit"], doc["data"]["holdout"]
         out = KinematicOutcome(w.identification, w.holdout, data.q_fit, data.m_fit, data.q_hold,
                                data.m_hold, [f.get("point", 0) for f in fit],
-                               [h.get("point", 0) for h in hold], joints=jt.annotate(section, w))
+                               [h.get("point", 0) for h in hold], joints=jt.annotate(section, w),
+                               gear_ratio=w.gear_ratio)
         self._write(out, doc.get("warning"))
 
     def kinematics(self, *, poses: int | None = None, holdout: int | None = None, cancel=None,
@@ -247,7 +250,7 @@ class CellCalibrator:
         found, a point not seen, singular design, ...); a failed held-out check is returned
         (``holdout.passed`` False, ``document`` None), not raised."""
         from cell.calibration.dh import scara_chain
-        from cell.calibration.kinematic import holdout_check, identify, select_poses
+        from cell.calibration.kinematic import select_poses
         from cell.calibration.procedure import (anchor_candidates, board_candidates, measure_anchors,
                                                 measure_board)
         c = self.config.calibration
@@ -282,19 +285,17 @@ class CellCalibrator:
         q_fit = np.vstack([cq[fit], *[a.q[None] for a in anchors]])
         m_all = np.vstack([m_fit, m_anchor])
         in_base = np.r_[np.zeros(len(fit), bool), np.ones(len(anchors), bool)]
+        # seed 004's terms of the file, and seed 001's own gear ratios: weighed on the
+        # held-out poses, and applied to the commanded angles of the fit (never twice)
+        from cell.calibration import joint_terms as jt
         joints = (self._active() or {}).get("joints")
-        if joints:                          # seed 004's terms: weighed, never double-counted
-            from cell.calibration import joint_terms as jt
-            w = jt.weigh(self.nominal, jt.FitData(q_fit, m_all, in_base, cq[hold], m_hold), joints,
-                         min_gain=c.min_gain)
-            ident, check, joints = w.identification, w.holdout, jt.annotate(joints, w)
-        else:
-            ident = identify(chain, q_fit, m_all, position_only=True, in_base=in_base)
-            check = holdout_check(chain, ident.p, cq[hold], m_hold, q_fit=q_fit, measured_fit=m_all,
-                                  min_gain=c.min_gain, position_only=True, in_base_fit=in_base)
+        w = jt.weigh(self.nominal, jt.FitData(q_fit, m_all, in_base, cq[hold], m_hold), joints,
+                     min_gain=c.min_gain)
+        ident, check = w.identification, w.holdout
         out = KinematicOutcome(ident, check, q_fit, m_all, cq[hold], m_hold,
                                [cands[i].point for i in fit] + [-1] * len(anchors),
-                               [cands[i].point for i in hold], joints=joints)
+                               [cands[i].point for i in hold],
+                               joints=jt.annotate(joints, w) if joints else None, gear_ratio=w.gear_ratio)
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
         if write and (check.passed or accept_worse):
             self._write(out, None if check.passed else
@@ -319,7 +320,8 @@ class CellCalibrator:
                             for q, m, k in zip(out.q_hold, out.m_hold, out.points_hold)]}
         doc = calfile.new_document(self.nominal, self.config.name, out.parameters(self.nominal),
                                    json_safe(out.report()), data, _now(), warning,
-                                   joints=json_safe(out.joints) if out.joints else None)
+                                   joints=json_safe(out.joints) if out.joints else None,
+                                   gear_ratio=json_safe(out.gear_ratio) if out.gear_ratio else None)
         out.document = self._store(doc)
 
     def _store(self, doc: dict) -> dict:

@@ -251,6 +251,7 @@ def run_kinematics(args: argparse.Namespace) -> int:
             accept_worse=args.accept_worse, progress=progress.callback(bar))))
     doc = out.document
     report = {"parameters": out.parameters(cal.nominal), **out.report(),
+              "gear_ratio": out.gear_ratio, "joints": out.joints,
               "written": None if doc is None else
               {"path": str(cal.path), "version": doc["version"], "id": calfile.calibration_id(doc)},
               "accept_worse": bool(doc and doc["accept_worse"]), "warning": doc["warning"] if doc else None}
@@ -406,6 +407,16 @@ def _print_kinematics(out, report: dict) -> None:
     unseen = ident.report.unobservable
     if unseen:
         print(f"  not observable from x, y over the board (fixed at nominal): {', '.join(unseen)}")
+    g = out.gear_ratio or {}
+    for j in (k for k in g if k not in ("applied", "why")):
+        e = g[j]
+        print(f"{j + ' gear':<10} {e['value'] * 1e6:>+10.1f} {'':>10} [{e['low'] * 1e6:>+10.1f}, "
+              f"{e['high'] * 1e6:>+10.1f}] ppm{': applied' if j in g['applied'] else ''}")
+    if g.get("why"):
+        print(f"  gear ratios not applied: {g['why']}")
+    for j, e in (out.joints or {}).items():
+        print(f"  seed 004 {j}: applied {', '.join(['backlash', *e['applied']])}"
+              + (f"; {e['why']}" if e["why"] else ""))
     print()
     if h.passed:
         print(f"check: {h.reason}: PASSED")

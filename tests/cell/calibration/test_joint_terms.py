@@ -126,8 +126,10 @@ RIPPLE = [make_effect("cyclic_error", ["j1"], {"j1_cyclic_amp_deg": 0.03, "j1_cy
                                                "j1_cyclic_period_deg": 4.5})]
 
 
-def campaign(seed=1, n_fit=30, n_hold=12, anchors=4):
-    """Board poses (and ``anchors`` poses in the base frame) of the synthetic robot."""
+def campaign(seed=1, n_fit=30, n_hold=12, anchors=4, truth=None):
+    """Board poses (and ``anchors`` poses in the base frame) of the synthetic robot, whose
+    joints turn by ``truth`` (default the j1 ripple) beyond their commands."""
+    truth = RIPPLE if truth is None else truth
     rng = np.random.default_rng(seed)
 
     def poses(n):
@@ -135,7 +137,7 @@ def campaign(seed=1, n_fit=30, n_hold=12, anchors=4):
                                 np.full(n, -100.0), rng.uniform(-180, 180, n)])
 
     def measure(q, p):
-        m = CHAIN.predict(jt.corrected(RIPPLE, q), p)[:, :2]
+        m = CHAIN.predict(jt.corrected(truth, q), p)[:, :2]
         return m + rng.normal(0.0, 0.005, m.shape)
     qf, qh = poses(n_fit), poses(n_hold)
     in_base = np.arange(n_fit) < anchors
@@ -178,3 +180,52 @@ def test_only_significant_terms_are_tried():
                        jt.weigh(SEED000, campaign(), None, min_gain=0.1))
     assert "gear_ratio: its 95 % interval holds 0" in note["j1"]["why"]
     assert note["j4"]["why"].endswith("j4 does not move the tool's x, y")
+
+
+# ---------------------------------------------------------------- seed 001's gear ratios
+GEARS = [make_effect("gear_ratio", ["j1"], {"j1_gear_ratio_rel": 3e-4}),
+         make_effect("gear_ratio", ["j2"], {"j2_gear_ratio_rel": -5e-4})]
+
+
+def test_seed_001_fits_a_gear_ratio_seed_004_cannot_carry_and_applies_it():
+    """Over the kinematic poses (θ1 ±120°, θ2 ±[20, 140]°) the fit sees ε·θ directly; the
+    estimates hold the truths and the held-out poses come down to the noise."""
+    data = campaign(seed=3, truth=GEARS)
+    w = jt.weigh(SEED000, data, None, min_gain=0.1)
+    g = w.gear_ratio
+    assert g["applied"] == ["j1", "j2"] and g["why"] == ""
+    for j, truth in (("j1", 3e-4), ("j2", -5e-4)):
+        assert g[j]["low"] <= truth <= g[j]["high"] and g[j]["high"] - g[j]["low"] < 1e-4
+    assert w.holdout.rms_xy_after_mm < 0.012 and w.holdout.rms_xy_before_mm > 0.2
+    assert abs(w.identification.value("j1.theta") - 0.05) < 0.002       # the zero does not absorb it
+
+
+def test_no_gear_ratio_is_applied_where_there_is_none():
+    w = jt.weigh(SEED000, campaign(seed=4), ripple(30.0), min_gain=0.1)
+    g = w.gear_ratio
+    assert g["applied"] == [] and "told from 0" in g["why"]
+    assert all(g[j]["low"] <= 0.0 <= g[j]["high"] for j in ("j1", "j2"))
+    assert w.applied == {"j1": ["cyclic_error"]}
+
+
+def test_the_calibrated_robot_applies_seed_001s_gear_ratio(tmp_path):
+    gear = {"j1": {"value": 1e-3, "low": 9e-4, "high": 1.1e-3}, "j2": {"value": 0.0, "low": -1e-4, "high": 1e-4},
+            "applied": ["j1"], "why": ""}
+    d = {**doc(), "gear_ratio": gear}
+    robot = calfile.calibrated_robot(SEED000, calfile.write(tmp_path / "c.json", d))
+    links = Scara(SEED000.g.model_copy(update={"l1_mm": 500.3, "l2_mm": 499.75}))
+    assert np.allclose(robot.fk_planar(60.0, 30.0), links.fk_planar(60.06 + 0.04, 30.0 - 0.05), atol=1e-12)
+
+
+@pytest.mark.parametrize("gear, message", [
+    ({"j3": {"value": 0.0, "low": 0.0, "high": 0.0}}, r"gear_ratio\.j3: not a joint the kinematic fit"),
+    ({"j1": {"value": 0.09, "low": 0.08, "high": 0.1}}, r"gear_ratio\.j1\.value = 0\.09: outside"),
+    ({"j1": {"value": 1e-4, "low": 0.0, "high": 2e-4}, "applied": ["j2"]}, r"gear_ratio\.applied = \['j2'\]"),
+    ({"j1": [1, 2]}, r"gear_ratio\.j1: must be \{value, low, high\}"),
+])
+def test_a_gear_ratio_section_that_does_not_fit_is_refused(tmp_path, gear, message):
+    path = tmp_path / "robot.json"
+    calfile.write(path, {**doc(), "gear_ratio": gear})
+    with pytest.raises(CalibrationError, match=message) as info:
+        calfile.load(path, SEED000, "cell-1")
+    assert str(path) in str(info.value)
