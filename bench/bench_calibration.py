@@ -135,7 +135,7 @@ def config(tmp: Path, plant_file: Path, calfile: Path, db: Path) -> CellConfig:
         "calibration": cfg.calibration.model_copy(update={"file": str(calfile)})})
 
 
-def calibrate(cfg: CellConfig, joints: list[str], periods: dict):
+def calibrate(cfg: CellConfig, joints: list[str], periods: dict | None = None):
     dev = SimDevices(cfg)
     try:
         with dev.clock.attach("bench"):
@@ -146,7 +146,7 @@ def calibrate(cfg: CellConfig, joints: list[str], periods: dict):
                 kin = cal.kinematics()
                 t1 = dev.clock.now()
                 temp = float(dev.plant.temperature(0.5 * (t0 + t1)))
-                jres = {j: cal.joint(j, period_deg=periods.get(j, 360.0))[1] for j in joints}
+                jres = {j: cal.joint(j, period_deg=(periods or {}).get(j, 360.0))[1] for j in joints}
                 return kin, jres, temp, cal.written
             finally:
                 dev.stop()
