@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 
+from cell.effects.backlash import WIDTH
 from cell.effects.base import PLANAR_JOINTS
 from cell.effects.cyclic_error import EFFECT as CYCLIC
 from cell.effects.gear_ratio import RATIO
@@ -59,7 +60,6 @@ if TYPE_CHECKING:
 
 SWEPT = ("j1", "j2", "j4")                     #: joints seed 004 calibrates (j3 is prismatic)
 TERMS = ("gear_ratio", "cyclic_error")         #: terms a model may apply (backlash always is)
-BACKLASH_BOUNDS = (0.0, 2.0)                   #: deg, as the backlash effect's ParamSpec
 AMPLITUDE_BOUNDS = CYCLIC.spec_of("j1_cyclic_amp_deg").bounds
 PERIOD_BOUNDS = CYCLIC.spec_of("j1_cyclic_period_deg").bounds
 
@@ -91,7 +91,7 @@ def check(section) -> None:
             raise ValueError(f"{where}: not a joint seed 004 calibrates ({', '.join(SWEPT)})")
         if not isinstance(e, dict):
             raise ValueError(f"{where}: must be a mapping, got {type(e).__name__}")
-        _estimate(e, "backlash_deg", where, BACKLASH_BOUNDS)
+        _estimate(e, "backlash_deg", where, WIDTH.bounds)
         _estimate(e, "gear_ratio_rel", where, RATIO.bounds)
         harmonics = e.get("harmonics", [])
         if not isinstance(harmonics, list):
