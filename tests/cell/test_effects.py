@@ -46,6 +46,19 @@ def test_registry_matches_the_measurement_spec_vocabulary():
     assert fx.EFFECTS["backlash"].param_names(["j2"]) == ["j2_backlash_deg"]  # spec's example
 
 
+def test_the_plant_file_format_lists_every_effect_a_plant_can_hold():
+    """deploy/plants/README.md is where a technician reads what a plant may simulate: every
+    effect of the vocabulary has its row there, with its parameters (motor_cyclic_error was
+    once missing)."""
+    from pathlib import Path
+    page = (Path(__file__).resolve().parents[2] / "deploy" / "plants" / "README.md").read_text(encoding="utf-8")
+    rows = {line.split("|")[1].strip().strip("`"): line for line in page.splitlines() if line.startswith("| `")}
+    for name, e in fx.EFFECTS.items():
+        assert name in rows, f"deploy/plants/README.md has no row for {name}"
+        stems = [p.stem for p in e.params]
+        assert all(stem in rows[name] for stem in stems), (name, stems)
+
+
 def test_every_zero_sized_effect_is_the_nominal_model():
     for name, e in fx.EFFECTS.items():
         inst = e.zero(e.joints[:1])
