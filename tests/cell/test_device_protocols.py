@@ -50,6 +50,23 @@ def test_the_hardware_devices_and_the_driver_classes_define_every_member():
     assert isinstance(PlcLink(), PlcPort)
 
 
+def test_the_hardware_devices_set_every_data_member_without_touching_hardware():
+    """The protocol's data members (clock, robot, motion, camera, and whatever a new device
+    adds) are instance attributes, which the class-level check above cannot see: build the
+    devices of the shipped hardware config, which must not touch hardware in __init__, and
+    ask the instance."""
+    from pathlib import Path
+
+    from cell.commands.run import load_config
+    cfg = load_config(str(Path(__file__).resolve().parents[2] / "deploy" / "cell.yaml"), False)
+    devices = HardwareDevices(cfg)
+    data = set(Devices.__annotations__)
+    assert {"clock", "robot", "motion", "camera"} <= data
+    missing = {n for n in data if not hasattr(devices, n)}
+    assert not missing, f"HardwareDevices instances lack {missing}"
+    assert isinstance(devices.motion, JointMotion) and isinstance(devices.camera, Camera)
+
+
 def test_every_registry_names_an_unknown_backend_and_the_known_ones():
     import pytest
 
