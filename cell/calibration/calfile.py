@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 from pathlib import Path
@@ -67,17 +68,20 @@ class CalibratedScara(Scara):
     planned first move lands closer. Limits and command units are the nominal ones.
     ``calibration`` is the id of the file it came from; ``approach_dirs`` the side its poses
     took up backlash from (the zeros hold half of each band from that side);
-    ``backlash_deg`` the band seed 004 measured on j1, j2 (0: not measured).
+    ``backlash_deg`` the band seed 004 measured on j1, j2 (0: not measured);
+    ``arrival_scatter_mm`` the held-out rms of the calibration's check (0: not measured).
     """
 
     def __init__(self, nominal: Scara, offsets_deg, link_deltas_mm, calibration: str,
-                 approach_dirs=Scara.approach_dirs, joint_effects=(), backlash_deg=(0.0, 0.0)):
+                 approach_dirs=Scara.approach_dirs, joint_effects=(), backlash_deg=(0.0, 0.0),
+                 arrival_scatter_mm: float = 0.0):
         super().__init__(nominal.g)
         self.offsets = np.asarray(offsets_deg, dtype=float)
         self.calibration = calibration
         self.approach_dirs = (int(approach_dirs[0]), int(approach_dirs[1]))
         self.joint_effects = tuple(joint_effects)
         self.backlash_deg = (float(backlash_deg[0]), float(backlash_deg[1]))
+        self.arrival_scatter_mm = float(arrival_scatter_mm)
         g = nominal.g
         self._true = Scara(g.model_copy(update={"l1_mm": g.l1_mm + float(link_deltas_mm[0]),
                                                 "l2_mm": g.l2_mm + float(link_deltas_mm[1])}))
@@ -141,7 +145,18 @@ def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
         backlash = joint_terms.backlash_deg(doc.get("joints"))
     return CalibratedScara(nominal, (p.get("j1.theta", 0.0), p.get("j2.theta", 0.0)),
                            (p.get("j1.a", 0.0), p.get("j2.a", 0.0)), calibration_id(doc),
-                           approach_dirs(doc), fx, backlash)
+                           approach_dirs(doc), fx, backlash, arrival_scatter(doc))
+
+
+def arrival_scatter(doc: dict) -> float:
+    """The held-out rms (2-D, mm) of the calibration's check: how far arrivals lay from the
+    calibrated model on poses the fit did not use (0 when the file has no check)."""
+    v = ((doc.get("report") or {}).get("holdout") or {}).get("rms_xy_after_mm")
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return 0.0
+    return v if math.isfinite(v) and v > 0 else 0.0
 
 
 def approach_dirs(doc: dict) -> tuple[int, int]:

@@ -124,15 +124,17 @@ class OffsetMemory:
         h = self.history.get(recipe)
         return np.mean(h, axis=0) if h else np.zeros(2)
 
-    def scatter_mm(self, recipe: str) -> float:
+    def scatter_mm(self, recipe: str, prior_mm: float = 0.0) -> float:
         """How far one cycle's residual typically lies from the last one's (2-D rms of
         successive differences over √2, mm) over ``recipe``'s remembered cycles: the
         arrivals' scatter (repeatability, measurement noise), without the slow drift
         (warm-up) a spread about the mean would count. A correction predicted to gain less
-        than this is as likely to lose. 0 with fewer than 3 cycles remembered."""
+        than this is as likely to lose. ``prior_mm`` with fewer than 3 cycles remembered
+        (the robot's :attr:`~cell.kinematics.Scara.arrival_scatter_mm`: what its
+        calibration measured, 0 for a nominal robot)."""
         h = self.history.get(recipe)
         if not h or len(h) < 3:
-            return 0.0
+            return prior_mm
         d = np.diff(np.asarray(h), axis=0)
         return float(np.sqrt(np.sum(d ** 2) / (2 * len(d))))
 
@@ -187,14 +189,15 @@ def compensate(robot: Scara, arm, memory: OffsetMemory, recipe, target, *, elbow
     the learned residual), then ``recipe.compensation``'s method. The lattice takes up
     backlash from ``robot.approach_dirs`` at every arrival (``from_units``: where θ1, θ2 are
     before the first one, command units; None: unknown) and moves only for a gain above
-    the recipe's ``min_gain_mm`` and the memory's scatter. Does not learn: the caller
+    the recipe's ``min_gain_mm`` and the memory's scatter (before three parts, the scatter
+    the robot's calibration measured). Does not learn: the caller
     teaches ``memory`` once the part is verified."""
     c = recipe.compensation
     start = memory.start(robot, recipe.name, target, elbow)
     if c.method == "paper":
         return run_paper(robot, arm, target, k=c.k, start_units=start,
                          repeatability_mm=c.repeatability_mm)
-    gain = max(c.min_gain_mm, memory.scatter_mm(recipe.name))
+    gain = max(c.min_gain_mm, memory.scatter_mm(recipe.name, robot.arrival_scatter_mm))
     return run_lattice(robot, arm, target, start_units=start, max_moves=c.max_moves,
                        min_gain_mm=gain, backlash_margin_units=margin_units(robot, c.backlash_margin_units),
                        approach_dirs=robot.approach_dirs, from_units=from_units)

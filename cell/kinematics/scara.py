@@ -105,11 +105,14 @@ class Scara:
     (:meth:`cell.calibration.procedure.HandRig.approach`). A model fitted on such arrivals
     predicts arrivals made the same way; a calibrated robot carries the side its file
     records. ``backlash_deg`` is the lost motion of θ1, θ2 as seed 004 measured it (0: not
-    measured, as for every nominal robot).
+    measured, as for every nominal robot); ``arrival_scatter_mm`` how far measured
+    arrivals lay from the model on poses its calibration held out (2-D rms, mm; 0: not
+    measured).
     """
 
     approach_dirs: tuple[int, int] = (1, 1)
     backlash_deg: tuple[float, float] = (0.0, 0.0)
+    arrival_scatter_mm: float = 0.0
 
     def __init__(self, geometry: "Geometry"):
         self.g = geometry

@@ -33,8 +33,10 @@ def test_scatter_is_the_arrivals_noise_without_the_drift():
     m.learn("a", [0.1, 0.0])
     m.learn("a", [0.1, 0.02])
     assert m.scatter_mm("a") == 0.0                              # too few to tell
+    assert m.scatter_mm("a", prior_mm=0.015) == 0.015            # ... so the calibration's
     m.learn("a", [0.1, 0.0])
     assert m.scatter_mm("a") == pytest.approx(0.02 / np.sqrt(2))   # √(mean |Δ|² / 2)
+    assert m.scatter_mm("a", prior_mm=0.5) == pytest.approx(0.02 / np.sqrt(2))   # then measured
     drift = OffsetMemory(n=10)
     for k in range(10):
         drift.learn("a", [0.01 * k, 0.0])                        # 0.09 mm of warm-up
@@ -100,3 +102,44 @@ def test_a_new_calibration_starts_learning_afresh(tmp_path):
     other = CalibratedScara(nominal, (0.0, 0.0), (0.0, 0.0), "v2-00000000")
     assert OffsetMemory.from_log(log, other).offset_mm("bracket-a").tolist() == [0.0, 0.0]
     assert [r.calibration for r in log.cycles()] == ["", "v1-abcdef12"]
+
+
+def test_a_calibrated_robot_brings_the_scatter_its_check_measured(tmp_path):
+    """Before three parts are remembered, a correction must gain more than the held-out rms
+    of the robot's calibration: the scatter of arrivals about that model, measured."""
+    from cell.calibration import calfile
+    from cell.kinematics import Scara
+    nominal = Scara.preset("seed000")
+    doc = calfile.new_document(nominal, "cell-1", {}, {"holdout": {"rms_xy_after_mm": 0.0152}}, {},
+                               "2026-11-26T00:00:00+00:00")
+    robot = calfile.calibrated_robot(nominal, calfile.write(tmp_path / "c.json", doc))
+    assert robot.arrival_scatter_mm == 0.0152 and nominal.arrival_scatter_mm == 0.0
+    no_check = calfile.new_document(nominal, "cell-1", {}, {}, {}, "2026-11-26T00:00:00+00:00")
+    assert calfile.calibrated_robot(nominal, calfile.write(tmp_path / "d.json", no_check)).arrival_scatter_mm == 0.0
+
+
+def test_before_three_parts_a_correction_must_beat_the_calibrations_scatter():
+    """The first part of a calibrated cell: its first arrival lands a little off and the
+    lattice predicts a neighbour nearer. A robot whose calibration measured a held-out rms
+    above that gain keeps the arrival (one move); a robot with no measured scatter moves.
+    Golden values: the arm below (zeros 0.005° and 0.003° off, exact links, no noise: the
+    first arrival 0.052 mm off, the neighbour 0.037 mm) and bracket-a's recipe."""
+    from pathlib import Path
+
+    from cell.compensation.arms import PerturbedArm
+    from cell.cycle.runner import compensate
+    from cell.kinematics import Scara
+    from cell.recipes import parse_recipe
+    text = (Path(__file__).resolve().parents[2] / "recipes" / "bracket-a.yaml").read_text()
+    recipe = parse_recipe(text, "bracket-a.yaml")
+    nominal = Scara.preset("seed000")
+    target = np.array([250.004, 930.003])
+    arm = PerturbedArm(nominal, offset_deg=(0.005, 0.003))
+    plain = compensate(nominal, arm, OffsetMemory(), recipe, target)
+    assert len(plain.steps) == 2 and plain.final_error_mm < plain.initial_error_mm   # moved for a gain
+    gain = plain.initial_error_mm - plain.final_error_mm
+    measured = Scara(nominal.g)
+    measured.arrival_scatter_mm = gain + 0.005                     # the calibration's held-out rms
+    kept = compensate(measured, PerturbedArm(nominal, offset_deg=(0.005, 0.003)), OffsetMemory(),
+                      recipe, target)
+    assert len(kept.steps) == 1 and kept.final_error_mm == plain.initial_error_mm
