@@ -170,7 +170,7 @@ def effects(section: Mapping | None, applied: Mapping[str, Sequence[str]] | None
     section's own ``applied``), in the vocabulary's terms, for j1 and j2."""
     out = []
     for joint, e in (section or {}).items():
-        terms = (applied or {}).get(joint, ()) if applied is not None else e.get("applied", ())
+        terms = e.get("applied", ()) if applied is None else applied.get(joint, ())
         if joint not in PLANAR_JOINTS:
             continue
         if "gear_ratio" in terms:
@@ -249,7 +249,8 @@ class Weighing:
 
 
 def candidates(section: Mapping | None) -> list[tuple[str, str]]:
-    """(joint, term) pairs worth trying, and a reason for each left out."""
+    """(joint, term) pairs of j1 and j2 worth trying: a gear ratio whose interval leaves
+    out 0, the harmonics the sweep accepted."""
     out = []
     for joint, e in (section or {}).items():
         if joint not in PLANAR_JOINTS:
@@ -267,7 +268,8 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
     the commanded angles, and keep the subset whose held-out rms is lowest among those
     that pass the held-out check and beat none in rms without a worse max (none when no
     subset does). Deterministic: same data, same choice. A subset whose fit fails
-    (singular) is not chosen.
+    (singular) is not chosen. Then seed 001's own gear ratios, on top of the subset chosen
+    (:func:`fit_gear_ratios`, under the same rule; :attr:`Weighing.gear_ratio`).
 
     :raises CalibrationError: the fit without any term fails."""
     from cell.calibration.dh import scara_chain
