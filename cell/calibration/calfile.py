@@ -135,8 +135,9 @@ class CalibratedScara(Scara):
 def calibrated_robot(nominal: Scara, doc: dict) -> CalibratedScara:
     """The robot a loaded calibration describes (see :data:`APPLIED`). A file without
     ``approach_dirs`` was measured from below (+1, +1): the procedure has approached every
-    pose that way since the format's first version. A file without ``joints`` applies no
-    joint term."""
+    pose that way since the format's first version. A file without ``joints`` and
+    ``gear_ratio`` (every file before them) applies no joint term; one without a held-out
+    check gives no arrival scatter."""
     p = {k: float(v["value"]) for k, v in doc["parameters"].items()}
     fx, backlash = [], (0.0, 0.0)
     if doc.get("joints") or doc.get("gear_ratio"):
