@@ -137,7 +137,12 @@ def check_gear_ratio(section) -> None:
 def gear_effects(section: Mapping | None) -> list[EffectInstance]:
     """The gear-ratio effects of the kinematic fit's applied estimates."""
     s = section or {}
-    return [make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": s[j]["value"]}) for j in s.get("applied", [])]
+    return [_gear(j, s[j]["value"]) for j in s.get("applied", [])]
+
+
+def _gear(joint: str, ratio: float) -> EffectInstance:
+    """The vocabulary's gear-ratio effect of ``joint`` with ε = ``ratio``."""
+    return make_effect("gear_ratio", [joint], {f"{joint}_gear_ratio_rel": float(ratio)})
 
 
 def _finite(v) -> bool:
@@ -174,8 +179,7 @@ def effects(section: Mapping | None, applied: Mapping[str, Sequence[str]] | None
         if joint not in PLANAR_JOINTS:
             continue
         if "gear_ratio" in terms:
-            out.append(make_effect("gear_ratio", [joint],
-                                   {f"{joint}_gear_ratio_rel": e["gear_ratio_rel"]["value"]}))
+            out.append(_gear(joint, e["gear_ratio_rel"]["value"]))
         if "cyclic_error" in terms:
             out += [make_effect("cyclic_error", [joint], {
                 f"{joint}_cyclic_amp_deg": h["amplitude_deg"], f"{joint}_cyclic_phase_deg": h["phase_deg"],
@@ -273,7 +277,6 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
 
     :raises CalibrationError: the fit without any term fails."""
     from cell.calibration.dh import scara_chain
-    from cell.calibration.kinematic import holdout_check, identify
     from cell.errors import CalibrationError
     chain = scara_chain(nominal.g)
     cands = candidates(section)
@@ -282,16 +285,7 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
         applied: dict[str, list[str]] = {}
         for joint, term in subset:
             applied.setdefault(joint, []).append(term)
-        fx = effects(section, applied)
-        qf, qh = corrected(fx, data.q_fit), corrected(fx, data.q_hold)
-        try:
-            ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
-        except CalibrationError as exc:
-            return applied, None, str(exc)
-        hc = holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
-                           min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
-                           commanded=(data.q_fit, data.q_hold))
-        return applied, ident, hc
+        return (applied, *_fit_with(chain, data, effects(section, applied), min_gain))
 
     trials = {subset: fit(subset) for n in range(len(cands) + 1)
               for subset in itertools.combinations(cands, n)}
@@ -302,8 +296,7 @@ def weigh(nominal: "Scara", data: FitData, section: Mapping | None, *, min_gain:
     best = base
     for subset, trial in trials.items():
         h = trial[2]
-        if (trial[1] is not None and h.passed and h.rms_xy_after_mm < b.rms_xy_after_mm
-                and h.max_xy_after_mm <= b.max_xy_after_mm and h.rms_xy_after_mm < best[2].rms_xy_after_mm):
+        if trial[1] is not None and _better(h, b) and h.rms_xy_after_mm < best[2].rms_xy_after_mm:
             best = trial
     best, gear = _with_gear_ratios(nominal, data, section, best, min_gain=min_gain)
     why = {}
@@ -335,8 +328,7 @@ def fit_gear_ratios(nominal: "Scara", data: FitData, fixed: Sequence[EffectInsta
     cols = [PLANAR_JOINTS.index(j) for j in joints]
     eps = np.zeros(len(joints))
     for _ in range(iterations):
-        fx = [*fixed, *(make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": float(e)})
-                        for j, e in zip(joints, eps))]
+        fx = [*fixed, *(_gear(j, e) for j, e in zip(joints, eps))]
         qf = corrected(fx, data.q_fit)
         ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
         J = jacobian(chain, qf, ident.p, w=0.0, in_base=data.in_base)
@@ -362,7 +354,6 @@ def _with_gear_ratios(nominal, data, section, best, *, min_gain):
     chosen (``best``); applied when significant and when they predict the held-out poses
     better, as a seed 004 term must. Returns (best, the ``gear_ratio`` section)."""
     from cell.calibration.dh import scara_chain
-    from cell.calibration.kinematic import holdout_check, identify
     from cell.errors import CalibrationError
     fixed = effects(section, best[0])
     try:
@@ -374,24 +365,40 @@ def _with_gear_ratios(nominal, data, section, best, *, min_gain):
     if not sig:
         gear["why"] = "no joint's gear ratio is told from 0 by its 95 % interval"
         return best, gear
-    chain = scara_chain(nominal.g)
-    fx = [*fixed, *(make_effect("gear_ratio", [j], {f"{j}_gear_ratio_rel": est[j]["value"]}) for j in sig)]
-    qf, qh = corrected(fx, data.q_fit), corrected(fx, data.q_hold)
-    try:
-        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
-    except CalibrationError as exc:
-        gear["why"] = f"the fit with them failed: {exc}"
+    ident, h = _fit_with(scara_chain(nominal.g), data, [*fixed, *(_gear(j, est[j]["value"]) for j in sig)],
+                         min_gain)
+    if ident is None:
+        gear["why"] = f"the fit with them failed: {h}"
         return best, gear
-    h = holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
-                      min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
-                      commanded=(data.q_fit, data.q_hold))
     b = best[2]
-    if h.passed and h.rms_xy_after_mm < b.rms_xy_after_mm and h.max_xy_after_mm <= b.max_xy_after_mm:
+    if _better(h, b):
         gear["applied"] = sig
         return (best[0], ident, h), gear
     gear["why"] = (f"held-out poses with {', '.join(sig)}'s: rms {b.rms_xy_after_mm:.4f} → "
                    f"{h.rms_xy_after_mm:.4f} mm, max {b.max_xy_after_mm:.4f} → {h.max_xy_after_mm:.4f} mm")
     return best, gear
+
+
+def _fit_with(chain, data: FitData, fx: Sequence[EffectInstance], min_gain: float):
+    """(identification, held-out check) of the kinematic fit with the terms ``fx`` applied
+    to the commanded angles, "before" on the commands; (None, the reason) when the fit
+    fails."""
+    from cell.calibration.kinematic import holdout_check, identify
+    from cell.errors import CalibrationError
+    qf, qh = corrected(fx, data.q_fit), corrected(fx, data.q_hold)
+    try:
+        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
+    except CalibrationError as exc:
+        return None, str(exc)
+    return ident, holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
+                                min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
+                                commanded=(data.q_fit, data.q_hold))
+
+
+def _better(h: "HoldoutCheck", than: "HoldoutCheck") -> bool:
+    """The rule for applying a term: the check passes, the held-out rms falls, the max does
+    not grow."""
+    return h.passed and h.rms_xy_after_mm < than.rms_xy_after_mm and h.max_xy_after_mm <= than.max_xy_after_mm
 
 
 def annotate(section: Mapping | None, weighing: Weighing | None, reason: str = "") -> dict:
