@@ -22,12 +22,9 @@ from cell.config import CellConfig, SimSection
 from cell.effects.instances import make_effect
 from cell.errors import CalibrationError
 from cell.kinematics import Scara
+from tests.cell.calibration.test_calfile import PARAMS
 
 SEED000 = Scara.preset("seed000")
-PARAMS = {"j1.theta": {"value": 0.04, "se": 0.0002, "low": 0.0396, "high": 0.0404, "unit": "deg"},
-          "j2.theta": {"value": -0.05, "se": 0.0002, "low": -0.0504, "high": -0.0496, "unit": "deg"},
-          "j1.a": {"value": 0.3, "se": 0.002, "low": 0.296, "high": 0.304, "unit": "mm"},
-          "j2.a": {"value": -0.25, "se": 0.002, "low": -0.254, "high": -0.246, "unit": "mm"}}
 
 
 def entry(gear=(0.0, -1e-4, 1e-4), harmonics=(), applied=(), backlash=(0.02, 0.019, 0.021), sweep=(-1.1, 1.1)):
