@@ -140,12 +140,20 @@ def _covered_all(truths: Sequence[fx.EffectInstance], ci95: dict) -> tuple[int, 
 
 def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
     """For a cyclic error: the report's period for each true joint is the true one (a
-    report without ``jK_cyclic_period_deg`` fitted the vocabulary's default, 360°)."""
+    report without ``jK_cyclic_period_deg`` fitted the vocabulary's default, 360°; a chain
+    report names the order n in its coefficients ``jK_cyclicN_sin_deg``, period 360°/n)."""
     if truth.effect != "cyclic_error":
         return True
     default = fx.EFFECTS["cyclic_error"].spec_of("j1_cyclic_period_deg").default
-    return all(abs(float(named.get(f"{j}_cyclic_period_deg", default))
-                   - truth.params[f"{j}_cyclic_period_deg"]) < 1e-6 for j in truth.joints)
+
+    def period(j: str) -> float:
+        orders = {int(k[len(j) + 7:].split("_")[0]) for k in named
+                  if k.startswith(f"{j}_cyclic") and k.endswith(("_sin_deg", "_cos_deg"))}
+        if len(orders) == 1:
+            return 360.0 / orders.pop()
+        return float(named.get(f"{j}_cyclic_period_deg", default))
+    return all(abs(period(j) - truth.params[f"{j}_cyclic_period_deg"]) < 1e-6
+               for j in truth.joints)
 
 
 def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = None,

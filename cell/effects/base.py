@@ -238,7 +238,12 @@ class OnChain:
     the effect from a constant one, ``still`` what it cannot be told from below it.
     ``bounds``: (least, most) the parameter can physically take (the effect's own hard
     limits, its :attr:`ParamSpec.bounds`; a width or a give that cannot be negative, (0,
-    None); None: unbounded on that side): a fit that wants it beyond is left without it."""
+    None); None: unbounded on that side): a fit that wants it beyond is left without it.
+    ``parts``: several parameters per joint instead of one, each ``(stem, term)`` (a
+    ripple's sine and cosine coefficient at each order, Δq_k = Σ value·term); ``stem`` and
+    ``term`` are then not given. ``choice``: the parts come in alternatives of this many
+    consecutive parts (a ripple's order), of which the search keeps, per joint, the one that
+    alone best predicts left-out poses (0: every part is kept)."""
 
     joints: str
     stem: str = ""
@@ -251,14 +256,26 @@ class OnChain:
     bounds: tuple[float | None, float | None] = (None, None)
     sensor_map: Callable[[float], tuple[np.ndarray, np.ndarray]] | None = field(default=None,
                                                                                  repr=False)
+    parts: tuple[tuple[str, Callable[[ChainPoses, int], np.ndarray]], ...] = field(
+        default=(), repr=False)
+    choice: int = 0
 
     def __post_init__(self):
-        if (self.term is None) != (self.joints in ("geometric", "sensor")):
+        if self.parts and (self.term is not None or self.stem
+                           or self.joints not in ("all", "revolute")):
+            raise ValueError(f"OnChain({self.joints!r}): parts replace the stem and the term, "
+                             "on joints 'all' or 'revolute'")
+        if (self.term is None and not self.parts) != (self.joints in ("geometric", "sensor")):
             raise ValueError(f"OnChain({self.joints!r}): a joint term is given exactly when "
                              "the effect is neither geometric nor the sensor's")
         if (self.sensor_map is None) != (self.joints != "sensor"):
             raise ValueError(f"OnChain({self.joints!r}): a sensor map is given exactly when "
                              "the effect is the sensor's")
+
+    def terms(self) -> tuple[tuple[str, Callable[[ChainPoses, int], np.ndarray] | None], ...]:
+        """Per parameter of one joint, ``(stem, term)``: the ``parts``, or the one
+        ``(stem, term)``."""
+        return self.parts or ((self.stem, self.term),)
 
 
 def planar_map(m2: np.ndarray, zz: float) -> np.ndarray:

@@ -1,13 +1,14 @@
 """cyclic_error: periodic transmission error of the drive, a few cycles per joint revolution
-(format: θ_true = θ_cmd + a·sin(2π·θ_cmd/P + φ), P = 360°/n, n = 1–4)."""
+(format: θ_true = θ_cmd + a·sin(2π·θ_cmd/P + φ), P = 360°/n, n = 1–4; on a chain
+q_true = q + Σₙ (sₙ·sin(n·q) + cₙ·cos(n·q)) over the joint's model value q)."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, AngleSpan, Effect, Linear,
-                               ParamSpec, grid)
+from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, AngleSpan, ChainPoses, Effect,
+                               Linear, OnChain, ParamSpec, Remedy, grid)
 from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG
 
 DEG = math.pi / 180.0
@@ -49,10 +50,25 @@ def _from_linear(coef, order):
             "cyclic_period_deg": 360.0 / order}
 
 
+def _harmonic(order: int, cosine: bool):
+    """The chain term of one coefficient: Δq_k per degree of it, sin or cos of order·q_k
+    (q_k the joint's model value, deg)."""
+    def term(poses: ChainPoses, k: int) -> np.ndarray:
+        arg = np.radians(order * poses.q[:, k])
+        return np.cos(arg) if cosine else np.sin(arg)
+    return term
+
+
+# on a chain the ripple is linear in its coefficients: a·sin(nq + φ) = s·sin(nq) + c·cos(nq),
+# s = a·cos φ, c = a·sin φ, for each order n the screening may keep
+CHAIN_PARTS = tuple((f"cyclic{n}_{f}_deg", _harmonic(n, f == "cos"))
+                    for n in ORDERS for f in ("sin", "cos"))
+AMPLITUDE = ParamSpec("cyclic_amp_deg", "deg", "amplitude", (0.0, 1.0), (0.01, 0.08), False,
+                      start=(0.01, 0.9))
+
 EFFECT = Effect(
     "cyclic_error", "transmission", "joint", PLANAR_JOINTS, True,
-    (ParamSpec("cyclic_amp_deg", "deg", "amplitude", (0.0, 1.0), (0.01, 0.08), False,
-               start=(0.01, 0.9)),
+    (AMPLITUDE,
      ParamSpec("cyclic_phase_deg", "deg", "phase at θ = 0", (-INF, INF), (0.0, 360.0), False),
      ParamSpec("cyclic_period_deg", "deg", "period in joint deg (known)", (1e-3, 3600.0),
                (360.0, 360.0), False, fitted=False, default=360.0)),
@@ -62,4 +78,8 @@ EFFECT = Effect(
     remedy=CALIBRATE_JOINT,
     # amplitude 0, phase 0 / 90°: ∂/∂a is sin(kθ), then cos(kθ); the period per order k
     linear=Linear(({"cyclic_phase_deg": 0.0}, {"cyclic_phase_deg": 90.0}), _from_linear,
-                  ORDERS, lambda k: {"cyclic_period_deg": 360.0 / k}))
+                  ORDERS, lambda k: {"cyclic_period_deg": 360.0 / k}),
+    chain=OnChain("revolute", unit="deg", parts=CHAIN_PARTS, choice=2,
+                  remedy=Remedy("calibrate_joint", "Compensate the transmission ripple over the "
+                                "joint's angle, or service the drive: {what}{on}."),
+                  bounds=(-AMPLITUDE.bounds[1], AMPLITUDE.bounds[1])))

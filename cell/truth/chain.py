@@ -14,12 +14,12 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
   ``jK_dir``: θ = θ_reading − dir·b/2); ``grow`` α (1/K): every length of the arm (DH a
   and d, a prismatic joint's travel, the marker offsets on the hand) is (1 + α·(T − 20 °C))
   times its size at the pose's temperature T (``temp_c``; the format's thermal_drift, its
-  reference temperature 20 °C);
+  reference temperature 20 °C); ``cyclic`` {joint: (amplitude deg, cycles per revolution,
+  phase deg)} (a transmission ripple a·sin(n·reading + φ); the vocabulary's cyclic_error
+  for 1–4 cycles, outside it for more);
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
   the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading),
-  ``cyclic`` {joint: (amplitude deg, cycles per revolution, phase deg)} (a transmission
-  ripple a·sin(n·reading + φ): joint-dependent, not in the chain vocabulary),
   ``plane_bump`` (amplitude mm, centre (3,) mm, width mm, direction (3,)) (a smooth local
   displacement A·exp(−|p − p₀|²/(2w²)) of every measured point in the base frame).
 """

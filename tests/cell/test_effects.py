@@ -292,8 +292,8 @@ def test_every_effect_is_one_complete_definition():
             assert e.deriv is not None and isinstance(e.stage, fx.Stage), name
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
     assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
-                                      "thermal_drift", "camera_scale", "camera_rotation",
-                                      "gravity_compliance"]
+                                      "cyclic_error", "thermal_drift", "camera_scale",
+                                      "camera_rotation", "gravity_compliance"]
 
 
 def test_the_chain_vocabulary_comes_from_the_registry():
@@ -301,10 +301,12 @@ def test_the_chain_vocabulary_comes_from_the_registry():
     assert chain_fit.EFFECTS == tuple(fx.CHAIN_EFFECTS)
     assert chain_fit.SUBSYSTEM == {"joint_offset": "kinematics", "link_length": "kinematics",
                                    "gear_ratio": "transmission", "backlash": "transmission",
+                                   "cyclic_error": "transmission",
                                    "thermal_drift": "thermal", "camera_scale": "vision",
                                    "camera_rotation": "vision", "gravity_compliance": "transmission"}
     assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
                                     "gear_ratio": "angle", "backlash": "direction",
+                                    "cyclic_error": "angle",
                                     "thermal_drift": "temperature", "camera_scale": "position",
                                     "camera_rotation": "position",
                                     "gravity_compliance": "position"}
@@ -339,3 +341,25 @@ def test_a_chain_effect_on_a_joint_must_say_how_it_moves_the_joint():
         fx.OnChain("all", "wobble_deg")                          # a joint effect without a term
     with pytest.raises(ValueError, match="joint term"):
         fx.OnChain("geometric", term=lambda p, k: p.q[:, k])     # the op's own offset needs none
+
+
+def test_a_ripple_on_a_chain_is_two_coefficients_per_order_and_joint():
+    import pytest
+    from cell.diagnosis.chain import fit as chain_fit
+    from cell.kinematics.chain import dh_chain
+    use = fx.REGISTRY["cyclic_error"].chain
+    assert [stem for stem, _ in use.terms()] == [f"cyclic{n}_{f}_deg" for n in (1, 2, 3, 4)
+                                                 for f in ("sin", "cos")]
+    poses = fx.ChainPoses(np.array([[30.0, 90.0]]), np.zeros((1, 2)), np.zeros((1, 2)))
+    sin2, cos2 = use.terms()[2][1], use.terms()[3][1]                 # order 2
+    assert np.allclose([sin2(poses, 1), cos2(poses, 1)], [[0.0], [-1.0]])   # sin 180°, cos 180°
+    assert use.choice == 2 and use.bounds == (-1.0, 1.0)
+    rows = [{"name": j, "type": "revolute", "a_mm": a, "alpha_deg": 0.0, "d_mm": 0.0,
+             "theta_deg": 0.0} for j, a in (("j1", 325.0), ("j2", 275.0))]
+    chain = dh_chain("m.yaml", rows, "standard", [], (0.0, 0.0, 0.0), (0, 0, -1))
+    names = [p.name for p in chain_fit.vocabulary(chain) if p.effect == "cyclic_error"]
+    assert names[:2] == ["j1_cyclic1_sin_deg", "j1_cyclic1_cos_deg"] and len(names) == 16
+    with pytest.raises(ValueError, match="parts replace the stem and the term"):
+        fx.OnChain("all", "wobble_deg", parts=use.parts)
+    with pytest.raises(ValueError, match="parts replace the stem and the term"):
+        fx.OnChain("arm", parts=use.parts)

@@ -12,12 +12,13 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
   78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses), measured when the chain decision took
-  untestable effects as rivals of what they mimic (a backlash without jK_dir columns, a
-  thermal growth without temp_c) and judged the fit against the noise's 95 % upper bound,
-  by ``cellctl diagnose validate --chain --trials 80 --seed 1``: right 33, ambiguous 43,
-  ambiguous with the truth missing 4, unexplained 0, wrong 0; 34 of 35 intervals cover
-  (before: right 36, ambiguous 38, truth missing 4, unexplained 2, 40 of 41 intervals, when
+* chain, 80 vocabulary trials (seed 1, 60 poses), measured when cyclic_error (1–4 cycles
+  per revolution) joined the chain vocabulary, by ``cellctl diagnose validate --chain
+  --trials 80 --seed 1``: right 28, ambiguous 47, ambiguous with the truth missing 5,
+  unexplained 0, wrong 0; 29 of 30 intervals cover (other truths are drawn since; before,
+  when the chain decision took untestable effects as rivals of what they mimic and judged
+  the fit against the noise's 95 % upper bound: right 33, ambiguous 43, truth missing 4,
+  unexplained 0, 34 of 35 intervals; before that: right 36, ambiguous 38, truth missing 4, unexplained 2, 40 of 41 intervals, when
   the chain fit bounded backlash and compliance at zero and checked the remainder for a
   ripple; when thermal growth
   joined the chain vocabulary, half the campaigns recording ``temp_c`` while the arm warms
@@ -26,8 +27,9 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   unexplained 1; without backlash right 40, ambiguous 34, truth missing 3, unexplained 3;
   before the chain's outlier step, cell/diagnosis/chain/robust.py: right 18, ambiguous 12,
   unexplained 50);
-* chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
-  11, ambiguous with the truth missing 12, right (none) 1, wrong 0 (before the noise's upper
+* chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``; its ripple now
+  of 5–8 cycles): unexplained 11, ambiguous with the truth missing 11, right (none) 2, wrong
+  0 (with a ripple of 2–4 cycles: truth missing 12, right 1; before the noise's upper
   bound: unexplained 12, truth missing 11; before the outlier step:
   unexplained 19, wrong 1; glitches had made most of them unexplained).
 
@@ -38,8 +40,9 @@ Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
 cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
-in cell/kinematics/evaluate.py forward(): right 14, unexplained 42, wrong 3; the twist in
-cell/kinematics/evaluate.py: right 12, unexplained 56, wrong 5).
+in cell/kinematics/evaluate.py forward(): right 16, unexplained 33, wrong 1; the twist in
+cell/kinematics/evaluate.py: right 13, unexplained 53, wrong 4; both measured again with
+cyclic_error in the chain vocabulary).
 """
 import math
 
@@ -48,7 +51,9 @@ import pytest
 from cell.diagnosis import validate as planar
 from cell.diagnosis.chain import validate as chain
 
-pytestmark = pytest.mark.slow     # about a minute of CPU: the slow tier (tests/conftest.py)
+# about a minute of CPU per family: the slow tier (tests/conftest.py); on a loaded 2-core
+# host beside the rest of the suite a run may take several, beyond the default time-out
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 SEED = 1
 
@@ -118,8 +123,8 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 33 - 5, v
-    assert v["right"] + v["ambiguous"] >= 76 - 5, v
+    assert v["right"] >= 28 - 5, v
+    assert v["right"] + v["ambiguous"] >= 75 - 5, v
     assert v["unexplained"] <= 0 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 

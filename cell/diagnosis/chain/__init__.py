@@ -9,7 +9,7 @@ format and its words (:mod:`cell.diagnosis.page`) and the validation harness
 * :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision
 * :mod:`.drift`     a sensor frame (base frame: the joints' zeros) that drifts during the
                     campaign, as a rival or a reason
-* :mod:`.ripple`    a transmission ripple on one joint in the remainder, as a reason
+* :mod:`.ripple`    a ripple of more cycles than cyclic_error's on one joint, in the remainder
 * :mod:`.robust`    gross outliers found on the best candidate and set aside
 * :mod:`.noise`     the sensor noise from the data: rigid constellation, revisited poses
 * :mod:`.report`    the ``cell-diagnosis/1`` report for chains

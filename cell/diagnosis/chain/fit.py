@@ -54,13 +54,21 @@ class Param:
     """One error parameter: ``effect`` of the chain vocabulary, 0-based ``joint``, the op it
     adds to and its unit (deg, mm, 1, deg/m, 1/K); ``joint`` and ``op`` are −1 for a
     parameter on no joint: of the whole arm (:attr:`arm`) or of the sensor
-    (:attr:`sensor`)."""
+    (:attr:`sensor`); ``part`` which of its effect's terms on the joint it carries
+    (:meth:`cell.effects.OnChain.terms`)."""
 
     name: str
     effect: str
     joint: int
     op: int
     unit: str
+    part: int = 0
+
+    @property
+    def term(self):
+        """Its effect's term on the joint (:attr:`cell.effects.OnChain.term`; None for a
+        geometric parameter or the sensor's)."""
+        return fx.CHAIN_EFFECTS[self.effect].chain.terms()[self.part][1]
 
     @property
     def on_joint(self) -> bool:
@@ -95,8 +103,9 @@ def vocabulary(chain: Chain) -> list[Param]:
         for k, j in enumerate(chain.joints):
             if use.joints == "revolute" and j.type != "revolute":
                 continue
-            out.append(Param(f"{j.column}_{use.stem.format(unit=j.unit)}", name, k,
-                             chain.joint_op[k], use.unit.format(unit=j.unit)))
+            for part, (stem, _) in enumerate(use.terms()):
+                out.append(Param(f"{j.column}_{stem.format(unit=j.unit)}", name, k,
+                                 chain.joint_op[k], use.unit.format(unit=j.unit), part))
     return out
 
 
@@ -304,7 +313,7 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
     grow = None
     poses = _poses(d)
     for p, v in zip(params, values):
-        term = fx.CHAIN_EFFECTS[p.effect].chain.term
+        term = p.term
         if p.sensor:
             continue
         if term is None:
@@ -362,7 +371,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     for p in params:
         g = kept.get(p)
         if g is None:
-            term = fx.CHAIN_EFFECTS[p.effect].chain.term
+            term = p.term
             if poses is None and term is not None:
                 poses = _poses(d)
             if p.sensor:                       # ∂(c + M·(y − c))/∂v = (∂M/∂v)·(y − c)
@@ -630,9 +639,9 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     rounding = set()                       # terms that are zero but for rounding
     for p in list(allp):
         use = fx.CHAIN_EFFECTS[p.effect].chain
-        if use.term is None:
+        if p.term is None:
             continue
-        v = use.term(poses, p.joint)
+        v = p.term(poses, p.joint)
         if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
             rounding.add(p.name)
         elif use.min_spread > 0 and np.any(v) and float(np.ptp(v)) < use.min_spread:

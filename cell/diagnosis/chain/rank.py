@@ -52,6 +52,7 @@ PREDICT_FACTOR = 1.5  # a named cause predicting left-out poses worse than this 
 PAIR_TOPS = 3         # pairs of the best this many single effects are fitted together
 MIN_FOLDS = 3         # fewer places: nothing is predicted out of sample
 UP = ", 95 % upper bound"   # what the noise figures of the decision's messages are
+HINT_ALPHA = 0.05     # no cause named, but the best one's test below this: `none` is not sure
 
 
 @dataclass
@@ -141,6 +142,23 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = (),
     return chosen
 
 
+def one_alternative(design: Screen, pool: list[F.Param]) -> list[F.Param]:
+    """``pool`` with, where its effect gives alternatives (:attr:`cell.effects.OnChain.choice`:
+    a ripple's orders), only the alternative per joint whose parameters alone predict
+    left-out poses best (``design`` holds the pool's columns)."""
+    groups: dict = {}
+    for p in pool:
+        n = fx.CHAIN_EFFECTS[p.effect].chain.choice
+        groups.setdefault((p.effect, p.joint) if n else p.name, {}).setdefault(
+            p.part // n if n else 0, []).append(p)
+    if all(len(g) == 1 for g in groups.values()):
+        return list(pool)
+    best = {key: min(g.values(), key=lambda ps: design.poses.loo(design.cols(ps))[0])
+            for key, g in groups.items()}
+    keep = {p.name for ps in best.values() for p in ps}
+    return [p for p in pool if p.name in keep]
+
+
 def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candidate:
     y, _ = F.model(hold_d, f.reg, f.params, f.values)
     e = hold_d.xyz - y
@@ -216,7 +234,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     f0 = F.fit(fit_d, [])
     nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)
-    idents, picks, ranking, beyond = {}, {}, [], {}
+    idents, picks, ranking, beyond, designs = {}, {}, [], {}, {}
     offsets = [p for p in voc if p.effect == "joint_offset"]
     for e in effects:
         pool = [p for p in voc if p.effect == e]
@@ -226,12 +244,14 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         # at a reading that never changes) is the offset, not an effect of its own
         first = offsets if e != "joint_offset" else []
         idents[e] = F.identifiability(fit_d, pool, f0.reg, keep_first=first)
-        idents[e].kept = [p for p in idents[e].kept if p.effect == e]
+        kept = [p for p in idents[e].kept if p.effect == e]
+        designs[e] = Screen(fit_d, f0, kept) if kept else None
+        idents[e].kept = one_alternative(designs[e], kept) if kept else kept
     _confounded_offsets(idents, offsets)
     for e in effects:
         if e not in idents:
             continue
-        picks[e] = screen(fit_d, f0, idents[e].kept)
+        picks[e] = screen(fit_d, f0, idents[e].kept, design=designs[e])
         c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep, beyond) \
             if picks[e] else None
         if c is not None:
@@ -379,7 +399,8 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     scale error of the measuring instrument that predicts as well. A named cause with a
     parameter that the registration and the other parameters almost absorb (variance
     inflation above :data:`cell.diagnosis.chain.fit.MAX_VIF`) is not confident: the
-    campaign hardly sees it apart from them."""
+    campaign hardly sees it apart from them. Neither is ``none`` when the best candidate's
+    test falls short of ``ALPHA`` but not of :data:`HINT_ALPHA`: the campaign hints at it."""
     f0 = s.nominal.fit
     notes: list[str] = []
     best = s.ranking[0] if s.ranking else None
@@ -397,6 +418,11 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     runner = next((c for c in s.ranking if c is not chosen), None) if chosen is not None else None
     rp = tie.p_worse(runner.fit.cv_fold, chosen.fit.cv_fold) if runner else None
     warnings: list[str] = []
+    if chosen is None and best is not None and p < HINT_ALPHA:
+        warnings.append(f"{best.label} predicts left-out poses better than registration alone "
+                        f"(p = {p:.2g}), though not clearly enough to be named (p < {ALPHA:g}): "
+                        "the campaign may be too small to show it; measure more places before "
+                        "concluding there is no effect")
     untested = untestable_rivals(s, [chosen] + list(rivals)) if chosen is not None else []
     for u in untested:
         warnings.append(f"the cause may be {u['label']}, which this campaign cannot test "

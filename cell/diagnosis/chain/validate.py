@@ -29,6 +29,9 @@ growth does.
   joint's approach direction, ``jK_dir``: without them the format places each joint at the
   centre of its band and there is no backlash to see);
 * ``gravity_compliance``: j2, or j2 and j3, 0.1–0.5 °/m each;
+* ``cyclic_error``: j2 or j3, a ripple of 0.02–0.08° with 1–4 cycles per revolution at a
+  random phase (the truth's ``cyclic``; its true coefficients are
+  ``jK_cyclicN_sin_deg`` = a·cos φ and ``jK_cyclicN_cos_deg`` = a·sin φ);
 * ``thermal_drift``: every length of the arm grows by 1.5–3·10⁻⁵ /K (an aluminium arm
   such as the UR5 has about 2.3·10⁻⁵). With the warm-up's 8–15 °C that moves the tool by
   0.07–0.3 mm at the arm's reach, above the tracker's noise as every other drawn effect is;
@@ -43,8 +46,8 @@ different joints).
 stream of its own): ``lens`` (radial scale of the sensor, 1–3·10⁻³ /m), ``reach_sag``
 (1–3 mm/m²), ``bump`` (an offset of 0.1–0.2° on j2 or j3 from the middle pose on),
 ``couple`` (j3 turns by 0.5–3·10⁻³ × j2's reading), ``cyclic`` (a transmission ripple of
-0.02–0.08° with 2–4 cycles per revolution on j2 or j3, joint-dependent and not in the
-chain vocabulary), ``plane_bump`` (a smooth local displacement of 0.1–0.4 mm, width
+0.02–0.08° with 5–8 cycles per revolution on j2 or j3: the vocabulary's ``cyclic_error``
+holds 1–4), ``plane_bump`` (a smooth local displacement of 0.1–0.4 mm, width
 150–300 mm, centred near the arm's reach). A vocabulary cause named with high confidence
 and without ``unexplained`` is a confident wrong cause.
 
@@ -140,12 +143,16 @@ def draw(rng: np.random.Generator, kind: str) -> Truth:
         js = ["j2"] if rng.random() < 0.5 else ["j2", "j3"]
         v = {j: float(rng.uniform(0.1, 0.5)) for j in js}
         return Truth(kind, tuple(js), {"sag": v}, 0.0, {f"{j}_compliance_deg_per_m": x for j, x in v.items()})
+    if kind == "cyclic_error":
+        j = str(rng.choice(["j2", "j3"]))
+        return ripple(j, float(rng.uniform(0.02, 0.08)), int(rng.integers(1, 5)),
+                      float(rng.uniform(0, 360)))
     if kind == "lens":
         x = float(rng.uniform(1e-3, 3e-3))
         return Truth(kind, (), {}, x, {"lens_per_m": x})
     if kind == "cyclic":
         j = str(rng.choice(["j2", "j3"]))
-        a, n, ph = float(rng.uniform(0.02, 0.08)), int(rng.integers(2, 5)), float(rng.uniform(0, 360))
+        a, n, ph = float(rng.uniform(0.02, 0.08)), int(rng.integers(5, 9)), float(rng.uniform(0, 360))
         return Truth(kind, (j,), {"cyclic": {j: (a, n, ph)}}, 0.0,
                      {f"{j}_cyclic_amp_deg": a, f"{j}_cyclic_cycles": n})
     if kind == "plane_bump":
@@ -166,6 +173,15 @@ def draw(rng: np.random.Generator, kind: str) -> Truth:
         x = _size(rng, 5e-4, 3e-3)
         return Truth(kind, ("j3",), {"couple": x}, 0.0, {"j3_from_j2": x})
     raise ValueError(f"unknown kind {kind!r}; known: {', '.join(VOCABULARY + OUTSIDE)}")
+
+
+def ripple(joint: str, amp_deg: float, cycles: int, phase_deg: float) -> Truth:
+    """A ``cyclic_error`` truth: a·sin(n·q + φ) on ``joint`` (the truth's ``cyclic``), its
+    true parameters the report's coefficients s = a·cos φ, c = a·sin φ of order n."""
+    ph = math.radians(phase_deg)
+    return Truth("cyclic_error", (joint,), {"cyclic": {joint: (amp_deg, cycles, phase_deg)}}, 0.0,
+                 {f"{joint}_cyclic{cycles}_sin_deg": amp_deg * math.cos(ph),
+                  f"{joint}_cyclic{cycles}_cos_deg": amp_deg * math.sin(ph)})
 
 
 def draw_second(rng: np.random.Generator, first: Truth) -> Truth:
@@ -220,9 +236,16 @@ def run_trial(i: int, seed: int, poses: int = 60, outside_share: float = 0.0,
     if layout == "realistic" and truth.kind in VOCABULARY[1:] \
             and np.random.default_rng([tseed, 5]).random() < TWO_SHARE:
         truth = draw_second(np.random.default_rng([tseed, 6]), truth)
-    lay = draw_layout(tseed, layout)
-    lay["dirs"] = lay["dirs"] or "backlash" in truth.effects
-    lay["temps"] = lay["temps"] or "grow" in truth.effects
+    return judge_truth(i, tseed, truth, noise, draw_layout(tseed, layout), poses)
+
+
+def judge_truth(i: int, tseed: int, truth: Truth, noise: float, lay: dict, poses: int = 60) -> Trial:
+    """Measure ``truth`` on a campaign of trial seed ``tseed`` (σ ``noise`` mm per axis,
+    layout ``lay``: :func:`draw_layout`'s keywords), diagnose it through the format and judge
+    it as trial ``i``. The campaign records the approach directions when the truth holds a
+    backlash, and the temperatures when it holds a thermal growth."""
+    lay = {**lay, "dirs": lay.get("dirs", False) or "backlash" in truth.effects,
+           "temps": lay.get("temps", False) or "grow" in truth.effects}
     with tempfile.TemporaryDirectory(prefix="cell-chain-validate-") as tmp:
         d = make(Path(tmp) / "campaign", truth.effects, poses=poses, noise_mm=noise, seed=tseed,
                  markers=MARKERS, lens=truth.lens, repeats=max(3, poses // 10), **lay)

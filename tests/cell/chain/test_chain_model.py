@@ -57,6 +57,10 @@ def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modifie
         for j, v in per.items():
             params.append(voc[names[kind].format(j=j)])
             values.append(v)
+    # a ripple a·sin(3q + φ) on j4 is the coefficients a·cos φ, a·sin φ of order 3 (format)
+    eff["cyclic"] = {"j4": (0.05, 3, 40.0)}
+    params += [voc["j4_cyclic3_sin_deg"], voc["j4_cyclic3_cos_deg"]]
+    values += [0.05 * math.cos(math.radians(40.0)), 0.05 * math.sin(math.radians(40.0))]
     data = F.Data.of(cc)
     reg = F.Registration(np.eye(3), np.zeros(3), np.array(chainsim.MARKERS))
     got, _ = F.model(data, reg, params, np.array(values))

@@ -1,7 +1,11 @@
-"""The remainder check for a transmission ripple on chains (:mod:`cell.diagnosis.chain.ripple`):
-a joint whose error varies periodically with its angle is outside the chain vocabulary, and
-a campaign that shows one is not explained by the offset and gear ratio it resembles."""
+"""Transmission ripples on chains: one of 1–4 cycles per revolution is the vocabulary's
+``cyclic_error`` (a sine and a cosine coefficient of one order per joint), one of more cycles
+is outside it and found in the remainder (:mod:`cell.diagnosis.chain.ripple`)."""
 from __future__ import annotations
+
+import math
+
+import pytest
 
 from cell.diagnosis.chain.report import diagnose_chain
 from cell.measurements import read_campaign
@@ -10,17 +14,34 @@ from tests.cell.chain import chainsim
 NOISE = 0.03
 
 
-def test_a_ripple_on_a_joint_is_not_passed_off_as_its_offset_and_gear_ratio(tmp_path):
-    # a 2-cycle ripple on j2, which over j2's 140° looks like an offset and a gear ratio on
-    # j2 (trial 4 of the chain validation's uniform outside seed 0, a smaller one, was named
-    # so with confidence high once compliance was bounded at zero: test_chain_validate.py)
+def test_a_two_cycle_ripple_is_named_with_its_order_and_coefficients(tmp_path):
+    # a 0.04° 2-cycle ripple at phase 30° on j2, which over j2's 140° also looks like an offset
+    # and a gear ratio: the fit must find a·cos φ and a·sin φ of order 2 (format, chain effects)
     d = chainsim.make(tmp_path / "c", {"cyclic": {"j2": (0.04, 2, 30.0)}}, poses=60,
                       noise_mm=NOISE, seed=8)
     rep = diagnose_chain(read_campaign(d), NOISE)
+    assert not rep["unexplained"], rep["remainder"]["reasons"]
+    assert rep["cause"]["effect"] == "cyclic_error" and rep["cause"]["joints"] == ["j2"]
+    params, ci = rep["cause"]["params"], rep["cause"]["ci95"]
+    assert set(params) == {"j2_cyclic2_sin_deg", "j2_cyclic2_cos_deg"}
+    for name, true in (("j2_cyclic2_sin_deg", 0.04 * math.cos(math.radians(30))),
+                       ("j2_cyclic2_cos_deg", 0.04 * math.sin(math.radians(30)))):
+        assert ci[name][0] <= true <= ci[name][1], (name, params[name], ci[name])
+    # the better rivals are only those the campaign cannot test (no jK_dir: backlash)
+    assert all(r.get("testable") is False for r in rep["cause"].get("rivals", [])), \
+        rep["cause"]["rivals"]
+
+
+@pytest.mark.parametrize("cycles", [6, 7])
+def test_a_ripple_beyond_the_vocabularys_orders_is_not_passed_off_as_the_named_cause(tmp_path, cycles):
+    # a j3 offset the vocabulary holds, and a ripple of more cycles than cyclic_error's on j2
+    d = chainsim.make(tmp_path / "c", {"offset": {"j3": 0.1}, "cyclic": {"j2": (0.03, cycles, 30.0)}},
+                      poses=60, noise_mm=NOISE, seed=8)
+    rep = diagnose_chain(read_campaign(d), NOISE)
     assert rep["unexplained"], rep["cause"]
     assert rep["cause"]["confidence"] != "high"
-    assert any("varies periodically with j2" in r for r in rep["remainder"]["reasons"]), \
-        rep["remainder"]["reasons"]
+    assert any("varies periodically with j2" in r and "5–8 cycles" in r
+               for r in rep["remainder"]["reasons"]), rep["remainder"]["reasons"]
 
 
 def test_a_vocabulary_cause_leaves_no_ripple_behind(tmp_path):
