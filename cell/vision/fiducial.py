@@ -27,9 +27,9 @@ from dataclasses import asdict, dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.special import erfc
 
+from cell.numerics.lsq import least_squares
 from cell.vision.camera_model import VisionError
 
 METHODS = ("model", "centroid", "moments")
@@ -261,7 +261,7 @@ def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> d
     def jac(q):
         return model(q)[1][:, :free]
 
-    sol = least_squares(fun, p0[:free], jac=jac, method="lm", xtol=1e-10, ftol=1e-10)
+    sol = least_squares(fun, p0[:free], jac=jac, xtol=1e-10, ftol=1e-10, max_nfev=100 * (free + 1))
     p = sol.x
     uc, vc, r, a, b, s = np.concatenate([p, fixed])[:6]
     moved = math.hypot(uc - p0[0], vc - p0[1])
