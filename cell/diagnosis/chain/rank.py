@@ -234,7 +234,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     f0 = F.fit(fit_d, [])
     nominal = _held("registration only", (), f0, hold_d, hold_keep)
     voc = F.vocabulary(fit_d.chain)
-    idents, picks, ranking, beyond, designs = {}, {}, [], {}, {}
+    idents, picks, ranking, beyond = {}, {}, [], {}
     offsets = [p for p in voc if p.effect == "joint_offset"]
     for e in effects:
         pool = [p for p in voc if p.effect == e]
@@ -244,14 +244,17 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         # at a reading that never changes) is the offset, not an effect of its own
         first = offsets if e != "joint_offset" else []
         idents[e] = F.identifiability(fit_d, pool, f0.reg, keep_first=first)
-        kept = [p for p in idents[e].kept if p.effect == e]
-        designs[e] = Screen(fit_d, f0, kept) if kept else None
-        idents[e].kept = one_alternative(designs[e], kept) if kept else kept
+        idents[e].kept = [p for p in idents[e].kept if p.effect == e]
+    # one linearised design holds every column the singles and the pairs screen: a subset's
+    # leave-out fit is exact on it (registration eliminated once, then any columns)
+    design = Screen(fit_d, f0, [p for i in idents.values() for p in i.kept])
+    for ident in idents.values():
+        ident.kept = one_alternative(design, ident.kept)
     _confounded_offsets(idents, offsets)
     for e in effects:
         if e not in idents:
             continue
-        picks[e] = screen(fit_d, f0, idents[e].kept, design=designs[e])
+        picks[e] = screen(fit_d, f0, idents[e].kept, design=design)
         c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep, beyond) \
             if picks[e] else None
         if c is not None:
@@ -265,7 +268,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     pairs |= {(order[0], b) for b in order[1:]}
     for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
         ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
-        both = screen(fit_d, f0, ident.kept)
+        both = screen(fit_d, f0, ident.kept, design=design)
         c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep, beyond) \
             if {p.effect for p in both} == {a, b} else None
         if c is not None:
