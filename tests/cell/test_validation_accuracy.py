@@ -14,8 +14,10 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
 * chain, 80 vocabulary trials (seed 1, 60 poses), measured when cyclic_error (1–4 cycles
   per revolution) joined the chain vocabulary, by ``cellctl diagnose validate --chain
-  --trials 80 --seed 1``: right 28, ambiguous 47, ambiguous with the truth missing 5,
-  unexplained 0, wrong 0; 29 of 30 intervals cover (other truths are drawn since; before,
+  --trials 80 --seed 1``, once the ripple's kept order was judged on its own (not against
+  the orders left out): right 31, ambiguous 44, ambiguous with the truth missing 5,
+  unexplained 0, wrong 0; 35 of 36 intervals cover (before that: right 28, ambiguous 47,
+  29 of 30 intervals; other truths are drawn since; before,
   when the chain decision took untestable effects as rivals of what they mimic and judged
   the fit against the noise's 95 % upper bound: right 33, ambiguous 43, truth missing 4,
   unexplained 0, 34 of 35 intervals; before that: right 36, ambiguous 38, truth missing 4, unexplained 2, 40 of 41 intervals, when
@@ -42,7 +44,7 @@ cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term
 cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
 in cell/kinematics/evaluate.py forward(): right 16, unexplained 33, wrong 1; the twist in
 cell/kinematics/evaluate.py: right 13, unexplained 53, wrong 4; both measured again with
-cyclic_error in the chain vocabulary).
+cyclic_error in the chain vocabulary and its kept order judged on its own).
 """
 import math
 
@@ -123,7 +125,7 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 28 - 5, v
+    assert v["right"] >= 31 - 5, v
     assert v["right"] + v["ambiguous"] >= 75 - 5, v
     assert v["unexplained"] <= 0 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]

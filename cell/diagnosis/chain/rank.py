@@ -248,8 +248,15 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     # one linearised design holds every column the singles and the pairs screen: a subset's
     # leave-out fit is exact on it (registration eliminated once, then any columns)
     design = Screen(fit_d, f0, [p for i in idents.values() for p in i.kept])
-    for ident in idents.values():
-        ident.kept = one_alternative(design, ident.kept)
+    for e, ident in idents.items():
+        kept = one_alternative(design, ident.kept)
+        if len(kept) < len(ident.kept):   # what is kept of the alternatives, judged on its own:
+            again = F.identifiability(fit_d, kept, f0.reg,  # not against the orders left out
+                                      keep_first=offsets if e != "joint_offset" else [])
+            ident.dropped.update(again.dropped)
+            ident.warnings = {n: w for n, w in again.warnings.items() if n in {p.name for p in kept}}
+            kept = [p for p in again.kept if p.effect == e]
+        ident.kept = kept
     _confounded_offsets(idents, offsets)
     for e in effects:
         if e not in idents:

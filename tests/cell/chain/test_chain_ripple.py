@@ -32,6 +32,18 @@ def test_a_two_cycle_ripple_is_named_with_its_order_and_coefficients(tmp_path):
         rep["cause"]["rivals"]
 
 
+def test_a_ripple_the_campaign_can_test_is_named_with_confidence(tmp_path):
+    # with the approach directions recorded no backlash can stand behind it; and the orders
+    # the search left out are no yardstick for the one it kept (no 'hard to tell apart'
+    # warning for its coefficients, nor for the orders not kept)
+    d = chainsim.make(tmp_path / "c", {"cyclic": {"j2": (0.04, 2, 30.0)}}, poses=60,
+                      noise_mm=NOISE, seed=8, dirs=True)
+    rep = diagnose_chain(read_campaign(d), NOISE)
+    assert rep["cause"]["label"] == "cyclic_error" and rep["cause"]["confidence"] == "high", \
+        rep["cause"]["warnings"]
+    assert not any("cyclic" in w for w in rep["registration"]["warnings"]), rep["registration"]["warnings"]
+
+
 @pytest.mark.parametrize("cycles", [6, 7])
 def test_a_ripple_beyond_the_vocabularys_orders_is_not_passed_off_as_the_named_cause(tmp_path, cycles):
     # a j3 offset the vocabulary holds, and a ripple of more cycles than cyclic_error's on j2
