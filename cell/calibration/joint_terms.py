@@ -219,25 +219,38 @@ def backlash_deg(section: Mapping | None) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class FitData:
-    """The kinematic calibration's own measurements, as its file stores them."""
+    """The kinematic calibration's own measurements, as its file stores them: commanded
+    joints and measured x, y (mm) of the fit poses (``in_base``: the anchors) and of the
+    held-out poses; ``lever_fit`` / ``lever_hold`` (N, 3) how the hand camera's board poses
+    were reduced (:func:`cell.calibration.procedure.board_lever`; None: the measurements
+    are taken as tool positions whatever the model's tool orientation)."""
     q_fit: np.ndarray
     m_fit: np.ndarray
     in_base: np.ndarray
     q_hold: np.ndarray
     m_hold: np.ndarray
+    lever_fit: np.ndarray | None = None
+    lever_hold: np.ndarray | None = None
 
     @classmethod
-    def of(cls, doc: dict) -> "FitData | None":
-        """From a calibration document's ``data`` (None when it holds no kinematic fit)."""
+    def of(cls, doc: dict, nominal: "Scara | None" = None) -> "FitData | None":
+        """From a calibration document's ``data`` (None when it holds no kinematic fit).
+        With the ``nominal`` robot and the document's board, the levers too (each pose's
+        ``point``). Raises CalibrationError for a board point the board does not have."""
         data = doc.get("data") or {}
         fit, hold = data.get("fit"), data.get("holdout")
         if not fit or not hold:
             return None
-        return cls(np.array([f["q"] for f in fit], dtype=float),
-                   np.array([f["measured_mm"] for f in fit], dtype=float),
-                   np.array([f.get("point", 0) < 0 for f in fit], dtype=bool),
-                   np.array([h["q"] for h in hold], dtype=float),
-                   np.array([h["measured_mm"] for h in hold], dtype=float))
+        qf, mf = (np.array([f[k] for f in fit], dtype=float) for k in ("q", "measured_mm"))
+        qh, mh = (np.array([h[k] for h in hold], dtype=float) for k in ("q", "measured_mm"))
+        pf, ph = [f.get("point", 0) for f in fit], [h.get("point", 0) for h in hold]
+        lf = lh = None
+        if nominal is not None and data.get("board"):
+            from cell.calibration.procedure import board_lever
+            from cell.vision.calibration import board_from_dict
+            board = board_from_dict(dict(data["board"]))
+            lf, lh = board_lever(nominal, board, qf, mf, pf), board_lever(nominal, board, qh, mh, ph)
+        return cls(qf, mf, np.array([k < 0 for k in pf], dtype=bool), qh, mh, lf, lh)
 
 
 @dataclass(frozen=True)
@@ -330,13 +343,14 @@ def fit_gear_ratios(nominal: "Scara", data: FitData, fixed: Sequence[EffectInsta
     for _ in range(iterations):
         fx = [*fixed, *(_gear(j, e) for j, e in zip(joints, eps))]
         qf = corrected(fx, data.q_fit)
-        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
-        J = jacobian(chain, qf, ident.p, w=0.0, in_base=data.in_base)
+        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base,
+                         lever=data.lever_fit)
+        J = jacobian(chain, qf, ident.p, w=0.0, in_base=data.in_base, lever=data.lever_fit)
         extra = [J[:, chain.index(f"{j}.theta")] * np.repeat(data.q_fit[:, c], 3)
                  for j, c in zip(joints, cols)]
         A = np.column_stack([J[:, [chain.index(n) for n in ident.kept]], *extra])
         r = _weighted(residuals(chain, qf, _as_measured(chain, qf, data.m_fit, True), ident.p,
-                                data.in_base), 0.0)
+                                data.in_base, data.lever_fit), 0.0)
         step = np.linalg.lstsq(A, r, rcond=None)[0][-len(joints):]
         eps = eps + step
         if np.max(np.abs(step)) < 1e-9:
@@ -387,12 +401,14 @@ def _fit_with(chain, data: FitData, fx: Sequence[EffectInstance], min_gain: floa
     from cell.errors import CalibrationError
     qf, qh = corrected(fx, data.q_fit), corrected(fx, data.q_hold)
     try:
-        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base)
+        ident = identify(chain, qf, data.m_fit, position_only=True, in_base=data.in_base,
+                         lever=data.lever_fit)
     except CalibrationError as exc:
         return None, str(exc)
     return ident, holdout_check(chain, ident.p, qh, data.m_hold, q_fit=qf, measured_fit=data.m_fit,
                                 min_gain=min_gain, position_only=True, in_base_fit=data.in_base,
-                                commanded=(data.q_fit, data.q_hold))
+                                commanded=(data.q_fit, data.q_hold), lever_fit=data.lever_fit,
+                                lever_hold=data.lever_hold)
 
 
 def _better(h: "HoldoutCheck", than: "HoldoutCheck") -> bool:

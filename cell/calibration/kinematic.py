@@ -23,6 +23,19 @@ cell's fixed camera seeing the tool), not in the board's: the board placement
 (``base.*``) does not act on them. A few such rows separate the board's rotation from
 θ1's zero, which board rows alone see only as a sum.
 
+**Lever (the hand camera's reduction).** A board pose's measured tool position is
+``m = b − R(φ₀)·h``: the known point ``b`` less where the hand camera saw it, ``h`` (hand
+frame), turned into the board frame by the tool orientation φ₀ the nominal robot gives the
+commanded joints (:func:`cell.calibration.procedure.measure_board`). The camera turns with
+the TRUE tool, so ``m`` is the tool's position only when φ₀ is right. The robot's own zero
+errors turn the tool by Δφ (random-4: 0.38°), and the reduction then errs by Δφ × the few mm
+``b − m``; that error is systematic: ``b − m`` is itself mostly the zeros' tangential error,
+turned by Δφ it is radial, and the links absorbed it (0.002–0.014 mm long). ``lever``
+(N, 3) rows ``(b_x − m_x, b_y − m_y, φ₀)`` (mm, mm, deg; all 0 for a pose measured
+directly, e.g. an anchor) let the fit redo the reduction with each model's own tool
+orientation φ(q, p): the measurement compared with the model is then
+``b − R(φ − φ₀)·(b − m)``, and the Jacobian carries its derivative.
+
 Every failure raises :class:`~cell.errors.CalibrationError` naming the cause.
 """
 from __future__ import annotations
@@ -34,7 +47,7 @@ from typing import Sequence
 import numpy as np
 import scipy.linalg as sla
 
-from cell.calibration.dh import D2R, DHChain, check_measured, error_jacobian
+from cell.calibration.dh import D2R, DHChain, check_measured, error_jacobian, wrap_deg
 from cell.errors import CalibrationError
 from cell.kinematics import identifiable
 from cell.numerics.stats import t_ppf
@@ -75,18 +88,49 @@ def _mask(in_base, n: int) -> np.ndarray | None:
     return m if m.any() else None
 
 
-def residuals(chain: DHChain, q, m, p, in_base=None) -> np.ndarray:
-    """measured − model (N, 3); rows ``in_base`` without the board placement."""
+def check_lever(lever, n: int, what: str = "lever") -> np.ndarray | None:
+    """``lever`` as a float (n, 3) array (see the module doc), or None for None. A wrong
+    shape or a non-finite value raise CalibrationError naming the pose."""
+    if lever is None:
+        return None
+    a = np.asarray(lever, dtype=float)
+    if a.shape != (n, 3):
+        raise CalibrationError(f"{what} must have shape ({n}, 3) (b − m in x, y mm, φ₀ deg), got {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
+    if bad.size:
+        raise CalibrationError(f"{what} of pose {bad[0]} is not finite: {a[bad[0]].tolist()}")
+    return a
+
+
+def _turned_lever(chain: DHChain, q, p, lever: np.ndarray) -> np.ndarray:
+    """R(φ(q, p) − φ₀)·(b − m) (N, 2) mm: each pose's lever turned by how far the model's
+    tool orientation lies from the one the reduction used."""
+    d = np.radians(wrap_deg(chain.predict(q, p)[:, 2] - lever[:, 2]))
+    c, s = np.cos(d), np.sin(d)
+    v = lever[:, :2]
+    return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+
+
+def residuals(chain: DHChain, q, m, p, in_base=None, lever=None) -> np.ndarray:
+    """measured − model (N, 3); rows ``in_base`` without the board placement. With
+    ``lever`` (module doc) the measured x, y are those the reduction gives with the model's
+    tool orientation: ``b − R(φ − φ₀)·(b − m)``."""
     r = chain.residuals(q, m, p)
     mask = _mask(in_base, len(r))
     if mask is not None:
         r[mask] = chain.residuals(q[mask], m[mask], _base_free(chain, p))
+    lv = check_lever(lever, len(r))
+    if lv is not None:
+        r[:, :2] += lv[:, :2] - _turned_lever(chain, q, p, lv)
     return r
 
 
-def jacobian(chain: DHChain, q, p=None, *, w: float | None = None, in_base=None) -> np.ndarray:
+def jacobian(chain: DHChain, q, p=None, *, w: float | None = None, in_base=None,
+             lever=None) -> np.ndarray:
     """:func:`design_matrix`; rows of poses ``in_base`` at the placement-free errors and
-    with zero board-placement columns."""
+    with zero board-placement columns. With ``lever`` (module doc) the x, y rows also carry
+    the measurement's own dependence on the errors, −∂/∂p of ``b − R(φ − φ₀)·(b − m)``:
+    the turned lever's perpendicular times ∂φ/∂p (rad per unit)."""
     J = design_matrix(chain, q, p, phi_weight_mm_per_deg=w)
     mask = _mask(in_base, len(q))
     if mask is not None:
@@ -94,6 +138,12 @@ def jacobian(chain: DHChain, q, p=None, *, w: float | None = None, in_base=None)
         rows = np.repeat(mask, 3)
         J[rows] = design_matrix(chain, q[mask], p_free, phi_weight_mm_per_deg=w)
         J[np.ix_(rows, [chain.index(n) for n in BASE_PARAMS])] = 0.0
+    lv = check_lever(lever, len(q))
+    if lv is not None:
+        u = _turned_lever(chain, q, p, lv) * D2R
+        dphi = error_jacobian(chain, q, p)[2::3]
+        J[0::3] -= u[:, 1:2] * dphi
+        J[1::3] += u[:, 0:1] * dphi
     return J
 
 
@@ -297,13 +347,13 @@ def _weighted(r: np.ndarray, w: float) -> np.ndarray:
     return rw.reshape(-1)
 
 
-def _gauss_newton(chain, q, m, p, idx, w, max_iter, tol_mm, in_base=None):
+def _gauss_newton(chain, q, m, p, idx, w, max_iter, tol_mm, in_base=None, lever=None):
     """Relinearise and solve until the update changes the weighted predictions by less
     than tol_mm rms; returns (p, iterations)."""
     last = math.inf
     for it in range(1, max_iter + 1):
-        J = jacobian(chain, q, p, w=w, in_base=in_base)[:, idx]
-        rw = _weighted(residuals(chain, q, m, p, in_base), w)
+        J = jacobian(chain, q, p, w=w, in_base=in_base, lever=lever)[:, idx]
+        rw = _weighted(residuals(chain, q, m, p, in_base, lever), w)
         dx, *_ = np.linalg.lstsq(J, rw, rcond=None)
         p = p.copy()
         p[idx] += dx
@@ -336,14 +386,16 @@ def _as_measured(chain: DHChain, q: np.ndarray, measured, position_only: bool, w
 def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None = None,
              phi_weight_mm_per_deg: float | None = None, max_iter: int = 20,
              tol: float = 1e-6, rank_tol: float = RANK_TOL, position_only: bool = False,
-             in_base=None) -> Identification:
+             in_base=None, lever=None) -> Identification:
     """Identify the DH errors from joints q (N, n_joints) and measured planar poses
     (N, 3) (x mm, y mm, φ deg in the board frame) by Gauss–Newton on the differential model.
 
     ``kept`` (default :func:`structural_kept`: everything the measurement can separate
     in principle) are estimated; all other parameters stay at ``p0`` (default 0). Weighting
     as in the module doc (noise-based reweighting once unless ``phi_weight_mm_per_deg`` is
-    given). Converged when an update changes the weighted predictions by < ``tol`` mm rms.
+    given). ``in_base`` (N,) flags the anchor poses; ``lever`` (N, 3) how each board pose
+    was reduced (module doc: the measurement then follows the model's tool orientation).
+    Converged when an update changes the weighted predictions by < ``tol`` mm rms.
     Standard errors: √diag(s²·(JᵀWJ)⁻¹), s² = weighted residual sum / dof, dof = 3N − K;
     95 % intervals with Student's t(dof).
 
@@ -356,6 +408,7 @@ def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None
     m = _as_measured(chain, q, measured, position_only)
     p = np.zeros(chain.n_params) if p0 is None else chain.check_errors(p0).copy()
     mask = _mask(in_base, q.shape[0])
+    lever = check_lever(lever, q.shape[0])
     kept = tuple(structural_kept(chain, q, tol=rank_tol, position_only=position_only,
                                  anchored=mask is not None) if kept is None else kept)
     idx = _kept_index(chain, kept)
@@ -367,14 +420,14 @@ def identify(chain: DHChain, q, measured, *, p0=None, kept: Sequence[str] | None
     J0 = jacobian(chain, q, p, w=w, in_base=mask)
     report = identifiability(J0, chain.param_names, priority=default_priority(chain), tol=rank_tol)
     _check_design(J0[:, idx], kept, q.shape[0], rank_tol, per_pose)
-    p, its = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask)
+    p, its = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask, lever)
     if phi_weight_mm_per_deg is None and not position_only:
-        s_xy, s_phi = _sigmas(residuals(chain, q, m, p, mask), len(idx))
+        s_xy, s_phi = _sigmas(residuals(chain, q, m, p, mask, lever), len(idx))
         w = float(np.clip(s_xy / s_phi, w0 / 1e3, w0 * 1e3)) if s_phi > 0 else w0 * 1e3
-        p, its2 = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask)
+        p, its2 = _gauss_newton(chain, q, m, p, idx, w, max_iter, tol, mask, lever)
         its += its2
-    r = residuals(chain, q, m, p, mask)
-    J = jacobian(chain, q, p, w=w, in_base=mask)[:, idx]
+    r = residuals(chain, q, m, p, mask, lever)
+    J = jacobian(chain, q, p, w=w, in_base=mask, lever=lever)[:, idx]
     dof = per_pose * q.shape[0] - len(idx)
     s2 = float(np.sum(_weighted(r, w) ** 2)) / dof
     norms = np.linalg.norm(J, axis=0)
@@ -486,8 +539,8 @@ class HoldoutCheck:
                 for k, v in ((k, getattr(self, k)) for k in self.__dataclass_fields__)}
 
 
-def _errors(chain, q, m, p):
-    r = chain.residuals(q, m, p)
+def _errors(chain, q, m, p, lever=None):
+    r = residuals(chain, q, m, p, lever=lever)
     xy = np.hypot(r[:, 0], r[:, 1])
     phi = np.abs(r[:, 2])
     return float(np.sqrt(np.mean(xy ** 2))), float(xy.max()), float(np.sqrt(np.mean(phi ** 2))), float(phi.max())
@@ -495,7 +548,7 @@ def _errors(chain, q, m, p):
 
 def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_fit,
                   min_gain: float = 0.1, max_ratio: float = 3.0, position_only: bool = False,
-                  in_base_fit=None, commanded=None) -> HoldoutCheck:
+                  in_base_fit=None, commanded=None, lever_fit=None, lever_hold=None) -> HoldoutCheck:
     """Check calibrated errors ``p`` on held-out poses (q_hold, measured_hold) that the fit
     did not use.
 
@@ -517,8 +570,10 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     ``in_base_fit`` flags the anchor poses among the fit data (held-out poses are board
     poses). ``commanded`` (q_fit, q_hold): the commanded joints when ``q_fit`` and
     ``q_hold`` carry joint terms the calibration applies: "before" is then the nominal robot
-    on the commands, as without them. Raises CalibrationError for bad shapes or non-finite
-    input (naming the pose).
+    on the commands, as without them. ``lever_fit`` / ``lever_hold`` (N, 3): how the board
+    poses were reduced (module doc); each model, "before" and after, is then compared with
+    the reduction its own tool orientation gives. Raises CalibrationError for bad shapes or
+    non-finite input (naming the pose).
     """
     from cell.calibration import check as C
     p = chain.check_errors(p)
@@ -528,10 +583,12 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     mf = _as_measured(chain, qf, measured_fit, position_only, "measured_fit")
     qf0, qh0 = (qf, qh) if commanded is None else (chain.check_joints(commanded[0], "q_fit"),
                                                     chain.check_joints(commanded[1], "q_hold"))
-    before = fit_base(chain, qf0, mf, position_only=position_only, in_base=in_base_fit).p
-    rb, mb, pb, pmb = _errors(chain, qh0, mh, before)
-    ra, ma, pa, pma = _errors(chain, qh, mh, p)
-    fit_rms = float(np.sqrt(np.mean(np.sum(residuals(chain, qf, mf, p, in_base_fit)[:, :2] ** 2, axis=1))))
+    lf, lh = check_lever(lever_fit, qf.shape[0], "lever_fit"), check_lever(lever_hold, qh.shape[0], "lever_hold")
+    before = fit_base(chain, qf0, mf, position_only=position_only, in_base=in_base_fit, lever=lf).p
+    rb, mb, pb, pmb = _errors(chain, qh0, mh, before, lh)
+    ra, ma, pa, pma = _errors(chain, qh, mh, p, lh)
+    fit_rms = float(np.sqrt(np.mean(np.sum(residuals(chain, qf, mf, p, in_base_fit, lf)[:, :2] ** 2,
+                                           axis=1))))
     if position_only:
         pb = pmb = pa = pma = math.nan
     gain = 1.0 - ra / rb if rb > 0 else -math.inf

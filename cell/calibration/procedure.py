@@ -267,9 +267,10 @@ def measure_board(rig: HandRig, board: CircleGridBoard, poses: list[Candidate],
                   progress=None) -> np.ndarray:
     """Visit ``poses`` and measure the tool position (x, y) mm (N, 2) in the base frame as
     the board's nominal place defines it: ``m = b − R(φ)·h``, with ``b`` the known point,
-    ``h`` where the hand camera sees it and ``φ`` the nominal tool orientation. (Using the
-    nominal φ errs by |h|·Δφ: under 0.01 mm for the few mm a pose misses its point by.)
-    Every pose is approached the same way (:meth:`HandRig.approach`), so backlash acts as a
+    ``h`` where the hand camera sees it and ``φ`` the nominal tool orientation. The camera
+    turns with the true tool, so this errs by Δφ·|b − m|, and systematically (the zeros'
+    error turned by their own Δφ points along the arm): the fit redoes the reduction with
+    its model's φ, from :func:`board_lever`. Every pose is approached the same way (:meth:`HandRig.approach`), so backlash acts as a
     constant offset the joint zeros absorb, not as scatter between poses.
     Raises CalibrationError naming the pose and point when the point is not seen."""
     points = board.points_mm()
@@ -283,6 +284,28 @@ def measure_board(rig: HandRig, board: CircleGridBoard, poses: list[Candidate],
         out[n] = points[c.point] - np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]) @ h
         if progress is not None:
             progress(n + 1, len(poses))
+    return out
+
+
+def board_lever(robot: Scara, board: CircleGridBoard, q, measured, points) -> np.ndarray:
+    """How :func:`measure_board` reduced each pose, for the fit
+    (:mod:`cell.calibration.kinematic`, "Lever"): rows (b_x − m_x, b_y − m_y, φ₀) (N, 3), mm
+    and deg, with ``b`` the known point, ``m`` the measured tool position and φ₀ the nominal
+    tool orientation of joints ``q`` (N, 4) it used. A pose whose ``points`` entry is < 0
+    was measured directly (an anchor: the cell camera, base frame): its row is 0.
+    Raises CalibrationError for a point the board does not have."""
+    q = np.asarray(q, dtype=float)
+    m = np.asarray(measured, dtype=float)[:, :2]
+    pts = board.points_mm()
+    out = np.zeros((len(q), 3))
+    for n, k in enumerate(points):
+        k = int(k)
+        if k < 0:
+            continue
+        if k >= len(pts):
+            raise CalibrationError(f"pose {n + 1}: board point {k} is not on the board "
+                                   f"({len(pts)} points)")
+        out[n] = [*(pts[k] - m[n]), float(robot.fk(q[n])[3])]
     return out
 
 

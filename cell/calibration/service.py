@@ -224,7 +224,7 @@ class CellCalibrator:
         from cell.calibration import joint_terms as jt
         doc = self._active() or {}
         section = {**(doc.get("joints") or {}), joint: jt.entry(result)}
-        data = jt.FitData.of(doc)
+        data = jt.FitData.of(doc, self.nominal)
         if data is None:
             section = jt.annotate(section, None, "no kinematic calibration to weigh it against yet "
                                                  "(calibrate kinematics does)")
@@ -251,8 +251,8 @@ class CellCalibrator:
         (``holdout.passed`` False, ``document`` None), not raised."""
         from cell.calibration.dh import scara_chain
         from cell.calibration.kinematic import select_poses
-        from cell.calibration.procedure import (anchor_candidates, board_candidates, measure_anchors,
-                                                measure_board)
+        from cell.calibration.procedure import (anchor_candidates, board_candidates, board_lever,
+                                                measure_anchors, measure_board)
         c = self.config.calibration
         n_fit = c.poses if poses is None else poses
         n_hold = c.holdout if holdout is None else holdout
@@ -285,16 +285,18 @@ class CellCalibrator:
         q_fit = np.vstack([cq[fit], *[a.q[None] for a in anchors]])
         m_all = np.vstack([m_fit, m_anchor])
         in_base = np.r_[np.zeros(len(fit), bool), np.ones(len(anchors), bool)]
+        points_fit = [cands[i].point for i in fit] + [-1] * len(anchors)
+        points_hold = [cands[i].point for i in hold]
         # seed 004's terms of the file, and seed 001's own gear ratios: weighed on the
         # held-out poses, and applied to the commanded angles of the fit (never twice)
         from cell.calibration import joint_terms as jt
         joints = (self._active() or {}).get("joints")
-        w = jt.weigh(self.nominal, jt.FitData(q_fit, m_all, in_base, cq[hold], m_hold), joints,
-                     min_gain=c.min_gain)
+        data = jt.FitData(q_fit, m_all, in_base, cq[hold], m_hold,
+                          board_lever(self.nominal, board, q_fit, m_all, points_fit),
+                          board_lever(self.nominal, board, cq[hold], m_hold, points_hold))
+        w = jt.weigh(self.nominal, data, joints, min_gain=c.min_gain)
         ident, check = w.identification, w.holdout
-        out = KinematicOutcome(ident, check, q_fit, m_all, cq[hold], m_hold,
-                               [cands[i].point for i in fit] + [-1] * len(anchors),
-                               [cands[i].point for i in hold],
+        out = KinematicOutcome(ident, check, q_fit, m_all, cq[hold], m_hold, points_fit, points_hold,
                                joints=jt.annotate(joints, w) if joints else None, gear_ratio=w.gear_ratio)
         log.info("kinematic_calibration_measured", passed=check.passed, reason=check.reason)
         if write and (check.passed or accept_worse):

@@ -305,3 +305,70 @@ def test_holdout_input_errors_name_the_pose():
     qh[4, 0] = np.nan
     with pytest.raises(CalibrationError, match="q_hold of pose 4"):
         km.holdout_check(CHAIN, np.zeros(19), qh, mh, q_fit=qf, measured_fit=mf)
+
+
+def hand_camera_reduction(rng, q, p, points, chain=CHAIN, sigma=SIGMA_XY):
+    """Board measurements as the hand camera's reduction gives them: the known point b
+    less where a camera turning with the TRUE tool sees it (noise ``sigma`` mm), turned
+    back by the NOMINAL tool orientation; and the lever of each pose, (b − m, φ₀)."""
+    true = chain.predict(q, p)
+    phi0 = chain.predict(q)[:, 2]
+
+    def turn(v, deg):
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+    h = turn(points - true[:, :2], -true[:, 2]) + rng.normal(0.0, sigma, (len(q), 2))
+    m = points - turn(h, phi0)
+    return m, np.column_stack([points - m, phi0])
+
+
+@pytest.mark.parametrize("zeros, bias", [(0.0, (0.0, 0.005)), (0.05, (0.005, 0.02)), (0.2, (0.03, 0.1))])
+def test_the_lever_redoes_the_hand_cameras_reduction_with_the_models_tool_orientation(zeros, bias):
+    # zeros of the same sign turn the tool by their sum; the reduction with the nominal φ
+    # then puts each pose a little further out (the zeros' tangential error turned by
+    # Δφ), and the links absorb it (noise-free here, so that is all there is); with the
+    # lever the fit recovers every error exactly
+    truth = CHAIN.errors({"j1.theta": zeros, "j2.theta": zeros, "j1.a": 0.3, "j2.a": -0.25,
+                          "base.x": 3.0, "base.y": -2.0, "base.rz": 0.1})
+    rng = np.random.default_rng(7)
+    q = poses(rng, 60)
+    points = CHAIN.predict(q)[:, :2] + rng.uniform(-3.0, 3.0, (60, 2))   # the point a pose is over
+    m, lever = hand_camera_reduction(rng, q, truth, points, sigma=0.0)
+    kept = ("j1.theta", "j2.theta", "j1.a", "j2.a", "j4.a", "base.x", "base.y")   # base.rz: in j1.theta
+    expect = truth.copy()
+    expect[CHAIN.index("j1.theta")] += truth[CHAIN.index("base.rz")]
+    biased = km.identify(CHAIN, q, m, kept=kept, position_only=True)
+    fixed = km.identify(CHAIN, q, m, kept=kept, position_only=True, lever=lever)
+    for name in kept:
+        assert fixed.value(name) == pytest.approx(expect[CHAIN.index(name)], abs=1e-6), name
+    long = sum(biased.value(n) - truth[CHAIN.index(n)] for n in ("j1.a", "j2.a"))
+    assert bias[0] <= long < bias[1]
+    assert fixed.rms_xy_mm < 1e-6 < biased.rms_xy_mm
+
+
+def test_the_lever_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(3)
+    q = poses(rng, 12)
+    points = CHAIN.predict(q)[:, :2] + rng.uniform(-3.0, 3.0, (12, 2))
+    m, lever = hand_camera_reduction(rng, q, P_TRUE, points)
+    m = np.column_stack([m, CHAIN.predict(q)[:, 2]])
+    lever[::4] = 0.0                                   # poses measured directly
+    p = P_TRUE + 0.01
+    J = km.jacobian(CHAIN, q, p, w=0.0, lever=lever)
+    h = 1e-5
+    for k in range(CHAIN.n_params):
+        e = np.zeros(CHAIN.n_params)
+        e[k] = h
+        d = -(km.residuals(CHAIN, q, m, p + e, lever=lever) - km.residuals(CHAIN, q, m, p - e, lever=lever)) / (2 * h)
+        np.testing.assert_allclose(J[:, k].reshape(-1, 3)[:, :2], d[:, :2], atol=1e-6, err_msg=CHAIN.param_names[k])
+
+
+def test_a_lever_of_the_wrong_shape_is_refused():
+    rng = np.random.default_rng(1)
+    q, m = data(1, 10)
+    with pytest.raises(CalibrationError, match=r"lever must have shape \(10, 3\)"):
+        km.identify(CHAIN, q, m, lever=np.zeros((9, 3)))
+    bad = np.zeros((10, 3))
+    bad[4, 1] = np.nan
+    with pytest.raises(CalibrationError, match="lever of pose 4 is not finite"):
+        km.residuals(CHAIN, q, m, P_TRUE, lever=bad)
