@@ -95,7 +95,8 @@ def check_lever(lever, n: int, what: str = "lever") -> np.ndarray | None:
         return None
     a = np.asarray(lever, dtype=float)
     if a.shape != (n, 3):
-        raise CalibrationError(f"{what} must have shape ({n}, 3) (b − m in x, y mm, φ₀ deg), got {a.shape}")
+        raise CalibrationError(f"{what} must have shape ({n}, 3) (b − m in x, y mm, φ₀ deg), "
+                               f"got {a.shape}")
     bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
     if bad.size:
         raise CalibrationError(f"{what} of pose {bad[0]} is not finite: {a[bad[0]].tolist()}")

@@ -270,8 +270,9 @@ def measure_board(rig: HandRig, board: CircleGridBoard, poses: list[Candidate],
     ``h`` where the hand camera sees it and ``φ`` the nominal tool orientation. The camera
     turns with the true tool, so this errs by Δφ·|b − m|, and systematically (the zeros'
     error turned by their own Δφ points along the arm): the fit redoes the reduction with
-    its model's φ, from :func:`board_lever`. Every pose is approached the same way (:meth:`HandRig.approach`), so backlash acts as a
-    constant offset the joint zeros absorb, not as scatter between poses.
+    its model's φ, from :func:`board_lever`. Every pose is approached the same way
+    (:meth:`HandRig.approach`), so backlash acts as a constant offset the joint zeros
+    absorb, not as scatter between poses.
     Raises CalibrationError naming the pose and point when the point is not seen."""
     points = board.points_mm()
     out = np.empty((len(poses), 2))

@@ -364,7 +364,6 @@ def test_the_lever_jacobian_matches_finite_differences():
 
 
 def test_a_lever_of_the_wrong_shape_is_refused():
-    rng = np.random.default_rng(1)
     q, m = data(1, 10)
     with pytest.raises(CalibrationError, match=r"lever must have shape \(10, 3\)"):
         km.identify(CHAIN, q, m, lever=np.zeros((9, 3)))
