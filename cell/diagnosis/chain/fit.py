@@ -126,7 +126,7 @@ def _take(frames, rows: np.ndarray):
 @dataclass
 class Data:
     """Poses and measured points of (part of) a campaign; ``levers`` (P, J) m, the gravity
-    lever of each joint at the nominal pose; ``dirs`` (P, J) the sign of each joint's last
+    lever of each joint at the nominal pose (None until :func:`_poses` first needs them); ``dirs`` (P, J) the sign of each joint's last
     motion (0: unknown); ``temp_c`` (P,) each pose's temperature (the mean ``temp_c`` of
     its rows; None: no column); ``axes`` the axes of the measurement frame the sensor sees
     (0, 1, 2 = x, y, z; ``sensor_axes``), ``xyz`` (M, len(axes)) holds those components
@@ -142,7 +142,7 @@ class Data:
     n_markers: int
     sensor: bool
     known_markers: np.ndarray | None
-    levers: np.ndarray
+    levers: np.ndarray | None
     dirs: np.ndarray | None = None
     place: np.ndarray | None = None
     temp_c: np.ndarray | None = None
@@ -195,14 +195,14 @@ class Data:
     def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
         """The same arm, markers and frame at other joint ``readings`` (P, J) approached
         from ``dirs`` (P, J; None: unknown), at the campaign's mean temperature, every
-        marker on every pose, nothing measured (``xyz`` zero): for predicting, not fitting."""
+        marker on every pose, nothing measured (``xyz`` zero): for predicting, not fitting.
+        Its nominal frames and gravity levers are computed when first asked for (a
+        prediction of fitted parameters needs neither unless it holds a compliance)."""
         P, m = len(readings), max(self.n_markers, 1)
-        frames = kin.forward(self.chain, readings, keep=True)
         temp = None if self.temp_c is None else np.full(P, float(np.mean(self.temp_c)))
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, self.dims)), self.n_markers, self.sensor, self.known_markers,
-                    _levers(self.chain, frames), dirs, np.arange(P), temp, self.axes, self.centre,
-                    frames)
+                    None, dirs, np.arange(P), temp, self.axes, self.centre)
 
     def subset(self, pose_mask: np.ndarray) -> "Data":
         keep = np.flatnonzero(pose_mask)
@@ -299,8 +299,22 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - R @ ca
 
 
+class _LaterLevers:
+    """The gravity levers of a :class:`Data` that has none yet (:meth:`Data.at`), computed
+    on first indexing: most predictions hold no compliance and never read them."""
+
+    def __init__(self, d: Data):
+        self.d = d
+
+    def __getitem__(self, key):
+        if self.d.levers is None:
+            self.d.levers = _levers(self.d.chain, self.d.nominal_frames())
+        return self.d.levers[key]
+
+
 def _poses(d: Data) -> fx.ChainPoses:
-    return fx.ChainPoses(d.chain.model_values(d.readings), d.levers, d.dirs, d.temp_c)
+    levers = _LaterLevers(d) if d.levers is None else d.levers
+    return fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c)
 
 
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray
