@@ -4,9 +4,9 @@ campaign is a chain campaign whose sensor sees x, y"): the planar validation's c
 diagnosed twice in the same run: by the planar diagnosis, and by the chain diagnosis of its
 static points read as a chain campaign (:func:`cell.measurements.chain.planar_as_chain`:
 two revolute joints in DH, the tool centre a known marker, a sensor that sees x and y).
-The chain vocabulary lacks the comm delay (it reads no moves) and the transmission
-ripples, so truths of those kinds are outside it there; it has the camera's maps about the
-camera centre (``sensor_center_mm``). Prints, per engine,
+The chain vocabulary lacks the comm delay (it reads no moves, and says so) and the
+motor-side ripple, so truths of those kinds are outside it there; it has the transmission
+ripple of 1–4 cycles and the camera's maps about the camera centre (``sensor_center_mm``). Prints, per engine,
 the verdict counts and the confident wrong answers, then the verdicts side by side per
 true effect.
 

@@ -47,7 +47,8 @@ class ChainCampaign:
     ``dirs`` (P, J) the sign of each joint's last motion before the pose (``jK_dir``, 0 where
     the campaign has no column for the joint), None without any ``jK_dir`` column;
     ``extra`` the optional per-point columns ``time_s``, ``temp_c``, ``payload_kg`` (M,)
-    the campaign has."""
+    the campaign has; ``unread`` what the campaign holds that a chain campaign does not
+    carry (a planar campaign's measured moves), '' for none: the diagnosis warns of it."""
 
     spec: ChainSpec
     chain: Chain
@@ -63,6 +64,7 @@ class ChainCampaign:
     directory: Path | None = None
     extra: dict = field(default_factory=dict)
     dirs: np.ndarray | None = None
+    unread: str = ""
 
     @property
     def n_poses(self) -> int:
@@ -347,8 +349,9 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     at the flange, measured in the base frame by a sensor that sees x and y
     (``sensor_axes: [x, y]``) whose centre is the camera's (``sensor_center_mm``);
     ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
-    moves (``paths.csv``) are not part of it; ``directory`` is where ``c`` was read from
-    (messages name its files). Raises CampaignFormatError for a campaign without points."""
+    moves (``paths.csv``) are not part of it, and its ``unread`` says so; ``directory`` is
+    where ``c`` was read from (messages name its files). Raises CampaignFormatError for a
+    campaign without points."""
     if c.points is None:
         raise CampaignFormatError(c.source or "campaign", "no points.csv: only static points "
                                   "make a chain campaign", column="points.csv")
@@ -372,4 +375,7 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
                          np.asarray(p["sample"]), p.get("split"), np.arange(n),
                          np.zeros(n, dtype=np.int64),
                          np.column_stack([p["x_mm"], p["y_mm"], np.zeros(n)]).astype(float), [0],
-                         list(range(2, n + 2)), spec.source, Path(directory), extra, dirs)
+                         list(range(2, n + 2)), spec.source, Path(directory), extra, dirs,
+                         "" if c.paths is None else
+                         f"the measured moves (paths.csv, {len(set(c.paths['move'].tolist()))} "
+                         "moves), which only show effects of motion such as the joints' comm delay")

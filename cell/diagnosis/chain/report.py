@@ -135,6 +135,10 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     noise_hi = None if noise_mm is None else upper95(noise_mm, noise_dof)
     dec = rank.decide(s, noise_hi)
     dec.warnings += outl.warnings
+    if cc.unread:      # what the points show stands; "no effect" does not, unchecked there
+        (dec.notes if dec.chosen is not None else dec.warnings).append(
+            f"the chain diagnosis does not read {cc.unread}: an effect seen only there cannot "
+            "be ruled out")
     if outl.n:
         dec.notes.append(f"{outl.n} measured point(s) lie beyond {outl.cut_mm:.3f} mm of the best "
                          "candidate's residual and were set aside as outliers (outliers)")

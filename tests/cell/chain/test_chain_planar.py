@@ -139,3 +139,20 @@ def test_a_planar_campaigns_camera_map_is_named_by_the_chain_engine(tmp_path, pa
     rep = diagnose_chain(bare)
     assert rep["not_identifiable"][name] == "model.yaml gives no sensor_center_mm"
     assert rep["cause"]["label"] != part.kind
+
+
+def test_a_planar_campaigns_moves_the_chain_engine_does_not_read_are_said(tmp_path):
+    # trial 57 of bench/bench_planar_as_chain.py (seed 1): a comm delay, which shows only in
+    # the measured moves; the chain engine reads the static points, saw nothing, and had
+    # answered none with confidence high
+    tseed = 1 * 100_003 + 57
+    design = validate.draw_layout(tseed, "realistic", 300)
+    rows = planar_truth.draw_rows(tseed, design)
+    camp = read_campaign(planar_truth.write_campaign(
+        tmp_path / "p", [parts.Part("comm_delay", 0, {"frame_delay_s": 0.002})], tseed, design, rows))
+    assert camp.paths is not None
+    cc = planar_as_chain(camp, tmp_path / "p")
+    assert "paths.csv" in cc.unread
+    rep = diagnose_chain(cc)
+    assert rep["cause"]["effect"] == "none" and rep["cause"]["confidence"] == "low", rep["cause"]
+    assert any("does not read the measured moves" in w for w in rep["cause"]["warnings"])
