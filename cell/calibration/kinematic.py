@@ -584,7 +584,8 @@ def holdout_check(chain: DHChain, p, q_hold, measured_hold, *, q_fit, measured_f
     mf = _as_measured(chain, qf, measured_fit, position_only, "measured_fit")
     qf0, qh0 = (qf, qh) if commanded is None else (chain.check_joints(commanded[0], "q_fit"),
                                                     chain.check_joints(commanded[1], "q_hold"))
-    lf, lh = check_lever(lever_fit, qf.shape[0], "lever_fit"), check_lever(lever_hold, qh.shape[0], "lever_hold")
+    lf = check_lever(lever_fit, qf.shape[0], "lever_fit")
+    lh = check_lever(lever_hold, qh.shape[0], "lever_hold")
     before = fit_base(chain, qf0, mf, position_only=position_only, in_base=in_base_fit, lever=lf).p
     rb, mb, pb, pmb = _errors(chain, qh0, mh, before, lh)
     ra, ma, pa, pma = _errors(chain, qh, mh, p, lh)

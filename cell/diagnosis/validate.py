@@ -35,6 +35,7 @@ The trial, the scores and the tables are the one harness of both families,
 """
 from __future__ import annotations
 
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -147,8 +148,8 @@ def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
     default = fx.EFFECTS["cyclic_error"].spec_of("j1_cyclic_period_deg").default
 
     def period(j: str) -> float:
-        orders = {int(k[len(j) + 7:].split("_")[0]) for k in named
-                  if k.startswith(f"{j}_cyclic") and k.endswith(("_sin_deg", "_cos_deg"))}
+        coef = re.compile(rf"{j}_cyclic(\d+)_(?:sin|cos)_deg")
+        orders = {int(m.group(1)) for k in named if (m := coef.fullmatch(k))}
         if len(orders) == 1:
             return 360.0 / orders.pop()
         return float(named.get(f"{j}_cyclic_period_deg", default))
