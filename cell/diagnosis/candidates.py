@@ -22,7 +22,7 @@ import numpy as np
 
 from cell import effects as fx
 from cell.diagnosis.fit import Candidate
-from cell.diagnosis.places import places
+from cell.diagnosis.places import stations
 from cell.diagnosis.replay import DiagData
 from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG  # noqa: F401  (re-exported)
 from cell.effects.thermal_drift import MIN_TEMP_SPREAD_C  # noqa: F401  (re-exported)
@@ -44,7 +44,7 @@ def layout(d: DiagData) -> fx.Layout:
         for j in range(2):
             dirs_seen[j] |= set(distinct(fx.path_directions(m.cmd, m.dirs0)[:, j]).tolist()) - {0.0}
     temp = None if p is None or p.temp is None else np.asarray(p.temp[fit], float)
-    groups = [places(p.cmd[fit]) if p is not None and np.any(fit) else np.zeros(0, int)]
+    groups = [stations(p.cmd[fit]) if p is not None and np.any(fit) else np.zeros(0, int)]
     k = int(groups[0].max()) + 1 if len(groups[0]) else 0
     for i, m in enumerate(fit_moves):
         groups.append(np.full(len(m.cmd), k + i))

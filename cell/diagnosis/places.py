@@ -53,6 +53,17 @@ def regions(centres: np.ndarray, k: int) -> np.ndarray:
                      axis=0)
 
 
+def stations(q: np.ndarray) -> np.ndarray:
+    """The group of every pose for a requirement that looks within each place (a short
+    period sampled densely, :func:`cell.effects.phase_coverage`): its place
+    (:func:`places`), except that the poses alone at their place form one group together.
+    Those are spread, each with a phase of its own; as places of one they would leave
+    nothing to vary within a place."""
+    p = places(q)
+    alone = np.bincount(p)[p] == 1
+    return np.where(alone, -1, p)
+
+
 def folds(q: np.ndarray, max_folds: int | None = None) -> tuple[np.ndarray, int, bool]:
     """(fold of every pose, number of places, True when the poses sit at stations): see the
     module docstring."""

@@ -69,7 +69,8 @@ class Layout:
     (−1, +1); ``temp`` (n_points,) °C of the fit points or None without a temp_c column;
     ``has_center`` the model gives the camera centre; ``moving`` the fit rows hold moves
     whose commands change; ``groups`` (n,) int the place of each row of ``angles`` (poses
-    closer than the places' linkage are one place, each move is one), None: one place."""
+    closer than the places' linkage are one place, the poses alone at theirs one group
+    together, :func:`cell.diagnosis.places.stations`; each move is one), None: one place."""
 
     angles: np.ndarray
     directions: tuple[frozenset, frozenset]
@@ -147,20 +148,28 @@ class PhaseCoverage(Requirement):
 
     def why(self, layout, jidx, joints, params):
         a = layout.angles[:, jidx[0]] if len(layout.angles) else np.zeros(0)
-        n = float(params[self.per_rev])
-        if len(a) < 3:
-            return f"{joints[0]} has {len(a)} fit rows: a period of {360.0 / n:.3g}° needs 3"
-        psi = np.radians(a * n)
-        sc = np.column_stack([np.sin(psi), np.cos(psi)])
-        g = np.zeros(len(a), int) if layout.groups is None else np.asarray(layout.groups)
-        _, inv = np.unique(g, return_inverse=True)
-        means = np.zeros((inv.max() + 1, 2))
-        np.add.at(means, inv, sc)
-        sc = sc - (means / np.bincount(inv)[:, None])[inv]
-        lam = float(np.linalg.eigvalsh(sc.T @ sc / len(a))[0])
-        return "" if lam >= 0.5 * self.min_share else \
-            (f"{joints[0]}'s angles sample the {360.0 / n:.3g}° period too sparsely "
-             f"(phase spread {lam / 0.5:.2f} < {self.min_share})")
+        return phase_coverage(a, float(params[self.per_rev]), layout.groups, joints[0],
+                              self.min_share)
+
+
+def phase_coverage(angles: np.ndarray, per_rev: float, groups: np.ndarray | None, joint: str,
+                   min_share: float = 0.5) -> str:
+    """'' when ``angles`` (deg) sample a period of 360°/``per_rev`` densely within each of
+    their ``groups`` (places; None: one place), else why not (:class:`PhaseCoverage`)."""
+    a = np.asarray(angles, float)
+    if len(a) < 3:
+        return f"{joint} has {len(a)} fit rows: a period of {360.0 / per_rev:.3g}° needs 3"
+    psi = np.radians(a * per_rev)
+    sc = np.column_stack([np.sin(psi), np.cos(psi)])
+    g = np.zeros(len(a), int) if groups is None else np.asarray(groups)
+    _, inv = np.unique(g, return_inverse=True)
+    means = np.zeros((inv.max() + 1, 2))
+    np.add.at(means, inv, sc)
+    sc = sc - (means / np.bincount(inv)[:, None])[inv]
+    lam = float(np.linalg.eigvalsh(sc.T @ sc / len(a))[0])
+    return "" if lam >= 0.5 * min_share else \
+        (f"{joint}'s angles sample the {360.0 / per_rev:.3g}° period too sparsely "
+         f"(phase spread {lam / 0.5:.2f} < {min_share})")
 
 
 @dataclass(frozen=True)
@@ -207,19 +216,23 @@ class ChainPoses:
     values (deg or mm: the readings with the model's zero and sign applied), ``levers``
     (P, J) m the gravity lever of each joint at the nominal pose (format, "Chain
     effects"), ``dirs`` (P, J) the sign of each joint's last motion (``jK_dir``; 0
-    unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; None: not recorded)."""
+    unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; None: not recorded),
+    ``motor_ratio`` per joint the motor turns per joint turn the model states (None: not
+    stated; ``motor_gear_ratio``)."""
 
     q: np.ndarray
     levers: np.ndarray
     dirs: np.ndarray
     temp_c: np.ndarray | None = None
+    motor_ratio: tuple[float | None, ...] = ()
 
 
 @dataclass(frozen=True)
 class OnChain:
     """How the effect applies to a serial chain (:mod:`cell.diagnosis.chain.fit`): its parameters per
     joint are ``<column>_<stem>`` (``stem`` may hold ``{unit}``, the joint's unit), on
-    ``joints`` ``"all"`` or ``"revolute"``; ``"geometric"`` takes the chain's own DH /
+    ``joints`` ``"all"``, ``"revolute"`` or ``"geared"`` (the revolute joints whose motor
+    gear ratio the model states); ``"geometric"`` takes the chain's own DH /
     origin parameter names; ``"arm"`` is one parameter for the whole arm, named ``stem``;
     ``"sensor"`` one parameter, named ``stem``, of a linear map the sensor applies about its
     centre c (``sensor_center_mm``): m = c + M·(y − c), ``sensor_map(value) -> (M (3, 3),
@@ -243,7 +256,11 @@ class OnChain:
     ripple's sine and cosine coefficient at each order, Δq_k = Σ value·term); ``stem`` and
     ``term`` are then not given. ``choice``: the parts come in alternatives of this many
     consecutive parts (a ripple's order), of which the search keeps, per joint, the one that
-    alone best predicts left-out poses (0: every part is kept)."""
+    alone best predicts left-out poses (0: every part is kept). ``coverage(poses, k,
+    places) -> str``: why the fit poses cannot show the effect on joint k ('' when they
+    can; ``places`` (P,) the station of each pose, :func:`cell.diagnosis.places.stations`), a
+    requirement beyond what the parameters' columns tell (a short period sampled densely
+    within each place: :func:`phase_coverage`)."""
 
     joints: str
     stem: str = ""
@@ -259,12 +276,14 @@ class OnChain:
     parts: tuple[tuple[str, Callable[[ChainPoses, int], np.ndarray]], ...] = field(
         default=(), repr=False)
     choice: int = 0
+    coverage: Callable[[ChainPoses, int, np.ndarray], str] | None = field(default=None,
+                                                                          repr=False)
 
     def __post_init__(self):
         if self.parts and (self.term is not None or self.stem
-                           or self.joints not in ("all", "revolute")):
+                           or self.joints not in ("all", "revolute", "geared")):
             raise ValueError(f"OnChain({self.joints!r}): parts replace the stem and the term, "
-                             "on joints 'all' or 'revolute'")
+                             "on joints 'all', 'revolute' or 'geared'")
         if (self.term is None and not self.parts) != (self.joints in ("geometric", "sensor")):
             raise ValueError(f"OnChain({self.joints!r}): a joint term is given exactly when "
                              "the effect is neither geometric nor the sensor's")

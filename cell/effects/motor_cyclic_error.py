@@ -1,6 +1,7 @@
 """motor_cyclic_error: a periodic error of the motor-side gear, seen at the joint N times per
 joint revolution (format: θ_true = θ_cmd + a·sin(2π·N·θ_cmd/360° + φ), N the known
-motor-to-joint gear ratio).
+motor-to-joint gear ratio; on a chain q_true = q + s·sin(N·q) + c·cos(N·q) on the joints
+whose model states N, ``motor_gear_ratio``).
 
 A ripple of the motor's own gear stage (pinion eccentricity, a worn tooth) turns once per
 motor revolution, i.e. N times per joint revolution: at N = 50 its period at the joint is
@@ -20,8 +21,8 @@ import math
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, Effect, Linear, ParamSpec,
-                               PhaseCoverage, grid)
+from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, ChainPoses, Effect, Linear,
+                               OnChain, ParamSpec, PhaseCoverage, Remedy, grid, phase_coverage)
 
 MOTOR_GEAR_RATIO = 50.0     # motor turns per joint turn, when the cell's model does not say
 
@@ -58,9 +59,28 @@ def _from_linear(coef, order):
             "motor_cyclic_phase_deg": math.degrees(math.atan2(cc, cs)) % 360.0}
 
 
+def _motor_harmonic(cosine: bool):
+    """The chain term of one coefficient: Δq_k per degree of it, sin or cos of N_k·q_k (q_k
+    the joint's model value, deg; N_k its stated motor gear ratio)."""
+    def term(poses: ChainPoses, k: int) -> np.ndarray:
+        arg = np.radians(poses.motor_ratio[k] * poses.q[:, k])
+        return np.cos(arg) if cosine else np.sin(arg)
+    return term
+
+
+def _chain_coverage(poses: ChainPoses, k: int, places: np.ndarray) -> str:
+    """:func:`phase_coverage` of joint k's model values at its stated motor gear ratio."""
+    return phase_coverage(poses.q[:, k], poses.motor_ratio[k], places, f"j{k + 1}")
+
+
+# on a chain, linear in its coefficients as cyclic_error: a·sin(Nq + φ) = s·sin(Nq) + c·cos(Nq)
+CHAIN_PARTS = (("motor_cyclic_sin_deg", _motor_harmonic(False)),
+               ("motor_cyclic_cos_deg", _motor_harmonic(True)))
+AMPLITUDE_MAX_DEG = 0.5
+
 EFFECT = Effect(
     "motor_cyclic_error", "transmission", "joint", PLANAR_JOINTS, True,
-    (ParamSpec("motor_cyclic_amp_deg", "deg", "amplitude at the joint", (0.0, 0.5),
+    (ParamSpec("motor_cyclic_amp_deg", "deg", "amplitude at the joint", (0.0, AMPLITUDE_MAX_DEG),
                (0.01, 0.05), False, start=(0.01, 0.45)),
      ParamSpec("motor_cyclic_phase_deg", "deg", "phase at θ = 0", (-INF, INF), (0.0, 360.0),
                False),
@@ -73,4 +93,8 @@ EFFECT = Effect(
     remedy=CALIBRATE_JOINT,
     # amplitude 0, phase 0 / 90°: ∂/∂a is sin(Nθ), then cos(Nθ)
     linear=Linear(({"motor_cyclic_phase_deg": 0.0}, {"motor_cyclic_phase_deg": 90.0}),
-                  _from_linear))
+                  _from_linear),
+    chain=OnChain("geared", unit="deg", parts=CHAIN_PARTS, coverage=_chain_coverage,
+                  remedy=Remedy("calibrate_joint", "Compensate the motor-side ripple over the "
+                                "joint's angle, or service the motor's gear stage: {what}{on}."),
+                  bounds=(-AMPLITUDE_MAX_DEG, AMPLITUDE_MAX_DEG)))

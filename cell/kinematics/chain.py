@@ -40,13 +40,16 @@ JointType = Literal["revolute", "prismatic"]
 @dataclass(frozen=True)
 class Joint:
     """Joint K of the campaign: CSV column ``column`` (``j1`` …), ``name`` in the model,
-    reading unit deg (revolute) or mm (prismatic), limits in the same unit (None: unknown)."""
+    reading unit deg (revolute) or mm (prismatic), limits in the same unit (None: unknown);
+    ``motor_ratio`` the motor turns per joint turn when the model states it (None: not
+    stated), the period of a motor-side ripple at the joint."""
 
     column: str
     name: str
     type: JointType
     lower: float | None = None
     upper: float | None = None
+    motor_ratio: float | None = None
 
     @property
     def unit(self) -> str:

@@ -18,7 +18,7 @@ split. :func:`write_chain_campaign` writes the same layout atomically.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +167,23 @@ def unit(v) -> np.ndarray:
 
 
 def _build_chain(spec: ChainSpec, model_path: Path) -> Chain:
+    chain = _chain_of(spec, model_path)
+    ratios = spec.motor_gear_ratio or {}
+    names = [j.name for j in chain.joints]
+    for name, n in ratios.items():
+        if name not in names:
+            raise CampaignFormatError(model_path, f"motor_gear_ratio names {name!r}, which is not "
+                                      f"one of the joints ({', '.join(names)})",
+                                      column=f"motor_gear_ratio.{name}")
+        if chain.joints[names.index(name)].type != "revolute":
+            raise CampaignFormatError(model_path, f"motor_gear_ratio: {name} is prismatic; a "
+                                      "motor gear ratio is stated for revolute joints",
+                                      column=f"motor_gear_ratio.{name}")
+    chain.joints = [replace(j, motor_ratio=ratios.get(j.name)) for j in chain.joints]
+    return chain
+
+
+def _chain_of(spec: ChainSpec, model_path: Path) -> Chain:
     g = unit(spec.gravity)
     coupling = [{"joint": c.joint, "from": c.from_, "factor": c.factor} for c in spec.coupling]
     if spec.kinematics == "dh":
@@ -345,7 +362,8 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
 def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     """The static points of a v1 (SCARA) campaign ``c`` (:class:`~cell.measurements.Campaign`)
     as the chain campaign they are: two revolute joints in standard DH (a = ``l1_mm``,
-    ``l2_mm``; α, d, θ zero; ``joint_limits_deg`` as limits), the tool centre a known marker
+    ``l2_mm``; α, d, θ zero; ``joint_limits_deg`` as limits; the v1 motor gear ratio, 50
+    as the format has it unless stated), the tool centre a known marker
     at the flange, measured in the base frame by a sensor that sees x and y
     (``sensor_axes: [x, y]``) whose centre is the camera's (``sensor_center_mm``);
     ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
@@ -361,9 +379,11 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
                   theta_deg=0.0, limits=None if lim is None else tuple(lim))
             for k, (a, lim) in enumerate(zip((m.l1_mm, m.l2_mm), limits))]
     centre = None if m.camera is None else (*map(float, m.camera.center_mm), 0.0)
+    from cell.effects.motor_cyclic_error import MOTOR_GEAR_RATIO   # v1: "50 unless stated"
     spec = ChainSpec(format=FORMAT, kinematics="dh", joints=rows, measurement_frame="base",
                      markers={0: (0.0, 0.0, 0.0)}, sensor_axes=("x", "y"),
-                     sensor_center_mm=centre, source=c.source or "planar campaign")
+                     sensor_center_mm=centre, source=c.source or "planar campaign",
+                     motor_gear_ratio={r.name: MOTOR_GEAR_RATIO for r in rows})
     p = c.points
     n = len(p["sample"])
     chain = build_chain(spec, Path(directory) / "model.yaml")

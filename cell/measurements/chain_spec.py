@@ -68,6 +68,16 @@ def pydantic_models() -> tuple[type, type, type]:
         source: str = ""
         sensor_axes: tuple[Literal["x", "y", "z"], ...] = AXES
         sensor_center_mm: tuple[float, float, float] | None = None
+        motor_gear_ratio: dict[str, float] | None = None
+
+        @field_validator("motor_gear_ratio")
+        @classmethod
+        def _ratios(cls, v):
+            bad = [f"{k}: {n:g}" for k, n in (v or {}).items() if not n > 0]
+            if bad:
+                raise ValueError(f"a motor gear ratio is a positive number of motor turns per "
+                                 f"joint turn, not {', '.join(bad)}")
+            return v
 
         @field_validator("sensor_axes")
         @classmethod
@@ -134,6 +144,16 @@ def _plain_markers(v):
     return out
 
 
+def _plain_ratios(v):
+    """``v`` as {joint name: motor turns per joint turn} when a mapping of names to positive
+    numbers, else None."""
+    if not isinstance(v, dict):
+        return None
+    out = {k: _number(n) for k, n in v.items()}
+    return out if all(isinstance(k, str) and n is not None and n > 0 for k, n in out.items()) \
+        else None
+
+
 def _plain_axes(v) -> bool:
     """``v`` names two or three of x, y, z, each once, in that order."""
     return isinstance(v, (list, tuple)) and len(v) >= 2 and all(a in AXES for a in v) \
@@ -171,6 +191,10 @@ def _plain_spec(data) -> dict | None:
     if out["sensor_center_mm"] is not None:
         out["sensor_center_mm"] = _numbers(out["sensor_center_mm"], 3)
         if out["sensor_center_mm"] is None:
+            return None
+    if out["motor_gear_ratio"] is not None:
+        out["motor_gear_ratio"] = _plain_ratios(out["motor_gear_ratio"])
+        if out["motor_gear_ratio"] is None:
             return None
     if out["tool_mm"] is None or out["gravity"] is None or out["markers"] is None \
             or not _plain_axes(out["sensor_axes"]):
@@ -224,7 +248,9 @@ class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models(
     sensor sees, two or three of x, y, z in that order (default all three).
     ``sensor_center_mm`` (this project's addition, optional) the point of the measurement
     frame a camera-like sensor's scale and rotation errors act about (its optical centre;
-    the rotation is about the frame's z axis). Every number must be finite. Validated on
+    the rotation is about the frame's z axis). ``motor_gear_ratio`` (this project's
+    addition, optional) {joint name: motor turns per joint turn} of the joints whose drive
+    states it: the period of a motor-side ripple at the joint. Every number must be finite. Validated on
     construction as the pydantic model of :func:`pydantic_models` (module docstring): bad input raises
     pydantic's ValidationError. :meth:`model_validate` and :meth:`model_dump` as
     pydantic's."""
@@ -244,6 +270,7 @@ class ChainSpec(PlainFirst, plain=_plain_spec, pydantic=lambda: pydantic_models(
     source: str = ""
     sensor_axes: tuple[str, ...] = AXES
     sensor_center_mm: tuple[float, float, float] | None = None
+    motor_gear_ratio: dict[str, float] | None = None
 
     def as_input(self) -> dict:
         """The fields as ``model.yaml`` holds them (rows and terms as mappings)."""

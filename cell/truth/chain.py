@@ -16,7 +16,9 @@ Effects it can put into a campaign (``effects`` maps a name to its size):
   times its size at the pose's temperature T (``temp_c``; the format's thermal_drift, its
   reference temperature 20 °C); ``cyclic`` {joint: (amplitude deg, cycles per revolution,
   phase deg)} (a transmission ripple a·sin(n·reading + φ); the vocabulary's cyclic_error
-  for 1–4 cycles, outside it for more);
+  for 1–4 cycles, outside it for more); ``motor`` {joint: (amplitude deg, motor gear ratio
+  N, phase deg)} (a ripple of the motor-side gear, a·sin(N·reading + φ): the vocabulary's
+  motor_cyclic_error, N as model.yaml's ``motor_gear_ratio`` states it);
 * outside it: ``lens`` (radial scale of the sensor about its origin, 1/m),
   ``reach_sag`` (tool drops by k·reach², mm/m²), ``bump`` {joint: deg} (an offset from
   the middle pose on), ``couple`` (joint 3 turns by factor × joint 2's reading),
@@ -68,6 +70,9 @@ def _chain(rows, q, modified, eff, pose_index, n_poses, dirs=None, size=1.0):
         if name in eff.get("cyclic", {}):
             amp, cycles, phase = eff["cyclic"][name]
             qk += amp * math.sin(cycles * q[k] * DEG + phase * DEG)
+        if name in eff.get("motor", {}):
+            amp, ratio, phase = eff["motor"][name]
+            qk += amp * math.sin(ratio * q[k] * DEG + phase * DEG)
         th = r["theta_deg"] + (qk if r["type"] == "revolute" else 0.0)
         d = size * (r["d_mm"] + eff.get("d", {}).get(name, 0.0)
                      + (qk if r["type"] == "prismatic" else 0.0))

@@ -12,28 +12,13 @@ effects and the best with every other) with ``.venv/bin/python`` running exactly
   right 58, ambiguous 39, ambiguous with the truth missing 2, unexplained 21, wrong 0;
   78 of 81 true values inside their 95 % intervals;
 * planar, 30 trials outside the vocabulary (seed 1): unexplained 29, right (none) 1, wrong 0;
-* chain, 80 vocabulary trials (seed 1, 60 poses), measured when cyclic_error (1–4 cycles
-  per revolution) joined the chain vocabulary, by ``cellctl diagnose validate --chain
-  --trials 80 --seed 1``, once the ripple's kept order was judged on its own (not against
-  the orders left out): right 31, ambiguous 44, ambiguous with the truth missing 5,
-  unexplained 0, wrong 0; 35 of 36 intervals cover (before that: right 28, ambiguous 47,
-  29 of 30 intervals; other truths are drawn since; before,
-  when the chain decision took untestable effects as rivals of what they mimic and judged
-  the fit against the noise's 95 % upper bound: right 33, ambiguous 43, truth missing 4,
-  unexplained 0, 34 of 35 intervals; before that: right 36, ambiguous 38, truth missing 4, unexplained 2, 40 of 41 intervals, when
-  the chain fit bounded backlash and compliance at zero and checked the remainder for a
-  ripple; when thermal growth
-  joined the chain vocabulary, half the campaigns recording ``temp_c`` while the arm warms
-  up: ambiguous 39, truth missing 3, the rest the same;
-  before, with other truths: without thermal growth right 39, ambiguous 39, truth missing 1,
-  unexplained 1; without backlash right 40, ambiguous 34, truth missing 3, unexplained 3;
-  before the chain's outlier step, cell/diagnosis/chain/robust.py: right 18, ambiguous 12,
-  unexplained 50);
-* chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``; its ripple now
-  of 5–8 cycles): unexplained 11, ambiguous with the truth missing 11, right (none) 2, wrong
-  0 (with a ripple of 2–4 cycles: truth missing 12, right 1; before the noise's upper
-  bound: unexplained 12, truth missing 11; before the outlier step:
-  unexplained 19, wrong 1; glitches had made most of them unexplained).
+* chain, 80 vocabulary trials (seed 1, 60 poses), by ``cellctl diagnose validate --chain
+  --trials 80 --seed 1``, measured when motor_cyclic_error joined the chain vocabulary (the
+  validation arm states its motor gear ratios): right 29, ambiguous 47, ambiguous with the
+  truth missing 4, unexplained 0, wrong 0; 31 of 32 intervals cover (the earlier goldens
+  and what moved them are in the history of this file);
+* chain, 24 trials outside the vocabulary (seed 1, ``--out-of-vocabulary 1``): unexplained
+  11, ambiguous with the truth missing 11, right (none) 1, ambiguous 1, wrong 0.
 
 Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials and the
 truth named or among the rivals by 5, so the decision logic can move a few answers between
@@ -125,8 +110,8 @@ def test_planar_outside_the_vocabulary():
 def test_chain_vocabulary_accuracy(chain_vocab):
     v = chain_vocab["verdicts"]
     assert sum(v.values()) == 80
-    assert v["right"] >= 31 - 5, v
-    assert v["right"] + v["ambiguous"] >= 75 - 5, v
+    assert v["right"] >= 29 - 5, v
+    assert v["right"] + v["ambiguous"] >= 76 - 5, v
     assert v["unexplained"] <= 0 + 5, v
     assert v["wrong"] == 0, chain_vocab["wrong"]
 

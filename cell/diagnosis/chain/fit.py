@@ -31,7 +31,7 @@ import numpy as np
 from cell import effects as fx
 from cell.diagnosis import leaveout
 from cell.diagnosis.leaveout import scaled
-from cell.diagnosis.places import folds as place_folds
+from cell.diagnosis.places import folds as place_folds, stations
 import cell.kinematics as kin
 from cell.kinematics import identifiable
 from cell.kinematics.chain import Chain
@@ -101,7 +101,8 @@ def vocabulary(chain: Chain) -> list[Param]:
                 out.append(Param(pn, name, int(pn.split("_")[0][1:]) - 1, op, pn.rsplit("_", 1)[1]))
             continue
         for k, j in enumerate(chain.joints):
-            if use.joints == "revolute" and j.type != "revolute":
+            if use.joints in ("revolute", "geared") and j.type != "revolute" \
+                    or use.joints == "geared" and j.motor_ratio is None:
                 continue
             for part, (stem, _) in enumerate(use.terms()):
                 out.append(Param(f"{j.column}_{stem.format(unit=j.unit)}", name, k,
@@ -314,7 +315,8 @@ class _LaterLevers:
 
 def _poses(d: Data) -> fx.ChainPoses:
     levers = _LaterLevers(d) if d.levers is None else d.levers
-    return fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c)
+    return fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c,
+                         tuple(j.motor_ratio for j in d.chain.joints))
 
 
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray
@@ -630,11 +632,15 @@ def predict_rms(d: Data, f: Fit, keep: np.ndarray | None = None) -> tuple[float,
 class Identifiability:
     """Which of a parameter pool the data can see beside registration: ``kept`` in
     priority order; ``dropped`` name → reason; ``warnings`` name → warning for the kept
-    parameters that registration (or the others) almost absorb."""
+    parameters that registration (or the others) almost absorb; ``lacking`` the dropped
+    names the campaign could show were it measured otherwise: its effect's column missing
+    (:attr:`cell.effects.OnChain.unseen`) or hardly varying (``still``), or its poses not
+    covering what the effect needs (``coverage``)."""
 
     kept: list[Param]
     dropped: dict[str, str]
     warnings: dict[str, str]
+    lacking: frozenset = frozenset()
 
 
 def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: list[Param] = ()
@@ -646,20 +652,34 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     term varies over the poses by less than its effect's ``min_spread`` is dropped first
     (:attr:`cell.effects.OnChain.still`: a temperature that hardly changes); one whose term
     stays below :data:`TERM_EPS` on every pose has no effect (its column is rounding noise,
-    which scaled to unit length would look like a direction of its own)."""
+    which scaled to unit length would look like a direction of its own); one whose effect's
+    ``coverage`` fails on the poses (grouped by :func:`cell.diagnosis.places.stations`) is
+    dropped with its reason
+    (:attr:`cell.effects.OnChain.coverage`)."""
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
     dropped: dict[str, str] = {}
     poses = _poses(d)
     rounding = set()                       # terms that are zero but for rounding
+    lacking = set()
+    where = None
     for p in list(allp):
         use = fx.CHAIN_EFFECTS[p.effect].chain
         if p.term is None:
             continue
+        if use.coverage is not None:
+            where = stations(d.readings) if where is None else where
+            why = use.coverage(poses, p.joint, where)
+            if why:
+                dropped[p.name] = why
+                lacking.add(p.name)
+                allp.remove(p)
+                continue
         v = p.term(poses, p.joint)
         if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
             rounding.add(p.name)
         elif use.min_spread > 0 and np.any(v) and float(np.ptp(v)) < use.min_spread:
             dropped[p.name] = use.still
+            lacking.add(p.name)
             allp.remove(p)
     _, J = model(d, reg, allp, np.zeros(len(allp)), jac=True)
     nr = n_registration(d)
@@ -674,8 +694,10 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     for i, p in enumerate(allp):
         left = span.left[i]
         if i not in unit:
-            dropped[p.name] = fx.CHAIN_EFFECTS[p.effect].chain.unseen \
-                or "has no effect on the measured points"
+            unseen = fx.CHAIN_EFFECTS[p.effect].chain.unseen
+            dropped[p.name] = unseen or "has no effect on the measured points"
+            if unseen:
+                lacking.add(p.name)
         elif i not in span.kept:
             if span.outside(unit[i], span.Q0) < STRUCTURAL_TOL:
                 dropped[p.name] = "absorbed by the registration (sensor frame / marker positions)"
@@ -686,7 +708,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
         elif 1.0 / left ** 2 > MAX_VIF:
             warnings[p.name] = (f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like "
                                 "the registration or other parameters; they are hard to tell apart")
-    return Identifiability([allp[i] for i in span.kept], dropped, warnings)
+    return Identifiability([allp[i] for i in span.kept], dropped, warnings, frozenset(lacking))
 
 
 def _partners(v: np.ndarray, kept: list[Param], cols: list[np.ndarray]) -> list[str]:

@@ -361,6 +361,21 @@ def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
     return out
 
 
+def lacking(s: Search) -> list[str]:
+    """The effects the campaign cannot test for what it lacks, not for the arm's geometry
+    (:attr:`cell.diagnosis.chain.fit.Identifiability.lacking`), one phrase each: the effect,
+    its joints and the first reason."""
+    out = []
+    for e, ident in s.idents.items():
+        names = [n for n in ident.dropped if n in ident.lacking]
+        if names:
+            voc = {p.name: p for p in F.vocabulary(s.fit_d.chain)}
+            js = sorted({voc[n].joint for n in names if n in voc and voc[n].on_joint})
+            on = f" on {', '.join(f'j{k + 1}' for k in js)}" if js else ""
+            out.append(f"{e}{on} ({ident.dropped[names[0]]})")
+    return out
+
+
 def choose(s: Search) -> tie.Choice:
     """The rule of both families (:func:`cell.diagnosis.tie.choose`) over the ranking:
     tied with the best over left-out folds, and of the tied candidates that predict
@@ -395,10 +410,11 @@ def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     return out
 
 
-def decide(s: Search, noise_mm: float | None) -> Decision:
+def decide(s: Search, noise_mm: float | None, noise_est: float | None = None) -> Decision:
     """Name a cause, ``none``, and whether most of the gap is left unexplained.
     ``noise_mm`` is what σ per axis of one point measurement may be, at most (the 95 %
-    upper bound of its estimate, :func:`cell.diagnosis.noise.upper95`; None: unknown).
+    upper bound of its estimate, :func:`cell.diagnosis.noise.upper95`; None: unknown),
+    ``noise_est`` the estimate itself (None: take ``noise_mm``).
 
     The candidate with the lowest leave-out error is tested against registration alone
     (over poses, each left out alone: is there an effect at all);
@@ -410,7 +426,9 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
     parameter that the registration and the other parameters almost absorb (variance
     inflation above :data:`cell.diagnosis.chain.fit.MAX_VIF`) is not confident: the
     campaign hardly sees it apart from them. Neither is ``none`` when the best candidate's
-    test falls short of ``ALPHA`` but not of :data:`HINT_ALPHA`: the campaign hints at it."""
+    test falls short of ``ALPHA`` but not of :data:`HINT_ALPHA`: the campaign hints at it;
+    nor when the gap, though within what the noise may be, is above :data:`NOISE_FACTOR` ×
+    its estimate while effects the campaign cannot test (:func:`lacking`) could hide there."""
     f0 = s.nominal.fit
     notes: list[str] = []
     best = s.ranking[0] if s.ranking else None
@@ -485,6 +503,13 @@ def decide(s: Search, noise_mm: float | None) -> Decision:
                         "than measured")
     gap = f0.rms
     if noise3 is not None and gap <= NOISE_FACTOR * noise3:
+        est3 = noise3 if noise_est is None else noise_est * math.sqrt(s.fit_d.dims)
+        hidden = lacking(s) if chosen is None and gap > NOISE_FACTOR * est3 else []
+        if hidden:
+            warnings.append(f"the gap ({gap:.3f} mm) is {gap / est3:.1f}× the noise estimate "
+                            f"({est3:.3f} mm {s.fit_d.dims}-D), within what the noise may be, and "
+                            f"this campaign cannot test {'; '.join(hidden)}: measure what they "
+                            "lack before concluding there is no effect")
         if chosen is not None:
             notes.append(f"the gap ({gap:.3f} mm) is within {NOISE_FACTOR:g}× the noise "
                          f"({noise3:.3f} mm {s.fit_d.dims}-D{UP}); the named cause is small")

@@ -133,7 +133,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     # judged against what the noise may be, not its estimate: a σ from one revisited pose
     # (two degrees of freedom) must not make a gap look systematic
     noise_hi = None if noise_mm is None else upper95(noise_mm, noise_dof)
-    dec = rank.decide(s, noise_hi)
+    dec = rank.decide(s, noise_hi, noise_mm)
     dec.warnings += outl.warnings
     if cc.unread:      # what the points show stands; "no effect" does not, unchecked there
         (dec.notes if dec.chosen is not None else dec.warnings).append(

@@ -32,6 +32,11 @@ growth does.
 * ``cyclic_error``: j2 or j3, a ripple of 0.02–0.08° with 1–4 cycles per revolution at a
   random phase (the truth's ``cyclic``; its true coefficients are
   ``jK_cyclicN_sin_deg`` = a·cos φ and ``jK_cyclicN_cos_deg`` = a·sin φ);
+* ``motor_cyclic_error``: j2 or j3, a ripple of the motor-side gear of 0.01–0.05° at the
+  joint (the v1 effect's range) with :data:`MOTOR_RATIO` cycles per revolution, at a random
+  phase (the truth's ``motor``; true coefficients ``jK_motor_cyclic_sin_deg`` = a·cos φ,
+  ``jK_motor_cyclic_cos_deg`` = a·sin φ). Every campaign's model.yaml states that ratio for
+  every joint (``motor_gear_ratio``), as a user who knows the drives would;
 * ``thermal_drift``: every length of the arm grows by 1.5–3·10⁻⁵ /K (an aluminium arm
   such as the UR5 has about 2.3·10⁻⁵). With the warm-up's 8–15 °C that moves the tool by
   0.07–0.3 mm at the arm's reach, above the tracker's noise as every other drawn effect is;
@@ -73,7 +78,7 @@ from cell.diagnosis.chain.report import diagnose_chain
 from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
 from cell.measurements import read_campaign
 from cell.truth import verdict as vd
-from cell.truth.chain_campaign import MARKERS, make
+from cell.truth.chain_campaign import MARKERS, UR5, make
 
 # the chain vocabulary (cell.diagnosis.chain.fit.EFFECTS) but the sensor's own maps: the
 # campaigns drawn here give no sensor_center_mm (a planar campaign read as a chain one
@@ -82,6 +87,8 @@ VOCABULARY = ("none",) + tuple(n for n, e in fx.CHAIN_EFFECTS.items() if e.chain
 OUTSIDE = ("lens", "reach_sag", "bump", "couple", "cyclic", "plane_bump")
 LAYOUTS = ("realistic", "uniform")
 TWO_SHARE = 0.25
+MOTOR_RATIO = 100.0    # motor turns per joint turn the validation arm states: a strain-wave
+                       # gear's usual order (a 3.6° period at the joint)
 LINKS = (("j2", "a", "a_mm"), ("j3", "a", "a_mm"), ("j2", "alpha", "alpha_deg"),
          ("j3", "alpha", "alpha_deg"), ("j4", "alpha", "alpha_deg"), ("j5", "d", "d_mm"))
 
@@ -136,6 +143,12 @@ def draw(rng: np.random.Generator, kind: str) -> Truth:
         j = str(rng.choice(["j2", "j3"]))
         x = float(rng.uniform(0.02, 0.1))
         return Truth(kind, (j,), {"backlash": {j: x}}, 0.0, {f"{j}_backlash_deg": x})
+    if kind == "motor_cyclic_error":
+        j = str(rng.choice(["j2", "j3"]))
+        a, ph = float(rng.uniform(0.01, 0.05)), float(rng.uniform(0, 360))
+        return Truth(kind, (j,), {"motor": {j: (a, MOTOR_RATIO, ph)}}, 0.0,
+                     {f"{j}_motor_cyclic_sin_deg": a * math.cos(math.radians(ph)),
+                      f"{j}_motor_cyclic_cos_deg": a * math.sin(math.radians(ph))})
     if kind == "thermal_drift":
         x = float(rng.uniform(1.5e-5, 3e-5))
         return Truth(kind, (), {"grow": x}, 0.0, {"thermal_expansion_per_k": x})
@@ -248,7 +261,8 @@ def judge_truth(i: int, tseed: int, truth: Truth, noise: float, lay: dict, poses
            "temps": lay.get("temps", False) or "grow" in truth.effects}
     with tempfile.TemporaryDirectory(prefix="cell-chain-validate-") as tmp:
         d = make(Path(tmp) / "campaign", truth.effects, poses=poses, noise_mm=noise, seed=tseed,
-                 markers=MARKERS, lens=truth.lens, repeats=max(3, poses // 10), **lay)
+                 markers=MARKERS, lens=truth.lens, repeats=max(3, poses // 10),
+                 model_extra={"motor_gear_ratio": {r["name"]: MOTOR_RATIO for r in UR5}}, **lay)
         t0 = time.process_time()
         rep = diagnose_chain(read_campaign(d))
         secs = time.process_time() - t0

@@ -161,3 +161,29 @@ def test_a_sensor_centre_that_is_not_three_finite_numbers_is_refused(tmp_path, c
         read_campaign(d)
     assert exc.value.file.endswith("model.yaml") and exc.value.column == where, str(exc.value)
     assert exc.value.line and (d / "model.yaml").read_bytes() == before
+
+
+@pytest.mark.parametrize("ratios, where, says", [
+    ({"j9": 50.0}, "motor_gear_ratio.j9", "not one of the joints"),
+    ({"j2": 0.0}, "motor_gear_ratio", "positive number of motor turns per joint turn, not j2: 0"),
+    ({"j2": "fifty"}, "motor_gear_ratio.j2", "must be a valid number"),
+    ([50.0, 50.0], "motor_gear_ratio", "must be a mapping")])
+def test_a_motor_gear_ratio_that_is_not_a_joints_positive_number_is_refused(tmp_path, ratios, where,
+                                                                              says):
+    d = chainsim.make(tmp_path / "c", {}, poses=10)
+    _edit_model(d, motor_gear_ratio=ratios)
+    before = (d / "model.yaml").read_bytes()
+    with pytest.raises(CampaignFormatError, match=says) as exc:
+        read_campaign(d)
+    assert exc.value.file.endswith("model.yaml") and exc.value.column == where, str(exc.value)
+    assert (d / "model.yaml").read_bytes() == before
+
+
+def test_a_motor_gear_ratio_on_a_prismatic_joint_is_refused(tmp_path):
+    rows = [dict(r) for r in chainsim.UR5]
+    rows[2]["type"] = "prismatic"
+    d = chainsim.make(tmp_path / "c", {}, poses=10, rows=rows)
+    _edit_model(d, motor_gear_ratio={"j3": 50.0})
+    with pytest.raises(CampaignFormatError, match="j3 is prismatic") as exc:
+        read_campaign(d)
+    assert exc.value.column == "motor_gear_ratio.j3"

@@ -47,7 +47,8 @@ def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modifie
     eff = {"offset": {"j2": 0.3, "j5": -0.2}, "a": {"j3": 1.5}, "d": {"j4": -0.7},
            "alpha": {"j2": 0.05}, "ratio": {"j3": 0.002}, "sag": {"j2": 0.4, "j3": 0.2}}
     rows = chainsim.UR5
-    d = chainsim.make(tmp_path / "c", None, poses=8, noise_mm=0.0, sensor=False, modified=modified)
+    d = chainsim.make(tmp_path / "c", None, poses=8, noise_mm=0.0, sensor=False, modified=modified,
+                      model_extra={"motor_gear_ratio": {"j5": 80.0}})
     cc = read_campaign(d)
     voc = {p.name: p for p in F.vocabulary(cc.chain)}
     names = {"offset": "{j}_offset_deg", "a": "{j}_a_mm", "d": "{j}_d_mm", "alpha": "{j}_alpha_deg",
@@ -61,6 +62,11 @@ def test_chain_model_agrees_with_the_independent_forward_model(tmp_path, modifie
     eff["cyclic"] = {"j4": (0.05, 3, 40.0)}
     params += [voc["j4_cyclic3_sin_deg"], voc["j4_cyclic3_cos_deg"]]
     values += [0.05 * math.cos(math.radians(40.0)), 0.05 * math.sin(math.radians(40.0))]
+    # a motor-side ripple a·sin(N·q + φ) on j5, N = 80 as model.yaml states: likewise
+    eff["motor"] = {"j5": (0.03, 80.0, -120.0)}
+    params += [voc["j5_motor_cyclic_sin_deg"], voc["j5_motor_cyclic_cos_deg"]]
+    values += [0.03 * math.cos(math.radians(-120.0)), 0.03 * math.sin(math.radians(-120.0))]
+    assert not any("motor" in n for n in voc if not n.startswith("j5_"))   # N stated for j5 only
     data = F.Data.of(cc)
     reg = F.Registration(np.eye(3), np.zeros(3), np.array(chainsim.MARKERS))
     got, _ = F.model(data, reg, params, np.array(values))
@@ -73,11 +79,14 @@ def test_every_jacobian_column_matches_finite_differences(tmp_path):
     # every parameter of the vocabulary at once, the sensor's scale and rotation about a
     # centre among them: each column is taken through the others' maps
     d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True, temps=True,
-                      model_extra={"sensor_center_mm": [120.0, -80.0, 400.0]})
+                      model_extra={"sensor_center_mm": [120.0, -80.0, 400.0],
+                                   "motor_gear_ratio": {"j2": 50.0, "j3": 101.0}})
     cc = read_campaign(d)
     data = F.Data.of(cc)
     params = F.vocabulary(cc.chain)
     assert {p.name for p in params if p.sensor} == {"camera_scale_rel", "camera_rotation_deg"}
+    assert {p.name for p in params if p.effect == "motor_cyclic_error"} == {
+        f"j{k}_motor_cyclic_{f}_deg" for k in (2, 3) for f in ("sin", "cos")}
     v0 = np.linspace(-0.01, 0.01, len(params))
     reg = F.initial_registration(data)
     y0, J = F.model(data, reg, params, v0, jac=True)

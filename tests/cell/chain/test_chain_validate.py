@@ -15,7 +15,8 @@ def test_vocabulary_truths_are_named_with_their_joints_and_covered():
     # the uniform layout (poses spread out, no outliers); the realistic one's accuracy is
     # asserted in tests/cell/test_validation_accuracy.py
     ts = validate.run(8, seed=0, layout="uniform")
-    assert {t.true_effect for t in ts} >= {"gravity_compliance", "thermal_drift", "cyclic_error"}
+    assert {t.true_effect for t in ts} >= {"gravity_compliance", "thermal_drift",
+                                           "motor_cyclic_error"}
     assert all(t.joint_ok for t in ts), [(t.true_effect, t.answer, t.named_joints) for t in ts]
     s = validate.summarise(ts)
     assert s["effect_accuracy"] == 1.0 and s["trials"] == 8
