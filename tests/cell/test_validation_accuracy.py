@@ -27,9 +27,9 @@ Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
 the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
 cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
 cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
-in cell/kinematics/evaluate.py forward(): right 16, unexplained 33, wrong 1; the twist in
-cell/kinematics/evaluate.py: right 13, unexplained 53, wrong 4; both measured again with
-cyclic_error in the chain vocabulary and its kept order judged on its own).
+in cell/kinematics/evaluate.py forward(): right 14, unexplained 43; the twist in
+cell/kinematics/evaluate.py: right 11, unexplained 53, wrong 3; both measured again with
+motor_cyclic_error in the chain vocabulary).
 """
 import math
 
