@@ -1,14 +1,12 @@
 """How far the chain diagnosis is from diagnosing planar campaigns (issue 22, "a planar
 campaign is a chain campaign whose sensor sees x, y"): the planar validation's campaigns
 (:mod:`cell.diagnosis.validate`, the independent truth of :mod:`cell.truth`), each
-diagnosed twice in the same run: by the planar diagnosis, and by the chain diagnosis of its
-static points read as a chain campaign (:func:`cell.measurements.chain.planar_as_chain`:
-two revolute joints in DH, the tool centre a known marker, a sensor that sees x and y).
-The chain vocabulary lacks the comm delay (it reads no moves, and says so) and the
-motor-side ripple, so truths of those kinds are outside it there; it has the transmission
-ripple of 1–4 cycles and the camera's maps about the camera centre (``sensor_center_mm``). Prints, per engine,
-the verdict counts and the confident wrong answers, then the verdicts side by side per
-true effect.
+diagnosed twice in the same run: by the planar diagnosis, and by the chain diagnosis of the
+campaign read as a chain campaign (:func:`cell.measurements.chain.planar_as_chain`: two
+revolute joints in DH, the tool centre a known marker, a sensor that sees x and y; each
+sample of a measured move a pose at the commanded angles). Prints, per engine, the verdict
+counts, the median CPU seconds of one diagnosis in this process, and the confident wrong
+answers, then the verdicts side by side per true effect.
 
     .venv/bin/python bench/bench_planar_as_chain.py [--trials 60] [--seed 1] [--outside 0]
 """

@@ -66,14 +66,22 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
     """Leave-one-fold-out of the least-squares fit with design ``J`` and residuals ``r``
     at its solution, folds ``group`` per point: (rms of the held-out point errors, per-fold
     error (G,), (JᵀJ)⁻¹ of the column-scaled design, the scales). All folds at once
-    (padded blocks); a singular ``I − H_gg`` gives inf."""
+    (padded blocks); a singular ``I − H_gg`` gives inf. A fold of more rows R than columns
+    n (a measured move's samples) is taken out of the normal equations instead, the same
+    residual at an n × n solve: e_g = r_g + J_g (A − J_gᵀJ_g)⁻¹ J_gᵀ r_g."""
     Js, scale = scaled(J)
-    Ainv = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
+    A = Js.T @ Js
+    Ainv = np.linalg.pinv(A, rcond=1e-12)
     Jg, rg, pad = blocks(Js, r, group, n_groups, dims)          # (G, R, n), (G, R)
-    H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
-    I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
     try:
-        loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
+        if rg.shape[1] > Js.shape[1]:
+            Gg = Jg.transpose(0, 2, 1) @ Jg
+            c = np.einsum("grn,gr->gn", Jg, rg)
+            loo = rg + np.einsum("grn,gn->gr", Jg, np.linalg.solve(A - Gg, c[..., None])[..., 0])
+        else:
+            H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
+            I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
+            loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
     except np.linalg.LinAlgError:
         return math.inf, np.full(n_groups, math.inf), Ainv, scale
     ss = np.sum(loo * loo, axis=1)

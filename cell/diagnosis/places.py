@@ -18,27 +18,30 @@ MAX_SHARE = 0.5       # a place holding more of the poses means they are spread,
 
 def places(q: np.ndarray, block: int = 512) -> np.ndarray:
     """Place index of every pose (rows of joint readings ``q``, deg or mm): connected
-    components of poses closer than :data:`LINK_DEG` (union-find over the close pairs,
-    found block by block)."""
+    components of poses closer than :data:`LINK_DEG` (the close pairs found block by block;
+    each pose takes the least index it is linked to until none changes, with pointer
+    jumping), numbered in the order of their first pose."""
     q = np.asarray(q, float)
     n = len(q)
-    parent = np.arange(n)
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
+    ii, jj = [], []
     for s0 in range(0, n, block):
         d2 = np.sum((q[s0:s0 + block, None, :] - q[None, :, :]) ** 2, axis=2)
-        ii, jj = np.nonzero(d2 < LINK_DEG ** 2)
-        for i, j in zip(ii + s0, jj):
-            if i < j:
-                ri, rj = find(int(i)), find(int(j))
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
-    roots = np.array([find(i) for i in range(n)], int)
-    return np.unique(roots, return_inverse=True)[1] if n else roots
+        i, j = np.nonzero(d2 < LINK_DEG ** 2)
+        keep = i + s0 < j
+        ii.append(i[keep] + s0)
+        jj.append(j[keep])
+    lab = np.arange(n)
+    if n and sum(len(i) for i in ii):
+        ii, jj = np.concatenate(ii), np.concatenate(jj)
+        while True:
+            new = lab.copy()
+            np.minimum.at(new, ii, lab[jj])
+            np.minimum.at(new, jj, lab[ii])
+            new = new[new]
+            if np.array_equal(new, lab):
+                break
+            lab = new
+    return np.unique(lab, return_inverse=True)[1] if n else lab
 
 
 def regions(centres: np.ndarray, k: int) -> np.ndarray:

@@ -34,10 +34,9 @@ import numpy as np
 from cell import effects as fx
 from cell.kinematics import PlanarArm
 from cell.measurements import Campaign, CampaignFormatError
+from cell.measurements.campaign import SPLIT_SEED, drawn_fit, first_step
 from cell.numerics.stats import median
 
-SPLIT_SEED = 20260501      # seed of the generated 70/30 split (any fixed value: repeatable)
-HOLDOUT_SHARE = 0.3
 
 
 @dataclass
@@ -122,20 +121,13 @@ def _geometry(c: Campaign) -> PlanarArm:
 def _split(table: dict, n_units: int, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     if "split" in table:
         return None, "file"
-    hold = np.zeros(n_units, bool)
-    k = max(1, int(round(HOLDOUT_SHARE * n_units))) if n_units > 1 else 0
-    hold[rng.permutation(n_units)[:k]] = True
-    return ~hold, "generated"
+    return drawn_fit(n_units, rng), "generated"
 
 
 def first_step_dirs(cmd: np.ndarray) -> np.ndarray:
-    """(2,) sign of each joint's first non-zero commanded step (0 if it never moves)."""
-    d = np.sign(np.diff(cmd, axis=0))
-    out = np.zeros(2)
-    for j in range(2):
-        nz = np.flatnonzero(d[:, j])
-        out[j] = d[nz[0], j] if nz.size else 0.0
-    return out
+    """(2,) sign of each joint's first non-zero commanded step (0 if it never moves):
+    :func:`cell.measurements.campaign.first_step`."""
+    return first_step(cmd)
 
 
 def prepare(c: Campaign, lines: dict[str, Sequence[int]] | None = None) -> DiagData:

@@ -218,13 +218,21 @@ class ChainPoses:
     effects"), ``dirs`` (P, J) the sign of each joint's last motion (``jK_dir``; 0
     unknown), ``temp_c`` (P,) the temperature of each pose (``temp_c``; None: not recorded),
     ``motor_ratio`` per joint the motor turns per joint turn the model states (None: not
-    stated; ``motor_gear_ratio``)."""
+    stated; ``motor_gear_ratio``), ``rate`` (P, J) deg/s the commanded joint speed at each
+    pose (0 at a static one; None: static poses only), ``bus`` per joint its 1-based
+    position on the drives' bus (None: not known), ``move`` (P,) the measured move each
+    pose is a sample of (−1: static) and ``move_t`` (P,) s its time in the move (None:
+    static poses only)."""
 
     q: np.ndarray
     levers: np.ndarray
     dirs: np.ndarray
     temp_c: np.ndarray | None = None
     motor_ratio: tuple[float | None, ...] = ()
+    rate: np.ndarray | None = None
+    bus: tuple[int | None, ...] = ()
+    move: np.ndarray | None = None
+    move_t: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -234,6 +242,8 @@ class OnChain:
     ``joints`` ``"all"``, ``"revolute"`` or ``"geared"`` (the revolute joints whose motor
     gear ratio the model states); ``"geometric"`` takes the chain's own DH /
     origin parameter names; ``"arm"`` is one parameter for the whole arm, named ``stem``;
+    ``"bus"`` one parameter, named ``stem``, of the drives' bus, whose ``term`` acts on every
+    joint (k = 0 … J − 1; made only for a chain whose joints' bus positions are known);
     ``"sensor"`` one parameter, named ``stem``, of a linear map the sensor applies about its
     centre c (``sensor_center_mm``): m = c + M·(y − c), ``sensor_map(value) -> (M (3, 3),
     ∂M/∂value (3, 3))`` in the measurement frame. ``unit`` the parameter's unit
@@ -260,7 +270,14 @@ class OnChain:
     places) -> str``: why the fit poses cannot show the effect on joint k ('' when they
     can; ``places`` (P,) the station of each pose, :func:`cell.diagnosis.places.stations`), a
     requirement beyond what the parameters' columns tell (a short period sampled densely
-    within each place: :func:`phase_coverage`)."""
+    within each place: :func:`phase_coverage`). ``shift(poses, k, value) -> (Δq_k,
+    ∂Δq_k/∂value)``: for an effect whose change of the joint is not linear in its parameter
+    (the comm delay's time shift of the commands), the exact change at ``value`` and its
+    derivative; ``term`` is then that derivative at 0, the screening's linearisation.
+    ``nuisance``: parameters ``(stem, unit, term)`` the effect carries beside its own where
+    the campaign lacks a variable it depends on (the arm's growth during the measured
+    moves, whose temperature paths.csv does not record), fitted only together with them and
+    never a cause on their own."""
 
     joints: str
     stem: str = ""
@@ -278,6 +295,10 @@ class OnChain:
     choice: int = 0
     coverage: Callable[[ChainPoses, int, np.ndarray], str] | None = field(default=None,
                                                                           repr=False)
+    shift: Callable[[ChainPoses, int, float], tuple[np.ndarray, np.ndarray]] | None = field(
+        default=None, repr=False)
+    nuisance: tuple[tuple[str, str, Callable[[ChainPoses, int], np.ndarray]], ...] = field(
+        default=(), repr=False)
 
     def __post_init__(self):
         if self.parts and (self.term is not None or self.stem
@@ -293,8 +314,14 @@ class OnChain:
 
     def terms(self) -> tuple[tuple[str, Callable[[ChainPoses, int], np.ndarray] | None], ...]:
         """Per parameter of one joint, ``(stem, term)``: the ``parts``, or the one
-        ``(stem, term)``."""
-        return self.parts or ((self.stem, self.term),)
+        ``(stem, term)``; then the ``nuisance`` parameters'."""
+        own = self.parts or ((self.stem, self.term),)
+        return own + tuple((stem, term) for stem, _, term in self.nuisance)
+
+    @property
+    def n_own(self) -> int:
+        """How many of :meth:`terms` are the effect's own parameters (the rest nuisance)."""
+        return len(self.parts) or 1
 
 
 def planar_map(m2: np.ndarray, zz: float) -> np.ndarray:

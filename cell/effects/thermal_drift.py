@@ -21,8 +21,22 @@ def thermal_drift(x, jidx, links_mm, temp_c):
 
 def chain_growth(poses: ChainPoses, k: int) -> np.ndarray:
     """Relative growth of the whole arm per unit α: T − T_ref per pose; 0 on every pose when
-    the campaign records no temperature (the format's reference temperature)."""
-    return np.zeros(len(poses.q)) if poses.temp_c is None else poses.temp_c - REF_TEMP_C
+    the campaign records no temperature (the format's reference temperature), and on a pose
+    whose temperature is not known (NaN: a sample of a measured move, paths.csv records
+    none; :func:`move_growth` stands for it there)."""
+    if poses.temp_c is None:
+        return np.zeros(len(poses.q))
+    return np.nan_to_num(np.asarray(poses.temp_c, float) - REF_TEMP_C, nan=0.0)
+
+
+def move_growth(poses: ChainPoses, k: int) -> np.ndarray:
+    """The nuisance of a campaign whose measured moves record no temperature while its
+    static poses do: 1 on the moves' samples, so that its parameter β = α·(T_moves − T_ref)
+    is the arm's relative growth while it made them (the planar diagnosis's path
+    temperature, as one number). 0 everywhere without a temperature column."""
+    if poses.temp_c is None:
+        return np.zeros(len(poses.q))
+    return np.isnan(np.asarray(poses.temp_c, float)).astype(float)
 
 
 def d_thermal_drift(x, jidx, links_mm, temp_c):
@@ -55,4 +69,5 @@ EFFECT = Effect(
                   min_spread=MIN_TEMP_SPREAD_C,
                   still=f"temperature spread under {MIN_TEMP_SPREAD_C} °C over the fit poses: "
                         "growth cannot be told from constant link lengths",
-                  bounds=EXPANSION.bounds))
+                  bounds=EXPANSION.bounds,
+                  nuisance=(("move_growth_rel", "1", move_growth),)))

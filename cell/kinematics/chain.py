@@ -42,7 +42,9 @@ class Joint:
     """Joint K of the campaign: CSV column ``column`` (``j1`` …), ``name`` in the model,
     reading unit deg (revolute) or mm (prismatic), limits in the same unit (None: unknown);
     ``motor_ratio`` the motor turns per joint turn when the model states it (None: not
-    stated), the period of a motor-side ripple at the joint."""
+    stated), the period of a motor-side ripple at the joint; ``bus_position`` its 1-based
+    position on the drives' bus, the order in which it receives a command frame (None: not
+    known; a planar campaign's ``stations``)."""
 
     column: str
     name: str
@@ -50,6 +52,7 @@ class Joint:
     lower: float | None = None
     upper: float | None = None
     motor_ratio: float | None = None
+    bus_position: int | None = None
 
     @property
     def unit(self) -> str:

@@ -539,3 +539,29 @@ def write_campaign(campaign: Campaign, directory: Path | str, force: bool = Fals
         if campaign.paths is not None:
             _write_table(tmp / "paths.csv", campaign.paths, PATH_COLUMNS)
     return d
+
+
+SPLIT_SEED = 20260501      # the v1 diagnosis's generated split (any fixed value: repeatable)
+HOLDOUT_SHARE = 0.3
+
+
+def first_step(cmd: np.ndarray) -> np.ndarray:
+    """(J,) sign of each joint's first non-zero commanded step along a move (0 if it never
+    moves): the direction it approached the move's start from (the format's approach
+    convention)."""
+    d = np.sign(np.diff(cmd, axis=0))
+    out = np.zeros(cmd.shape[1])
+    for j in range(cmd.shape[1]):
+        nz = np.flatnonzero(d[:, j])
+        out[j] = d[nz[0], j] if nz.size else 0.0
+    return out
+
+
+def drawn_fit(n_units: int, rng: np.random.Generator) -> np.ndarray:
+    """(n_units,) True for fit: the v1 diagnosis's split of a table without a ``split``
+    column, :data:`HOLDOUT_SHARE` of the units (points, or whole moves) held out at random
+    from ``rng`` (seeded with :data:`SPLIT_SEED`, the points drawn before the moves)."""
+    hold = np.zeros(n_units, bool)
+    k = max(1, int(round(HOLDOUT_SHARE * n_units))) if n_units > 1 else 0
+    hold[rng.permutation(n_units)[:k]] = True
+    return ~hold

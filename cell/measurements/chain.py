@@ -25,8 +25,8 @@ import numpy as np
 import yaml
 
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
-from cell.measurements.campaign import (FORMAT, CampaignFormatError, _read_table, _yaml_line,
-                                        check_places, yaml_loc)
+from cell.measurements.campaign import (FORMAT, SPLIT_SEED, CampaignFormatError, _read_table,
+                                        _yaml_line, check_places, drawn_fit, first_step, yaml_loc)
 from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
 from cell.measurements.checked import plain
 from cell.measurements.folder import staged_dir
@@ -47,8 +47,11 @@ class ChainCampaign:
     ``dirs`` (P, J) the sign of each joint's last motion before the pose (``jK_dir``, 0 where
     the campaign has no column for the joint), None without any ``jK_dir`` column;
     ``extra`` the optional per-point columns ``time_s``, ``temp_c``, ``payload_kg`` (M,)
-    the campaign has; ``unread`` what the campaign holds that a chain campaign does not
-    carry (a planar campaign's measured moves), '' for none: the diagnosis warns of it."""
+    the campaign has (NaN on the poses of a measured move); ``move`` (P,) the index of the
+    measured move each pose is a sample of (−1: a static pose), ``move_t`` (P,) s its time since the move's first command frame (NaN static),
+    ``rate`` (P, J) deg/s (mm/s) the commanded joint speed there (0 static), all three
+    None for a campaign of static poses only; ``split_source`` where ``split`` came from
+    when the reader set it ('': the campaign's column)."""
 
     spec: ChainSpec
     chain: Chain
@@ -64,7 +67,10 @@ class ChainCampaign:
     directory: Path | None = None
     extra: dict = field(default_factory=dict)
     dirs: np.ndarray | None = None
-    unread: str = ""
+    move: np.ndarray | None = None
+    rate: np.ndarray | None = None
+    split_source: str = ""
+    move_t: np.ndarray | None = None
 
     @property
     def n_poses(self) -> int:
@@ -360,42 +366,82 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
 
 
 def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
-    """The static points of a v1 (SCARA) campaign ``c`` (:class:`~cell.measurements.Campaign`)
-    as the chain campaign they are: two revolute joints in standard DH (a = ``l1_mm``,
-    ``l2_mm``; α, d, θ zero; ``joint_limits_deg`` as limits; the v1 motor gear ratio, 50
-    as the format has it unless stated), the tool centre a known marker
-    at the flange, measured in the base frame by a sensor that sees x and y
-    (``sensor_axes: [x, y]``) whose centre is the camera's (``sensor_center_mm``);
-    ``jK_dir``, ``temp_c`` and ``split`` carried over. Measured
-    moves (``paths.csv``) are not part of it, and its ``unread`` says so; ``directory`` is
-    where ``c`` was read from (messages name its files). Raises CampaignFormatError for a
-    campaign without points."""
+    """A v1 (SCARA) campaign ``c`` (:class:`~cell.measurements.Campaign`) as the chain
+    campaign it is: two revolute joints in standard DH (a = ``l1_mm``, ``l2_mm``; α, d, θ
+    zero; ``joint_limits_deg`` as limits; the v1 motor gear ratio, 50 as the format has it
+    unless stated; each joint's bus position from ``stations``), the tool centre a known
+    marker at the flange, measured in the base frame by a sensor that sees x and y
+    (``sensor_axes: [x, y]``) whose centre is the camera's (``sensor_center_mm``).
+
+    Its static points are poses with their ``jK_dir``, ``temp_c`` and ``time_s``. Each
+    sample of a measured move (``paths.csv``) is a pose too, at the commanded angles, with
+    ``move`` its move's index, ``move_t`` its time_s, ``rate`` the commanded joint speed
+    there and the directions
+    of the format's approach convention; its temperature is unknown (NaN in ``temp_c``:
+    paths.csv records none). Without a ``split`` column the split is the v1 diagnosis's
+    (:func:`drawn_fit`: 30 % of the points, then of the whole moves), so both engines hold
+    out the same rows. ``directory`` is where ``c`` was read from (messages name its files).
+    Raises CampaignFormatError for a campaign without points."""
     if c.points is None:
         raise CampaignFormatError(c.source or "campaign", "no points.csv: only static points "
                                   "make a chain campaign", column="points.csv")
+    from cell.effects import path_directions, station_order
+    from cell.effects.motor_cyclic_error import MOTOR_GEAR_RATIO   # v1: "50 unless stated"
     m = c.model
     limits = m.joint_limits_deg or [None, None]
     rows = [DHRow(name=f"j{k + 1}", type="revolute", a_mm=float(a), alpha_deg=0.0, d_mm=0.0,
                   theta_deg=0.0, limits=None if lim is None else tuple(lim))
             for k, (a, lim) in enumerate(zip((m.l1_mm, m.l2_mm), limits))]
     centre = None if m.camera is None else (*map(float, m.camera.center_mm), 0.0)
-    from cell.effects.motor_cyclic_error import MOTOR_GEAR_RATIO   # v1: "50 unless stated"
     spec = ChainSpec(format=FORMAT, kinematics="dh", joints=rows, measurement_frame="base",
                      markers={0: (0.0, 0.0, 0.0)}, sensor_axes=("x", "y"),
                      sensor_center_mm=centre, source=c.source or "planar campaign",
                      motor_gear_ratio={r.name: MOTOR_GEAR_RATIO for r in rows})
+    chain = build_chain(spec, Path(directory) / "model.yaml")
+    bus = station_order(c.station_order)
+    chain.joints = [replace(j, bus_position=int(k)) for j, k in zip(chain.joints, bus)]
     p = c.points
     n = len(p["sample"])
-    chain = build_chain(spec, Path(directory) / "model.yaml")
-    dirs = None
-    if "j1_dir" in p or "j2_dir" in p:
-        dirs = np.column_stack([p.get(f"j{k}_dir", np.zeros(n)) for k in (1, 2)]).astype(float)
-    extra = {k: p[k] for k in EXTRA_COLUMNS if k in p}
-    return ChainCampaign(spec, chain, np.column_stack([p["j1_deg"], p["j2_deg"]]).astype(float),
-                         np.asarray(p["sample"]), p.get("split"), np.arange(n),
-                         np.zeros(n, dtype=np.int64),
-                         np.column_stack([p["x_mm"], p["y_mm"], np.zeros(n)]).astype(float), [0],
-                         list(range(2, n + 2)), spec.source, Path(directory), extra, dirs,
-                         "" if c.paths is None else
-                         f"the measured moves (paths.csv, {len(set(c.paths['move'].tolist()))} "
-                         "moves), which only show effects of motion such as the joints' comm delay")
+    rng = np.random.default_rng(SPLIT_SEED)
+    fit = p["split"] == "fit" if "split" in p else drawn_fit(n, rng)
+    readings = [np.column_stack([p["j1_deg"], p["j2_deg"]]).astype(float)]
+    xy = [np.column_stack([p["x_mm"], p["y_mm"]]).astype(float)]
+    dirs = [np.column_stack([p.get(f"j{k}_dir", np.zeros(n)) for k in (1, 2)]).astype(float)]
+    fits, moves, rates, times = [fit], [np.full(n, -1)], [np.zeros((n, 2))], [np.full(n, np.nan)]
+    extra = {k: [np.asarray(p[k], float)] for k in EXTRA_COLUMNS if k in p}
+    lines = list(range(2, n + 2))
+    if c.paths is not None:
+        t = c.paths
+        ids = t["move"].tolist()
+        order = list(dict.fromkeys(ids))
+        move_fit = None if "split" in t else drawn_fit(len(order), rng)
+        for i, mv in enumerate(order):
+            idx = np.flatnonzero(t["move"] == mv)
+            cmd = np.column_stack([t["j1_cmd_deg"][idx], t["j2_cmd_deg"][idx]]).astype(float)
+            time = t["time_s"][idx].astype(float)
+            readings.append(cmd)
+            xy.append(np.column_stack([t["x_mm"][idx], t["y_mm"][idx]]).astype(float))
+            dirs.append(path_directions(cmd, first_step(cmd)))
+            fits.append(t["split"][idx] == "fit" if move_fit is None else np.full(len(idx), move_fit[i]))
+            moves.append(np.full(len(idx), i))
+            times.append(time)
+            rates.append(np.column_stack([np.gradient(cmd[:, k], time) if len(idx) > 1
+                                          else np.zeros(len(idx)) for k in range(2)]))
+            for k in extra:
+                extra[k].append(np.full(len(idx), np.nan))
+            lines += (idx + 2).tolist()
+    readings, xy = np.concatenate(readings), np.concatenate(xy)
+    P = len(readings)
+    has_dirs = "j1_dir" in p or "j2_dir" in p or c.paths is not None
+    samples = np.concatenate([np.asarray(p["sample"]),
+                              int(np.max(p["sample"], initial=0)) + 1 + np.arange(P - n)])
+    split = np.where(np.concatenate(fits), "fit", "holdout")
+    return ChainCampaign(spec, chain, readings, samples, split, np.arange(P),
+                         np.zeros(P, dtype=np.int64), np.column_stack([xy, np.zeros(P)]), [0],
+                         lines, spec.source, Path(directory),
+                         {k: np.concatenate(v) for k, v in extra.items()},
+                         np.concatenate(dirs) if has_dirs else None,
+                         move=np.concatenate(moves), rate=np.concatenate(rates),
+                         move_t=np.concatenate(times),
+                         split_source="campaign" if "split" in p and (c.paths is None or "split" in c.paths)
+                         else f"generated as the v1 diagnosis's (seed {SPLIT_SEED})")

@@ -76,7 +76,8 @@ def test_identifiable_only_when_the_angles_sample_the_short_period():
     assert EFF.unidentifiable(layout(np.arange(60) * 2.5), ["j1"]) == ""     # 2.5° steps: dense
     assert EFF.unidentifiable(layout(np.array([1.0, 2.0])), ["j1"]) == \
         "j1 has 2 fit rows: a period of 7.2° needs 3"
-    assert EFF.mimics == () and EFF.chain is None and EFF.remedy.kind == "calibrate_joint"
+    assert EFF.mimics == () and EFF.remedy.kind == "calibrate_joint"
+    assert EFF.chain.joints == "geared" and EFF.chain.coverage is not None   # chains: N stated
 
 
 def test_the_diagnosis_recovers_it_from_the_independent_truth(tmp_path):

@@ -293,7 +293,8 @@ def test_every_effect_is_one_complete_definition():
     assert "gravity_compliance" not in fx.EFFECTS                # chain only
     assert list(fx.CHAIN_EFFECTS) == ["joint_offset", "link_length", "gear_ratio", "backlash",
                                       "cyclic_error", "thermal_drift", "camera_scale",
-                                      "camera_rotation", "gravity_compliance", "motor_cyclic_error"]
+                                      "camera_rotation", "comm_delay", "gravity_compliance",
+                                      "motor_cyclic_error"]
 
 
 def test_the_chain_vocabulary_comes_from_the_registry():
@@ -304,13 +305,14 @@ def test_the_chain_vocabulary_comes_from_the_registry():
                                    "cyclic_error": "transmission",
                                    "thermal_drift": "thermal", "camera_scale": "vision",
                                    "camera_rotation": "vision", "gravity_compliance": "transmission",
-                                   "motor_cyclic_error": "transmission"}
+                                   "motor_cyclic_error": "transmission", "comm_delay": "comms"}
     assert chain_fit.DEPENDS_ON == {"joint_offset": "constant", "link_length": "position",
                                     "gear_ratio": "angle", "backlash": "direction",
                                     "cyclic_error": "angle",
                                     "thermal_drift": "temperature", "camera_scale": "position",
                                     "camera_rotation": "position",
-                                    "gravity_compliance": "position", "motor_cyclic_error": "angle"}
+                                    "gravity_compliance": "position", "motor_cyclic_error": "angle",
+                                    "comm_delay": "speed"}
 
 
 def test_requirements_say_what_the_layout_lacks():

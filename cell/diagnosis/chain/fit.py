@@ -71,6 +71,12 @@ class Param:
         return fx.CHAIN_EFFECTS[self.effect].chain.terms()[self.part][1]
 
     @property
+    def nuisance(self) -> bool:
+        """One of its effect's nuisance parameters (:attr:`cell.effects.OnChain.nuisance`),
+        never a cause on its own."""
+        return self.part >= fx.CHAIN_EFFECTS[self.effect].chain.n_own
+
+    @property
     def on_joint(self) -> bool:
         return self.joint >= 0
 
@@ -80,9 +86,38 @@ class Param:
         return fx.CHAIN_EFFECTS[self.effect].chain.joints == "sensor"
 
     @property
+    def bus(self) -> bool:
+        """A parameter of the drives' bus, acting on every joint (the comm delay)."""
+        return fx.CHAIN_EFFECTS[self.effect].chain.joints == "bus"
+
+    @property
     def arm(self) -> bool:
         """A parameter of the whole arm (thermal growth)."""
-        return self.joint < 0 and not self.sensor
+        return self.joint < 0 and not self.sensor and not self.bus
+
+    def joint_terms(self, poses: fx.ChainPoses) -> np.ndarray:
+        """(P, J) how each joint's value changes per unit of the parameter at 0 (zero but
+        on its joint; a bus parameter's on every joint)."""
+        out = np.zeros_like(poses.q)
+        if self.bus:
+            for k in range(out.shape[1]):
+                out[:, k] = self.term(poses, k)
+        elif self.on_joint:
+            out[:, self.joint] = self.term(poses, self.joint)
+        return out
+
+    def joint_shift(self, poses: fx.ChainPoses, value: float) -> tuple[np.ndarray, np.ndarray]:
+        """((P, J) the joints' change at ``value``, (P, J) its derivative): the effect's
+        exact ``shift`` where it gives one (:attr:`cell.effects.OnChain.shift`), else
+        ``value`` times :meth:`joint_terms`."""
+        shift = fx.CHAIN_EFFECTS[self.effect].chain.shift
+        if shift is None:
+            t = self.joint_terms(poses)
+            return value * t, t
+        out, dv = np.zeros_like(poses.q), np.zeros_like(poses.q)
+        for k in (range(out.shape[1]) if self.bus else [self.joint]):
+            out[:, k], dv[:, k] = shift(poses, k, value)
+        return out, dv
 
 
 def vocabulary(chain: Chain) -> list[Param]:
@@ -93,8 +128,13 @@ def vocabulary(chain: Chain) -> list[Param]:
     out = []
     for name, e in fx.CHAIN_EFFECTS.items():
         use = e.chain
-        if use.joints in ("arm", "sensor"):
+        if use.joints in ("arm", "sensor") or use.joints == "bus" and any(
+                j.bus_position is not None for j in chain.joints):
             out.append(Param(use.stem, name, -1, -1, use.unit))
+            out += [Param(stem, name, -1, -1, unit, use.n_own + i)
+                    for i, (stem, unit, _) in enumerate(use.nuisance)]
+            continue
+        if use.joints == "bus":
             continue
         if use.joints == "geometric":
             for pn, op in chain.geometric.items():
@@ -104,9 +144,10 @@ def vocabulary(chain: Chain) -> list[Param]:
             if use.joints in ("revolute", "geared") and j.type != "revolute" \
                     or use.joints == "geared" and j.motor_ratio is None:
                 continue
+            units = [use.unit] * use.n_own + [u for _, u, _ in use.nuisance]
             for part, (stem, _) in enumerate(use.terms()):
                 out.append(Param(f"{j.column}_{stem.format(unit=j.unit)}", name, k,
-                                 chain.joint_op[k], use.unit.format(unit=j.unit), part))
+                                 chain.joint_op[k], units[part].format(unit=j.unit), part))
     return out
 
 
@@ -132,8 +173,11 @@ class Data:
     its rows; None: no column); ``axes`` the axes of the measurement frame the sensor sees
     (0, 1, 2 = x, y, z; ``sensor_axes``), ``xyz`` (M, len(axes)) holds those components
     only; ``centre`` (3,) mm the sensor's centre in the measurement frame
-    (``sensor_center_mm``; None: not given); ``frames`` the nominal forward kinematics of
-    the poses (:meth:`nominal_frames`), None until asked."""
+    (``sensor_center_mm``; None: not given); ``move`` (P,) the measured move each pose is a
+    sample of (−1: static), ``move_t`` (P,) s its time in the move and ``rate`` (P, J) the
+    commanded joint speed there, deg/s
+    (:class:`~cell.measurements.chain.ChainCampaign`; None: static poses only); ``frames``
+    the nominal forward kinematics of the poses (:meth:`nominal_frames`), None until asked."""
 
     chain: Chain
     readings: np.ndarray
@@ -149,6 +193,9 @@ class Data:
     temp_c: np.ndarray | None = None
     axes: tuple[int, ...] = (0, 1, 2)
     centre: np.ndarray | None = None
+    move: np.ndarray | None = None
+    rate: np.ndarray | None = None
+    move_t: np.ndarray | None = None
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
@@ -157,7 +204,7 @@ class Data:
         if self.dirs is None:
             self.dirs = np.zeros_like(self.readings)
         if self.place is None:
-            self.place = place_folds(self.readings)[0]
+            self.place = _places(self.readings, self.move)
 
     def zero_blocks(self, reg: "Registration") -> dict:
         """The Jacobian blocks :func:`model` has computed at zero parameters for
@@ -190,7 +237,9 @@ class Data:
                 cc.spec.measurement_frame == "sensor", cc.known_markers,
                 _levers(cc.chain, frames), cc.dirs, temp_c=cc.pose_temps(), axes=axes,
                 centre=None if cc.spec.sensor_center_mm is None
-                else np.asarray(cc.spec.sensor_center_mm, float), frames=frames)
+                else np.asarray(cc.spec.sensor_center_mm, float), move=cc.move, rate=cc.rate,
+                move_t=cc.move_t,
+                frames=frames)
         return d if pose_mask is None else d.subset(pose_mask)
 
     def at(self, readings: np.ndarray, dirs: np.ndarray | None = None) -> "Data":
@@ -200,7 +249,7 @@ class Data:
         Its nominal frames and gravity levers are computed when first asked for (a
         prediction of fitted parameters needs neither unless it holds a compliance)."""
         P, m = len(readings), max(self.n_markers, 1)
-        temp = None if self.temp_c is None else np.full(P, float(np.mean(self.temp_c)))
+        temp = None if self.temp_c is None else np.full(P, float(np.nanmean(self.temp_c)))
         return Data(self.chain, readings, np.repeat(np.arange(P), m), np.tile(np.arange(m), P),
                     np.zeros((P * m, self.dims)), self.n_markers, self.sensor, self.known_markers,
                     None, dirs, np.arange(P), temp, self.axes, self.centre)
@@ -214,7 +263,10 @@ class Data:
                     self.xyz[rows], self.n_markers, self.sensor, self.known_markers,
                     self.levers[keep], self.dirs[keep],
                     temp_c=None if self.temp_c is None else self.temp_c[keep], axes=self.axes,
-                    centre=self.centre, frames=_take(self.frames, keep))
+                    centre=self.centre, move=None if self.move is None else self.move[keep],
+                    rate=None if self.rate is None else self.rate[keep],
+                    move_t=None if self.move_t is None else self.move_t[keep],
+                    frames=_take(self.frames, keep))
 
     def keep_points(self, keep: np.ndarray) -> "Data":
         """The measured points ``keep`` (M,) marks; poses left with none are dropped."""
@@ -227,7 +279,10 @@ class Data:
                     self.xyz[keep], self.n_markers, self.sensor, self.known_markers,
                     self.levers[poses], self.dirs[poses],
                     temp_c=None if self.temp_c is None else self.temp_c[poses], axes=self.axes,
-                    centre=self.centre, frames=_take(self.frames, np.flatnonzero(poses)))
+                    centre=self.centre, move=None if self.move is None else self.move[poses],
+                    rate=None if self.rate is None else self.rate[poses],
+                    move_t=None if self.move_t is None else self.move_t[poses],
+                    frames=_take(self.frames, np.flatnonzero(poses)))
 
     @property
     def n_poses(self) -> int:
@@ -242,7 +297,7 @@ class Data:
         """(fold of every measured point, number of folds) for leave-out prediction: the
         poses' places when they sit at stations (a station revisited: leaving out one
         visit would leave its twins in), else every pose on its own
-        (:func:`cell.diagnosis.places.folds`)."""
+        (:func:`cell.diagnosis.places.folds`); each measured move is a fold of its own."""
         n = int(self.place.max()) + 1 if len(self.place) else 0
         return self.place[self.obs_pose], n
 
@@ -313,10 +368,38 @@ class _LaterLevers:
         return self.d.levers[key]
 
 
+def _places(readings: np.ndarray, move: np.ndarray | None) -> np.ndarray:
+    """The fold of every pose: the static poses' places (:func:`cell.diagnosis.places.folds`),
+    then each measured move one fold."""
+    if move is None or not np.any(move >= 0):
+        return place_folds(readings)[0]
+    static = move < 0
+    out = np.empty(len(readings), np.int64)
+    out[static] = place_folds(readings[static])[0] if static.any() else []
+    first = int(out[static].max()) + 1 if static.any() else 0
+    _, idx = np.unique(move[~static], return_inverse=True)
+    out[~static] = first + idx
+    return out
+
+
+def _stations(d: Data) -> np.ndarray:
+    """The group of every pose for a requirement within each place: the static poses'
+    (:func:`cell.diagnosis.places.stations`), then each measured move one group."""
+    if d.move is None or not np.any(d.move >= 0):
+        return stations(d.readings)
+    static = d.move < 0
+    out = np.empty(len(d.readings), np.int64)
+    out[static] = stations(d.readings[static]) if static.any() else []
+    first = int(out[static].max()) + 1 if static.any() else 0
+    out[~static] = first + np.unique(d.move[~static], return_inverse=True)[1]
+    return out
+
+
 def _poses(d: Data) -> fx.ChainPoses:
     levers = _LaterLevers(d) if d.levers is None else d.levers
     return fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c,
-                         tuple(j.motor_ratio for j in d.chain.joints))
+                         tuple(j.motor_ratio for j in d.chain.joints), d.rate,
+                         tuple(j.bus_position for j in d.chain.joints), d.move, d.move_t)
 
 
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray
@@ -336,6 +419,8 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
             geo[p.op] = geo.get(p.op, 0.0) + v
         elif p.arm:
             grow = (0.0 if grow is None else grow) + v * term(poses, -1)
+        elif p.bus:
+            dq += p.joint_shift(poses, v)[0]
         else:
             dq[:, p.joint] += v * term(poses, p.joint)
     return geo, dq, grow
@@ -384,7 +469,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     blocks = list(blocks) if M is None else [np.einsum("ij,mjk->mik", M, b) for b in blocks]
     twists: dict[int, np.ndarray] = {}        # one op's twist serves all its parameters
     poses = None
-    for p in params:
+    for p, value in zip(params, values):
         g = kept.get(p)
         if g is None:
             term = p.term
@@ -395,6 +480,17 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
             else:
                 if p.arm:                      # ∂(s·x)/∂v = term · x
                     g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
+                elif p.bus:                    # every joint's twist times its term
+                    tj = (p.joint_shift(poses, value)[1] if value else p.joint_terms(poses))[d.obs_pose]
+                    g = np.zeros_like(xb)
+                    for k in range(d.chain.n_joints):
+                        op = d.chain.joint_op[k]
+                        if np.any(tj[:, k]):
+                            if op not in twists:
+                                twists[op] = kin.twist(d.chain, starts, op, xb, d.obs_pose) @ reg.R.T
+                            g = g + twists[op] * tj[:, k][:, None]
+                    if scale is not None:
+                        g = g * scale
                 else:
                     g = twists.get(p.op)
                     if g is None:
@@ -649,13 +745,14 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     ``keep_first``, then ``pool``) at :data:`STRUCTURAL_TOL`: a parameter whose scaled
     column lies in the span of those before it is dropped, naming what absorbs it; one
     kept with a variance inflation above :data:`MAX_VIF` is warned about. A parameter whose
-    term varies over the poses by less than its effect's ``min_spread`` is dropped first
+    term varies over the static poses by less than its effect's ``min_spread`` is dropped first
     (:attr:`cell.effects.OnChain.still`: a temperature that hardly changes); one whose term
     stays below :data:`TERM_EPS` on every pose has no effect (its column is rounding noise,
     which scaled to unit length would look like a direction of its own); one whose effect's
     ``coverage`` fails on the poses (grouped by :func:`cell.diagnosis.places.stations`) is
-    dropped with its reason
-    (:attr:`cell.effects.OnChain.coverage`)."""
+    dropped with its reason (:attr:`cell.effects.OnChain.coverage`). An effect's nuisance
+    parameters (:attr:`cell.effects.OnChain.nuisance`) are kept only beside one of its own,
+    and never reported."""
     allp = list(keep_first) + [p for p in pool if p not in keep_first]
     dropped: dict[str, str] = {}
     poses = _poses(d)
@@ -667,17 +764,18 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
         if p.term is None:
             continue
         if use.coverage is not None:
-            where = stations(d.readings) if where is None else where
+            where = _stations(d) if where is None else where
             why = use.coverage(poses, p.joint, where)
             if why:
                 dropped[p.name] = why
                 lacking.add(p.name)
                 allp.remove(p)
                 continue
-        v = p.term(poses, p.joint)
+        v = p.joint_terms(poses) if p.bus else p.term(poses, p.joint)
         if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
             rounding.add(p.name)
-        elif use.min_spread > 0 and np.any(v) and float(np.ptp(v)) < use.min_spread:
+        elif use.min_spread > 0 and not p.nuisance and np.any(v) and float(np.ptp(
+                v if d.move is None else v[d.move < 0])) < use.min_spread:
             dropped[p.name] = use.still
             lacking.add(p.name)
             allp.remove(p)
@@ -693,6 +791,8 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     warnings: dict[str, str] = {}
     for i, p in enumerate(allp):
         left = span.left[i]
+        if p.nuisance:                     # not the effect's: neither reported nor warned of
+            continue
         if i not in unit:
             unseen = fx.CHAIN_EFFECTS[p.effect].chain.unseen
             dropped[p.name] = unseen or "has no effect on the measured points"
@@ -708,7 +808,9 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
         elif 1.0 / left ** 2 > MAX_VIF:
             warnings[p.name] = (f"{p.name}: {100 * (1 - left ** 2):.1f} % of its effect looks like "
                                 "the registration or other parameters; they are hard to tell apart")
-    return Identifiability([allp[i] for i in span.kept], dropped, warnings, frozenset(lacking))
+    own = {allp[i].effect for i in span.kept if not allp[i].nuisance}
+    kept = [allp[i] for i in span.kept if not allp[i].nuisance or allp[i].effect in own]
+    return Identifiability(kept, dropped, warnings, frozenset(lacking))
 
 
 def _partners(v: np.ndarray, kept: list[Param], cols: list[np.ndarray]) -> list[str]:

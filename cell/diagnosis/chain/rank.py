@@ -189,12 +189,20 @@ def _candidate(label, effects, fit_d, hold_d, params, f0, ident=None, keep=None,
         if beyond is not None:
             beyond.setdefault(worst.name, (worst, float(wanted)))
         params.remove(worst)
-        if {p.effect for p in params} != set(effects):
+        if _own_effects(params) != set(effects):
             return None
 
 
+def _own_effects(params) -> set[str]:
+    """The effects ``params`` hold a parameter of their own of (not only a nuisance)."""
+    return {p.effect for p in params if not p.nuisance}
+
+
 def _beyond(p: F.Param, v: float) -> float:
-    """How far ``v`` lies outside parameter ``p``'s physical bounds (0 within)."""
+    """How far ``v`` lies outside parameter ``p``'s physical bounds (0 within; a nuisance
+    has none)."""
+    if p.nuisance:
+        return 0.0
     lo, hi = fx.CHAIN_EFFECTS[p.effect].chain.bounds
     return max(0.0 if lo is None else lo - v, 0.0 if hi is None else v - hi)
 
@@ -262,6 +270,8 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         if e not in idents:
             continue
         picks[e] = screen(fit_d, f0, idents[e].kept, design=design)
+        if not _own_effects(picks[e]):     # a nuisance alone is no cause
+            picks[e] = []
         c = _candidate(e, (e,), fit_d, hold_d, picks[e], f0, idents[e], hold_keep, beyond) \
             if picks[e] else None
         if c is not None:
@@ -277,7 +287,7 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
         ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
         both = screen(fit_d, f0, ident.kept, design=design)
         c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep, beyond) \
-            if {p.effect for p in both} == {a, b} else None
+            if _own_effects(both) == {a, b} else None
         if c is not None:
             ranking.append(c)
     ranking.sort(key=lambda c: c.fit.cv_rms)

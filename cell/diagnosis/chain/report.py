@@ -25,10 +25,9 @@ from cell.diagnosis.chain.noise import estimate
 from cell.diagnosis.noise import upper95
 from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
 from cell.measurements import CampaignFormatError
+from cell.measurements.campaign import HOLDOUT_SHARE, SPLIT_SEED
 from cell.measurements.chain import ChainCampaign
 
-SPLIT_SEED = 20260501
-HOLDOUT_SHARE = 0.3
 
 
 def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
@@ -38,7 +37,7 @@ def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
         if not fit.any() or fit.all():
             raise CampaignFormatError(cc.directory / "points.csv", "split has no "
                                       + ("fit" if not fit.any() else "holdout") + " poses", column="split")
-        return fit, "campaign"
+        return fit, cc.split_source or "campaign"
     P = cc.n_poses
     n_hold = int(round(HOLDOUT_SHARE * P))
     if P - n_hold < 3 or n_hold < 1:
@@ -135,10 +134,6 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     noise_hi = None if noise_mm is None else upper95(noise_mm, noise_dof)
     dec = rank.decide(s, noise_hi, noise_mm)
     dec.warnings += outl.warnings
-    if cc.unread:      # what the points show stands; "no effect" does not, unchecked there
-        (dec.notes if dec.chosen is not None else dec.warnings).append(
-            f"the chain diagnosis does not read {cc.unread}: an effect seen only there cannot "
-            "be ruled out")
     if outl.n:
         dec.notes.append(f"{outl.n} measured point(s) lie beyond {outl.cut_mm:.3f} mm of the best "
                          "candidate's residual and were set aside as outliers (outliers)")

@@ -85,17 +85,20 @@ def test_a_sensor_axes_key_that_cannot_be_used_is_refused_in_model_yaml(tmp_path
 
 def test_a_planar_campaign_is_diagnosed_by_the_chain_engine(tmp_path):
     # a v1 campaign of the planar validation's independent truth (cell/truth/campaign.py):
-    # a j2 offset, 300 poses at stations; its points as a chain campaign seen in x and y
+    # a j2 offset, 300 poses spread out and 6 measured moves; its points and the moves'
+    # samples as a chain campaign seen in x and y
     design = planar_truth.as_design(planar_truth.Design(places=0, directions=True))
     rows = planar_truth.draw_rows(11, design)
     truth = [parts.Part("joint_offset", 2, {"zero_deg": 0.08})]   # the offset o = 0.08°
     camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", truth, 11, design, rows))
     cc = planar_as_chain(camp, tmp_path / "p")
-    assert cc.chain.n_joints == 2 and cc.axes == (0, 1)
-    assert np.array_equal(cc.readings[:, 0], camp.points["j1_deg"])
+    n, m = len(camp.points["j1_deg"]), len(camp.paths["move"])
+    assert cc.chain.n_joints == 2 and cc.axes == (0, 1) and cc.n_poses == n + m
+    assert np.array_equal(cc.readings[:n, 0], camp.points["j1_deg"])
+    assert np.array_equal(cc.readings[n:, 1], camp.paths["j2_cmd_deg"])
+    assert (cc.move[:n] == -1).all() and len(set(cc.move[n:])) == len(set(camp.paths["move"]))
     rep = diagnose_chain(cc)
     assert rep["cause"]["label"] == "joint_offset" and rep["cause"]["joints"] == ["j2"], rep["cause"]
-    # within 1 % (the planar engine, with the moves and its own noise model, is closer)
     assert abs(rep["cause"]["params"]["j2_offset_deg"] - 0.08) < 0.0008
 
 
@@ -141,18 +144,61 @@ def test_a_planar_campaigns_camera_map_is_named_by_the_chain_engine(tmp_path, pa
     assert rep["cause"]["label"] != part.kind
 
 
-def test_a_planar_campaigns_moves_the_chain_engine_does_not_read_are_said(tmp_path):
-    # trial 57 of bench/bench_planar_as_chain.py (seed 1): a comm delay, which shows only in
-    # the measured moves; the chain engine reads the static points, saw nothing, and had
-    # answered none with confidence high
+def test_a_planar_campaigns_comm_delay_is_named_from_its_moves(tmp_path):
+    # trial 57's layout of bench/bench_planar_as_chain.py (seed 1), 4 measured moves: a comm
+    # delay of 2 ms per frame shows only while the joints move. Before the chain engine read
+    # the moves it saw nothing and had answered none with confidence high
     tseed = 1 * 100_003 + 57
     design = validate.draw_layout(tseed, "realistic", 300)
     rows = planar_truth.draw_rows(tseed, design)
     camp = read_campaign(planar_truth.write_campaign(
         tmp_path / "p", [parts.Part("comm_delay", 0, {"frame_delay_s": 0.002})], tseed, design, rows))
     assert camp.paths is not None
+    rep = diagnose_chain(planar_as_chain(camp, tmp_path / "p"))
+    cause = rep["cause"]
+    assert cause["label"] == "comm_delay" and cause["confidence"] == "high", cause
+    lo, hi = cause["ci95"]["comm_delay_sigma_ms"]
+    assert lo <= 2.0 <= hi, (cause["params"], lo, hi)
+    # without the moves the same campaign has no lag to show, and says why
+    camp.paths = None
+    rep = diagnose_chain(planar_as_chain(camp, tmp_path / "p"))
+    assert rep["not_identifiable"]["comm_delay_sigma_ms"].startswith("no measured moves")
+    assert rep["cause"]["effect"] != "comm_delay"
+
+
+def test_the_moves_samples_are_poses_with_their_lag_and_growth_columns_exact(tmp_path):
+    # a planar campaign with 4 measured moves and a temperature column: every parameter of
+    # the chain vocabulary there, the comm delay (an exact time shift of the commands) and
+    # the arm's growth during the moves (thermal drift's nuisance) among them; each column
+    # of the Jacobian at non-zero values against central differences
+    from cell.diagnosis.chain import fit as F
+    design = planar_truth.as_design(planar_truth.Design(places=5, directions=True, n_moves=4,
+                                                        temperature=True))
+    rows = planar_truth.draw_rows(21, design)
+    camp = read_campaign(planar_truth.write_campaign(tmp_path / "p", [], 21, design, rows))
     cc = planar_as_chain(camp, tmp_path / "p")
-    assert "paths.csv" in cc.unread
-    rep = diagnose_chain(cc)
-    assert rep["cause"]["effect"] == "none" and rep["cause"]["confidence"] == "low", rep["cause"]
-    assert any("does not read the measured moves" in w for w in rep["cause"]["warnings"])
+    assert np.isnan(cc.pose_temps()[cc.move >= 0]).all() and (cc.rate[cc.move < 0] == 0).all()
+    assert [j.bus_position for j in cc.chain.joints] == [1, 2]
+    data = F.Data.of(cc)
+    params = [p for p in F.vocabulary(cc.chain) if p.term is not None or p.sensor]
+    names = {p.name for p in params}
+    assert {"comm_delay_sigma_ms", "move_growth_rel", "thermal_expansion_per_k"} <= names
+    rng = np.random.default_rng(0)
+    v0 = rng.uniform(-0.01, 0.01, len(params))
+    v0[[p.name for p in params].index("comm_delay_sigma_ms")] = 1.5
+    reg = F.initial_registration(data)
+    _, J = F.model(data, reg, params, v0, jac=True)
+    nr = F.n_registration(data)
+    h = 1e-6
+    for i, p in enumerate(params):
+        v = v0.copy()
+        v[i] += h
+        y1, _ = F.model(data, reg, params, v)
+        v[i] -= 2 * h
+        y2, _ = F.model(data, reg, params, v)
+        fd = (y1 - y2).ravel() / (2 * h)
+        assert np.allclose(fd, J[:, nr + i], atol=1e-4 * max(1.0, np.abs(fd).max()), rtol=1e-3), p.name
+    # each move is a fold of its own, beside the static poses' places
+    fold, n = data.folds()
+    per_move = {int(m): set(fold[data.move[data.obs_pose] == m]) for m in set(data.move[data.move >= 0])}
+    assert all(len(f) == 1 for f in per_move.values()) and len(set.union(*per_move.values())) == 4
