@@ -11,8 +11,9 @@ changes (its hash is kept in .venv/.cell-installed), so a clean clone and a stal
 behave the same; a build says each step on stderr (pip's own progress too, on a terminal)
 and how long it took. ``test`` also installs the system tools some tests drive, from Debian's
 packages, when they are missing and this user may (root with apt-get): Chromium and
-ChromeDriver (the browser tests of the HMI and the reports) and mbpoll (an independent
-Modbus client). Without them those tests skip, except under CI=true, where they fail.
+ChromeDriver (the browser tests of the HMI and the reports), mbpoll (an independent
+Modbus client), mosquitto and PostgreSQL (the plant path's broker and historian database,
+tests/cell/plant). Without them those tests skip, except under CI=true, where they fail.
 """
 from __future__ import annotations
 
@@ -33,7 +34,10 @@ STAMP = VENV / ".cell-installed"
 
 MAIN_JOB = ["cellctl", "run", "--sim", "--cycles", "10"]
 # test tools from Debian's packages: command -> package
-TEST_TOOLS = {"chromium": "chromium", "chromedriver": "chromium-driver", "mbpoll": "mbpoll"}
+TEST_TOOLS = {"chromium": "chromium", "chromedriver": "chromium-driver", "mbpoll": "mbpoll",
+              "mosquitto": "mosquitto", "initdb": "postgresql"}
+# where Debian puts tools that are not on an ordinary user's PATH (PostgreSQL's are versioned)
+TOOL_FOLDERS = ("/usr/sbin", "/usr/lib/postgresql/*/bin")
 
 
 def _say(text: str) -> None:
@@ -74,7 +78,7 @@ def _step(argv: list[str], what: str) -> None:
 
 def _ensure_test_tools() -> None:
     """Install the missing test tools with apt-get when this user may; say what skips if not."""
-    missing = sorted({pkg for cmd, pkg in TEST_TOOLS.items() if shutil.which(cmd) is None})
+    missing = sorted({pkg for cmd, pkg in TEST_TOOLS.items() if not _have_tool(cmd)})
     if not missing:
         return
     apt = shutil.which("apt-get")
@@ -90,6 +94,13 @@ def _ensure_test_tools() -> None:
         if subprocess.call([apt, "install", "-y", "-q", "--no-install-recommends", *missing], **quiet) != 0:
             print(f"dev.py: could not install {', '.join(missing)}; the tests that drive them "
                   "skip (fail under CI=true)", file=sys.stderr, flush=True)
+
+
+def _have_tool(cmd: str) -> bool:
+    """True if ``cmd`` is on PATH or in one of :data:`TOOL_FOLDERS`."""
+    import glob
+    return shutil.which(cmd) is not None or any(
+        os.access(os.path.join(folder, cmd), os.X_OK) for pattern in TOOL_FOLDERS for folder in glob.glob(pattern))
 
 
 def _call(argv: list[str], **kwargs) -> int:
