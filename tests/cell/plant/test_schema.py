@@ -1,0 +1,84 @@
+"""The topic tree and the payloads of ``cell/plant.md``: built, read back, and refused with
+a message that names what is wrong."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from cell.plant import schema
+from cell.plant.topics import CellTopics, TopicError, parse, subscription
+from tests.cell.plant.helpers import TOPICS, record
+
+
+def test_topics_of_a_cell():
+    t = CellTopics("site1", "line2", "cell-1")
+    assert (t.status, t.cycle, t.event, t.watermark) == (
+        "site1/line2/cell-1/status", "site1/line2/cell-1/cycle", "site1/line2/cell-1/event",
+        "site1/line2/cell-1/watermark")
+    assert parse("site1/line2/cell-1/cycle") == (t, "cycle")
+    assert subscription("cycle") == "+/+/+/cycle"
+    assert subscription("watermark", site="site1") == "site1/+/+/watermark"
+
+
+@pytest.mark.parametrize("bad", ["", "a/b", "+", "#", "a b", "x" * 65])
+def test_a_name_that_would_break_the_tree_is_refused(bad):
+    with pytest.raises(TopicError, match="cell"):
+        CellTopics("site1", "line2", bad)
+
+
+def test_a_topic_outside_the_tree_is_refused():
+    with pytest.raises(TopicError, match="kind one of"):
+        parse("site1/line2/cell-1/other")
+
+
+def _cycle(**change) -> bytes:
+    rec = record(7)
+    rec.id = 12
+    data = json.loads(schema.cycle_payload(TOPICS.path, "log1", rec, prev_id=9, session=3, seq=1))
+    data.update(change)
+    return json.dumps(data).encode()
+
+
+def test_a_cycle_message_round_trips_without_the_trace():
+    msg = schema.parse("cycle", TOPICS.cycle, _cycle(), TOPICS.path)
+    assert (msg.cell, msg.log_id, msg.cycle_id, msg.prev_id, msg.session, msg.seq) == (
+        TOPICS.path, "log1", 12, 9, 3, 1)
+    assert msg.record.part_id == 7 and msg.record.status == "done"
+    assert msg.record.target_mm == (400.0, 10.0)
+    assert "trace" not in json.loads(_cycle())["record"]
+    assert json.loads(_cycle())["schema"] == schema.SCHEMA_VERSION
+
+
+@pytest.mark.parametrize("payload, says", [
+    (b"{not json", "payload is not JSON"),
+    (b"[1, 2]", "JSON list, not an object"),
+    (b'{"cell": "a/b/c"}', "no 'schema' version"),
+    (_cycle(schema=2), "unknown schema version 2"),
+    (_cycle(schema="1"), "unknown schema version '1'"),
+    (_cycle(cycle_id=0), "cycle_id"),
+    (_cycle(prev_id=12), "prev_id 12 must be below cycle_id 12"),
+    (_cycle(colour="red"), "colour: Extra inputs are not permitted"),
+    (_cycle(cell="site1/line2/cell-9"), "not the topic's"),
+])
+def test_a_bad_payload_is_refused_naming_what_is_wrong(payload, says):
+    with pytest.raises(schema.PayloadError) as exc:
+        schema.parse("cycle", TOPICS.cycle, payload, TOPICS.path)
+    assert says in str(exc.value)
+    assert str(exc.value).startswith(TOPICS.cycle)
+
+
+def test_a_record_field_missing_is_named():
+    data = json.loads(_cycle())
+    del data["record"]["recipe"]
+    with pytest.raises(schema.PayloadError, match=r"record\.recipe: Field required"):
+        schema.parse("cycle", TOPICS.cycle, json.dumps(data).encode(), TOPICS.path)
+
+
+def test_status_and_watermark_payloads_read_back():
+    st = schema.parse("status", TOPICS.status, schema.status_payload(TOPICS.path, False, 4, "log1"))
+    assert (st.online, st.session, st.log_id) == (False, 4, "log1")
+    wm = schema.parse("watermark", TOPICS.watermark, schema.watermark_payload(TOPICS.path, "log1", 99))
+    assert (wm.log_id, wm.cycle_id) == ("log1", 99)
+    ev = schema.parse("event", TOPICS.event, schema.event_payload(TOPICS.path, 4, 1, "started", {"n": 1}))
+    assert (ev.kind, ev.data) == ("started", {"n": 1})
