@@ -27,6 +27,7 @@ import enum
 import json
 import sqlite3
 import threading
+import uuid
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -207,6 +208,8 @@ class CycleLog:
             if "calibration" not in columns:       # before version 4: rows ran on the nominal model
                 db.execute("ALTER TABLE cycles ADD COLUMN calibration TEXT NOT NULL DEFAULT ''")
             db.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            # this file's identity, made once: a fresh log starts its row ids at 1 again
+            db.execute("INSERT OR IGNORE INTO meta VALUES ('log_id', ?)", (uuid.uuid4().hex,))
         except sqlite3.Error as exc:
             db.close()
             raise logfile.explain(self.path, exc, "cannot prepare it for writing") from None
@@ -340,6 +343,33 @@ class CycleLog:
 
     def count(self) -> int:
         return int(self._read("SELECT COUNT(*) FROM cycles")[0][0])
+
+    # ------------------------------------------------------------------ for the plant outbox
+    @property
+    def log_id(self) -> str | None:
+        """This log file's identity (a random hex string made when a writer first opened
+        it; ids restart at 1 in a fresh log, so a row is named by log_id and id). None for a
+        log no writer of this version has opened."""
+        rows = self._read("SELECT value FROM meta WHERE key = 'log_id'")
+        return rows[0][0] if rows else None
+
+    def cycles_after(self, after_id: int, limit: int, below: int | None = None) -> list[CycleRecord]:
+        """Up to ``limit`` cycles with ids above ``after_id`` (and below ``below`` if given),
+        in id order."""
+        if below is None:
+            rows = self._read("SELECT * FROM cycles WHERE id > ? ORDER BY id LIMIT ?", (int(after_id), int(limit)))
+        else:
+            rows = self._read("SELECT * FROM cycles WHERE id > ? AND id < ? ORDER BY id LIMIT ?",
+                              (int(after_id), int(below), int(limit)))
+        return [self._record(r) for r in rows]
+
+    def id_before(self, cycle_id: int) -> int:
+        """The id of the row before ``cycle_id`` (0: none)."""
+        return int(self._read("SELECT COALESCE(MAX(id), 0) FROM cycles WHERE id < ?", (int(cycle_id),))[0][0])
+
+    def count_after(self, after_id: int) -> int:
+        """How many cycles have ids above ``after_id``."""
+        return int(self._read("SELECT COUNT(*) FROM cycles WHERE id > ?", (int(after_id),))[0][0])
 
     def delete_older_than(self, iso_time: str) -> int:
         """Retention: delete cycles finished before ``iso_time``; returns how many."""

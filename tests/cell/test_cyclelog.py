@@ -108,3 +108,22 @@ def test_a_schema_3_log_gains_the_calibration_column_and_keeps_its_rows(tmp_path
     assert [(r.part_id, r.calibration) for r in log.cycles()] == [(1, ""), (2, "v4-0123abcd")]
     assert log._db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "4"
     log.close()
+
+
+def test_a_log_has_one_identity_for_life_and_the_outbox_reads_rows_above_an_id(tmp_path):
+    log = CycleLog(tmp_path / "cell.sqlite")
+    ids = [log.add_cycle(record(i)) for i in range(6)]
+    log._db.execute("DELETE FROM cycles WHERE id IN (?, ?)", (ids[2], ids[3]))   # a gap, as retention makes
+    first = log.log_id
+    assert first and len(first) == 32
+    assert [c.id for c in log.cycles_after(ids[0], limit=2)] == [ids[1], ids[4]]
+    assert [c.id for c in log.cycles_after(ids[0], limit=9, below=ids[5])] == [ids[1], ids[4]]
+    assert log.id_before(ids[4]) == ids[1] and log.id_before(ids[0]) == 0
+    assert log.count_after(ids[1]) == 2
+    log.close()
+    again = CycleLog(tmp_path / "cell.sqlite", readonly=True)
+    assert again.log_id == first                       # kept across opens
+    again.close()
+    fresh = CycleLog(tmp_path / "cell.sqlite", fresh=True)
+    assert fresh.log_id != first                       # a fresh log is another log: its ids restart
+    fresh.close()
