@@ -33,6 +33,7 @@ COMMAND_MODULES = (
     "cell.commands.audit",
     "cell.commands.plc",
     "cell.commands.hmi",
+    "cell.commands.historian",
 )
 
 

@@ -1,0 +1,191 @@
+"""The plant historian: cycle records from the broker into PostgreSQL, nothing lost.
+
+:class:`Historian` subscribes to ``+/+/+/cycle`` (any cell) with a persistent MQTT 5
+session (``clean_start=False``, ``session_expiry_s``): while it is away the broker keeps
+its subscription and queues the records. It acknowledges a record to the broker only
+after the record is committed (paho's manual ack): a historian killed at any moment
+leaves every record either committed or unacknowledged, and the broker sends an
+unacknowledged one again. PostgreSQL going away mid-batch rolls the batch back and
+acknowledges none of it; the batch is retried until the database is back (or the
+historian stops, leaving the records to the broker).
+
+Threads: paho's network thread only queues what arrives; ``historian-writer`` takes
+batches (up to ``batch_max`` records, gathered for at most ``batch_s``), checks each
+(:func:`cell.plant.schema.parse`), commits the good ones in one transaction
+(:class:`cell.plant.store.HistorianStore`), then acknowledges the batch in the order it
+arrived and publishes each touched cell's watermark, retained, on ``<cell>/watermark``.
+After every connect to the broker it publishes every cell's latest watermark again (a
+broker restarted without persistence has lost the retained ones).
+
+A payload that is not a valid cycle message (not JSON, an unknown schema version, a
+field wrong, another cell's id) is refused: logged (``plant_record_refused``, naming what
+was wrong), counted in ``rejected``, acknowledged (sending it again cannot mend it) and
+never written. ``cellctl historian`` (:mod:`cell.commands.historian`) runs one.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+
+from cell.plant import schema
+from cell.plant.store import HistorianStore
+from cell.plant.topics import TopicError, parse as parse_topic, subscription
+
+
+@dataclass(frozen=True)
+class HistorianSettings:
+    """:param topic_filter: which cells' records to take (default every cell's)."""
+
+    host: str
+    port: int
+    dsn: str
+    client_id: str = "plant-historian"
+    topic_filter: str = subscription("cycle")
+    session_expiry_s: int = 7 * 24 * 3600
+    keepalive_s: int = 10
+    batch_max: int = 500
+    batch_s: float = 0.05
+    retry_max_s: float = 5.0
+
+
+class Historian:
+    """See the module doc. ``start()``/``stop()``; counters readable from any thread:
+    ``received``, ``inserted``, ``duplicates``, ``rejected``, ``acked``, ``commits``,
+    ``failed_commits``; ``last_refusal``: the text of the last refused payload."""
+
+    def __init__(self, settings: HistorianSettings, logger=None):
+        self.s = settings
+        self.store = HistorianStore(settings.dsn)
+        self._q: queue.Queue = queue.Queue()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._logger = logger
+        self.link = None
+        self.received = self.inserted = self.duplicates = self.rejected = 0
+        self.acked = self.commits = self.failed_commits = 0
+        self.last_refusal: str | None = None
+        self.watermarks: dict[tuple[str, str], int] = {}
+
+    def start(self) -> None:
+        """Migrate the database if it is there (else at the first commit), then subscribe."""
+        import psycopg
+        from cell.plant.mqtt import MqttLink
+        try:
+            self.store.connect()
+        except psycopg.OperationalError as exc:
+            self._say("historian_commit_failed", error=str(exc).strip()[:300], records=0, retry_in_s=0)
+        self.link = MqttLink(self.s.host, self.s.port, self.s.client_id, clean_start=False,
+                             session_expiry_s=self.s.session_expiry_s,
+                             subscriptions=((self.s.topic_filter, 1),), manual_ack=True,
+                             keepalive_s=self.s.keepalive_s, on_up=self._up, on_message=self._message)
+        self._thread = threading.Thread(target=self._run, name="historian-writer", daemon=True)
+        self._thread.start()
+        self.link.start()
+
+    def stop(self) -> None:
+        """Stop taking records; what is not committed stays unacknowledged at the broker."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30)
+        if self.link is not None:
+            self.link.stop()
+        self.store.close()
+
+    # paho's thread ------------------------------------------------------------------
+    def _up(self, generation: int, session_present: bool) -> None:
+        self._q.put(("republish", generation, None))
+
+    def _message(self, generation: int, message) -> None:
+        self._q.put(("message", generation, message))
+
+    # the writer ---------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                first = self._q.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            items = [first]
+            deadline = time.monotonic() + self.s.batch_s
+            while len(items) < self.s.batch_max:
+                try:
+                    items.append(self._q.get(timeout=max(0.0, deadline - time.monotonic())))
+                except queue.Empty:
+                    break
+            try:
+                self._batch(items)
+            except Exception as exc:                  # noqa: BLE001 -- the writer must keep going
+                self._say("historian_error", error=repr(exc))
+
+    def _batch(self, items: list) -> None:
+        good, taken, republish = [], [], False
+        for kind, generation, message in items:
+            if kind == "republish":
+                republish = True
+                continue
+            self.received += 1
+            taken.append((generation, message))
+            try:
+                cell, what = parse_topic(message.topic)
+                if what != "cycle":
+                    raise schema.PayloadError(f"{message.topic}: not a cycle topic")
+                good.append(schema.parse("cycle", message.topic, message.payload, cell.path))
+            except (schema.PayloadError, TopicError) as exc:
+                self.rejected += 1
+                self.last_refusal = str(exc)
+                self._say("plant_record_refused", error=str(exc))
+        result = self._commit(good) if good else None
+        if self._stop.is_set() and good and result is None:
+            return                                      # not committed: leave it to the broker
+        for generation, message in taken:
+            if message.qos >= 1 and self.link.ack(message.mid, generation, message.qos):
+                self.acked += 1
+        if result is not None:
+            self.inserted += result.inserted
+            self.duplicates += result.duplicates
+            for (cell, log_id), w in result.watermarks.items():
+                self.watermarks[(cell, log_id)] = w
+                self._publish_watermark(cell, log_id, w)
+        if republish:
+            self._republish()
+
+    def _commit(self, good: list):
+        """Commit ``good``, retrying while the database is away; None if stopped first."""
+        import psycopg
+        wait = 0.2
+        while not self._stop.is_set():
+            try:
+                result = self.store.commit(good)
+                self.commits += 1
+                return result
+            except psycopg.OperationalError as exc:
+                self.failed_commits += 1
+                self._say("historian_commit_failed", error=str(exc).strip()[:300], records=len(good),
+                          retry_in_s=wait)
+                self.store.close()
+                self._stop.wait(wait)
+                wait = min(wait * 2, self.s.retry_max_s)
+        return None
+
+    def _publish_watermark(self, cell: str, log_id: str, w: int) -> None:
+        self.link.publish(f"{cell}/watermark", schema.watermark_payload(cell, log_id, w), qos=1, retain=True)
+
+    def _republish(self) -> None:
+        import psycopg
+        try:
+            latest = self.store.latest_watermarks()
+        except psycopg.OperationalError as exc:
+            self.store.close()
+            self._say("historian_commit_failed", error=str(exc).strip()[:300], records=0, retry_in_s=0)
+            return
+        for cell, (log_id, w) in latest.items():
+            self._publish_watermark(cell, log_id, w)
+
+    def _say(self, event: str, **kw) -> None:
+        if self._logger is None:
+            from cell.log import get_logger
+            self._logger = get_logger("historian")
+        level = self._logger.info if event == "historian_started" else self._logger.warning
+        level(event, **kw)

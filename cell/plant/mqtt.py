@@ -1,0 +1,128 @@
+"""The one adapter to paho-mqtt (2.2, MQTT 5, callback API version 2) for the plant path.
+
+:class:`MqttLink` is one client with paho's network thread (``loop_start``): it connects
+in the background and reconnects on its own after a drop (1 to ``max_backoff_s`` s apart),
+subscribes again on every connect, and counts connections (:attr:`MqttLink.generation`).
+
+Callbacks run in paho's thread and must not block: ``on_up(generation, session_present)``
+after each connect and subscribe request, ``on_down()`` after a drop,
+``on_message(generation, message)`` for each message. With ``manual_ack`` a QoS 1 message
+is acknowledged only by :meth:`MqttLink.ack` (paho's ``manual_ack``), and only on the
+connection it came on: a message of an earlier connection is not acknowledged (the broker
+sends it again; its PUBACK on another connection would acknowledge a different message
+with the same packet id). :meth:`publish` and :meth:`ack` may be called from any thread.
+
+paho is imported when a link is made, not when this module is.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Will:
+    """A Last Will: what the broker publishes when the client goes without a DISCONNECT."""
+
+    topic: str
+    payload: bytes
+    qos: int = 1
+    retain: bool = True
+
+
+class MqttLink:
+    """One MQTT 5 client and its network thread; see the module doc.
+
+    :param clean_start: False for a persistent session (the broker keeps the subscriptions
+        and queues QoS 1 messages while the client is away, ``session_expiry_s`` long).
+    :param subscriptions: ``(topic filter, qos)`` pairs, subscribed at every connect.
+    :param will: the Last Will, set at every connect (:meth:`set_will` changes it).
+    """
+
+    def __init__(self, host: str, port: int, client_id: str, *, clean_start: bool = True,
+                 session_expiry_s: int = 0, subscriptions: tuple[tuple[str, int], ...] = (),
+                 will: Will | None = None, manual_ack: bool = False, keepalive_s: int = 10,
+                 max_inflight: int = 100, max_backoff_s: int = 5,
+                 on_up: Callable[[int, bool], None] | None = None,
+                 on_down: Callable[[], None] | None = None,
+                 on_message: Callable[[int, object], None] | None = None):
+        import paho.mqtt.client as mqtt
+        from paho.mqtt.packettypes import PacketTypes
+        from paho.mqtt.properties import Properties
+
+        self.host, self.port, self.client_id = host, int(port), client_id
+        self.subscriptions = tuple(subscriptions)
+        self.generation = 0                    #: connections made so far
+        self.connected = threading.Event()
+        self._on_up, self._on_down, self._on_message = on_up, on_down, on_message
+        self._mqtt = mqtt
+        c = self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                      protocol=mqtt.MQTTv5, manual_ack=manual_ack)
+        c.max_inflight_messages_set(max_inflight)
+        c.max_queued_messages_set(0)
+        c.reconnect_delay_set(1, max_backoff_s)
+        c.on_connect, c.on_disconnect, c.on_message = self._connected, self._disconnected, self._message
+        if will is not None:
+            self.set_will(will)
+        props = Properties(PacketTypes.CONNECT)
+        props.SessionExpiryInterval = int(session_expiry_s)
+        self._connect_args = dict(keepalive=keepalive_s, clean_start=clean_start, properties=props)
+        self._lock = threading.Lock()
+
+    def set_will(self, will: Will) -> None:
+        """The Last Will of the next connect."""
+        self.client.will_set(will.topic, will.payload, qos=will.qos, retain=will.retain)
+
+    def start(self) -> None:
+        """Connect in the background (retrying until :meth:`stop`)."""
+        self.client.connect_async(self.host, self.port, **self._connect_args)
+        self.client.loop_start()
+
+    def stop(self, final: tuple[str, bytes, bool] | None = None) -> None:
+        """Publish ``final`` (topic, payload, retain; QoS 1) if connected, then disconnect
+        cleanly (no Last Will) and end the network thread."""
+        if final is not None and self.connected.is_set():
+            info = self.client.publish(final[0], final[1], qos=1, retain=final[2])
+            try:
+                info.wait_for_publish(timeout=5)
+            except (RuntimeError, ValueError):
+                pass
+        self.client.disconnect()
+        self.client.loop_stop()
+        self.connected.clear()
+
+    def publish(self, topic: str, payload: bytes, qos: int = 1, retain: bool = False) -> bool:
+        """Queue one message; False if paho refused it (not connected)."""
+        info = self.client.publish(topic, payload, qos=qos, retain=retain)
+        return info.rc == self._mqtt.MQTT_ERR_SUCCESS
+
+    def ack(self, mid: int, generation: int, qos: int = 1) -> bool:
+        """Acknowledge message ``mid`` received on connection ``generation``; False (nothing
+        sent) if that connection is gone."""
+        with self._lock:
+            if generation != self.generation or not self.connected.is_set():
+                return False
+            return self.client.ack(mid, qos) == self._mqtt.MQTT_ERR_SUCCESS
+
+    # paho's thread ------------------------------------------------------------------
+    def _connected(self, client, userdata, flags, reason_code, properties) -> None:
+        if reason_code.is_failure:
+            return
+        with self._lock:
+            self.generation += 1
+            generation = self.generation
+        for topic, qos in self.subscriptions:
+            client.subscribe(topic, qos=qos)
+        self.connected.set()
+        if self._on_up is not None:
+            self._on_up(generation, bool(flags.session_present))
+
+    def _disconnected(self, client, userdata, flags, reason_code, properties) -> None:
+        self.connected.clear()
+        if self._on_down is not None:
+            self._on_down()
+
+    def _message(self, client, userdata, message) -> None:
+        if self._on_message is not None:
+            self._on_message(self.generation, message)
