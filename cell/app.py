@@ -84,6 +84,8 @@ class Cell:
         self.publisher = Publisher()
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
+        #: the plant outbox (``plant`` section; None without it): :attr:`~cell.plant.outbox.PlantOutbox.backlog`
+        self.outbox = None
         self.measuring_camera: MeasuringCamera | None = None
 
     def start(self) -> int:
@@ -114,9 +116,14 @@ class Cell:
                                              publisher=self.publisher)
             self.controller.start()
             port = self.plc.start(self.config.plc.host, self.plc_port)
+            if self.config.plant is not None:
+                # a thread of its own on wall time, reading the log read-only: never the scan's time
+                from cell.plant.outbox import PlantOutbox
+                self.outbox = PlantOutbox(self.config.log.path, self.config.plant.outbox_settings(self.config.name))
+                self.outbox.start()
             if self.with_jobs:
                 self.jobs = CellJobs(self.controller, self.config.scheduler, self.config.log.retention_days,
-                                     clock=self.clock)
+                                     clock=self.clock, outbox=self.outbox)
                 self.jobs.start()
         log.info("cell_started", name=self.config.name, devices=type(self.devices).__name__, plc_port=port,
                  calibration=getattr(self.robot, "calibration", "") or "nominal")
@@ -139,7 +146,8 @@ class Cell:
         with self.clock.attach():
             if self.controller is not None:
                 self.controller.detach_plc()            # before the link goes: rows stay unsettled
-            for step in (lambda: self.jobs and self.jobs.stop(), self.plc.stop,
+            for step in (lambda: self.jobs and self.jobs.stop(), lambda: self.outbox and self.outbox.stop(),
+                         self.plc.stop,
                          lambda: self.controller and self.controller.stop(),
                          lambda: self.measuring_camera and self.measuring_camera.close(), self.devices.stop):
                 try:

@@ -145,6 +145,45 @@ class CalibrationSection(_Section):
             raise ValueError(f"calibration.board: {exc}") from None
 
 
+class PlantSection(_Section):
+    """The plant path (``cell/plant.md``): the cycle log's records to an MQTT broker for the
+    historian (:mod:`cell.plant.outbox`). Absent (the default): the cell needs no broker.
+
+    ``host``/``port``: the broker. ``site``, ``line`` and ``cell`` name the cell's topics
+    ``<site>/<line>/<cell>/...`` (``cell`` defaults to the config's ``name``). ``window``:
+    records sent beyond the historian's watermark at most; ``resend_s``: how long the
+    watermark may stand still with records out before they are sent again.
+    """
+
+    host: str = Field(min_length=1)
+    port: int = Field(default=1883, ge=1, le=65535)
+    site: str
+    line: str
+    cell: str | None = None
+    keepalive_s: int = Field(default=10, ge=2, le=600)
+    window: int = Field(default=500, ge=1, le=100000)
+    resend_s: float = Field(default=30.0, gt=0, le=3600)
+
+    @model_validator(mode="after")
+    def _names(self) -> "PlantSection":
+        from cell.plant.topics import TopicError, check_segment
+        try:
+            for what in ("site", "line", "cell"):
+                if getattr(self, what) is not None:
+                    check_segment(f"plant.{what}", getattr(self, what))
+        except TopicError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+    def outbox_settings(self, cell_name: str):
+        """The :class:`~cell.plant.outbox.OutboxSettings` for a cell named ``cell_name``."""
+        from cell.plant.outbox import OutboxSettings
+        from cell.plant.topics import CellTopics
+        return OutboxSettings(host=self.host, port=self.port,
+                              topics=CellTopics(self.site, self.line, self.cell or cell_name),
+                              keepalive_s=self.keepalive_s, window=self.window, resend_s=self.resend_s)
+
+
 class SimSection(_Section):
     """Only for ``--sim``: the plant that stands in for the real robot and camera."""
     plant: str = "deploy/plants/default.yaml"
@@ -169,6 +208,7 @@ class CellConfig(_Section):
     cycle: CycleSection = CycleSection()
     scheduler: SchedulerSection = SchedulerSection()
     calibration: CalibrationSection = CalibrationSection()
+    plant: PlantSection | None = None           #: None: no plant path, no broker needed
     sim: SimSection | None = None
 
     @classmethod

@@ -33,8 +33,9 @@ class CellJobs:
     """Schedules the three jobs for one controller (see the module doc for the clock)."""
 
     def __init__(self, controller, settings: SchedulerSection, retention_days: int,
-                 clock: Clock | None = None):
+                 clock: Clock | None = None, outbox=None):
         self.c, self.s, self.retention_days = controller, settings, retention_days
+        self.outbox = outbox                      # the plant outbox, whose backlog health reports
         self.clock = clock or MonotonicClock()
         self.jobs = [(self.health, settings.health_interval_s), (self.drift, settings.drift_interval_s),
                      (self.retention, settings.retention_interval_s)]
@@ -84,6 +85,8 @@ class CellJobs:
                   "camera_frames": cam.frames, "camera_error": cam.last_error,
                   "camera_open": getattr(getattr(cam.camera, "state", None), "value", None) == "open",
                   "fault_code": self.c.fault_code}
+        if self.outbox is not None:               # records the plant historian has not committed
+            report["plant_backlog"] = self.outbox.backlog
         healthy = fault is None and cam.last_error is None and report["camera_open"]
         (log.info if healthy else log.warning)("health", healthy=healthy, **report)
         return report

@@ -1,0 +1,58 @@
+"""The plant section of the cell config: off by default (the main job needs no broker),
+checked at load, and a simulated cell with it sends its cycles to the historian."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from cell.config import CellConfig, PlantSection
+from cell.errors import ConfigError
+from cell.plant.historian import Historian
+from cell.plant.outbox import PlantOutbox
+from tests.cell.plant.helpers import historian_settings, log_ids, pg_ids
+from tests.waiting import wait_for
+
+
+def test_no_plant_section_by_default_and_a_bad_one_is_refused_at_load(tmp_path):
+    assert CellConfig().plant is None
+    s = PlantSection(host="broker", site="site1", line="line2")
+    assert s.outbox_settings("cell-1").topics.path == "site1/line2/cell-1"
+    path = tmp_path / "cell.yaml"
+    for bad, says in ((dict(host="b", site="s/1", line="l"), "plant.site"),
+                      (dict(host="b", site="s", line="l", qos=2), "qos"),
+                      (dict(host="b", site="s", line="l", port=0), "port")):
+        path.write_text(yaml.safe_dump({"format": "cell-config/1", "plant": bad}))
+        with pytest.raises(ConfigError, match=says):
+            CellConfig.load(path)
+
+
+def test_a_simulated_cell_with_a_plant_section_sends_its_cycles(tmp_path, broker, historian_db):
+    from tests.system.conftest import REPO, make_config
+    cfg = make_config(tmp_path, heartbeat_timeout_s=5.0)
+    cfg = cfg.model_copy(update={"plant": PlantSection(host=broker.host, port=broker.port, site="site1",
+                                                       line="line2")})
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(cfg.model_dump(mode="json", exclude_none=True)))
+    historian = Historian(historian_settings(broker, historian_db, client_id="h-cell"))
+    historian.start()
+    try:
+        out = subprocess.run([sys.executable, "-m", "cell.cli", "run", "--sim", "--config", str(path),
+                              "--recipe", "fast-a", "--cycles", "4", "--db", str(tmp_path / "cell.sqlite")],
+                             cwd=REPO, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert "plant_outbox_error" not in out.stderr
+        db = tmp_path / "cell.sqlite"
+        # what the run did not get delivered before it stopped stays in its log: the next
+        # start of the cell (here its outbox alone) sends it
+        outbox = PlantOutbox(db, cfg.plant.outbox_settings(cfg.name))
+        outbox.start()
+        try:
+            wait_for(lambda: outbox.backlog == 0, 120, "the log's cycles delivered")
+        finally:
+            outbox.stop()
+        assert len(log_ids(db)) == 4 and pg_ids(historian_db, "site1/line2/cell-1") == log_ids(db)
+    finally:
+        historian.stop()
