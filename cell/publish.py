@@ -1,7 +1,8 @@
 """The one place cycle records and cell status leave the controller for the plant.
 
-Plant integration (an OPC UA server, cycle records to an MQTT broker for the historian, the
-HMI) subscribes here instead of reaching into the controller or polling the log:
+Plant integration (an OPC UA server, the HMI) subscribes here instead of reaching into the
+controller or polling the log (the plant historian's path, which must lose nothing, reads
+the log itself: :mod:`cell.plant.outbox`):
 
 * topic ``cycle``: one message per cycle, published once the PLC has been told its outcome
   and the log row is settled (so a consumer sees what the log and the PLC see): the

@@ -1,0 +1,17 @@
+"""The plant path: every cycle record of the cell's log to the plant historian's PostgreSQL
+through an MQTT broker, nothing lost (contract: ``cell/plant.md``).
+
+The cell's SQLite log is the outbox and the historian's watermark says what is delivered:
+
+* :mod:`cell.plant.topics`: the topic tree ``<site>/<line>/<cell>/<kind>``;
+* :mod:`cell.plant.schema`: the JSON payloads, version 1, checked with pydantic;
+* :mod:`cell.plant.mqtt`: the one adapter to paho-mqtt (MQTT 5);
+* :mod:`cell.plant.outbox`: the cell side, a thread that sends the log above the watermark;
+* :mod:`cell.plant.historian` and :mod:`cell.plant.store`: ``cellctl historian``, broker to
+  PostgreSQL, acknowledging only what is committed;
+* :mod:`cell.plant.servers`: a real mosquitto and PostgreSQL on loopback, for tests and trials.
+
+Seams left for later: OPC UA, a line view, fleet reports and TLS/ACLs on the broker read
+the same topics and tables; the backlog is not yet in the PLC register map or the HMI.
+Nothing here is imported by ``cellctl --help`` (paho and psycopg load when used).
+"""
