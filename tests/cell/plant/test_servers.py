@@ -1,6 +1,7 @@
 """The test servers are real and come back after a crash on the same port."""
 from __future__ import annotations
 
+import os
 import socket
 
 
@@ -15,9 +16,10 @@ def test_postgres_runs_unprivileged_and_comes_back_after_an_immediate_stop(postg
     postgres.start()
     with psycopg.connect(postgres.dsn) as db:
         assert db.execute("SELECT count(*) FROM t").fetchone()[0] == 1    # committed: kept
-        # the server process is not root's
         assert db.execute("SELECT current_setting('data_directory')").fetchone()[0].startswith(str(postgres.folder))
         db.execute("DROP TABLE t")
+    pid = int((postgres.data / "postmaster.pid").read_text().split()[0])
+    assert os.stat(f"/proc/{pid}").st_uid != 0         # PostgreSQL refuses root: it runs as another user
 
 
 def test_broker_accepts_mqtt5_on_loopback(broker):
