@@ -40,8 +40,8 @@ def by_group(group: np.ndarray, n_groups: int, dims: int) -> np.ndarray:
     counts = np.bincount(rows, minlength=n_groups)
     out = -np.ones((n_groups, int(counts.max()) if len(counts) else 0), dtype=np.int64)
     start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    for g in range(n_groups):
-        out[g, :counts[g]] = order[start[g]:start[g] + counts[g]]
+    g = rows[order]                                   # each sorted row's group
+    out[g, np.arange(len(order)) - start[g]] = order
     return out
 
 

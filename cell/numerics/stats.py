@@ -277,15 +277,12 @@ def t_quantile(p: float, dof: int) -> float:
 def _ranks(a: np.ndarray) -> np.ndarray:
     """Average ranks (1-based) of ``a``."""
     order = np.argsort(a, kind="stable")
-    r = np.empty(len(a))
     s = a[order]
-    i = 0
-    while i < len(s):
-        j = i
-        while j + 1 < len(s) and s[j + 1] == s[i]:
-            j += 1
-        r[order[i:j + 1]] = (i + j) / 2 + 1
-        i = j + 1
+    first = np.r_[True, s[1:] != s[:-1]] if len(s) else np.zeros(0, bool)
+    starts = np.flatnonzero(first)
+    ends = np.r_[starts[1:], len(s)] - 1                 # each run of ties: its first, last
+    r = np.empty(len(a))
+    r[order] = ((starts + ends) / 2 + 1)[np.cumsum(first) - 1]
     return r
 
 

@@ -147,3 +147,25 @@ def test_a_two_effect_cause_is_named_whole_in_json_text_and_page(tmp_path):
         assert c["label"].count(effect) == 1
         assert f"{effect} on {', '.join(joints)}" in line
         assert f"{effect} on {', '.join(joints)}" in page
+
+
+def test_places_are_the_connected_components_of_close_poses():
+    # a plain breadth-first search over the pairs closer than LINK_DEG, numbered by first pose
+    from cell.diagnosis.places import LINK_DEG
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        n, k, dims = int(rng.integers(1, 120)), int(rng.integers(1, 12)), int(rng.integers(1, 5))
+        c = rng.uniform(-100, 100, (k, dims))
+        q = c[rng.integers(k, size=n)] + rng.uniform(-9, 9, (n, dims))
+        near = np.sum((q[:, None] - q[None]) ** 2, axis=2) < LINK_DEG ** 2
+        want, label = -np.ones(n, int), 0
+        for s in range(n):
+            if want[s] < 0:
+                want[s], todo = label, [s]
+                while todo:
+                    i = todo.pop()
+                    for j in np.flatnonzero(near[i] & (want < 0)):
+                        want[j] = label
+                        todo.append(j)
+                label += 1
+        assert np.array_equal(places(q), want), trial

@@ -56,8 +56,11 @@ def test_a_nuisance_eliminated_once_gives_the_same_errors_as_the_full_solve():
         assert np.allclose(e, plain.loo(c)[1], rtol=1e-9)
 
 
-def test_at_the_solution_the_hat_matrix_form_agrees_with_the_folds():
-    J, r, group, F = _problem(3)
+@pytest.mark.parametrize("folds", [8, 40])
+def test_at_the_solution_the_hat_matrix_form_agrees_with_the_folds(folds):
+    # 8 folds of about 5 points (15 rows over 5 columns: the fold taken out of the normal
+    # equations), 40 of one point (3 rows: I − H solved over them)
+    J, r, group, F = _problem(3, folds=folds)
     Js = leaveout.scaled(J)[0]
     res = r - Js @ np.linalg.lstsq(Js, r, rcond=None)[0]
     total, per, _, _ = leaveout.at_solution(J, res, group, F)

@@ -85,3 +85,11 @@ def test_median_is_numpys_without_loading_numpy_ma():
             "print('numpy.ma' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_ranks_average_ties_as_scipy_does():
+    from cell.numerics.stats import _ranks
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 7, 50, 300):
+        a = np.round(rng.normal(size=n), 1)            # many ties
+        assert np.array_equal(_ranks(a), stats.rankdata(a)), n
