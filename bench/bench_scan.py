@@ -50,9 +50,12 @@ SCAN_S = 0.01
 
 
 class NoStations:
-    """An idle cell's stations as the scan sees them: no latched fault."""
+    """An idle cell's stations as the scan sees them: no latched fault, the arm at rest."""
 
     fault = None
+
+    def actual_positions(self):
+        return np.zeros(4)
 
 
 def write_big(path: Path, megabytes: int, stop: threading.Event) -> None:

@@ -40,6 +40,7 @@ from cell.controller.core import (Audit, CancelCycle, ClearInterrupted, Controll
 from cell.cycle.runner import CancelToken, CycleOutcome, CycleRunner
 from cell.cycle.statemachine import State, StateMachine
 from cell.cyclelog import CycleLog, CycleStatus
+from cell.errors import CellError
 from cell.faults import Fault, station_fault
 from cell.log import get_logger
 from cell.publish import Publisher
@@ -55,6 +56,11 @@ log = get_logger("controller")
 
 #: refused PLC writes are audited at most this often (clock s), one row per client and reason
 REFUSAL_AUDIT_S = 10.0
+#: the joints' actual positions in the published status are sampled this often (clock s)
+#: and rounded to JOINTS_DIGITS decimals: at most ten status messages a second while the
+#: arm moves, none while it stands
+JOINTS_SAMPLE_S = 0.1
+JOINTS_DIGITS = 3
 
 __all__ = ["CellController", "ControllerSettings"]
 
@@ -122,6 +128,8 @@ class CellController:
         self._owner: str | None = None                      # the PLC client that owns the link
         self._next_refusal_audit = 0.0
         self._outputs = OutputWriter(plc)
+        self._joints: list[float] | None = None
+        self._joints_at = -float("inf")
 
     # ------------------------------------------------------------------ views (jobs, tests)
     @property
@@ -211,11 +219,31 @@ class CellController:
         self.publisher.status(self.clock.now(), self.status_snapshot())
 
     def status_snapshot(self) -> dict:
-        """What a PLC or an operator looks at, as published on ``status`` (:mod:`cell.publish`)."""
+        """What a PLC or an operator looks at, as published on ``status`` (:mod:`cell.publish`):
+        also the active recipe's name and ``joints``, the stations' last reported actual
+        positions j1..j4 (deg; mm for j3; None until every station has reported one),
+        sampled every :data:`JOINTS_SAMPLE_S`."""
+        active = self.recipes.by_number(self.recipe_number) if self.recipe_number else None
         return {"state": self.sm.state.name.lower(), "fault_code": int(self.fault_code),
                 "fault_text": self.fault_text, "cycle_count": int(self.cycle_count),
-                "recipe_number": int(self.recipe_number), "recalibration_due": bool(self.recalibration_due),
-                "plc_owner": self._owner}
+                "recipe_number": int(self.recipe_number),
+                "recipe_name": active.recipe.name if active is not None else "",
+                "recalibration_due": bool(self.recalibration_due),
+                "plc_owner": self._owner, "joints": self._sample_joints()}
+
+    def _sample_joints(self) -> list[float] | None:
+        """The stations' actual positions, re-read every :data:`JOINTS_SAMPLE_S` (memory reads
+        of their last TPDOs: no bus traffic)."""
+        now = self.clock.now()
+        if now - self._joints_at >= JOINTS_SAMPLE_S:
+            self._joints_at = now
+            try:
+                q = self.motion.actual_positions()
+            except CellError:                      # a station has not reported a position yet
+                self._joints = None
+            else:
+                self._joints = [round(float(v), JOINTS_DIGITS) for v in q]
+        return self._joints
 
     def _tag_owner(self) -> None:
         """Every log line of the scan thread names the PLC client that owns the link."""
