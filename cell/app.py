@@ -86,10 +86,15 @@ class Cell:
         self.jobs: CellJobs | None = None
         #: the plant outbox (``plant`` section; None without it): :attr:`~cell.plant.outbox.PlantOutbox.backlog`
         self.outbox = None
+        #: the read-only OPC UA server (``opcua`` section), started by :meth:`start`
+        self.opcua = None
+        self._insecure_opcua = devices == "sim"      # no security, anonymous: simulated cells only
         self.measuring_camera: MeasuringCamera | None = None
 
     def start(self) -> int:
         """Start devices, controller and jobs; returns the PLC link's TCP port."""
+        if self.config.opcua is not None:
+            self._start_opcua()
         with self.clock.attach():
             self.devices.start()
             v = self.config.vision
@@ -129,6 +134,17 @@ class Cell:
                  calibration=getattr(self.robot, "calibration", "") or "nominal")
         return port
 
+    def _start_opcua(self) -> None:
+        """The OPC UA server first: a port taken or an unusable ``opcua.pki`` refuses the start
+        before any device moves. It subscribes to the publisher here, so it sees the
+        controller's first status; it runs on wall time in its own thread, never on the scan."""
+        from cell.opcua.server import OpcuaServer
+        robot = self.config.robot.preset or "geometry"
+        self.opcua = OpcuaServer(self.config.opcua, self.publisher, self.config.name,
+                                 f"SCARA {robot} ({getattr(self.robot, 'calibration', '') or 'nominal'})",
+                                 insecure=self._insecure_opcua)
+        self.opcua.start()
+
     def _use_calibration(self, robot, doc: dict) -> None:
         """A kinematic calibration was written: plan the next cycles with it, learn afresh
         (the offsets learned so far referred to the old model). Runs in the calibration
@@ -146,7 +162,8 @@ class Cell:
         with self.clock.attach():
             if self.controller is not None:
                 self.controller.detach_plc()            # before the link goes: rows stay unsettled
-            for step in (lambda: self.jobs and self.jobs.stop(), lambda: self.outbox and self.outbox.stop(),
+            for step in (lambda: self.opcua and self.opcua.stop(),
+                         lambda: self.jobs and self.jobs.stop(), lambda: self.outbox and self.outbox.stop(),
                          self.plc.stop,
                          lambda: self.controller and self.controller.stop(),
                          lambda: self.measuring_camera and self.measuring_camera.close(), self.devices.stop):

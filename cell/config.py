@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from cell import paths
 from cell.errors import CellError
 from cell.kinematics import Scara
+from cell.opcua.config import OpcuaSection
 from cell.robots import PRESETS, Geometry
 from cell.yamlio import load_model
 from drivers.plc import PlcConfig
@@ -209,6 +210,8 @@ class CellConfig(_Section):
     scheduler: SchedulerSection = SchedulerSection()
     calibration: CalibrationSection = CalibrationSection()
     plant: PlantSection | None = None           #: None: no plant path, no broker needed
+    #: the read-only OPC UA server for the MES (cell/opcua/); absent: none
+    opcua: OpcuaSection | None = None
     sim: SimSection | None = None
 
     @classmethod
@@ -256,4 +259,6 @@ class CellConfig(_Section):
         }
         if self.sim is not None:
             update["sim"] = fix(self.sim, "plant")
+        if self.opcua is not None:
+            update["opcua"] = fix(self.opcua, "pki")
         return self.model_copy(update=update)

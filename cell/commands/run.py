@@ -30,6 +30,9 @@ if TYPE_CHECKING:
     from cell.config import CellConfig
 
 DEFAULT_SIM_DB = paths.DEFAULT_DB     #: where cellctl report/export/diagnose look by default (in the project)
+OPCUA_HELP = ("also serve the read-only OPC UA server for the MES there (port 0: any free one); "
+              "overrides the config's opcua host and port. Without --sim only Basic256Sha256 "
+              "SignAndEncrypt with trusted certificates (docs/opcua.md)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also activate recipes marked 'production: false' (shipped examples such as pin-b)")
     r.add_argument("--first-part", type=int, default=1, help="first part id (default 1)")
     r.add_argument("--json", action="store_true", help="print the cycles as JSON at the end")
+    r.add_argument("--opcua", metavar="HOST:PORT", help=OPCUA_HELP)
     r.set_defaults(func=run_sim)
     s = sub.add_parser("serve", help="run the controller (simulated devices with --sim)")
     s.add_argument("--sim", action="store_true", help="simulated devices, PLC link on loopback")
@@ -54,12 +58,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--seconds", type=float, help="stop after this many seconds (default: run until signalled)")
     s.add_argument("--db", help="cycle log (default: the config's log.path; var/cell.sqlite with --sim); "
                                 "one controller per log: a second one on the same file is refused")
+    s.add_argument("--opcua", metavar="HOST:PORT", help=OPCUA_HELP)
     s.set_defaults(func=serve)
 
 
 def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | None = None,
-                allow_examples: bool = False) -> CellConfig:
+                allow_examples: bool = False, opcua: str | None = None) -> CellConfig:
     from cell.config import CellConfig, SimSection
+    from cell.opcua.config import OpcuaSection, parse_address
     if path:
         cfg = CellConfig.load(path)
     elif sim:
@@ -73,6 +79,12 @@ def load_config(path: str | None, sim: bool, db: str | None = None, seed: int | 
         update["sim"] = (update.get("sim") or cfg.sim).model_copy(update={"seed": seed})
     if allow_examples:
         update["recipes"] = cfg.recipes.model_copy(update={"allow_examples": True})
+    if opcua:
+        try:
+            host, port = parse_address(opcua)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        update["opcua"] = (cfg.opcua or OpcuaSection()).model_copy(update={"host": host, "port": port})
     if sim and not path:
         update["plc"] = cfg.plc.model_copy(update={"host": "127.0.0.1"})
         update["log"] = cfg.log.model_copy(update={"path": DEFAULT_SIM_DB})
@@ -88,7 +100,7 @@ def run_sim(args: argparse.Namespace) -> int:
     from cell.sim.plc import SimPlc, SimPlcError
     if args.cycles < 1:
         raise ConfigError(f"--cycles {args.cycles} must be ≥ 1")
-    cfg = load_config(args.config, True, args.db, args.seed, args.allow_examples)
+    cfg = load_config(args.config, True, args.db, args.seed, args.allow_examples, args.opcua)
     _refuse_example(cfg, args.recipe)
     wall0 = time.monotonic()
     # a simulated cell starts from power-on, log included (unless --db names one to append to)
@@ -102,6 +114,8 @@ def run_sim(args: argparse.Namespace) -> int:
     with clock.attach("run"):
         port = cell.start()
         try:
+            if cell.opcua is not None:
+                print(f"OPC UA server on {cell.opcua.url} (read-only)", file=sys.stderr, flush=True)
             active = cell.recipes.active.get(args.recipe)
             if active is None:
                 raise ConfigError(f"recipe {args.recipe!r} is not active (known: {sorted(cell.recipes.active)})")
@@ -213,7 +227,7 @@ def _print_row(r: dict) -> None:
 def serve(args: argparse.Namespace) -> int:
     from cell import log
     from cell.app import Cell
-    cfg = load_config(args.config, args.sim, args.db)
+    cfg = load_config(args.config, args.sim, args.db, opcua=args.opcua)
     if args.config:                            # a service logs as its config says
         log.configure(cfg.log.format, cfg.log.level)
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
@@ -230,7 +244,8 @@ def serve(args: argparse.Namespace) -> int:
     tls_port = getattr(cell.plc, "tls_port", None)
     where = (f"Modbus TCP on {cfg.plc.host}:{actual}" if cfg.plc.plain_tcp else "") + \
         (" and " if cfg.plc.plain_tcp and tls_port else "") + \
-        (f"Modbus/TCP Security on {cfg.plc.tls.host}:{tls_port}" if tls_port else "")
+        (f"Modbus/TCP Security on {cfg.plc.tls.host}:{tls_port}" if tls_port else "") + \
+        (f", OPC UA on {cell.opcua.url}" if cell.opcua is not None else "")
     print(f"cell {cfg.name} serving {where}"
           f"{' (simulated devices, clock paced to wall time)' if args.sim else ''}; Ctrl-C to stop", flush=True)
     cycles0 = cell.controller.cycle_count

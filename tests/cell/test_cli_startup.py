@@ -13,7 +13,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 HEAVY = ("numpy", "scipy", "pydantic", "structlog", "yaml", "cv2", "pymodbus", "can", "canopen", "cryptography",
-         "matplotlib", "apscheduler", "lxml", "urdf_parser_py", "sqlite3", "paho", "psycopg")
+         "matplotlib", "apscheduler", "lxml", "urdf_parser_py", "sqlite3", "paho", "psycopg",
+         "asyncua")
 
 PROBE = r"""
 import argparse, contextlib, io, json, sys
