@@ -54,14 +54,17 @@ def client_certificate(folder: Path, name: str = "mes", uri: str = CLIENT_URI) -
     return cpath, kpath
 
 
-async def connect(url: str, cert: tuple[Path, Path] | None = None, user_cert: bool = True) -> Client:
+async def connect(url: str, cert: tuple[Path, Path] | None = None, user_cert: bool = True,
+                  server_cert: Path | None = None) -> Client:
     """A connected client: anonymous without ``cert``; with it, Basic256Sha256
-    SignAndEncrypt and (``user_cert``) the same certificate as its X.509 user."""
+    SignAndEncrypt (the server's certificate pinned from ``server_cert``, as an MES copies
+    it) and, if ``user_cert``, the same certificate as its X.509 user."""
     c = Client(url, timeout=30)
     c.session_timeout = 600_000
     if cert is not None:
         c.application_uri = CLIENT_URI
-        await c.set_security(_policy(), str(cert[0]), str(cert[1]), mode=ua.MessageSecurityMode.SignAndEncrypt)
+        await c.set_security(_policy(), str(cert[0]), str(cert[1]), mode=ua.MessageSecurityMode.SignAndEncrypt,
+                             server_certificate=str(server_cert) if server_cert else None)
         if user_cert:
             await c.load_client_certificate(str(cert[0]))
             await c.load_private_key(str(cert[1]))
