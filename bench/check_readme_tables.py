@@ -128,6 +128,8 @@ SOURCES: tuple[Source, ...] = (
            skip=1, slow=True, note="phase 2: the whole test suite three times"),
     Source("scan", ".venv/bin/python bench/bench_scan.py", ("bench/bench_scan.py",), 1, (ALL,),
            probe=("bench/bench_scan.py", "--seconds", "1")),
+    Source("opcua-scan", ".venv/bin/python bench/bench_opcua_scan.py", ("bench/bench_opcua_scan.py",), 1, (ALL,),
+           probe=("bench/bench_opcua_scan.py", "--seconds", "1", "--rounds", "1")),
     Source("soak", ".venv/bin/python bench/bench_soak.py --wall-min 60 --every-min 60",
            ("bench/bench_soak.py", "--wall-min", "60", "--every-min", "60"), 2, (ALL, ALL), slow=True),
     Source("thread-state", ".venv/bin/python bench/bench_thread_state.py", ("bench/bench_thread_state.py",),
@@ -174,7 +176,7 @@ HANDWRITTEN = ("| command | for | what it does |", "| code | meaning |",
                "| field | what to give | example (`motor_cyclic_error`) |",
                "| module | what it decides |", "| | planar (`cell/diagnosis/`) | chain (`cell/diagnosis/chain/`) |",
                "| seed | what it is | where it lives here | how you meet it |",
-               "| Attack | Defence | Code | Test |", "| What | Value | Where |")
+               "| Attack | Defence | Code | Test |", "| What | Value | Where |", "| file | what |")
 
 
 # ---------------------------------------------------------------------------- Markdown tables
