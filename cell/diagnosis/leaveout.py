@@ -61,6 +61,25 @@ def _sizes(pad: np.ndarray, dims: int, per: str) -> np.ndarray:
     return n / dims if per == "point" else n
 
 
+GRAM_PADDING = 4.0      # folds padded beyond this many times their rows keep Gram pieces only
+
+
+def _fold_grams(Js: np.ndarray, r: np.ndarray, rows: np.ndarray, n_groups: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each fold's JᵀJ (F, n, n), Jᵀr (F, n) and rᵀr (F,) from its rows (``rows`` the fold
+    of each scalar row), without padding."""
+    n = Js.shape[1]
+    G, b, rr = np.zeros((n_groups, n, n)), np.zeros((n_groups, n)), np.zeros(n_groups)
+    order = np.argsort(rows, kind="stable")
+    bounds = np.searchsorted(rows[order], np.arange(n_groups + 1))
+    for g in range(n_groups):
+        idx = order[bounds[g]:bounds[g + 1]]
+        if len(idx):
+            Jg, rg = Js[idx], r[idx]
+            G[g], b[g], rr[g] = Jg.T @ Jg, Jg.T @ rg, rg @ rg
+    return G, b, rr
+
+
 def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, dims: int = 3,
                 per: str = "point") -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Leave-one-fold-out of the least-squares fit with design ``J`` and residuals ``r``
@@ -106,16 +125,30 @@ class Folds:
 
     ``ridge``: a relative Tikhonov term (× the largest diagonal of each fold-out system,
     plus the smallest positive double) that keeps a fold whose removal leaves a column
-    unseen finite instead of failing; 0 lets such a fold fail (its error inf)."""
+    unseen finite instead of failing; 0 lets such a fold fail (its error inf).
+
+    Folds of very unequal size (a measured move's hundreds of samples beside poses of one
+    point) would pad every fold to the largest: when padding would more than
+    :data:`GRAM_PADDING`-fold the rows, each fold keeps only its Gram pieces (JᵀJ, Jᵀr,
+    rᵀr) and the held-out error is ‖r_g − J_g γ‖² = rᵀr − 2γᵀJᵀr + γᵀJᵀJγ (``gram``)."""
 
     def __init__(self, Js: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int,
                  base: int = 0, dims: int = 3, per: str = "point", ridge: float = 0.0):
-        self.Jg, self.rg, pad = blocks(Js, r, group, n_groups, dims)  # (F, R, n), (F, R)
-        self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
-        self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
+        rows = np.repeat(group, dims)
+        counts = np.bincount(rows, minlength=n_groups).astype(float)
+        self.gram = bool(len(rows)) and counts.max() * n_groups > GRAM_PADDING * len(rows)
+        if self.gram:
+            self.G, self.b, self.rr = _fold_grams(Js, r, rows, n_groups)
+            self.Jg = self.rg = None
+            self.size = counts / dims if per == "point" else counts
+            self.n_pts = len(rows) / dims
+        else:
+            self.Jg, self.rg, pad = blocks(Js, r, group, n_groups, dims)  # (F, R, n), (F, R)
+            self.G = self.Jg.transpose(0, 2, 1) @ self.Jg                 # (F, n, n)
+            self.b = np.einsum("frn,fr->fn", self.Jg, self.rg)
+            self.size = _sizes(pad, dims, per)
+            self.n_pts = _sizes(pad, dims, "point").sum()
         self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
-        self.size = _sizes(pad, dims, per)
-        self.n_pts = _sizes(pad, dims, "point").sum()
         self.ridge = ridge
         self.base = base
         self.u, self.W, self.M, self.z = self.rg, self.Jg, None, None
@@ -124,7 +157,7 @@ class Folds:
 
     @property
     def n_folds(self) -> int:
-        return len(self.rg)
+        return len(self.G)
 
     def _eliminate(self, nb: int) -> None:
         A = self.Gt - self.G                                          # (F, n, n) fold out
@@ -139,6 +172,16 @@ class Folds:
         Apr = A[:, nb:, :nb]
         self.M = A[:, nb:, nb:] - Apr @ X                             # (F, m, m)
         self.z = c[:, nb:] - np.einsum("fmr,fr->fm", Apr, x)          # (F, m)
+        if self.gram:     # u = r − J_B x, W = J_R − J_B X, in the fold's Gram pieces
+            G, b = self.G, self.b
+            GBB, GBR, GRR, bB, bR = G[:, :nb, :nb], G[:, :nb, nb:], G[:, nb:, nb:], b[:, :nb], b[:, nb:]
+            GBBx = np.einsum("fij,fj->fi", GBB, x)
+            self.uu = self.rr - 2 * np.einsum("fi,fi->f", x, bB) + np.einsum("fi,fi->f", x, GBBx)
+            self.Wu = (bR - np.einsum("fji,fj->fi", GBR, x) - np.einsum("fji,fj->fi", X, bB)
+                       + np.einsum("fji,fj->fi", X, GBBx))
+            XtGBR = X.transpose(0, 2, 1) @ GBR
+            self.WW = GRR - XtGBR - XtGBR.transpose(0, 2, 1) + X.transpose(0, 2, 1) @ GBB @ X
+            return
         Jr = self.Jg[:, :, :nb]
         self.u = self.rg - np.einsum("fRr,fr->fR", Jr, x)             # (F, R)
         self.W = self.Jg[:, :, nb:] - Jr @ X                          # (F, R, m)
@@ -150,7 +193,10 @@ class Folds:
         return A + lam[..., None, None] * np.eye(A.shape[-1])
 
     def _result(self, e: np.ndarray) -> tuple[float, np.ndarray]:
-        ss = np.sum(e * e, axis=-1)
+        return self._from_ss(np.sum(e * e, axis=-1))
+
+    def _from_ss(self, ss: np.ndarray) -> tuple[float, np.ndarray]:
+        ss = np.maximum(ss, 0.0)                  # a Gram form's rounding below zero
         return (float(math.sqrt(np.sum(ss) / max(self.n_pts, 1))),
                 ss / np.maximum(self.size, 1))
 
@@ -161,25 +207,29 @@ class Folds:
         nb = self.base
         if nb and len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
             S = cols[nb:] - nb
-            e = self.u
-            if len(S):
-                try:
-                    beta = np.linalg.solve(self._ridged(self.M[:, S[:, None], S]),
-                                           self.z[:, S, None])[..., 0]
-                except np.linalg.LinAlgError:
-                    return math.inf, np.full(len(self.rg), math.inf)
-                e = self.u - np.einsum("frk,fk->fr", self.W[:, :, S], beta)
-            return self._result(e)
-        e = self.rg
-        if len(cols):
-            A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
-            rhs = self.bt[cols] - self.b[:, cols]
+            if not len(S):
+                return self._from_ss(self.uu) if self.gram else self._result(self.u)
             try:
-                beta = np.linalg.solve(self._ridged(A), rhs[..., None])[..., 0]
+                beta = np.linalg.solve(self._ridged(self.M[:, S[:, None], S]),
+                                       self.z[:, S, None])[..., 0]
             except np.linalg.LinAlgError:
-                return math.inf, np.full(len(self.rg), math.inf)
-            e = self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta)
-        return self._result(e)
+                return math.inf, np.full(self.n_folds, math.inf)
+            if self.gram:
+                return self._from_ss(self.uu - 2 * np.einsum("fk,fk->f", beta, self.Wu[:, S])
+                                     + np.einsum("fk,fkl,fl->f", beta, self.WW[:, S[:, None], S], beta))
+            return self._result(self.u - np.einsum("frk,fk->fr", self.W[:, :, S], beta))
+        if not len(cols):
+            return self._from_ss(self.rr) if self.gram else self._result(self.rg)
+        A = self.Gt[np.ix_(cols, cols)] - self.G[:, cols[:, None], cols]
+        rhs = self.bt[cols] - self.b[:, cols]
+        try:
+            beta = np.linalg.solve(self._ridged(A), rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return math.inf, np.full(self.n_folds, math.inf)
+        if self.gram:
+            return self._from_ss(self.rr - 2 * np.einsum("fk,fk->f", beta, self.b[:, cols])
+                                 + np.einsum("fk,fkl,fl->f", beta, self.G[:, cols[:, None], cols], beta))
+        return self._result(self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta))
 
     def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
         """:meth:`loo` of each column list of ``subsets`` (all of one length), solved in
@@ -196,8 +246,13 @@ class Folds:
                                    self.z[:, S, None])[..., 0]         # (F, t, k)
         except np.linalg.LinAlgError:                                 # tell which: one at a time
             return [self.loo(c) for c in subsets]
-        e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
-        ss = np.sum(e * e, axis=2)                                    # (t, F)
+        if self.gram:
+            ss = np.maximum(self.uu[None] - 2 * np.einsum("ftk,ftk->tf", beta, self.Wu[:, S])
+                            + np.einsum("ftk,ftkl,ftl->tf", beta,
+                                        self.WW[:, S[:, :, None], S[:, None, :]], beta), 0.0)
+        else:
+            e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
+            ss = np.sum(e * e, axis=2)                                # (t, F)
         per = ss / np.maximum(self.size, 1)
         total = np.sqrt(np.sum(ss, axis=1) / max(self.n_pts, 1))
         return [(float(t), q) for t, q in zip(total, per)]

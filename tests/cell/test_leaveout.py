@@ -77,3 +77,25 @@ def test_a_fold_that_alone_sees_a_column_fails_without_a_ridge_and_stays_finite_
     assert math.isinf(leaveout.Folds(Js, r, group, F).loo([0, 1, 2])[0])
     total, per = leaveout.Folds(Js, r, group, F, ridge=1e-10).loo([0, 1, 2])
     assert np.all(np.isfinite(per)) and math.isfinite(total)
+
+
+@pytest.mark.parametrize("base", [0, 2])
+def test_folds_of_very_unequal_size_keep_gram_pieces_and_agree_with_real_refits(base):
+    # 30 folds of one point and 2 of 60 (a measured move's samples beside static poses):
+    # padding would multiply the rows ~40-fold, so the folds keep JᵀJ, Jᵀr and rᵀr only
+    rng = np.random.default_rng(9)
+    dims, cols = 2, 6
+    group = np.r_[np.arange(30), np.full(60, 30), np.full(60, 31)]
+    J = rng.normal(size=(len(group) * dims, cols)) * rng.uniform(0.1, 10.0, cols)
+    r = rng.normal(size=len(group) * dims)
+    Js = leaveout.scaled(J)[0]
+    folds = leaveout.Folds(Js, r, group, 32, base=base, dims=dims)
+    assert folds.gram and folds.n_folds == 32
+    subsets = [[0, 1, 2], [0, 1, 3], [0, 1, 5]]
+    for c, (total, per) in zip(subsets, folds.loo_each(subsets)):
+        want = [np.sum(_refit(Js, r, group, g, c, dims) ** 2) / np.sum(group == g) for g in range(32)]
+        assert np.allclose(per, want, rtol=1e-8, atol=1e-12), c
+        one_total, one_per = folds.loo(c)
+        assert total == pytest.approx(one_total, rel=1e-9) and np.allclose(per, one_per, rtol=1e-9)
+    want = [np.sum(_refit(Js, r, group, g, [0, 1], dims) ** 2) / np.sum(group == g) for g in range(32)]
+    assert np.allclose(folds.loo([0, 1])[1], want, rtol=1e-8, atol=1e-12)
