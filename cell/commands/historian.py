@@ -4,9 +4,10 @@ It subscribes to ``+/+/+/cycle`` (``--cells`` narrows it) with a persistent sess
 each batch to the database named by ``--dsn`` (or ``CELL_HISTORIAN_DSN``), acknowledges a
 record to the broker only once it is committed, and publishes each cell's watermark,
 retained, on ``<site>/<line>/<cell>/watermark``: the cells send again what it does not
-cover. It migrates its own tables at start. Runs until SIGINT or SIGTERM (or
-``--seconds``); what is not committed then stays with the broker. Topic tree and payloads:
-``cell/plant.md``.
+cover. Beside it, each cell's retained status (online, or its Last Will) goes to the
+table ``cell_status`` (:mod:`cell.plant.status`). It migrates its own tables at start.
+Runs until SIGINT or SIGTERM (or ``--seconds``); what is not committed then stays with
+the broker. Topic tree and payloads: ``cell/plant.md``.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ def _broker(text: str) -> tuple[str, int]:
 
 def run(args: argparse.Namespace) -> int:
     from cell.plant.historian import Historian, HistorianSettings
+    from cell.plant.status import StatusRecorder
     from cell.plant.topics import TopicError, subscription
 
     host, port = _broker(args.broker)
@@ -58,18 +60,22 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--cells {args.cells!r} is not SITE/LINE/CELL")
     try:
         topic_filter = subscription("cycle", *parts)
+        status_filter = subscription("status", *parts)
     except TopicError as exc:
         raise ConfigError(f"--cells: {exc}") from None
     historian = Historian(HistorianSettings(host, port, dsn, client_id=args.client_id, topic_filter=topic_filter,
                                             session_expiry_s=args.session_expiry_s))
+    status = StatusRecorder(host, port, dsn, client_id=f"{args.client_id}-status", topic_filter=status_filter)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     historian.start()
+    status.start()
     print(f"historian taking {topic_filter} from {host}:{port}; Ctrl-C to stop", flush=True)
     try:
         stop.wait(args.seconds)
     finally:
+        status.stop()
         historian.stop()
         print(f"historian stopped: {historian.received} received, {historian.inserted} written, "
               f"{historian.duplicates} duplicate(s), {historian.rejected} refused", file=sys.stderr, flush=True)

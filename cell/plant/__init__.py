@@ -9,6 +9,7 @@ The cell's SQLite log is the outbox and the historian's watermark says what is d
 * :mod:`cell.plant.outbox`: the cell side, a thread that sends the log above the watermark;
 * :mod:`cell.plant.historian` and :mod:`cell.plant.store`: ``cellctl historian``, broker to
   PostgreSQL, acknowledging only what is committed;
+* :mod:`cell.plant.status`: each cell's retained status (online, Last Will) into ``cell_status``;
 * :mod:`cell.plant.servers`: a real mosquitto and PostgreSQL on loopback, for tests and trials.
 
 Seams left for later: OPC UA, a line view, fleet reports and TLS/ACLs on the broker read

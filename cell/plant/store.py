@@ -14,6 +14,8 @@ historians starting together do not both migrate):
   of that log up to it is committed. It moves in the same transaction as the rows: from
   ``w`` it moves to the next committed id ``c`` whose ``prev_id <= w`` (no id between ``w``
   and ``c`` exists in the log), and on from there.
+* ``cell_status`` (migration 2): each cell's latest retained ``status`` (online or its Last
+  Will), one row per cell, written by :class:`cell.plant.status.StatusRecorder`.
 
 :meth:`HistorianStore.commit` writes a batch in ONE transaction and returns what moved; a
 connection lost before the commit raises ``psycopg.OperationalError`` and nothing of the
@@ -53,6 +55,17 @@ CREATE TABLE watermarks (
     cycle_id bigint NOT NULL,
     updated_at timestamptz NOT NULL DEFAULT now(),
     PRIMARY KEY (cell, log_id)
+);
+"""),
+    (2, """
+CREATE TABLE cell_status (
+    cell text PRIMARY KEY,
+    online boolean NOT NULL,
+    session bigint NOT NULL,
+    log_id text,
+    at text NOT NULL,
+    changed_at timestamptz NOT NULL DEFAULT now(),
+    received_at timestamptz NOT NULL DEFAULT now()
 );
 """),
 )

@@ -61,8 +61,10 @@ def test_every_record_of_the_log_reaches_postgres_and_gaps_are_not_waited_for(tm
     assert len(log_ids(db)) == 140
     assert historian.rejected == 0 and historian.watermarks[(TOPICS.path, log.log_id)] == 150
     import psycopg
+
+    from cell.plant.store import SCHEMA_VERSION
     with psycopg.connect(historian_db) as pg:
-        assert pg.execute("SELECT max(version) FROM schema_version").fetchone()[0] == 1
+        assert pg.execute("SELECT max(version) FROM schema_version").fetchone()[0] == SCHEMA_VERSION
         rec = pg.execute("SELECT record FROM cycles WHERE cycle_id = 1").fetchone()[0]
     assert rec["part_id"] == 1 and rec["recipe"] == "bracket-a" and "trace" not in rec
     log.close()
