@@ -34,6 +34,7 @@ COMMAND_MODULES = (
     "cell.commands.plc",
     "cell.commands.hmi",
     "cell.commands.historian",
+    "cell.commands.fleet",
 )
 
 

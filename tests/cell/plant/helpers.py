@@ -53,3 +53,29 @@ def log_ids(path: Path) -> set[int]:
         return {r.id for r in log.cycles()}
     finally:
         log.close()
+
+
+def cycle_message(cell: str, cycle_id: int, finished_at: str, *, log_id: str = "a" * 32, recipe: str = "bracket-a",
+                  status: str = "done", final_mm: float | None = 0.004, verify_mm: float | None = 0.005,
+                  fault_code: int = 0, part_id: int | None = None):
+    """A checked cycle message as the historian takes it (values made up; ``finished_at``
+    ISO 8601 UTC places it in a shift)."""
+    from cell.plant.schema import CycleFields, CycleMessage
+    done = status == "done"
+    return CycleMessage(cell=cell, log_id=log_id, cycle_id=cycle_id, prev_id=cycle_id - 1, session=1, seq=cycle_id,
+                        record=CycleFields(part_id=part_id or cycle_id, recipe=recipe, recipe_hash="ab" * 8,
+                                           started_at=finished_at, finished_at=finished_at, status=status,
+                                           cycle_time_s=1.5, final_error_mm=final_mm if done else None,
+                                           verify_error_mm=verify_mm if done else None, fault_code=fault_code,
+                                           fault_text="camera lost the part" if fault_code else ""))
+
+
+def fill_store(dsn: str, messages) -> None:
+    """Commit ``messages`` through the historian's own store (its migrations, its watermarks)."""
+    from cell.plant.store import HistorianStore
+    store = HistorianStore(dsn)
+    try:
+        store.connect()
+        store.commit(list(messages))
+    finally:
+        store.close()
