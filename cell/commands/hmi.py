@@ -3,7 +3,8 @@
 It shows the cell's status and last cycles live, the accuracy trend, the recipes (view,
 diff against the active version, edit with validation as you type; saving needs a login
 with an editing role, and the controller activates the edit between cycles and audits it
-with that user and role) and the diagnosis reports under ``--reports``. Requests must name
+with that user and role) and the diagnosis reports under ``--reports``; with ``--line-dsn``,
+the line view of every cell in the plant historian (``/line``). Requests must name
 an allowed host (``--allowed-host``); behind a TLS proxy (``--trusted-proxy``, loopback by
 default) the forwarded scheme and host are honoured.
 ``cellctl hmi passwd USER --role maintenance`` adds a user (or sets a new password).
@@ -42,6 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "are honoured; repeat for more (default: loopback, 127.0.0.1 and ::1; 'none': no proxy)")
     p.add_argument("--plc", metavar="HOST:PORT", help="read the controller's status registers from this "
                                                       "Modbus TCP link (read-only); default: the log only")
+    p.add_argument("--line-dsn", metavar="DSN", help="the plant historian's PostgreSQL: adds the line view "
+                                                     "(/line, every cell of the plant); default: off")
+    p.add_argument("--line-link", action="append", default=[], metavar="SITE/LINE/CELL=URL",
+                   help="the line view links this cell to its own HMI at URL (its trend); repeat for more "
+                        "(default: a page of the line view)")
     p.add_argument("--dir", help="recipe folder (default: the config's recipes.directory)")
     p.add_argument("--db", help="cycle log (default: the config's log.path)")
     hs = p.add_subparsers(dest="hmi_cmd", metavar="ACTION")
@@ -70,11 +76,13 @@ def run(args: argparse.Namespace) -> int:
         return _passwd(args)
     import ipaddress
 
+    from cell.hmi.line import parse_links
     from cell.hmi.server import listen, serve, settings_from
     proxies = ("127.0.0.1", "::1") if args.trusted_proxy is None else \
         tuple(p for p in args.trusted_proxy if p.lower() != "none")
     settings = settings_from(args.config, args.users, args.reports, _plc(args.plc), args.dir, args.db,
-                             listen_host=args.host, allowed_hosts=tuple(args.allowed_host), trusted_proxies=proxies)
+                             listen_host=args.host, allowed_hosts=tuple(args.allowed_host), trusted_proxies=proxies,
+                             line_dsn=args.line_dsn, line_links=parse_links(args.line_link))
     if not len(settings.users):
         print(f"cellctl hmi: no users in {args.users}: viewing only; add one with "
               "'cellctl hmi passwd USER --role maintenance'", file=sys.stderr)
@@ -91,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
     url_host = f"[{host}]" if ":" in host else host
     print(f"cellctl hmi: serving http://{url_host}:{port}/ (recipes {settings.desk.directory}, "
           f"log {settings.log_path}); Ctrl-C stops", flush=True)
+    if settings.line_dsn:
+        print(f"cellctl hmi: line view at http://{url_host}:{port}/line", flush=True)
     serve(settings, sock)
     return 0
 

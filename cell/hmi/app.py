@@ -1,6 +1,7 @@
 """The HMI's web application (Starlette): settings, the wiring the routes share, the stack.
 
-Pages and endpoints are in :mod:`~cell.hmi.pages` (status, trend, recipes, reports) and
+Pages and endpoints are in :mod:`~cell.hmi.pages` (status, trend, recipes, reports),
+:mod:`~cell.hmi.line` (the line view, when the HMI has the plant historian's DSN) and
 :mod:`~cell.hmi.auth` (login, logout, sessions, CSRF); the middleware in front of them in
 :mod:`~cell.hmi.guard`.
 
@@ -35,7 +36,7 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
-from cell.hmi import auth, pages
+from cell.hmi import auth, line, pages
 from cell.hmi.guard import BodyLimit, ResourceErrors, ResponseHeaders, TrustedHost
 from cell.hmi.netguard import RateLimitedLog
 from cell.hmi.recipes import RecipeDesk
@@ -72,6 +73,10 @@ class HmiSettings:
     allowed_hosts: tuple[str, ...] = ()
     trusted_proxies: tuple[str, ...] = ("127.0.0.1", "::1")
     check_slots: int = 2
+    #: the plant historian's PostgreSQL (libpq string): the line view (:mod:`cell.hmi.line`); None: off
+    line_dsn: str | None = None
+    #: (cell id ``site/line/cell``, URL of that cell's HMI) pairs: the line view links there
+    line_links: tuple[tuple[str, str], ...] = ()
 
 
 class Hmi:
@@ -106,7 +111,7 @@ class Hmi:
              **context) -> Response:
         user = auth.session_user(self, request)
         context.update(user=user, csrf=auth.csrf_token(request), cell_name=self.s.cell_name,
-                       can_edit=(user or {}).get("role") in EDIT_ROLES)
+                       can_edit=(user or {}).get("role") in EDIT_ROLES, line_view=bool(self.s.line_dsn))
         resp = self.templates.TemplateResponse(request, name, context, status_code=status_code, headers=headers)
         resp.headers["Content-Security-Policy"] = PAGE_CSP
         return resp
@@ -122,7 +127,7 @@ def _busy(request: Request, exc: Exception) -> Response:
 def create_app(s: HmiSettings) -> Starlette:
     """The application for ``s``; ``app.state.hmi`` is its :class:`Hmi`."""
     hmi = Hmi(s)
-    routes = [*pages.routes(hmi), *auth.routes(hmi),
+    routes = [*pages.routes(hmi), *line.routes(hmi), *auth.routes(hmi),
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     middleware = [
         Middleware(ResponseHeaders),

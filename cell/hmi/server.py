@@ -58,10 +58,12 @@ class ServeLimits:
 def settings_from(config: str | None, users: str, reports: str, plc: tuple[str, int] | None = None,
                   recipes: str | None = None, db: str | None = None, *, listen_host: str = "127.0.0.1",
                   allowed_hosts: tuple[str, ...] = (),
-                  trusted_proxies: tuple[str, ...] = ("127.0.0.1", "::1")) -> HmiSettings:
+                  trusted_proxies: tuple[str, ...] = ("127.0.0.1", "::1"), line_dsn: str | None = None,
+                  line_links: tuple[tuple[str, str], ...] = ()) -> HmiSettings:
     """:class:`HmiSettings` for the cell config at ``config`` (None: the built-in defaults,
     as ``cellctl recipe validate`` without ``--config``); ``recipes``/``db`` override the
-    config's folder and log; the hosts and proxies as :class:`HmiSettings` takes them.
+    config's folder and log; the hosts and proxies, and the line view's DSN and links, as
+    :class:`HmiSettings` takes them.
     Raises ConfigError naming a bad config or users file, or a proxy that is no address."""
     from cell.config import CellConfig
     from cell.hmi.recipes import RecipeDesk
@@ -81,7 +83,8 @@ def settings_from(config: str | None, users: str, reports: str, plc: tuple[str, 
             raise ConfigError(f"--trusted-proxy {p!r}: expected an address or network, e.g. 127.0.0.1") from None
     return HmiSettings(desk=desk, log_path=log_path, users=Users(users), reports=Path(reports), plc=plc,
                        cell_name=cfg.name, listen_host=listen_host, allowed_hosts=tuple(allowed_hosts),
-                       trusted_proxies=tuple(trusted_proxies))
+                       trusted_proxies=tuple(trusted_proxies), line_dsn=line_dsn or None,
+                       line_links=tuple(line_links))
 
 
 def listen(host: str, port: int) -> socket.socket:
