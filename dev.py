@@ -4,6 +4,8 @@
     python3 dev.py run            build .venv if needed, then run the simulated cell (the main job)
     python3 dev.py test [ARGS]    build .venv and the test tools if needed, then run the test suite
     python3 dev.py bench [ARGS]   build .venv if needed, then run every benchmark in bench/
+    python3 dev.py fleet [ARGS]   build .venv, mosquitto and PostgreSQL if needed, then run a fleet of
+                                  three simulated cells, the plant historian and the line view
     python3 dev.py cellctl ARGS   build .venv if needed, then run any cellctl command
 
 Any working directory will do. The virtual environment is rebuilt when pyproject.toml
@@ -14,6 +16,8 @@ packages, when they are missing and this user may (root with apt-get): Chromium 
 ChromeDriver (the browser tests of the HMI and the reports), mbpoll (an independent
 Modbus client), mosquitto and PostgreSQL (the plant path's broker and historian database,
 tests/cell/plant). Without them those tests skip, except under CI=true, where they fail.
+``fleet`` installs mosquitto and PostgreSQL the same way (it needs both) and runs
+``cell/plant/demo.py`` until Ctrl-C; ``run`` never needs a broker.
 """
 from __future__ import annotations
 
@@ -36,6 +40,9 @@ MAIN_JOB = ["cellctl", "run", "--sim", "--cycles", "10"]
 # test tools from Debian's packages: command -> package
 TEST_TOOLS = {"chromium": "chromium", "chromedriver": "chromium-driver", "mbpoll": "mbpoll",
               "mosquitto": "mosquitto", "initdb": "postgresql"}
+# what the fleet demo needs (cell/plant/demo.py): the broker and the historian's database
+FLEET_TOOLS = {"mosquitto": "mosquitto", "initdb": "postgresql"}
+FLEET_JOB = ["-m", "cell.plant.demo"]
 # where Debian puts tools that are not on an ordinary user's PATH (PostgreSQL's are versioned)
 TOOL_FOLDERS = ("/usr/sbin", "/usr/lib/postgresql/*/bin")
 
@@ -76,24 +83,27 @@ def _step(argv: list[str], what: str) -> None:
         sys.exit(code if 0 < code < 256 else 1)
 
 
-def _ensure_test_tools() -> None:
-    """Install the missing test tools with apt-get when this user may; say what skips if not."""
-    missing = sorted({pkg for cmd, pkg in TEST_TOOLS.items() if not _have_tool(cmd)})
+def _ensure_tools(tools: dict[str, str] = TEST_TOOLS, what: str = "test tools",
+                       without: str = "the tests that drive them skip") -> bool:
+    """Install the missing ``tools`` (command -> Debian package) with apt-get when this user
+    may; say what happens without them if not. True when none is missing at the end."""
+    missing = sorted({pkg for cmd, pkg in tools.items() if not _have_tool(cmd)})
     if not missing:
-        return
+        return True
     apt = shutil.which("apt-get")
     if apt is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
         print(f"dev.py: {', '.join(missing)} not installed (apt-get install {' '.join(missing)}); "
-              "the tests that drive them skip", file=sys.stderr, flush=True)
-        return
-    print(f"dev.py: installing test tools from Debian's packages: {', '.join(missing)}", flush=True)
+              f"{without}", file=sys.stderr, flush=True)
+        return False
+    print(f"dev.py: installing {what} from Debian's packages: {', '.join(missing)}", flush=True)
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
     quiet = {"stdout": subprocess.DEVNULL, "env": env}
     if subprocess.call([apt, "install", "-y", "-q", "--no-install-recommends", *missing], **quiet) != 0:
         subprocess.call([apt, "update", "-q"], **quiet)
         if subprocess.call([apt, "install", "-y", "-q", "--no-install-recommends", *missing], **quiet) != 0:
-            print(f"dev.py: could not install {', '.join(missing)}; the tests that drive them "
-                  "skip (fail under CI=true)", file=sys.stderr, flush=True)
+            print(f"dev.py: could not install {', '.join(missing)}; {without}", file=sys.stderr, flush=True)
+            return False
+    return True
 
 
 def _have_tool(cmd: str) -> bool:
@@ -126,7 +136,7 @@ def _become(argv: list[str]) -> int:
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in {"run", "test", "bench", "cellctl"}:
+    if not argv or argv[0] not in {"run", "test", "bench", "cellctl", "fleet"}:
         print(__doc__)
         return 2
     _ensure_venv()
@@ -135,8 +145,12 @@ def main(argv: list[str]) -> int:
         # the caller's working directory: cellctl resolves its own defaults against the project
         argv = [str(BIN / MAIN_JOB[0]), *MAIN_JOB[1:], *rest] if cmd == "run" else [str(BIN / "cellctl"), *rest]
         return _become(argv)
+    if cmd == "fleet":
+        if not _ensure_tools(FLEET_TOOLS, "the fleet's broker and database", "the fleet cannot start"):
+            return 1
+        return _become([str(PY), *FLEET_JOB, *rest])
     if cmd == "test":
-        _ensure_test_tools()
+        _ensure_tools(without="the tests that drive them skip (fail under CI=true)")
         code = _call([str(PY), "-m", "pytest", *rest], cwd=ROOT)
         if code == 5:  # pytest: no tests collected -- never a pass
             print("dev.py: pytest collected no tests; failing", file=sys.stderr)
