@@ -37,8 +37,10 @@ def fill(broker, dsn: str) -> None:
     (its Last Will), 3 parts with record 3 missing (held above the watermark); cell-3 online,
     no record yet."""
     import paho.mqtt.client as mqtt
+    from cell.plant.fleet import shift_of, shift_start
     now = datetime.now(timezone.utc).replace(microsecond=0)
-    at = [(now - timedelta(seconds=60 - k)).isoformat() for k in range(10)]
+    first = max(now - timedelta(seconds=60), shift_start(*shift_of(now)))    # all in this shift
+    at = [(first + timedelta(seconds=k)).isoformat() for k in range(10)]
     msgs = [cycle_message("s1/l2/cell-1", k + 1, at[k], final_mm=e) for k, e in enumerate(ERRORS)]
     msgs.append(cycle_message("s1/l2/cell-1", 6, at[6], status="fault", fault_code=31, part_id=106))
     msgs += [cycle_message("s1/l2/cell-2", 1, at[1]), cycle_message("s1/l2/cell-2", 2, at[2]),
