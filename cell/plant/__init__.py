@@ -12,7 +12,10 @@ The cell's SQLite log is the outbox and the historian's watermark says what is d
 * :mod:`cell.plant.status`: each cell's retained status (online, Last Will) into ``cell_status``;
 * :mod:`cell.plant.servers`: a real mosquitto and PostgreSQL on loopback, for tests and trials.
 
-Seams left for later: OPC UA, a line view, fleet reports and TLS/ACLs on the broker read
-the same topics and tables; the backlog is not yet in the PLC register map or the HMI.
+Read back from PostgreSQL: :mod:`cell.plant.fleet` (``cellctl fleet report``, the HMI's
+line view), and :mod:`cell.plant.demo` runs a fleet on one machine (``dev.py fleet``). Seams
+left for later: OPC UA and TLS/ACLs on the broker read the same topics and tables; a cell's
+backlog is not yet in the PLC register map or the cell's HMI, nor its state machine state
+on the topics.
 Nothing here is imported by ``cellctl --help`` (paho and psycopg load when used).
 """
