@@ -21,6 +21,24 @@ from cell.log import get_logger
 log = get_logger("jobs")
 
 
+def retain(cyclelog, retention_days: int, delivered: int | None, now: datetime | None = None) -> int:
+    """Delete the log's cycles that finished more than ``retention_days`` ago, except those
+    the plant has not received: ids above ``delivered`` (the historian's watermark; None: the
+    cell has no plant path). Those stay however old, and are logged as held
+    (``retention_held``: how many, and that the disk now bounds the outage). Returns how
+    many were deleted."""
+    cutoff = ((now or datetime.now(timezone.utc)) - timedelta(days=retention_days)).isoformat()
+    n = cyclelog.delete_older_than(cutoff, delivered)
+    if n:
+        log.info("retention_deleted", cycles=n, before=cutoff)
+    held = 0 if delivered is None else cyclelog.count_older_than(cutoff, delivered)
+    if held:
+        log.warning("retention_held", cycles=held, before=cutoff, watermark=delivered,
+                    why="the plant historian has not received them; they stay until it does, "
+                        "bounded only by the disk")
+    return n
+
+
 def drift_due(initial_errors_mm: list[float], window: int, threshold_mm: float) -> bool:
     """True when the mean first-arrival error of the last ``window`` completed cycles exceeds
     ``threshold_mm``: the nominal model has drifted far enough that recalibration pays."""
@@ -102,8 +120,6 @@ class CellJobs:
         return due
 
     def retention(self) -> int:
-        cutoff = (datetime.now(timezone.utc) - timedelta(days=self.retention_days)).isoformat()
-        n = self.c.log.delete_older_than(cutoff)
-        if n:
-            log.info("retention_deleted", cycles=n, before=cutoff)
-        return n
+        """:func:`retain` on the controller's log, with the plant outbox's watermark."""
+        return retain(self.c.log, self.retention_days,
+                      None if self.outbox is None else self.outbox.watermark)

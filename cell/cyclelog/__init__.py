@@ -371,10 +371,20 @@ class CycleLog:
         """How many cycles have ids above ``after_id``."""
         return int(self._read("SELECT COUNT(*) FROM cycles WHERE id > ?", (int(after_id),))[0][0])
 
-    def delete_older_than(self, iso_time: str) -> int:
-        """Retention: delete cycles finished before ``iso_time``; returns how many."""
+    def delete_older_than(self, iso_time: str, keep_above: int | None = None) -> int:
+        """Retention: delete cycles finished before ``iso_time``, but none with an id above
+        ``keep_above`` (None: no such limit; the plant historian's watermark: a record the
+        plant has not received stays, whatever its age); returns how many."""
         with self._tx() as db:
-            return db.execute("DELETE FROM cycles WHERE finished_at < ?", (iso_time,)).rowcount
+            if keep_above is None:
+                return db.execute("DELETE FROM cycles WHERE finished_at < ?", (iso_time,)).rowcount
+            return db.execute("DELETE FROM cycles WHERE finished_at < ? AND id <= ?",
+                              (iso_time, int(keep_above))).rowcount
+
+    def count_older_than(self, iso_time: str, above: int = 0) -> int:
+        """How many cycles finished before ``iso_time`` have ids above ``above``."""
+        return int(self._read("SELECT COUNT(*) FROM cycles WHERE finished_at < ? AND id > ?",
+                              (iso_time, int(above)))[0][0])
 
     @staticmethod
     def _record(r: sqlite3.Row) -> CycleRecord:

@@ -29,3 +29,19 @@ def test_jobs_on_a_real_log(tmp_path):
     assert jobs.drift() is True and controller.recalibration_due is True
     add(0.1, finished="2001-01-01T00:00:00+00:00")
     assert jobs.retention() == 1 and log.count() == 6
+
+
+def test_retention_keeps_what_the_plant_has_not_received(tmp_path):
+    # ids 1-4 old, 5 new: with the historian's watermark at 2, ids 3 and 4 are old but not yet
+    # received, and stay (the outage is then bounded by the disk, and that is logged)
+    from cell.jobs import retain
+    log = CycleLog(tmp_path / "cell.sqlite")
+    for k in range(5):
+        log.add_cycle(CycleRecord(part_id=k + 1, recipe="r", recipe_hash="h", started_at=utc_now(),
+                                  finished_at="2001-01-01T00:00:00+00:00" if k < 4 else utc_now(),
+                                  status="done", cycle_time_s=1.0, moves=1))
+    assert retain(log, 30, delivered=2) == 2
+    assert sorted(c.id for c in log.cycles()) == [3, 4, 5]
+    assert log.count_older_than("2002-01-01T00:00:00+00:00", above=2) == 2
+    assert retain(log, 30, delivered=4) == 2 and sorted(c.id for c in log.cycles()) == [5]
+    assert retain(log, 30, delivered=None) == 0 and log.count() == 1

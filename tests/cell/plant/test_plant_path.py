@@ -199,3 +199,29 @@ def test_kill_9_of_the_historian_and_then_of_the_broker_mid_stream_loses_nothing
             proc.send_signal(signal.SIGTERM)
             proc.wait(30)
         broker.stop()
+
+
+def test_retention_deletes_only_what_the_historians_watermark_covers(tmp_path, broker, historian_db):
+    # the cell's retention job with the outbox's real watermark: delivered records may go,
+    # records written while the historian is away stay however old they are
+    from datetime import datetime, timedelta, timezone
+
+    from cell.jobs import retain
+    path = tmp_path / "cell.sqlite"
+    log = write_log(path, 6)
+    historian = Historian(historian_settings(broker, historian_db, client_id="h-retain"))
+    historian.start()
+    outbox = PlantOutbox(path, outbox_settings(broker))
+    outbox.start()
+    try:
+        wait_for(lambda: outbox.backlog == 0, 120, "six records delivered")
+        historian.stop()
+        for k in range(3):
+            log.add_cycle(record(7 + k))
+        wait_for(lambda: outbox.backlog == 3, 60, "three records waiting for the historian")
+        later = datetime.now(timezone.utc) + timedelta(days=31)     # every record is old then
+        assert retain(log, 30, outbox.watermark, now=later) == 6
+        assert sorted(c.id for c in log.cycles()) == [7, 8, 9]
+    finally:
+        outbox.stop()
+        log.close()
