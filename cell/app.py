@@ -126,6 +126,7 @@ class Cell:
                 from cell.plant.outbox import PlantOutbox
                 self.outbox = PlantOutbox(self.config.log.path, self.config.plant.outbox_settings(self.config.name))
                 self.outbox.start()
+                self.controller.plant_backlog = lambda: self.outbox.backlog
             if self.with_jobs:
                 self.jobs = CellJobs(self.controller, self.config.scheduler, self.config.log.retention_days,
                                      clock=self.clock, outbox=self.outbox)

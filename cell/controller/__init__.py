@@ -28,7 +28,7 @@ stop is sent from the scan itself (a few CAN frames).
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import structlog
 
@@ -113,6 +113,9 @@ class CellController:
         self.clock = clock or MonotonicClock()
         self.core = ControllerCore(settings)
         self.recalibration_due = False
+        #: the plant outbox's backlog (set by :class:`cell.app.Cell` with a plant section; None
+        #: or a None answer: 0, no plant path or not read yet) for the plant_backlog register
+        self.plant_backlog: Callable[[], int | None] | None = None
         self.scans = 0
         self._job: Job | None = None              # the running cycle or calibration
         self._cancel: CancelToken | None = None
@@ -285,7 +288,8 @@ class CellController:
             station_fault=self._station_fault(),
             cycle_step=self.runner.progress if self._job is not None else None,
             cycle_ended=ended, drives_reset=reset, recipes=recipes,
-            recalibration_due=self.recalibration_due)
+            recalibration_due=self.recalibration_due,
+            plant_backlog=(self.plant_backlog() or 0) if self.plant_backlog is not None else 0)
 
     def _station_fault(self) -> StationFaultIn | None:
         rec = self.motion.fault

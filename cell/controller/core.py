@@ -114,6 +114,7 @@ class ScanInputs:
     drives_reset: DrivesResetIn | None = None
     recipes: RecipesIn = RecipesIn()
     recalibration_due: bool = False
+    plant_backlog: int = 0                      #: records the plant historian has not confirmed
 
 
 # ---------------------------------------------------------------------------- outputs
@@ -204,6 +205,7 @@ class ControllerCore:
         self.recipe_status = RecipeStatus.OK
         self.last_outcome: CycleOutcome | None = None
         self.calibration_version = 0             #: version of the robot calibration in use
+        self.plant_backlog = 0                   #: records the plant has not confirmed (register)
         self._pending_select: int | None = None
         self._selected_by = ""                      #: PLC client of the pending selection
         self._writer = ""                           #: PLC client of the command being handled
@@ -313,6 +315,7 @@ class ControllerCore:
         if not self.sm.state.busy and not self._cycle_running and now >= self._next_refresh:
             self._next_refresh = now + s.recipe_refresh_s
             self._actions.append(RefreshRecipes())
+        self.plant_backlog = min(max(int(inp.plant_backlog), 0), 0xFFFFFFFF)
         return self._outputs(inp.recalibration_due)
 
     # ------------------------------------------------------------------ cycle
@@ -523,5 +526,6 @@ class ControllerCore:
             plc_link_ok=self._link_ok, execute_refused=self.execute_refused)
         registers = {**self._results, "controller_heartbeat": self._heartbeat, "state_code": int(state),
                      "fault_code": self.fault_code, "recipe_ack": self.recipe_number,
-                     "recipe_status": self.recipe_status, "calibration_version": self.calibration_version}
+                     "recipe_status": self.recipe_status, "calibration_version": self.calibration_version,
+                     "plant_backlog": self.plant_backlog}
         return ScanOutputs(status, registers, self._actions)

@@ -90,7 +90,8 @@ def plc_status(host: str, port: int, timeout_s: float = 1.0) -> dict:
                status=PLC_MAP.bits("status_word", image["status_word"]),
                recipe_ack=image["recipe_ack"], recipe_status=image["recipe_status"],
                recipe_line=recipe_line(image["recipe_ack"], image["recipe_status"]),
-               cycle_count=image["cycle_count"], controller_heartbeat=image["controller_heartbeat"])
+               cycle_count=image["cycle_count"], controller_heartbeat=image["controller_heartbeat"],
+               plant_backlog=image["plant_backlog"])
     return out
 
 

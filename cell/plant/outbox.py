@@ -25,7 +25,8 @@ has committed it, and every record of the log before it, to PostgreSQL. So:
 
 The backlog, the log's records the watermark does not cover, is :attr:`PlantOutbox.backlog`;
 the outbox logs it (``plant_backlog``) when it changes, at most every ``report_s``, and the
-cell's health report carries it. (The PLC register map and the HMI do not show it yet.)
+cell's health report carries it, and the controller writes it to the PLC's ``plant_backlog``
+register (docs/plc.md), which the HMI's PLC line shows.
 
 Birth and death (Sparkplug B's idea, in JSON): at each connect the outbox publishes a
 retained ``<cell>/status`` ``online: true`` with a session number, and the broker

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from cell.errors import CellError
 
 #: Value of the ``map_version`` register; bump it whenever an address or meaning changes.
-MAP_VERSION = 2     #: 2 added the calibration block (60..69) and command_word.calibrate
+MAP_VERSION = 3     #: 2 added the calibration block (60..69) and command_word.calibrate; 3 plant_backlog
 #: Modicon reference of protocol address 0 (holding registers, 1-based "4xxxx").
 MODICON_BASE = 40001
 
@@ -185,6 +185,10 @@ REGISTERS: tuple[Register, ...] = (
              "plc_link_ok and ignores commands."),
     Register(2, "controller_heartbeat", _U16, _RO, "count", meaning="The controller increments it every "
              "loop cycle (wraps). A value that stops changing means: controller lost."),
+    Register(4, "plant_backlog", _U32, _RO, "count", meaning="Cycle records in the cell's log the plant "
+             "historian has not confirmed yet (cell/plant.md); 0 without a plant path. It grows while "
+             "the broker, the historian or the network is away: the log keeps every record until it is "
+             "confirmed, so cycles go on. High word first."),
     # -- handshake block 10..19
     Register(10, "status_word", _BITS, _RO, meaning="Controller status bits (see bit table).",
              bits=_STATUS_BITS),

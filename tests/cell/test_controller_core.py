@@ -29,7 +29,7 @@ HB_TEXT = "PLC heartbeat lost for more than 1.0 s"
 ABORT_TEXT = "abort by PLC"
 STATUS_BITS = {b.name for b in PLC_MAP["status_word"].bits}
 BASE_REGISTERS = {"controller_heartbeat", "state_code", "fault_code", "recipe_ack", "recipe_status",
-                  "calibration_version"}
+                  "calibration_version", "plant_backlog"}
 
 
 def cw(value: int, previous: int) -> PlcWriteIn:
@@ -188,7 +188,7 @@ def test_started_goes_idle_with_nothing_moving_and_map_outputs():
                               recalibration_due=False, aborted=False, plc_link_ok=False,
                               execute_refused=False)
     assert out.registers == dict(controller_heartbeat=1, state_code=2, fault_code=0, recipe_ack=0,
-                                 recipe_status=0, calibration_version=0)
+                                 recipe_status=0, calibration_version=0, plant_backlog=0)
     check_map(out)
 
 
@@ -208,6 +208,13 @@ def test_controller_heartbeat_increments_every_step_and_wraps():
     beats = [c.scan().registers["controller_heartbeat"] for _ in range(0x10000 - 6)]   # 7 → 1
     assert beats[-3:] == [0xFFFF, 0, 1]               # 16 bits: wraps to 0 after 65 535
     assert beats == [(8 + k) & 0xFFFF for k in range(len(beats))]
+
+
+def test_the_plant_backlog_is_passed_through_within_the_registers_range():
+    c = Cell()
+    assert c.scan(plant_backlog=7).registers["plant_backlog"] == 7
+    assert c.scan(plant_backlog=2 ** 40).registers["plant_backlog"] == 2 ** 32 - 1
+    assert c.scan().registers["plant_backlog"] == 0
 
 
 def test_recalibration_due_is_passed_through():

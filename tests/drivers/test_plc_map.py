@@ -24,6 +24,7 @@ REQUIRED = {
     "cycle_time_ms": ("u32", "RO"), "cycle_count": ("u32", "RO"),
     "calibration_select": ("u16", "RW"), "calibration_version": ("u16", "RO"),
     "calibration_residual_um": ("u32", "RO"), "calibration_residual_udeg": ("u32", "RO"),
+    "plant_backlog": ("u32", "RO"),
 }
 STATUS_BITS = ["ready", "busy", "done", "error", "auto", "homed", "recalibration_due",
                "aborted", "plc_link_ok", "execute_refused"]
@@ -69,9 +70,9 @@ def test_u32_takes_two_words_high_word_first():
 
 def test_spare_addresses_are_left_between_blocks():
     reserved = PLC_MAP.reserved()
-    assert (3, 9) in reserved and (14, 19) in reserved and (28, 39) in reserved
+    assert (3, 3) in reserved and (6, 9) in reserved and (14, 19) in reserved and (28, 39) in reserved
     assert reserved[-1][1] == PLC_MAP.size - 1   # room at the end too
-    assert PLC_MAP.at(5) is None
+    assert PLC_MAP.at(7) is None
     assert PLC_MAP.version == MAP_VERSION
 
 
@@ -164,7 +165,8 @@ def test_masks_and_recipe_statuses_are_the_maps():
 
 @pytest.mark.parametrize("address, words, exc, message", [
     (0, [2], IllegalDataAddress, "map_version at 0: register is read-only"),
-    (5, [0], IllegalDataAddress, "address 5 .40006.: no register there"),
+    (7, [0], IllegalDataAddress, "address 7 .40008.: no register there"),
+    (4, [0, 1], IllegalDataAddress, "plant_backlog at 4: register is read-only"),
     (24, [1], IllegalDataAddress, "part_id at 24: a 32-bit register must be written whole"),
     (25, [1], IllegalDataAddress, "part_id at 25"),
     (20, [5, 7], IllegalDataAddress, "recipe_ack at 21: register is read-only"),

@@ -20,6 +20,7 @@ def test_status_registers_are_read_without_taking_the_link(tmp_path):
                                        ("127.0.0.1", port)))
         out = TestClient(app, base_url="http://127.0.0.1:8080", client=("127.0.0.1", 5000)).get("/api/status").json()
         assert out["plc"]["reachable"] and out["plc"]["state"] == "idle"
+        assert out["plc"]["plant_backlog"] == 0                              # no plant path
         assert not plc_status("127.0.0.1", port)["status"]["plc_link_ok"]   # reads never feed the watchdog
     gone = plc_status("127.0.0.1", port)
     assert not gone["reachable"] and gone["error"]

@@ -58,7 +58,8 @@ async function poll() {
       $("state").textContent = s.plc.state;
       $("fault").textContent = s.plc.fault_code || "none";
       $("bits").textContent = Object.entries(s.plc.status).filter(([, v]) => v).map(([k]) => k).join(" · ");
-      $("plc-line").textContent = `PLC link ${s.plc.address}: ${s.plc.recipe_line}, ${s.plc.cycle_count} cycles since start`;
+      const plant = s.plc.plant_backlog ? `, ${s.plc.plant_backlog} records not yet at the plant historian` : "";
+      $("plc-line").textContent = `PLC link ${s.plc.address}: ${s.plc.recipe_line}, ${s.plc.cycle_count} cycles since start${plant}`;
     } else {
       $("state").textContent = f ? "cycle running" : (s.ok ? "idle or stopped" : "no log");
       $("fault").textContent = last && last.fault_code ? last.fault_code : "none";

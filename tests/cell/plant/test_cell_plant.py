@@ -56,3 +56,31 @@ def test_a_simulated_cell_with_a_plant_section_sends_its_cycles(tmp_path, broker
         assert len(log_ids(db)) == 4 and pg_ids(historian_db, "site1/line2/cell-1") == log_ids(db)
     finally:
         historian.stop()
+
+
+def test_the_plc_reads_the_plant_backlog_while_the_historian_is_away(tmp_path, broker, historian_db):
+    # a cell with a plant section: its cycles wait in the log while no historian confirms
+    # them, and the PLC sees how many (plant_backlog); once the historian is back it drops to 0
+    from tests.system.conftest import Harness
+
+    class PlantHarness(Harness):
+        def new_cell(self, port: int = 0):
+            self.config = self.config.model_copy(update={"plant": PlantSection(
+                host=broker.host, port=broker.port, site="site1", line="line2", cell="cell-bk")})
+            return super().new_cell(port)
+
+    h = PlantHarness(tmp_path)
+    historian = None
+    try:
+        for _ in range(2):
+            assert h.cycle()["final_error_um"] >= 0
+        backlog = lambda: h.plc.inputs()["plant_backlog"]        # noqa: E731
+        wait_for(lambda: (h.sleep(0.05), backlog() == 2)[1], 60, "the PLC to read a backlog of 2")
+        historian = Historian(historian_settings(broker, historian_db, client_id="h-backlog"))
+        historian.start()
+        wait_for(lambda: (h.sleep(0.05), backlog() == 0)[1], 120, "the backlog to drain")
+        assert pg_ids(historian_db, "site1/line2/cell-bk") == {1, 2}
+    finally:
+        if historian is not None:
+            historian.stop()
+        h.close()
