@@ -66,6 +66,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-mm", type=float, metavar="SIGMA",
                    help="expected σ per axis of one point measurement incl. repeatability, mm "
                         "(optional; sharpens the 'unexplained' test)")
+    p.add_argument("--engine", choices=("planar", "chain"), default=None,
+                   help="planar campaigns and cycle logs: 'chain' reads it as the chain campaign it is "
+                        "(points and the moves' samples as poses, cell/measurements.md, last section) "
+                        "and diagnoses it with the chain engine (default: planar)")
     p.add_argument("--robot", default="seed000",
                    help="cycle log only: robot preset of the nominal model (default seed000)")
     p.add_argument("--camera-center", type=float_list(2), metavar="X,Y",
@@ -93,6 +97,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.campaign == VALIDATE:
+        if args.engine is not None:
+            raise ConfigError("--engine: not with validate (bench/bench_planar_as_chain.py runs both "
+                              "engines on the validation's planar campaigns)")
         return run_validate(args)
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
@@ -106,6 +113,17 @@ def run(args: argparse.Namespace) -> int:
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
     campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
+    if args.engine == "chain":
+        from cell.measurements import Campaign
+        if not isinstance(campaign, Campaign):
+            raise ConfigError(f"--engine chain: {args.campaign} is a chain campaign already")
+        from cell.measurements.chain import planar_as_chain
+        campaign, lines = planar_as_chain(campaign, Path(args.campaign)), None
+    elif args.engine == "planar":
+        from cell.measurements import Campaign
+        if not isinstance(campaign, Campaign):
+            raise ConfigError(f"--engine planar: {args.campaign} is a chain campaign, which only "
+                              "the chain engine diagnoses")
     from cell.diagnosis.answer import diagnose_campaign   # the diagnosis itself: only now
     answer = diagnose_campaign(campaign, lines, args.noise_mm)
     if args.html:

@@ -238,3 +238,19 @@ def test_validate_share_that_is_not_a_number(capsys):
 def test_outside_options_only_with_validate(campaign_dir, capsys):
     assert cellctl(["diagnose", str(campaign_dir), "--out-of-vocabulary", "0.2"]) == 2
     assert "--out-of-vocabulary: only with 'cellctl diagnose validate'" in capsys.readouterr().err
+
+
+def test_a_planar_campaign_through_the_chain_engine(campaign_dir, capsys, tmp_path):
+    # --engine chain reads the planar campaign as the chain campaign it is (its points and its
+    # 3 moves' samples as poses) and answers in the chain report's shape
+    assert cellctl(["diagnose", str(campaign_dir), "--engine", "chain", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["chain"]["kinematics"] == "dh" and rep["chain"]["sensor_axes"] == ["x", "y"]
+    assert rep["cause"]["effect"] == "backlash" and rep["cause"]["joints"] == ["j2"], rep["cause"]
+    # a chain campaign has no planar engine, and validate takes no engine
+    from cell.truth.chain_campaign import make
+    chain_dir = make(tmp_path / "chain", {}, poses=20)
+    assert cellctl(["diagnose", str(chain_dir), "--engine", "planar"]) == 2
+    assert "only the chain engine" in capsys.readouterr().err
+    assert cellctl(["diagnose", str(chain_dir), "--engine", "chain"]) == 2
+    assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "1"]) == 2
