@@ -43,15 +43,17 @@ class ChainCampaign:
     ``readings`` (P, J) joint readings (deg / mm) per pose; ``pose_ids`` their ``sample``;
     ``split`` (P,) "fit"/"holdout" or None; ``obs_pose`` / ``obs_marker`` (M,) index of the
     pose and marker of each measured point, ``xyz`` (M, 3) in ``measurement_frame``;
-    ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point;
+    ``markers`` the marker ids (sorted); ``lines`` the points.csv line of each point (a
+    move's sample: its paths.csv line);
     ``dirs`` (P, J) the sign of each joint's last motion before the pose (``jK_dir``, 0 where
     the campaign has no column for the joint), None without any ``jK_dir`` column;
     ``extra`` the optional per-point columns ``time_s``, ``temp_c``, ``payload_kg`` (M,)
     the campaign has (NaN on the poses of a measured move); ``move`` (P,) the index of the
-    measured move each pose is a sample of (−1: a static pose), ``move_t`` (P,) s its time since the move's first command frame (NaN static),
-    ``rate`` (P, J) deg/s (mm/s) the commanded joint speed there (0 static), all three
-    None for a campaign of static poses only; ``split_source`` where ``split`` came from
-    when the reader set it ('': the campaign's column)."""
+    measured move each pose is a sample of (−1: a static pose), ``move_t`` (P,) s its time
+    since the move's first command frame (NaN static), ``rate`` (P, J) deg/s (mm/s) the
+    commanded joint speed there (0 static), all three None for a campaign of static poses
+    only; ``split_source`` where ``split`` came from when the reader set it ('': the
+    campaign's column)."""
 
     spec: ChainSpec
     chain: Chain
