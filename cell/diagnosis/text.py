@@ -14,6 +14,12 @@ from __future__ import annotations
 from cell.diagnosis.page import describe_cause, pose_words
 
 
+
+def _n(v, spec: str) -> str:
+    """``v`` formatted with ``spec``; '–' for a figure the report leaves undefined (None: too
+    few poses to leave any out, say)."""
+    return "–" if v is None else format(v, spec)
+
 def render(rep: dict) -> str:
     """The report ``rep`` as lines joined by newlines."""
     out = [f"Sim-to-real diagnosis of {rep.get('source', '')}"]
@@ -43,20 +49,20 @@ def _chain(rep: dict) -> list[str]:
 def _gap(rep: dict) -> list[str]:
     g, w = rep["gap"], rep["gap"]["where"]
     if "points" in g:
-        out = [f"gap: rms {g['rms_mm']:.4f} mm, max {g['max_mm']:.4f} mm over {g['n']} rows "
+        out = [f"gap: rms {_n(g['rms_mm'], '.4f')} mm, max {_n(g['max_mm'], '.4f')} mm over {g['n']} rows "
                f"(points {g['points']['n']}, path samples {g['paths']['n']})"]
     else:
-        out = [f"gap after registration: rms {g['rms_mm']:.4f} mm, max {g['max_mm']:.4f} mm "
+        out = [f"gap after registration: rms {_n(g['rms_mm'], '.4f')} mm, max {_n(g['max_mm'], '.4f')} mm "
                f"over {g['n']} points ({g['poses']} fit poses)"]
     out.append(f"where: {w['summary']}")
     if "effect_sizes" in w:
         out.append("effect sizes (share of the gap's mean square each variable explains):")
         for k, v in sorted(w["effect_sizes"].items(), key=lambda kv: -kv[1]["r2"]):
-            out.append(f"  {k:<12} {100 * v['r2']:6.1f} %  {v['rms_mm']:.4f} mm"
+            out.append(f"  {k:<12} {_n(100 * v['r2'], '6.1f')} %  {_n(v['rms_mm'], '.4f')} mm"
                        + (f"  ({v['joint']})" if v.get("joint") else ""))
     pj = w.get("per_joint_rms_deg", {})
     if pj.get("j1") is not None:
-        out.append(f"per joint (joint space): j1 {pj['j1']:.5f}°, j2 {pj['j2']:.5f}° rms")
+        out.append(f"per joint (joint space): j1 {_n(pj['j1'], '.5f')}°, j2 {_n(pj['j2'], '.5f')}° rms")
     return out
 
 
@@ -66,34 +72,34 @@ def _ranking(rep: dict) -> list[str]:
         out = ["", "| rank | candidate | k | BIC | holdout rms mm | identifiable |",
                "|---:|---|---:|---:|---:|---|"]
         for i, r in enumerate(rows[:12], 1):
-            out.append(f"| {i} | {r['label']} | {r['k']} | {r['score']:.1f} | "
-                       f"{r['holdout_rms_mm']:.4f} | "
+            out.append(f"| {i} | {r['label']} | {r['k']} | {_n(r['score'], '.1f')} | "
+                       f"{_n(r['holdout_rms_mm'], '.4f')} | "
                        f"{'yes' if r['identifiable'] else 'no: ' + r.get('reason', '')} |")
         return out + [""]
     reg, g, h = rep["registration"], rep["gap"], rep["holdout"]
     out = ["", "| rank | candidate | k | leave-one-pose-out rms mm | fit rms mm | holdout rms mm "
            "| condition |", "|---:|---|---:|---:|---:|---:|---:|",
-           f"| – | registration only | 0 | {rep['noise']['registration_cv_rms_mm']:.4f} | "
-           f"{g['rms_mm']:.4f} | {h['rms_before_mm']:.4f} | {reg['condition']:.3g} |"]
+           f"| – | registration only | 0 | {_n(rep['noise']['registration_cv_rms_mm'], '.4f')} | "
+           f"{_n(g['rms_mm'], '.4f')} | {_n(h['rms_before_mm'], '.4f')} | {_n(reg['condition'], '.3g')} |"]
     for i, r in enumerate(rows, 1):
         note = "" if r["identifiable"] else f", rank {r['rank']} of {r['columns']}"
         on = f" ({', '.join(r['joints'])})" if r["joints"] else ""
         out.append(f"| {i} | {r['label']}{on} | {r['k']} | "
-                   f"{r['cv_rms_mm']:.4f} | {r['fit_rms_mm']:.4f} | {r['holdout_rms_mm']:.4f} | "
-                   f"{r['condition']:.3g}{note} |")
+                   f"{_n(r['cv_rms_mm'], '.4f')} | {_n(r['fit_rms_mm'], '.4f')} | {_n(r['holdout_rms_mm'], '.4f')} | "
+                   f"{_n(r['condition'], '.3g')}{note} |")
     return out + [""]
 
 
 def _cause(rep: dict) -> list[str]:
     c, t = rep["cause"], rep["cause"]["test"]
     if c["effect"] == "none":
-        out = [f"cause: none (best candidate not significant: p = {t['p_value']:.3g})"]
+        out = [f"cause: none (best candidate not significant: p = {_n(t['p_value'], '.3g')})"]
     else:
-        bic = f", ΔBIC vs nominal {t['delta_bic']:.1f}" if "delta_bic" in t else ""
-        out = [f"cause: {describe_cause(c)} ({c['subsystem']}), p = {t['p_value']:.3g}{bic}"]
+        bic = f", ΔBIC vs nominal {_n(t['delta_bic'], '.1f')}" if "delta_bic" in t else ""
+        out = [f"cause: {describe_cause(c)} ({c['subsystem']}), p = {_n(t['p_value'], '.3g')}{bic}"]
         for n, v in c["params"].items():
             lo, hi = c["ci95"][n]
-            out.append(f"  {n} = {v:.6g}  (95 % interval {lo:.6g} … {hi:.6g})")
+            out.append(f"  {n} = {_n(v, '.6g')}  (95 % interval {_n(lo, '.6g')} … {_n(hi, '.6g')})")
         for j, o in c.get("cyclic_orders", {}).items():
             out.append(f"  {j}: {o['order']} cycle(s) per revolution (orders in the 95 % "
                        f"likelihood set: {', '.join(map(str, o['set95']))})")
@@ -101,7 +107,7 @@ def _cause(rep: dict) -> list[str]:
             m = t.get("runner_up_margin_bic")
             out.append(f"  runner-up: {t['runner_up']}"
                        + (f" (BIC {m:+.1f} worse)" if m is not None else "")
-                       + (f" (p = {t['runner_up_p_value']:.3g} that it predicts worse)"
+                       + (f" (p = {_n(t['runner_up_p_value'], '.3g')} that it predicts worse)"
                           if t.get("runner_up_p_value") is not None else ""))
     out.append(f"confidence: {c.get('confidence', 'high')}")
     return out + [f"  warning: {w}" for w in c.get("warnings", [])]
@@ -114,8 +120,8 @@ def _selection(rep: dict) -> list[str]:
     out = [f"chosen by predicting left-out places ({sel['folds']} folds, {sel['places']} "
            "places): prediction rms in noise units, 1 ≈ noise"]
     for x in sel["table"][:6]:
-        mark = "tied" if x["tied"] else f"worse, p = {x['p_worse_than_best']:.2g}"
-        out.append(f"  {x['label']:<40} k {x['k']}  {x['cv_rms']:.3f}  ({mark})")
+        mark = "tied" if x["tied"] else f"worse, p = {_n(x['p_worse_than_best'], '.2g')}"
+        out.append(f"  {x['label']:<40} k {x['k']}  {_n(x['cv_rms'], '.3f')}  ({mark})")
     return out
 
 
@@ -123,16 +129,16 @@ def _rivals(rep: dict) -> list[str]:
     c, out = rep["cause"], []
     for r in c.get("rivals", []):
         on = f" on {', '.join(r['joints'])}" if "registration" in rep and r.get("joints") else ""
-        pred = (f"leave-out rms {r['cv_rms_mm']:.4f} mm" if "cv_rms_mm" in r
-                else f"prediction rms {r['cv_rms']:.3f}" if "cv_rms" in r else "")
+        pred = (f"leave-out rms {_n(r['cv_rms_mm'], '.4f')} mm" if "cv_rms_mm" in r
+                else f"prediction rms {_n(r['cv_rms'], '.3f')}" if "cv_rms" in r else "")
         if r.get("testable") is False:
             out.append(f"  rival: {r['label']} (" + "; ".join(x for x in (pred, r["why"]) if x)
                        + ")")
             continue
         out.append(f"  rival: {r['label']}{on} (k {r['k']}, {pred}, holdout rms "
-                   f"{r['holdout_rms_mm']:.4f} mm)")
+                   f"{_n(r['holdout_rms_mm'], '.4f')} mm)")
     for pz in c.get("separating_poses", []):
-        diff = ", ".join(f"{k} {v:.4f} mm" for k, v in pz["difference_mm"].items())
+        diff = ", ".join(f"{k} {_n(v, '.4f')} mm" for k, v in pz["difference_mm"].items())
         out.append(f"  measure next: {pose_words(pz)}: differs from {diff}")
     return out
 
@@ -140,8 +146,8 @@ def _rivals(rep: dict) -> list[str]:
 def _holdout(rep: dict) -> list[str]:
     h = rep["holdout"]
     poses = f"{h['poses']} poses, {h['n']} points" if "poses" in h else f"{h['n']} rows"
-    return [f"holdout ({poses}): rms {h['rms_before_mm']:.4f} -> {h['rms_after_mm']:.4f} mm, "
-            f"shrink {h['shrink']:.3f}"]
+    return [f"holdout ({poses}): rms {_n(h['rms_before_mm'], '.4f')} -> {_n(h['rms_after_mm'], '.4f')} mm, "
+            f"shrink {_n(h['shrink'], '.3f')}"]
 
 
 def _outliers(rep: dict) -> list[str]:
@@ -149,19 +155,19 @@ def _outliers(rep: dict) -> list[str]:
     if not o.get("n"):
         return []
     if "cut_mm" in o:
-        out = [f"outliers set aside: {o['n']} point(s) beyond {o['cut_mm']:.4f} mm ("
+        out = [f"outliers set aside: {o['n']} point(s) beyond {_n(o['cut_mm'], '.4f')} mm ("
                + ", ".join(f"sample {p['sample']} marker {p['marker']} {p['split']} "
-                           f"{p['distance_mm']:.3f} mm" for p in o["points"][:8])
+                           f"{_n(p['distance_mm'], '.3f')} mm" for p in o["points"][:8])
                + (", …" if o["n"] > 8 else "") + ")"]
         if inl:
-            out.append(f"holdout without them ({inl['n']} points): rms {inl['rms_before_mm']:.4f} "
-                       f"-> {inl['rms_after_mm']:.4f} mm, shrink {inl['shrink']:.3f}")
+            out.append(f"holdout without them ({inl['n']} points): rms {_n(inl['rms_before_mm'], '.4f')} "
+                       f"-> {_n(inl['rms_after_mm'], '.4f')} mm, shrink {_n(inl['shrink'], '.3f')}")
         return out
     pts = o["points"]
     return [f"outliers set aside: {pts['n']} points (samples "
             f"{', '.join(map(str, pts['samples'][:20]))}{' …' if pts['n'] > 20 else ''}), "
             f"{o['paths']['n']} path samples; without them the holdout goes "
-            f"{inl['rms_before_mm']:.4f} -> {inl['rms_after_mm']:.4f} mm (shrink {inl['shrink']:.3f})"]
+            f"{_n(inl['rms_before_mm'], '.4f')} -> {_n(inl['rms_after_mm'], '.4f')} mm (shrink {_n(inl['shrink'], '.3f')})"]
 
 
 def _noise(rep: dict) -> list[str]:
@@ -169,7 +175,7 @@ def _noise(rep: dict) -> list[str]:
     if nz.get("sigma_mm") is None:
         return ["noise: unknown (no repeated poses, no --noise-mm)"] if "registration" in rep else []
     how = f": {nz['method']}" if nz.get("method") else ""
-    return [f"noise: σ {nz['sigma_mm']:.4f} mm per axis ({nz['source']}{how})"]
+    return [f"noise: σ {_n(nz['sigma_mm'], '.4f')} mm per axis ({nz['source']}{how})"]
 
 
 def _remainder(rep: dict) -> list[str]:
@@ -182,10 +188,10 @@ def _delay(rep: dict) -> list[str]:
     if not dl:
         return []
     lag = dl["lags_ms"]
-    return [f"comm lags: j1 {lag['j1']:.3f} ms, j2 {lag['j2']:.3f} ms (stations "
+    return [f"comm lags: j1 {_n(lag['j1'], '.3f')} ms, j2 {_n(lag['j2'], '.3f')} ms (stations "
             f"{', '.join(dl['stations'])}); "
             + ("no lag detected" if not dl["detected"] else
-               f"σ = {dl['sigma_ms']:.3f} ms, proportional to station position: "
+               f"σ = {_n(dl['sigma_ms'], '.3f')} ms, proportional to station position: "
                f"{'yes' if dl['proportional'] else 'NO'}")]
 
 

@@ -254,3 +254,28 @@ def test_a_planar_campaign_through_the_chain_engine(campaign_dir, capsys, tmp_pa
     assert "only the chain engine" in capsys.readouterr().err
     assert cellctl(["diagnose", str(chain_dir), "--engine", "chain"]) == 2
     assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "1"]) == 2
+
+
+def test_a_short_cycle_log_through_the_chain_engine_prints_what_it_cannot_figure(tmp_path, capsys):
+    # 8 cycles at one target: one place, none to leave out, so the candidates' leave-out
+    # errors are undefined (null in JSON); the text shows them as '–' instead of failing
+    from cell.kinematics import Scara
+    robot = Scara.preset("seed000")
+    truth = fx.make_effect("joint_offset", ("j1",), {"j1_offset_deg": 0.08})
+    rng = np.random.default_rng(3)
+    log = CycleLog(tmp_path / "cell.sqlite")
+    for i in range(8):
+        q = np.array([20.0, 60.0]) + rng.uniform(-2, 2, 2)
+        xy = fx.simulate_points(robot.g, [truth], q[None], [[1, 1]])[0]
+        log.add_cycle(CycleRecord(part_id=i, recipe="r", recipe_hash="h", status="done",
+                                  started_at=f"2026-11-23T10:{i:02d}:00+00:00",
+                                  finished_at=f"2026-11-23T10:{i:02d}:30+00:00", cycle_time_s=30.0,
+                                  trace=[{"joints_deg": q.tolist(), "point_mm": xy.tolist(),
+                                          "error_mm": 0.3, "moved": True}]))
+    log.close()
+    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite"), "--engine", "chain", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert any(r["cv_rms_mm"] is None for r in rep["ranking"]), rep["ranking"]
+    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite"), "--engine", "chain"]) == 0
+    text = capsys.readouterr().out
+    assert "| – |" in text and "cause:" in text
