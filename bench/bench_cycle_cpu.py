@@ -210,7 +210,7 @@ def child(n: int, db: str) -> int:
     th = threading.Thread(target=sampler, name="bench-sampler", daemon=True)
     th.start()
     ns = argparse.Namespace(cycles=n, recipe="bracket-a", config=None, seed=None, db=db,
-                            allow_examples=False, first_part=1, json=True)
+                            allow_examples=False, first_part=1, json=True, opcua=None)
     sample()
     base, proc0 = dict(cpu), stat_cpu("/proc/self")   # imports so far: not counted
     buf = io.StringIO()
