@@ -20,7 +20,20 @@ broker restarted without persistence has lost the retained ones).
 A payload that is not a valid cycle message (not JSON, an unknown schema version, a
 field wrong, another cell's id) is refused: logged (``plant_record_refused``, naming what
 was wrong), counted in ``rejected``, acknowledged (sending it again cannot mend it) and
-never written. ``cellctl historian`` (:mod:`cell.commands.historian`) runs one.
+never written.
+
+A cell's clock may jump back (an NTP step, a replaced battery): its records' timestamps
+then go backwards while their ids go forwards. The historian records them as they are: a
+record is named by ``(cell, log_id, cycle_id)`` and ordered by ``cycle_id``, the watermark
+moves by ids alone, and ``started_at``/``finished_at`` are stored as the cell wrote them,
+never corrected (a historian cannot know which of two clocks was right). What it saw it
+says: a committed record whose ``finished_at`` is earlier than that of the record before
+it in the same log (the highest lower id this process has committed) is logged as
+``plant_clock_backwards`` with both ids, both times and how far back (``back_s``), and
+counted in ``clock_backwards``. The comparison is per historian process: the first record
+of a log after a restart of the historian is compared with nothing.
+
+``cellctl historian`` (:mod:`cell.commands.historian`) runs one.
 """
 from __future__ import annotations
 
@@ -28,6 +41,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
+from datetime import datetime, timezone
 
 from cell.plant import schema
 from cell.plant.store import HistorianStore
@@ -53,7 +67,8 @@ class HistorianSettings:
 class Historian:
     """See the module doc. ``start()``/``stop()``; counters readable from any thread:
     ``received``, ``inserted``, ``duplicates``, ``rejected``, ``acked``, ``commits``,
-    ``failed_commits``; ``last_refusal``: the text of the last refused payload."""
+    ``failed_commits``, ``clock_backwards``; ``last_refusal``: the text of the last refused
+    payload."""
 
     def __init__(self, settings: HistorianSettings, logger=None):
         self.s = settings
@@ -64,7 +79,9 @@ class Historian:
         self._logger = logger
         self.link = None
         self.received = self.inserted = self.duplicates = self.rejected = 0
-        self.acked = self.commits = self.failed_commits = 0
+        self.acked = self.commits = self.failed_commits = self.clock_backwards = 0
+        #: (cell, log_id) -> (cycle_id, finished_at) of the highest id committed by this process
+        self._last: dict[tuple[str, str], tuple[int, str]] = {}
         self.last_refusal: str | None = None
         self.watermarks: dict[tuple[str, str], int] = {}
 
@@ -148,8 +165,26 @@ class Historian:
             for (cell, log_id), w in result.watermarks.items():
                 self.watermarks[(cell, log_id)] = w
                 self._publish_watermark(cell, log_id, w)
+            self._check_clocks(good)
         if republish:
             self._republish()
+
+    def _check_clocks(self, good: list) -> None:
+        """Say which committed records finished before the record before them (module doc)."""
+        for m in sorted(good, key=lambda m: (m.cell, m.log_id, m.cycle_id)):
+            key = (m.cell, m.log_id)
+            last = self._last.get(key)
+            if last is not None and m.cycle_id <= last[0]:
+                continue                                # a copy, or older than what was seen
+            self._last[key] = (m.cycle_id, m.record.finished_at)
+            if last is None:
+                continue
+            back = _seconds_between(m.record.finished_at, last[1])
+            if back is not None and back > 0:
+                self.clock_backwards += 1
+                self._say("plant_clock_backwards", cell=m.cell, log_id=m.log_id, cycle_id=m.cycle_id,
+                          finished_at=m.record.finished_at, previous_id=last[0], previous_finished_at=last[1],
+                          back_s=round(back, 3))
 
     def _commit(self, good: list):
         """Commit ``good``, retrying while the database is away; None if stopped first."""
@@ -189,3 +224,15 @@ class Historian:
             self._logger = get_logger("historian")
         level = self._logger.info if event == "historian_started" else self._logger.warning
         level(event, **kw)
+
+
+def _seconds_between(earlier: str, later: str) -> float | None:
+    """``later - earlier`` in seconds for two ISO 8601 times (naive ones taken as UTC);
+    None if either is not one."""
+    try:
+        a, b = datetime.fromisoformat(earlier), datetime.fromisoformat(later)
+    except (TypeError, ValueError):
+        return None
+    a = a if a.tzinfo else a.replace(tzinfo=timezone.utc)
+    b = b if b.tzinfo else b.replace(tzinfo=timezone.utc)
+    return (b - a).total_seconds()

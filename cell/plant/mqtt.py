@@ -3,6 +3,8 @@
 :class:`MqttLink` is one client with paho's network thread (``loop_start``): it connects
 in the background and reconnects on its own after a drop (1 to ``max_backoff_s`` s apart),
 subscribes again on every connect, and counts connections (:attr:`MqttLink.generation`).
+:attr:`MqttLink.subscribed` is set once the broker has granted every subscription of the
+current connection.
 
 Callbacks run in paho's thread and must not block: ``on_up(generation, session_present)``
 after each connect and subscribe request, ``on_down()`` after a drop,
@@ -55,6 +57,8 @@ class MqttLink:
         self.subscriptions = tuple(subscriptions)
         self.generation = 0                    #: connections made so far
         self.connected = threading.Event()
+        self.subscribed = threading.Event()    #: every subscription of this connection granted
+        self._pending: set[int] = set()
         self._on_up, self._on_down, self._on_message = on_up, on_down, on_message
         self._mqtt = mqtt
         c = self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
@@ -63,6 +67,7 @@ class MqttLink:
         c.max_queued_messages_set(0)
         c.reconnect_delay_set(1, max_backoff_s)
         c.on_connect, c.on_disconnect, c.on_message = self._connected, self._disconnected, self._message
+        c.on_subscribe = self._granted
         if will is not None:
             self.set_will(will)
         props = Properties(PacketTypes.CONNECT)
@@ -112,14 +117,27 @@ class MqttLink:
         with self._lock:
             self.generation += 1
             generation = self.generation
+        self.subscribed.clear()
+        self._pending = set()
         for topic, qos in self.subscriptions:
-            client.subscribe(topic, qos=qos)
+            rc, mid = client.subscribe(topic, qos=qos)
+            if rc == self._mqtt.MQTT_ERR_SUCCESS:
+                self._pending.add(mid)
+        if not self.subscriptions:
+            self.subscribed.set()
         self.connected.set()
         if self._on_up is not None:
             self._on_up(generation, bool(flags.session_present))
 
+    def _granted(self, client, userdata, mid, reason_codes, properties) -> None:
+        if mid in self._pending and not any(rc.is_failure for rc in reason_codes):
+            self._pending.discard(mid)
+            if not self._pending:
+                self.subscribed.set()
+
     def _disconnected(self, client, userdata, flags, reason_code, properties) -> None:
         self.connected.clear()
+        self.subscribed.clear()
         if self._on_down is not None:
             self._on_down()
 

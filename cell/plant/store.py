@@ -6,10 +6,12 @@ historians starting together do not both migrate):
 
 * ``cycles``: one row per cycle record, keyed by ``(cell, log_id, cycle_id)`` (``cell`` is
   ``site/line/cell``; ``log_id`` tells a cell's logs apart, their ids restart at 1). The
-  first copy of a record wins; a copy already there is a duplicate (counted), except that
-  a smaller ``prev_id`` replaces the stored one (the cell's log lost rows below it to
-  retention since the first copy: the ids between never come). The record's fields are
-  kept whole in ``record`` (jsonb) and the ones a query filters on in columns too.
+  first copy of a record wins; a copy already there is a duplicate, dropped and counted in
+  the row's ``duplicates`` (committed with the batch, so the count survives any crash and
+  counts a copy once), except that a smaller ``prev_id`` replaces the stored one (the
+  cell's log lost rows below it to retention since the first copy: the ids between never
+  come). The record's fields are kept whole in ``record`` (jsonb) and the ones a query
+  filters on in columns too.
 * ``watermarks``: per ``(cell, log_id)``, the highest ``cycle_id`` such that every record
   of that log up to it is committed. It moves in the same transaction as the rows: from
   ``w`` it moves to the next committed id ``c`` whose ``prev_id <= w`` (no id between ``w``
@@ -67,6 +69,9 @@ CREATE TABLE cell_status (
     changed_at timestamptz NOT NULL DEFAULT now(),
     received_at timestamptz NOT NULL DEFAULT now()
 );
+"""),
+    (3, """
+ALTER TABLE cycles ADD COLUMN duplicates integer NOT NULL DEFAULT 0;
 """),
 )
 SCHEMA_VERSION = MIGRATIONS[-1][0]
@@ -135,8 +140,8 @@ class HistorianStore:
                         "INSERT INTO cycles (cell, log_id, cycle_id, prev_id, session, seq, part_id, recipe,"
                         " status, fault_code, started_at, finished_at, final_error_mm, cycle_time_s, record)"
                         " VALUES (%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s::jsonb)"
-                        " ON CONFLICT (cell, log_id, cycle_id) DO UPDATE SET prev_id = EXCLUDED.prev_id"
-                        " WHERE EXCLUDED.prev_id < cycles.prev_id RETURNING (xmax = 0)",
+                        " ON CONFLICT (cell, log_id, cycle_id) DO UPDATE SET duplicates = cycles.duplicates + 1,"
+                        " prev_id = LEAST(cycles.prev_id, EXCLUDED.prev_id) RETURNING (xmax = 0)",
                         (m.cell, m.log_id, m.cycle_id, m.prev_id, m.session, m.seq, r.part_id, r.recipe,
                          r.status, r.fault_code, r.started_at, r.finished_at, r.final_error_mm,
                          r.cycle_time_s, json.dumps(r.model_dump()))).fetchone()

@@ -101,7 +101,7 @@ def test_a_malformed_payload_or_an_unknown_schema_version_is_refused_and_writes_
         broker, historian_db, running):
     import psycopg
     historian = running.add(Historian(historian_settings(broker, historian_db, client_id="h-bad")))
-    wait_for(historian.link.connected.is_set, 60, "the historian's connection")
+    wait_for(historian.link.subscribed.is_set, 60, "the historian's subscription")
     client = _client(broker)
     try:
         client.publish(TOPICS.cycle, b"{\"schema\": 1, \"cell\": ", qos=1).wait_for_publish(30)
@@ -130,7 +130,7 @@ def test_postgres_going_away_mid_batch_acknowledges_nothing_not_committed(tmp_pa
     try:
         h1 = Historian(historian_settings(broker, pg.dsn, client_id="h-pgaway"))
         h1.start()
-        wait_for(h1.link.connected.is_set, 60, "the historian's connection")
+        wait_for(h1.link.subscribed.is_set, 60, "the historian's subscription")
         client = _client(broker)
 
         def send(first: int, n: int, prev: int) -> None:
