@@ -14,7 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cell import paths
-from cell.errors import CellError
+from cell.errors import CellError, ConfigError
 from cell.kinematics import Scara
 from cell.opcua.config import OpcuaSection
 from cell.robots import PRESETS, Geometry
@@ -154,6 +154,13 @@ class PlantSection(_Section):
     ``<site>/<line>/<cell>/...`` (``cell`` defaults to the config's ``name``). ``window``:
     records sent beyond the historian's watermark at most; ``resend_s``: how long the
     watermark may stand still with records out before they are sent again.
+
+    Security (the broker of ``deploy/mosquitto/``): ``tls`` connects over TLS, checking the
+    broker's certificate against ``ca_file`` (PEM; absent: the system's CAs); with
+    ``password_file`` (a file holding the password alone, readable by the controller's
+    user only) the cell logs in as ``username``, by default its cell id
+    ``site/line/cell``, the name the broker's ACL gives its topics to. Relative paths are
+    taken from the config file's folder; the password is read when the outbox starts.
     """
 
     host: str = Field(min_length=1)
@@ -164,6 +171,10 @@ class PlantSection(_Section):
     keepalive_s: int = Field(default=10, ge=2, le=600)
     window: int = Field(default=500, ge=1, le=100000)
     resend_s: float = Field(default=30.0, gt=0, le=3600)
+    tls: bool = False
+    ca_file: str | None = None
+    username: str | None = Field(default=None, min_length=1)
+    password_file: str | None = None
 
     @model_validator(mode="after")
     def _names(self) -> "PlantSection":
@@ -174,15 +185,34 @@ class PlantSection(_Section):
                     check_segment(f"plant.{what}", getattr(self, what))
         except TopicError as exc:
             raise ValueError(str(exc)) from None
+        if self.username is not None and self.password_file is None:
+            raise ValueError("plant.username needs plant.password_file (the password, in a file of its own)")
+        if self.ca_file is not None and not self.tls:
+            raise ValueError("plant.ca_file is only used with plant.tls: true")
         return self
 
     def outbox_settings(self, cell_name: str):
-        """The :class:`~cell.plant.outbox.OutboxSettings` for a cell named ``cell_name``."""
+        """The :class:`~cell.plant.outbox.OutboxSettings` for a cell named ``cell_name``;
+        raises ConfigError if the password file cannot be read or is empty."""
+        from cell.plant.mqtt import Security
         from cell.plant.outbox import OutboxSettings
         from cell.plant.topics import CellTopics
-        return OutboxSettings(host=self.host, port=self.port,
-                              topics=CellTopics(self.site, self.line, self.cell or cell_name),
-                              keepalive_s=self.keepalive_s, window=self.window, resend_s=self.resend_s)
+        topics = CellTopics(self.site, self.line, self.cell or cell_name)
+        security = None
+        if self.tls or self.password_file is not None:
+            password = None
+            if self.password_file is not None:
+                try:
+                    password = Path(self.password_file).read_text().strip()
+                except OSError as exc:
+                    raise ConfigError(f"plant.password_file {self.password_file}: {exc.strerror}") from None
+                if not password:
+                    raise ConfigError(f"plant.password_file {self.password_file} is empty")
+            security = Security(tls=self.tls, ca_file=self.ca_file,
+                                username=(self.username or topics.path) if password is not None else None,
+                                password=password)
+        return OutboxSettings(host=self.host, port=self.port, topics=topics, keepalive_s=self.keepalive_s,
+                              window=self.window, resend_s=self.resend_s, security=security)
 
 
 class SimSection(_Section):
@@ -261,4 +291,6 @@ class CellConfig(_Section):
             update["sim"] = fix(self.sim, "plant")
         if self.opcua is not None:
             update["opcua"] = fix(self.opcua, "pki")
+        if self.plant is not None:
+            update["plant"] = fix(self.plant, "ca_file", "password_file")
         return self.model_copy(update=update)

@@ -6,8 +6,10 @@ record to the broker only once it is committed, and publishes each cell's waterm
 retained, on ``<site>/<line>/<cell>/watermark``: the cells send again what it does not
 cover. Beside it, each cell's retained status (online, or its Last Will) goes to the
 table ``cell_status`` (:mod:`cell.plant.status`). It migrates its own tables at start.
-Runs until SIGINT or SIGTERM (or ``--seconds``); what is not committed then stays with
-the broker. Topic tree and payloads: ``cell/plant.md``.
+Against the plant's broker (``deploy/mosquitto/``) it connects over TLS (``--tls``,
+``--ca-file``) and logs in (``--username``, by default ``historian``, the ACL's name for it,
+and ``--password-file``). Runs until SIGINT or SIGTERM (or ``--seconds``); what is not
+committed then stays with the broker. Topic tree and payloads: ``cell/plant.md``.
 """
 from __future__ import annotations
 
@@ -35,6 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="MQTT client id: the broker keeps this id's session (default plant-historian)")
     p.add_argument("--session-expiry-s", type=int, default=7 * 24 * 3600,
                    help="how long the broker keeps records for a historian that is away (default 7 days)")
+    p.add_argument("--tls", action="store_true", help="connect over TLS, checking the broker's certificate")
+    p.add_argument("--ca-file", metavar="PEM", help="the CA that signed the broker's certificate "
+                   "(default: the system's); implies --tls")
+    p.add_argument("--password-file", metavar="FILE",
+                   help="log in with the password this file holds (readable by the historian's user only)")
+    p.add_argument("--username", default="historian",
+                   help="the login with --password-file (default historian, the name deploy/mosquitto/plant.acl uses)")
     p.add_argument("--seconds", type=float, help="stop after this many seconds (default: run until signalled)")
     p.set_defaults(func=run)
 
@@ -44,6 +53,24 @@ def _broker(text: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ConfigError(f"--broker {text!r} is not HOST:PORT")
     return host, int(port)
+
+
+def _security(args: argparse.Namespace):
+    from pathlib import Path
+
+    from cell.plant.mqtt import Security
+    if not (args.tls or args.ca_file or args.password_file):
+        return None
+    password = None
+    if args.password_file:
+        try:
+            password = Path(args.password_file).read_text().strip()
+        except OSError as exc:
+            raise ConfigError(f"--password-file {args.password_file}: {exc.strerror}") from None
+        if not password:
+            raise ConfigError(f"--password-file {args.password_file} is empty")
+    return Security(tls=bool(args.tls or args.ca_file), ca_file=args.ca_file,
+                    username=args.username if password is not None else None, password=password)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,9 +90,11 @@ def run(args: argparse.Namespace) -> int:
         status_filter = subscription("status", *parts)
     except TopicError as exc:
         raise ConfigError(f"--cells: {exc}") from None
+    security = _security(args)
     historian = Historian(HistorianSettings(host, port, dsn, client_id=args.client_id, topic_filter=topic_filter,
-                                            session_expiry_s=args.session_expiry_s))
-    status = StatusRecorder(host, port, dsn, client_id=f"{args.client_id}-status", topic_filter=status_filter)
+                                            session_expiry_s=args.session_expiry_s, security=security))
+    status = StatusRecorder(host, port, dsn, client_id=f"{args.client_id}-status", topic_filter=status_filter,
+                            security=security)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -44,13 +44,15 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 
 from cell.plant import schema
+from cell.plant.mqtt import Security
 from cell.plant.store import HistorianStore
 from cell.plant.topics import TopicError, parse as parse_topic, subscription
 
 
 @dataclass(frozen=True)
 class HistorianSettings:
-    """:param topic_filter: which cells' records to take (default every cell's)."""
+    """:param topic_filter: which cells' records to take (default every cell's).
+    :param security: TLS and the historian's login (:class:`~cell.plant.mqtt.Security`)."""
 
     host: str
     port: int
@@ -62,6 +64,7 @@ class HistorianSettings:
     batch_max: int = 500
     batch_s: float = 0.05
     retry_max_s: float = 5.0
+    security: Security | None = None
 
 
 class Historian:
@@ -96,7 +99,8 @@ class Historian:
         self.link = MqttLink(self.s.host, self.s.port, self.s.client_id, clean_start=False,
                              session_expiry_s=self.s.session_expiry_s,
                              subscriptions=((self.s.topic_filter, 1),), manual_ack=True,
-                             keepalive_s=self.s.keepalive_s, on_up=self._up, on_message=self._message)
+                             keepalive_s=self.s.keepalive_s, on_up=self._up, on_message=self._message,
+                             security=self.s.security)
         self._thread = threading.Thread(target=self._run, name="historian-writer", daemon=True)
         self._thread.start()
         self.link.start()

@@ -14,12 +14,17 @@ connection it came on: a message of an earlier connection is not acknowledged (t
 sends it again; its PUBACK on another connection would acknowledge a different message
 with the same packet id). :meth:`publish` and :meth:`ack` may be called from any thread.
 
+A link with :class:`Security` connects over TLS (the broker's certificate checked against
+a CA, and its name against the host's) and logs in with a user name and password; a
+broker that refuses the login (or any connect) leaves the reason in :attr:`MqttLink.refused`
+and paho keeps trying.
+
 paho is imported when a link is made, not when this module is.
 """
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 
@@ -33,6 +38,21 @@ class Will:
     retain: bool = True
 
 
+@dataclass(frozen=True)
+class Security:
+    """How a link proves itself and checks the broker.
+
+    :param tls: connect over TLS, checking the broker's certificate and host name.
+    :param ca_file: the CA (PEM) that signed the broker's certificate (None: the system's).
+    :param username: the login (None: anonymous); ``password`` its password.
+    """
+
+    tls: bool = False
+    ca_file: str | None = None
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)
+
+
 class MqttLink:
     """One MQTT 5 client and its network thread; see the module doc.
 
@@ -40,12 +60,13 @@ class MqttLink:
         and queues QoS 1 messages while the client is away, ``session_expiry_s`` long).
     :param subscriptions: ``(topic filter, qos)`` pairs, subscribed at every connect.
     :param will: the Last Will, set at every connect (:meth:`set_will` changes it).
+    :param security: TLS and login (None: plain TCP, anonymous).
     """
 
     def __init__(self, host: str, port: int, client_id: str, *, clean_start: bool = True,
                  session_expiry_s: int = 0, subscriptions: tuple[tuple[str, int], ...] = (),
                  will: Will | None = None, manual_ack: bool = False, keepalive_s: int = 10,
-                 max_inflight: int = 100, max_backoff_s: int = 5,
+                 max_inflight: int = 100, max_backoff_s: int = 5, security: Security | None = None,
                  on_up: Callable[[int, bool], None] | None = None,
                  on_down: Callable[[], None] | None = None,
                  on_message: Callable[[int, object], None] | None = None):
@@ -58,6 +79,7 @@ class MqttLink:
         self.generation = 0                    #: connections made so far
         self.connected = threading.Event()
         self.subscribed = threading.Event()    #: every subscription of this connection granted
+        self.refused: str | None = None        #: why the broker refused the last connect (None: it did not)
         self._pending: set[int] = set()
         self._on_up, self._on_down, self._on_message = on_up, on_down, on_message
         self._mqtt = mqtt
@@ -68,6 +90,11 @@ class MqttLink:
         c.reconnect_delay_set(1, max_backoff_s)
         c.on_connect, c.on_disconnect, c.on_message = self._connected, self._disconnected, self._message
         c.on_subscribe = self._granted
+        if security is not None and security.tls:
+            import ssl
+            c.tls_set(ca_certs=security.ca_file, tls_version=ssl.PROTOCOL_TLS_CLIENT)
+        if security is not None and security.username is not None:
+            c.username_pw_set(security.username, security.password)
         if will is not None:
             self.set_will(will)
         props = Properties(PacketTypes.CONNECT)
@@ -113,7 +140,9 @@ class MqttLink:
     # paho's thread ------------------------------------------------------------------
     def _connected(self, client, userdata, flags, reason_code, properties) -> None:
         if reason_code.is_failure:
+            self.refused = str(reason_code)
             return
+        self.refused = None
         with self._lock:
             self.generation += 1
             generation = self.generation

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cell.plant import schema
+from cell.plant.mqtt import Security
 from cell.plant.topics import CellTopics
 
 
@@ -57,6 +58,8 @@ class OutboxSettings:
         which they are sent again.
     :param poll_s: how often the log is read for new rows (wall seconds).
     :param report_s: the backlog is logged at most this often.
+    :param security: TLS and the cell's login (:class:`~cell.plant.mqtt.Security`; None:
+        plain TCP, anonymous).
     """
 
     host: str
@@ -67,6 +70,7 @@ class OutboxSettings:
     resend_s: float = 30.0
     poll_s: float = 0.2
     report_s: float = 10.0
+    security: Security | None = None
 
 
 class PlantOutbox:
@@ -113,7 +117,7 @@ class PlantOutbox:
                              subscriptions=((self.topics.watermark, 1), (self.topics.status, 1)),
                              will=self._will(),
                              keepalive_s=self.s.keepalive_s, on_up=self._up, on_down=self._down,
-                             on_message=self._message)
+                             on_message=self._message, security=self.s.security)
         self.link.start()
         self._thread = threading.Thread(target=self._run, name="plant-outbox", daemon=True)
         self._thread.start()
@@ -200,7 +204,7 @@ class PlantOutbox:
     def _run(self) -> None:
         cursor, out, gen = 0, [], 0       # last id sent, ids sent beyond the watermark, connection
         moved = time.monotonic()
-        reported, last_backlog = 0.0, None
+        reported, last_backlog, refused = 0.0, None, None
         while not self._stop.is_set():
             self._wake.wait(self.s.poll_s)
             self._wake.clear()
@@ -215,6 +219,10 @@ class PlantOutbox:
                     self._say("plant_backlog", backlog=self._backlog, watermark=wm, log_id=self.log_id)
                     reported, last_backlog = now, self._backlog
                 link = self.link
+                if link.refused != refused:
+                    refused = link.refused
+                    if refused is not None:
+                        self._say("plant_connect_refused", reason=refused)
                 if not link.connected.is_set() or self._ready_gen != link.generation:
                     continue
                 if gen != link.generation:               # a new connection: send again from the watermark

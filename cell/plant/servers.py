@@ -13,6 +13,12 @@ unprivileged user (``postgres`` if the system has it, else ``nobody``) through
 other user they run as that user. The server trusts loopback connections of its one
 role (``cell``): a test server, never a plant's (the plant's set-up is ``deploy/``'s).
 
+:class:`Mosquitto` given ``users`` (user name -> password) runs the plant's deployed
+configuration instead, ``deploy/mosquitto/plant.conf`` with its ACL ``plant.acl``: TLS
+only, logins from a password file (made with ``mosquitto_passwd``), a cell publishing only
+under its own topics. Only the port, the file paths, persistence and the log's destination
+are replaced; the certificates are made for it (:func:`cell.plant.pki.broker_certificates`).
+
 Not found binaries raise :class:`ServerMissing` naming the Debian package to install
 (``mosquitto``, ``postgresql``); a server that does not come up raises
 :class:`ServerError` with the end of its own log.
@@ -28,9 +34,14 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 from cell.errors import CellError
+
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy" / "mosquitto"
+DEPLOY_CONF = DEPLOY / "plant.conf"        #: the broker configuration a plant deploys
+DEPLOY_ACL = DEPLOY / "plant.acl"          #: who may read and write what on it
 
 PG_ROLE = "cell"            #: the one (super)user of a test PostgreSQL
 PG_DATABASE = "historian"   #: the database a test PostgreSQL is started with
@@ -86,16 +97,21 @@ def mosquitto_binary() -> str:
 
 
 class Mosquitto:
-    """A mosquitto broker on ``127.0.0.1:port``, anonymous, MQTT 3.1.1 and 5.
+    """A mosquitto broker on ``127.0.0.1:port``, anonymous, MQTT 3.1.1 and 5; or, given
+    ``users``, the deployed one (TLS, logins, ACL; see the module doc).
 
+    :param users: user name -> password; the broker then serves TLS with the certificates
+        in :attr:`certificates` (clients trust ``certificates.ca``).
     :param persistence: keep retained messages and sessions in a file across a clean stop
         (mosquitto writes it at exit and every ``autosave_s``; a SIGKILL loses what came
         after the last save, as on a plant broker's power cut).
     :param port: the port (default: a free one, kept across :meth:`kill` and :meth:`start`).
     """
 
-    def __init__(self, persistence: bool = False, port: int | None = None, autosave_s: int = 60):
+    def __init__(self, persistence: bool = False, port: int | None = None, autosave_s: int = 60,
+                 users: Mapping[str, str] | None = None):
         self.binary = mosquitto_binary()
+        self.users = dict(users) if users is not None else None
         self.port = port or free_port()
         self.host = "127.0.0.1"
         self.persistence = persistence
@@ -103,9 +119,47 @@ class Mosquitto:
         self.folder = Path(tempfile.mkdtemp(prefix="cell-mosquitto-"))
         self.log = self.folder / "mosquitto.log"
         self.proc: subprocess.Popen | None = None
+        self.certificates = None
+        if self.users is not None:
+            from cell.plant.pki import broker_certificates
+            self.certificates = broker_certificates(self.folder / "certs")
+            self._password_file(self.folder / "plant.passwd")
+
+    def _password_file(self, path: Path) -> None:
+        tool = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
+        if not os.access(tool, os.X_OK):
+            raise ServerMissing("mosquitto_passwd", "mosquitto")
+        path.touch(mode=0o600)
+        for user, password in self.users.items():
+            done = subprocess.run([tool, "-b", str(path), user, password], capture_output=True, text=True,
+                                  timeout=60)
+            if done.returncode != 0:
+                raise ServerError(f"mosquitto_passwd could not add {user!r}: {(done.stderr or done.stdout).strip()}")
+
+    def _deployed_config(self) -> list[str]:
+        """``deploy/mosquitto/plant.conf`` with this broker's port, files and persistence."""
+        c = self.certificates
+        replace = {"listener": f"listener {self.port} 127.0.0.1", "cafile": f"cafile {c.ca}",
+                   "certfile": f"certfile {c.cert}", "keyfile": f"keyfile {c.key}",
+                   "password_file": f"password_file {self.folder / 'plant.passwd'}",
+                   "acl_file": f"acl_file {DEPLOY_ACL}",
+                   "persistence": f"persistence {'true' if self.persistence else 'false'}",
+                   "persistence_location": f"persistence_location {self.folder}/",
+                   "autosave_interval": f"autosave_interval {self.autosave_s}", "log_dest": "log_dest stderr"}
+        lines = []
+        for line in DEPLOY_CONF.read_text().splitlines():
+            key = line.split()[0] if line.strip() and not line.lstrip().startswith("#") else None
+            lines.append(replace.get(key, line))
+        return lines
 
     def _config(self) -> Path:
         conf = self.folder / "mosquitto.conf"
+        if self.users is not None:
+            lines = self._deployed_config()
+            if os.geteuid() == 0:
+                lines.append("user root")
+            conf.write_text("\n".join(lines) + "\n")
+            return conf
         lines = [f"listener {self.port} 127.0.0.1", "allow_anonymous true",
                  f"persistence {'true' if self.persistence else 'false'}",
                  f"persistence_location {self.folder}/", f"autosave_interval {self.autosave_s}",

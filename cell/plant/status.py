@@ -37,12 +37,15 @@ class StatusRecorder:
     """See the module doc. ``start()``/``stop()``; ``written``, ``refused``: counters.
 
     :param topic_filter: whose status to take (default every cell's).
+    :param security: TLS and login (:class:`cell.plant.mqtt.Security`; None: plain, anonymous),
+        the historian's against the plant's broker.
     """
 
     def __init__(self, host: str, port: int, dsn: str, client_id: str = "plant-historian-status",
                  topic_filter: str = subscription("status"), keepalive_s: int = 10, retry_max_s: float = 5.0,
-                 logger=None):
+                 logger=None, security=None):
         from cell.plant.store import HistorianStore
+        self.security = security
         self.host, self.port, self.client_id = host, port, client_id
         self.topic_filter, self.keepalive_s, self.retry_max_s = topic_filter, keepalive_s, retry_max_s
         self.store = HistorianStore(dsn)
@@ -57,6 +60,7 @@ class StatusRecorder:
         from cell.plant.mqtt import MqttLink
         self.link = MqttLink(self.host, self.port, self.client_id, clean_start=True,
                              subscriptions=((self.topic_filter, 1),), keepalive_s=self.keepalive_s,
+                             security=self.security,
                              on_message=lambda _gen, m: self._q.put((m.topic, bytes(m.payload))))
         self._thread = threading.Thread(target=self._run, name="status-writer", daemon=True)
         self._thread.start()
