@@ -209,6 +209,11 @@ class PlantOutbox:
             self._wake.wait(self.s.poll_s)
             self._wake.clear()
             try:
+                # readiness before the watermark: paho's thread sets the retained watermark
+                # before the birth's echo makes the connection ready, so a ready read first
+                # is never paired with a watermark read before the retained one came
+                link = self.link
+                ready_gen = self._ready_gen if link.connected.is_set() else -1
                 wm = self._watermark
                 if out and out[0] <= wm:
                     moved = time.monotonic()
@@ -218,15 +223,14 @@ class PlantOutbox:
                 if self._backlog != last_backlog and now - reported >= self.s.report_s:
                     self._say("plant_backlog", backlog=self._backlog, watermark=wm, log_id=self.log_id)
                     reported, last_backlog = now, self._backlog
-                link = self.link
                 if link.refused != refused:
                     refused = link.refused
                     if refused is not None:
                         self._say("plant_connect_refused", reason=refused)
-                if not link.connected.is_set() or self._ready_gen != link.generation:
+                if ready_gen != link.generation:
                     continue
-                if gen != link.generation:               # a new connection: send again from the watermark
-                    gen, cursor, out, moved = link.generation, wm, [], now
+                if gen != ready_gen:                     # a new connection: send again from the watermark
+                    gen, cursor, out, moved = ready_gen, wm, [], now
                     self._seq = 0
                 if out and now - moved > self.s.resend_s:
                     cursor, out, moved = wm, [], now
