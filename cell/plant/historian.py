@@ -9,7 +9,9 @@ unacknowledged one again. PostgreSQL going away mid-batch rolls the batch back a
 acknowledges none of it; the batch is retried until the database is back (or the
 historian stops, leaving the records to the broker).
 
-Threads: paho's network thread only queues what arrives; ``historian-writer`` takes
+Threads: paho's network thread only queues what arrives (the broker may send up to
+``batch_max`` records unacknowledged: the MQTT 5 Receive Maximum the historian asks
+for, so a batch is not cut to mosquitto's default of 20); ``historian-writer`` takes
 batches (up to ``batch_max`` records, gathered for at most ``batch_s``), checks each
 (:func:`cell.plant.schema.parse`), commits the good ones in one transaction
 (:class:`cell.plant.store.HistorianStore`), then acknowledges the batch in the order it
@@ -100,7 +102,7 @@ class Historian:
                              session_expiry_s=self.s.session_expiry_s,
                              subscriptions=((self.s.topic_filter, 1),), manual_ack=True,
                              keepalive_s=self.s.keepalive_s, on_up=self._up, on_message=self._message,
-                             security=self.s.security)
+                             security=self.s.security, receive_maximum=self.s.batch_max)
         self._thread = threading.Thread(target=self._run, name="historian-writer", daemon=True)
         self._thread.start()
         self.link.start()

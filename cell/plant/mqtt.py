@@ -61,12 +61,16 @@ class MqttLink:
     :param subscriptions: ``(topic filter, qos)`` pairs, subscribed at every connect.
     :param will: the Last Will, set at every connect (:meth:`set_will` changes it).
     :param security: TLS and login (None: plain TCP, anonymous).
+    :param receive_maximum: QoS 1 messages the broker may send unacknowledged (MQTT 5
+        Receive Maximum; None: the broker's default, mosquitto's 20). A client that
+        acknowledges after a batch's commit needs room for a batch.
     """
 
     def __init__(self, host: str, port: int, client_id: str, *, clean_start: bool = True,
                  session_expiry_s: int = 0, subscriptions: tuple[tuple[str, int], ...] = (),
                  will: Will | None = None, manual_ack: bool = False, keepalive_s: int = 10,
                  max_inflight: int = 100, max_backoff_s: int = 5, security: Security | None = None,
+                 receive_maximum: int | None = None,
                  on_up: Callable[[int, bool], None] | None = None,
                  on_down: Callable[[], None] | None = None,
                  on_message: Callable[[int, object], None] | None = None):
@@ -99,6 +103,8 @@ class MqttLink:
             self.set_will(will)
         props = Properties(PacketTypes.CONNECT)
         props.SessionExpiryInterval = int(session_expiry_s)
+        if receive_maximum is not None:
+            props.ReceiveMaximum = int(receive_maximum)
         self._connect_args = dict(keepalive=keepalive_s, clean_start=clean_start, properties=props)
         self._lock = threading.Lock()
 

@@ -22,7 +22,7 @@ of the wrong type or out of range, or a ``cell`` that is not the topic's.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
+from dataclasses import fields as dataclass_fields
 from datetime import datetime, timezone
 from typing import Literal
 
@@ -133,9 +133,9 @@ def _dump(msg: _Envelope) -> bytes:
 def cycle_payload(cell: str, log_id: str, record, prev_id: int, session: int, seq: int) -> bytes:
     """The cycle message of ``record`` (a :class:`~cell.cyclelog.CycleRecord` read back from
     the log, so it has its ``id``), checked against :class:`CycleMessage`."""
-    fields = asdict(record)
+    # the fields as they are (no deep copy as asdict makes: the model copies what it keeps)
+    fields = {f.name: getattr(record, f.name) for f in dataclass_fields(record) if f.name != "trace"}
     cycle_id = fields.pop("id")
-    fields.pop("trace", None)
     fields["status"] = str(fields["status"])
     msg = CycleMessage(cell=cell, log_id=log_id, cycle_id=cycle_id, prev_id=prev_id, session=session,
                        seq=seq, record=CycleFields(**fields))

@@ -75,6 +75,12 @@ ALTER TABLE cycles ADD COLUMN duplicates integer NOT NULL DEFAULT 0;
 """),
 )
 SCHEMA_VERSION = MIGRATIONS[-1][0]
+#: one record; a copy already there is counted in its row (returns True for a new row)
+_INSERT = ("INSERT INTO cycles (cell, log_id, cycle_id, prev_id, session, seq, part_id, recipe, status,"
+           " fault_code, started_at, finished_at, final_error_mm, cycle_time_s, record)"
+           " VALUES (%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s::jsonb)"
+           " ON CONFLICT (cell, log_id, cycle_id) DO UPDATE SET duplicates = cycles.duplicates + 1,"
+           " prev_id = LEAST(cycles.prev_id, EXCLUDED.prev_id) RETURNING (xmax = 0)")
 _LOCK_KEY = 25_0001          # pg_advisory_xact_lock key of the migration
 
 
@@ -134,22 +140,21 @@ class HistorianStore:
         touched: set[tuple[str, str]] = set()
         try:
             with db.transaction():
+                # one statement per record, sent in one pipeline (psycopg's executemany):
+                # no round trip per record
+                cur = db.cursor()
+                cur.executemany(_INSERT, [
+                    (m.cell, m.log_id, m.cycle_id, m.prev_id, m.session, m.seq, m.record.part_id, m.record.recipe,
+                     m.record.status, m.record.fault_code, m.record.started_at, m.record.finished_at,
+                     m.record.final_error_mm, m.record.cycle_time_s, json.dumps(m.record.model_dump()))
+                    for m in messages], returning=True)
                 for m in messages:
-                    r = m.record
-                    row = db.execute(
-                        "INSERT INTO cycles (cell, log_id, cycle_id, prev_id, session, seq, part_id, recipe,"
-                        " status, fault_code, started_at, finished_at, final_error_mm, cycle_time_s, record)"
-                        " VALUES (%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s::jsonb)"
-                        " ON CONFLICT (cell, log_id, cycle_id) DO UPDATE SET duplicates = cycles.duplicates + 1,"
-                        " prev_id = LEAST(cycles.prev_id, EXCLUDED.prev_id) RETURNING (xmax = 0)",
-                        (m.cell, m.log_id, m.cycle_id, m.prev_id, m.session, m.seq, r.part_id, r.recipe,
-                         r.status, r.fault_code, r.started_at, r.finished_at, r.final_error_mm,
-                         r.cycle_time_s, json.dumps(r.model_dump()))).fetchone()
-                    if row is not None and row[0]:
+                    if cur.fetchone()[0]:
                         result.inserted += 1
                     else:
                         result.duplicates += 1
                     touched.add((m.cell, m.log_id))
+                    cur.nextset()
                 for cell, log_id in sorted(touched):
                     result.watermarks[(cell, log_id)] = self._advance(cell, log_id)
             db.commit()
