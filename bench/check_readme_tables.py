@@ -109,6 +109,8 @@ SOURCES: tuple[Source, ...] = (
     Source("line-delay", ".venv/bin/python bench/bench_line_delay.py", ("bench/bench_line_delay.py",), 1),
     Source("timelaws", ".venv/bin/python bench/bench_timelaws.py", ("bench/bench_timelaws.py",), 2,
            (cols("fit µs"), cols())),
+    Source("plant", ".venv/bin/python bench/bench_plant.py", ("bench/bench_plant.py",), 1, (ALL,),
+           probe=("bench/bench_plant.py", "--quick")),
     Source("modbus", ".venv/bin/python bench/bench_modbus.py", ("bench/bench_modbus.py",), 1, (ALL,),
            probe=("bench/bench_modbus.py", "-n", "200")),
     Source("vision", ".venv/bin/python bench/bench_vision.py", ("bench/bench_vision.py",), 4,

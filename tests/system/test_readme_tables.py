@@ -53,7 +53,7 @@ def test_a_changed_figure_is_found_and_shown():
 
 #: the tables whose commands take 3 s or more: the slow tier (tests/conftest.py)
 LONG = {"can", "validate", "chain", "chain-oov", "vision", "cell-latency", "diagnose-cpu", "scan",
-        "load-main", "diagnosis-speed", "chain-speed", "opcua-scan"}
+        "load-main", "diagnosis-speed", "chain-speed", "opcua-scan", "plant"}
 
 
 @pytest.mark.timeout(900)
