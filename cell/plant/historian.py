@@ -22,7 +22,9 @@ broker restarted without persistence has lost the retained ones).
 A payload that is not a valid cycle message (not JSON, an unknown schema version, a
 field wrong, another cell's id) is refused: logged (``plant_record_refused``, naming what
 was wrong), counted in ``rejected``, acknowledged (sending it again cannot mend it) and
-never written.
+never written. A connect the broker refuses (a wrong password, a login the ACL does
+not know) is logged as ``historian_connect_refused`` with the broker's reason; paho keeps
+trying.
 
 A cell's clock may jump back (an NTP step, a replaced battery): its records' timestamps
 then go backwards while their ids go forwards. The historian records them as they are: a
@@ -125,7 +127,12 @@ class Historian:
 
     # the writer ---------------------------------------------------------------------
     def _run(self) -> None:
+        refused = None
         while not self._stop.is_set():
+            if self.link.refused != refused:          # the broker refused the login: say why, once
+                refused = self.link.refused
+                if refused is not None:
+                    self._say("historian_connect_refused", reason=refused)
             try:
                 first = self._q.get(timeout=0.2)
             except queue.Empty:

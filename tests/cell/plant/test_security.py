@@ -197,3 +197,25 @@ def test_cellctl_historian_logs_in_over_tls(tmp_path, secure_broker, historian_d
         log.close()
         proc.terminate()
         proc.wait(30)
+
+
+def test_a_refused_login_is_logged_by_the_outbox_and_the_historian(tmp_path, secure_broker, historian_db):
+    from tests.cell.plant.test_bad_input import Said
+    db = tmp_path / "cell.sqlite"
+    write_log(db, 1).close()
+    said = Said()
+    outbox = PlantOutbox(db, outbox_settings(secure_broker, ONE, security=_security(secure_broker, ONE.path, "old")),
+                         logger=said)
+    historian = Historian(historian_settings(secure_broker, historian_db, client_id="h-refused",
+                                             security=_security(secure_broker, "historian", "old")), logger=said)
+    outbox.start()
+    historian.start()
+    try:
+        wait_for(lambda: {e for e, _ in said.events} >= {"plant_connect_refused", "historian_connect_refused"},
+                 60, "both refusals logged")
+        reasons = {kw["reason"] for e, kw in said.events if e.endswith("connect_refused")}
+        assert reasons and reasons <= {"Bad user name or password", "Not authorized"}
+        assert outbox.backlog == 1 and pg_ids(historian_db, ONE.path) == set()   # the record waits in the log
+    finally:
+        outbox.stop()
+        historian.stop()
