@@ -1,6 +1,7 @@
 """comm_delay: joints receive their commands one after another on the CAN bus (seed 002:
-station k is σ·k late). On a chain, to first order in the lag: q_k(t) = q_cmd,k(t) −
-σ·b_k·q̇_cmd,k(t), b_k the joint's bus position, on the samples of a measured move."""
+station k is σ·k late). On a chain, on the samples of a measured move: q_k(t) =
+q_cmd,k(t − σ·b_k), b_k the joint's bus position (its first-order form −σ·b_k·q̇_cmd,k is
+the screening's linearisation)."""
 from __future__ import annotations
 
 import numpy as np
