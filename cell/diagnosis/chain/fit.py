@@ -371,27 +371,25 @@ class _LaterLevers:
 def _places(readings: np.ndarray, move: np.ndarray | None) -> np.ndarray:
     """The fold of every pose: the static poses' places (:func:`cell.diagnosis.places.folds`),
     then each measured move one fold."""
-    if move is None or not np.any(move >= 0):
-        return place_folds(readings)[0]
-    static = move < 0
-    out = np.empty(len(readings), np.int64)
-    out[static] = place_folds(readings[static])[0] if static.any() else []
-    first = int(out[static].max()) + 1 if static.any() else 0
-    _, idx = np.unique(move[~static], return_inverse=True)
-    out[~static] = first + idx
-    return out
+    return _moves_apart(readings, move, lambda q: place_folds(q)[0])
 
 
 def _stations(d: Data) -> np.ndarray:
     """The group of every pose for a requirement within each place: the static poses'
     (:func:`cell.diagnosis.places.stations`), then each measured move one group."""
-    if d.move is None or not np.any(d.move >= 0):
-        return stations(d.readings)
-    static = d.move < 0
-    out = np.empty(len(d.readings), np.int64)
-    out[static] = stations(d.readings[static]) if static.any() else []
+    return _moves_apart(d.readings, d.move, stations)
+
+
+def _moves_apart(readings: np.ndarray, move: np.ndarray | None, group) -> np.ndarray:
+    """``group(readings)`` (an int label per pose) for the static poses, and after its
+    labels one label per measured move (``move`` ≥ 0; None: static poses only)."""
+    if move is None or not np.any(move >= 0):
+        return group(readings)
+    static = move < 0
+    out = np.empty(len(readings), np.int64)
+    out[static] = group(readings[static]) if static.any() else []
     first = int(out[static].max()) + 1 if static.any() else 0
-    out[~static] = first + np.unique(d.move[~static], return_inverse=True)[1]
+    out[~static] = first + np.unique(move[~static], return_inverse=True)[1]
     return out
 
 
