@@ -14,7 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cell import paths
-from cell.errors import CellError, ConfigError
+from cell.errors import CellError
 from cell.kinematics import Scara
 from cell.opcua.config import OpcuaSection
 from cell.robots import PRESETS, Geometry
@@ -194,20 +194,14 @@ class PlantSection(_Section):
     def outbox_settings(self, cell_name: str):
         """The :class:`~cell.plant.outbox.OutboxSettings` for a cell named ``cell_name``;
         raises ConfigError if the password file cannot be read or is empty."""
-        from cell.plant.mqtt import Security
+        from cell.plant.mqtt import Security, read_password
         from cell.plant.outbox import OutboxSettings
         from cell.plant.topics import CellTopics
         topics = CellTopics(self.site, self.line, self.cell or cell_name)
         security = None
         if self.tls or self.password_file is not None:
-            password = None
-            if self.password_file is not None:
-                try:
-                    password = Path(self.password_file).read_text().strip()
-                except OSError as exc:
-                    raise ConfigError(f"plant.password_file {self.password_file}: {exc.strerror}") from None
-                if not password:
-                    raise ConfigError(f"plant.password_file {self.password_file} is empty")
+            password = (None if self.password_file is None
+                        else read_password(self.password_file, "plant.password_file"))
             security = Security(tls=self.tls, ca_file=self.ca_file,
                                 username=(self.username or topics.path) if password is not None else None,
                                 password=password)

@@ -56,19 +56,10 @@ def _broker(text: str) -> tuple[str, int]:
 
 
 def _security(args: argparse.Namespace):
-    from pathlib import Path
-
-    from cell.plant.mqtt import Security
+    from cell.plant.mqtt import Security, read_password
     if not (args.tls or args.ca_file or args.password_file):
         return None
-    password = None
-    if args.password_file:
-        try:
-            password = Path(args.password_file).read_text().strip()
-        except OSError as exc:
-            raise ConfigError(f"--password-file {args.password_file}: {exc.strerror}") from None
-        if not password:
-            raise ConfigError(f"--password-file {args.password_file} is empty")
+    password = read_password(args.password_file, "--password-file") if args.password_file else None
     return Security(tls=bool(args.tls or args.ca_file), ca_file=args.ca_file,
                     username=args.username if password is not None else None, password=password)
 

@@ -38,6 +38,22 @@ class Will:
     retain: bool = True
 
 
+def read_password(path, what: str) -> str:
+    """The password alone in the file at ``path``, whitespace stripped. Raises ConfigError
+    naming ``what`` (the option or config key) and the file when it cannot be read or is
+    empty."""
+    from pathlib import Path
+
+    from cell.errors import ConfigError
+    try:
+        password = Path(path).read_text().strip()
+    except OSError as exc:
+        raise ConfigError(f"{what} {path}: {exc.strerror}") from None
+    if not password:
+        raise ConfigError(f"{what} {path} is empty")
+    return password
+
+
 @dataclass(frozen=True)
 class Security:
     """How a link proves itself and checks the broker.

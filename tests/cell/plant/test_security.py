@@ -219,3 +219,24 @@ def test_a_refused_login_is_logged_by_the_outbox_and_the_historian(tmp_path, sec
     finally:
         outbox.stop()
         historian.stop()
+
+
+def test_a_password_file_that_is_absent_or_empty_is_refused_by_name(tmp_path):
+    # the cell's plant section and cellctl historian read it the same way (mqtt.read_password)
+    import argparse
+
+    from cell.commands.historian import _security
+    from cell.errors import ConfigError
+    from cell.plant.mqtt import read_password
+    empty = tmp_path / "empty.password"
+    empty.write_text(" \n")
+    (tmp_path / "good.password").write_text("s3cret\n")
+    assert read_password(tmp_path / "good.password", "x") == "s3cret"
+    with pytest.raises(ConfigError, match=r"plant.password_file .*empty.password is empty"):
+        read_password(empty, "plant.password_file")
+    args = argparse.Namespace(tls=True, ca_file=None, username="historian", password_file=str(empty))
+    with pytest.raises(ConfigError, match=r"--password-file .*empty.password is empty"):
+        _security(args)
+    args.password_file = str(tmp_path / "absent")
+    with pytest.raises(ConfigError, match=r"--password-file .*absent: No such file"):
+        _security(args)
