@@ -82,3 +82,13 @@ def test_status_and_watermark_payloads_read_back():
     assert (wm.log_id, wm.cycle_id) == ("log1", 99)
     ev = schema.parse("event", TOPICS.event, schema.event_payload(TOPICS.path, 4, 1, "started", {"n": 1}))
     assert (ev.kind, ev.data) == ("started", {"n": 1})
+
+
+def test_the_payloads_record_is_the_logs_record_without_trace_and_id():
+    # the contract (cell/plant.md) names CycleRecord's fields; a field the log gains must be
+    # added to schema v1's CycleFields too (or the schema versioned), never silently dropped
+    from dataclasses import fields
+
+    from cell.cyclelog import CycleRecord
+    from cell.plant.schema import CycleFields
+    assert set(CycleFields.model_fields) == {f.name for f in fields(CycleRecord)} - {"trace", "id"}
