@@ -633,7 +633,9 @@ def rms3(r: np.ndarray) -> float:
 def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=None,
         max_iter: int = 50, tol: float = 1e-10) -> Fit:
     """Fit registration and ``params`` on ``d`` by damped Gauss–Newton; adds the robust
-    errors and the leave-one-pose-out error."""
+    errors and the leave-one-pose-out error. It stops when a step changes the cost by at
+    most ``tol`` of it, down or up (up only by rounding: the minimum is reached), or after
+    ``max_iter`` steps."""
     reg = reg0 or initial_registration(d)
     reg = Registration(reg.R.copy(), reg.t.copy(), reg.markers.copy())
     v = np.zeros(len(params)) if values0 is None else np.asarray(values0, float).copy()
@@ -654,6 +656,8 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
             y, J, r, cost = y2, J2, r2, c2
             if done:
                 break
+        elif c2 - cost <= tol * max(cost, 1e-30):
+            break                         # a change within rounding: at the minimum already
         else:
             lam *= 10
             if lam > 1e8:
