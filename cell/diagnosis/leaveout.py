@@ -151,23 +151,27 @@ class Folds:
         self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
         self.ridge = ridge
         self.base = base
-        self.u, self.W, self.M, self.z = self.rg, self.Jg, None, None
-        if base:
-            self._eliminate(base)
+        if not (base and self._eliminate(base)):
+            self.base = 0               # nothing eliminated: the fold-out system as it is
+            self.M, self.z = self.Gt - self.G, self.bt - self.b
+            self.u, self.W = self.rg, self.Jg
+            if self.gram:
+                self.uu, self.Wu, self.WW = self.rr, self.b, self.G
 
     @property
     def n_folds(self) -> int:
         return len(self.G)
 
-    def _eliminate(self, nb: int) -> None:
+    def _eliminate(self, nb: int) -> bool:
+        """Eliminate the first ``nb`` columns (class docstring); False when a fold's base
+        block is singular (nothing is eliminated then)."""
         A = self.Gt - self.G                                          # (F, n, n) fold out
         c = self.bt - self.b
         try:
             sol = np.linalg.solve(A[:, :nb, :nb],
                                   np.concatenate([A[:, :nb, nb:], c[:, :nb, None]], axis=2))
         except np.linalg.LinAlgError:
-            self.base = 0
-            return
+            return False
         X, x = sol[:, :, :-1], sol[:, :, -1]                          # (F, nb, m), (F, nb)
         Apr = A[:, nb:, :nb]
         self.M = A[:, nb:, nb:] - Apr @ X                             # (F, m, m)
@@ -181,10 +185,11 @@ class Folds:
                        + np.einsum("fji,fj->fi", X, GBBx))
             XtGBR = X.transpose(0, 2, 1) @ GBR
             self.WW = GRR - XtGBR - XtGBR.transpose(0, 2, 1) + X.transpose(0, 2, 1) @ GBB @ X
-            return
+            return True
         Jr = self.Jg[:, :, :nb]
         self.u = self.rg - np.einsum("fRr,fr->fR", Jr, x)             # (F, R)
         self.W = self.Jg[:, :, nb:] - Jr @ X                          # (F, R, m)
+        return True
 
     def _ridged(self, A: np.ndarray) -> np.ndarray:
         if not self.ridge or A.shape[-1] == 0:
@@ -205,7 +210,7 @@ class Folds:
         ``cols`` (indices; empty: the residual as it is)."""
         cols = np.asarray(cols, dtype=np.int64)
         nb = self.base
-        if nb and len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
+        if len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
             S = cols[nb:] - nb
             if not len(S):
                 return self._from_ss(self.uu) if self.gram else self._result(self.u)
@@ -238,7 +243,7 @@ class Folds:
             return []
         S = np.asarray(subsets, dtype=np.int64)                       # (t, c)
         nb = self.base
-        if not nb or S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
+        if S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
             return [self.loo(c) for c in subsets]
         S = S[:, nb:] - nb                                            # (t, k)
         try:
