@@ -50,10 +50,40 @@ def blocks(Js: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, dims
     """Each group's rows of the design ``Js`` and the residual ``r`` side by side, zero-padded
     to one length (:func:`by_group`): (Jg (G, R, n), rg (G, R), pad (G, R) True where
     padded)."""
+    if one_point_folds(group, n_groups):           # each fold one point: a reordering
+        Jg, rg = np.empty((n_groups, dims, Js.shape[1])), np.empty((n_groups, dims))
+        Jg[group], rg[group] = Js.reshape(len(group), dims, -1), r.reshape(len(group), dims)
+        return Jg, rg, np.zeros((n_groups, dims), dtype=bool)
     idx = by_group(group, n_groups, dims)
     pad = idx < 0
     safe = np.where(pad, 0, idx)
     return np.where(pad[..., None], 0.0, Js[safe]), np.where(pad, 0.0, r[safe]), pad
+
+
+def one_point_folds(group: np.ndarray, n_groups: int) -> bool:
+    """Whether every fold holds exactly one point (``group`` a permutation of the folds):
+    then a fold's rows are its point's ``dims`` rows, and no padding is needed."""
+    return len(group) == n_groups and bool(np.all(np.bincount(group, minlength=n_groups) == 1))
+
+
+def solve_small(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M⁻¹ v`` for a stack of small systems (M (..., d, d), v (..., d)), in closed form for
+    d ≤ 2 (LAPACK's per-matrix overhead dominates thousands of 2 × 2 solves), else
+    :func:`numpy.linalg.solve`. Raises LinAlgError when a system is exactly singular."""
+    d = M.shape[-1]
+    if d == 1:
+        det = M[..., 0, 0]
+        if np.any(det == 0):
+            raise np.linalg.LinAlgError("singular matrix")
+        return v / det[..., None]
+    if d == 2:
+        a, b, c, e = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1]
+        det = a * e - b * c
+        if np.any(det == 0):
+            raise np.linalg.LinAlgError("singular matrix")
+        x, y = v[..., 0], v[..., 1]
+        return np.stack([(e * x - b * y) / det, (a * y - c * x) / det], axis=-1)
+    return np.linalg.solve(M, v[..., None])[..., 0]
 
 
 def _sizes(pad: np.ndarray, dims: int, per: str) -> np.ndarray:
@@ -100,7 +130,7 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
         else:
             H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
             I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
-            loo = np.linalg.solve(I - H, rg[..., None])[..., 0]
+            loo = solve_small(I - H, rg)
     except np.linalg.LinAlgError:
         return math.inf, np.full(n_groups, math.inf), Ainv, scale
     ss = np.sum(loo * loo, axis=1)
@@ -151,12 +181,15 @@ class Folds:
         self.Gt, self.bt = self.G.sum(0), self.b.sum(0)
         self.ridge = ridge
         self.base = base
+        self.points = None
         if not (base and self._eliminate(base)):
             self.base = 0               # nothing eliminated: the fold-out system as it is
             self.M, self.z = self.Gt - self.G, self.bt - self.b
             self.u, self.W = self.rg, self.Jg
             if self.gram:
                 self.uu, self.Wu, self.WW = self.rr, self.b, self.G
+            elif not ridge and one_point_folds(group, n_groups):
+                self.points = (Js.reshape(len(group), dims, -1), r.reshape(len(group), dims), group)
 
     @property
     def n_folds(self) -> int:
@@ -210,6 +243,8 @@ class Folds:
         ``cols`` (indices; empty: the residual as it is)."""
         cols = np.asarray(cols, dtype=np.int64)
         nb = self.base
+        if self.points is not None and len(cols):
+            return self._one_point_loo(cols)
         if len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
             S = cols[nb:] - nb
             if not len(S):
@@ -236,6 +271,40 @@ class Folds:
                                  + np.einsum("fk,fkl,fl->f", beta, self.G[:, cols[:, None], cols], beta))
         return self._result(self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta))
 
+    def _one_point_loo(self, cols: np.ndarray) -> tuple[float, np.ndarray]:
+        """:meth:`loo` when every fold is one point and nothing is eliminated: the fit on
+        every fold, then each point's held-out residual ``(I − H_gg)⁻¹ e_g`` (``H_gg`` its
+        ``dims`` × ``dims`` block of the hat matrix), exact for any ``r``: one k × k solve
+        instead of one per fold."""
+        Jp, rp, fold_of = self.points
+        try:
+            Ainv = np.linalg.inv(self.Gt[np.ix_(cols, cols)])
+            Jc = Jp[:, :, cols]                                       # (P, dims, k)
+            e = rp - Jc @ (Ainv @ self.bt[cols])
+            H = (Jc @ Ainv) @ Jc.transpose(0, 2, 1)                   # (P, dims, dims)
+            out = solve_small(np.eye(H.shape[-1]) - H, e)
+        except np.linalg.LinAlgError:
+            return math.inf, np.full(self.n_folds, math.inf)
+        ss = np.empty(self.n_folds)
+        ss[fold_of] = np.sum(out * out, axis=1)
+        return self._from_ss(ss)
+
+    def _one_point_each(self, S: np.ndarray) -> list[tuple[float, np.ndarray]]:
+        """:meth:`_one_point_loo` of each row of ``S`` (t, k), in one batch."""
+        Jp, rp, fold_of = self.points
+        try:
+            Ainv = np.linalg.inv(self.Gt[S[:, :, None], S[:, None, :]])   # (t, k, k)
+            Jc = Jp[:, :, S].transpose(2, 0, 1, 3)                        # (t, P, dims, k)
+            beta = (Ainv @ self.bt[S][..., None])[..., 0]                 # (t, k)
+            e = rp[None] - (Jc @ beta[:, None, :, None])[..., 0]          # (t, P, dims)
+            H = (Jc @ Ainv[:, None]) @ Jc.transpose(0, 1, 3, 2)           # (t, P, dims, dims)
+            out = solve_small(np.eye(H.shape[-1]) - H, e)
+        except np.linalg.LinAlgError:                                     # tell which: one at a time
+            return [self._one_point_loo(c) for c in S]
+        ss = np.empty((len(S), self.n_folds))
+        ss[:, fold_of] = np.sum(out * out, axis=2)
+        return [self._from_ss(q) for q in ss]
+
     def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
         """:meth:`loo` of each column list of ``subsets`` (all of one length), solved in
         one batch when each holds the eliminated base columns first."""
@@ -243,6 +312,8 @@ class Folds:
             return []
         S = np.asarray(subsets, dtype=np.int64)                       # (t, c)
         nb = self.base
+        if self.points is not None and S.shape[1]:
+            return self._one_point_each(S)
         if S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
             return [self.loo(c) for c in subsets]
         S = S[:, nb:] - nb                                            # (t, k)

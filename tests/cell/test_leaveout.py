@@ -116,3 +116,31 @@ def test_subsets_solved_in_one_batch_without_an_eliminated_base_agree_with_real_
         want = [np.sum(_refit(Js, r, group, g, c, 2) ** 2) / np.sum(group == g) for g in range(F)]
         assert np.allclose(per, want, rtol=1e-9, atol=1e-12), c
         assert (total, list(per)) == (folds.loo(c)[0], list(folds.loo(c)[1]))
+
+
+@pytest.mark.parametrize("dims", [1, 2, 3])
+def test_folds_of_one_point_each_take_the_hat_matrix_route_and_agree_with_real_refits(dims):
+    # every pose its own fold (a planar campaign's static poses and move samples read as a
+    # chain): the fit on all folds once, then (I − H_gg)⁻¹ e_g per point
+    J, r, _, _ = _problem(6, points=30, dims=dims)
+    group = np.random.default_rng(6).permutation(30)
+    Js = leaveout.scaled(J)[0]
+    folds = leaveout.Folds(Js, r, group, 30, dims=dims)
+    assert folds.points is not None
+    subsets = [[0, 2], [1, 2], [3, 4]]
+    for c, (total, per) in zip(subsets, folds.loo_each(subsets)):
+        want = [np.sum(_refit(Js, r, group, g, c, dims) ** 2) for g in range(30)]
+        assert np.allclose(per, want, rtol=1e-9, atol=1e-12), c
+        one_total, one_per = folds.loo(c)
+        assert total == pytest.approx(one_total, rel=1e-12) and np.allclose(per, one_per, rtol=1e-12)
+    assert np.allclose(folds.loo([])[1], [np.sum(r.reshape(30, dims)[group == g] ** 2) for g in range(30)])
+
+
+def test_the_small_solver_agrees_with_lapack_and_refuses_an_exactly_singular_system():
+    rng = np.random.default_rng(7)
+    for d in (1, 2, 3):
+        M, v = rng.normal(size=(50, d, d)) + 3 * np.eye(d), rng.normal(size=(50, d))
+        assert np.allclose(leaveout.solve_small(M, v), np.linalg.solve(M, v[..., None])[..., 0],
+                           rtol=1e-12, atol=1e-14)
+    with pytest.raises(np.linalg.LinAlgError):
+        leaveout.solve_small(np.array([[[1.0, 2.0], [2.0, 4.0]]]), np.ones((1, 2)))
