@@ -16,16 +16,7 @@ import argparse
 from collections import Counter
 
 from cell.diagnosis import validate
-from cell.diagnosis.chain.report import diagnose_chain
-from cell.measurements.chain import planar_as_chain
 from cell.truth.verdict import VERDICTS
-
-
-class _Chain:
-    """The chain diagnosis of a planar campaign, in the shape of the planar answer."""
-
-    def __init__(self, campaign):
-        self.report = diagnose_chain(planar_as_chain(campaign, campaign.source or "."))
 
 
 def main(argv=None) -> None:
@@ -34,15 +25,8 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--outside", type=float, default=0.0, help="share of truths outside the vocabulary")
     a = ap.parse_args(argv)
-    planar = validate.diagnose
-    runs = {}
-    try:
-        for engine, diagnose in (("planar", planar), ("chain", _Chain)):
-            validate.diagnose = diagnose
-            runs[engine] = [validate.run_trial(i, a.seed, outside_share=a.outside)
-                            for i in range(a.trials)]
-    finally:
-        validate.diagnose = planar
+    runs = {engine: [validate.run_trial(i, a.seed, outside_share=a.outside, engine=engine)
+                     for i in range(a.trials)] for engine in validate.ENGINES}
     print(f"Planar validation, {a.trials} campaigns, seed {a.seed}, share outside the vocabulary "
           f"{a.outside:g}: both engines on the same campaigns\n")
     print("| engine | " + " | ".join(VERDICTS) + " | CPU s median |")

@@ -69,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--engine", choices=("planar", "chain"), default=None,
                    help="planar campaigns and cycle logs: 'chain' reads it as the chain campaign it is "
                         "(points and the moves' samples as poses, cell/measurements.md, last section) "
-                        "and diagnoses it with the chain engine (default: planar)")
+                        "and diagnoses it with the chain engine (default: planar); with "
+                        "'validate', the engine that diagnoses its planar campaigns")
     p.add_argument("--robot", default="seed000",
                    help="cycle log only: robot preset of the nominal model (default seed000)")
     p.add_argument("--camera-center", type=float_list(2), metavar="X,Y",
@@ -97,9 +98,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.campaign == VALIDATE:
-        if args.engine is not None:
-            raise ConfigError("--engine: not with validate (bench/bench_planar_as_chain.py runs both "
-                              "engines on the validation's planar campaigns)")
+        if args.engine is not None and (args.chain or args.both):
+            raise ConfigError(f"--engine: not with {'--chain' if args.chain else '--both'} (the "
+                              "engine is chosen for the validation's planar campaigns)")
         return run_validate(args)
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
@@ -237,9 +238,10 @@ def run_validate(args: argparse.Namespace) -> int:
     trials, seed, points, share, kinds = _validate_options(args, validate.OUTSIDE, 200, 300,
                                                            "static poses per campaign")
     layout = args.layout or "realistic"
+    engine = args.engine or "planar"
     with progress.bar("validate", total=trials, unit="campaign") as p:
         ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds,
-                          progress=lambda i, t: p.update(1), layout=layout)
+                          progress=lambda i, t: p.update(1), layout=layout, engine=engine)
     kind = "main effect + second" if args.combos else "one or two effects" \
         if layout == "realistic" else "single effect"
     moves = "0 or 4 moves" if layout == "realistic" else "6 moves"
@@ -247,6 +249,8 @@ def run_validate(args: argparse.Namespace) -> int:
              f"{points} poses + {moves} each")
     if share:
         title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
+    if engine == "chain":
+        title += "; diagnosed by the chain engine (each campaign read as a chain campaign)"
     return _print_scores(args, validate, ts, title)
 
 

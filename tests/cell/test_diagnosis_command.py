@@ -247,13 +247,28 @@ def test_a_planar_campaign_through_the_chain_engine(campaign_dir, capsys, tmp_pa
     rep = json.loads(capsys.readouterr().out)
     assert rep["chain"]["kinematics"] == "dh" and rep["chain"]["sensor_axes"] == ["x", "y"]
     assert rep["cause"]["effect"] == "backlash" and rep["cause"]["joints"] == ["j2"], rep["cause"]
-    # a chain campaign has no planar engine, and validate takes no engine
+    # a chain campaign has no planar engine; validate's engine is for its planar campaigns
     from cell.truth.chain_campaign import make
     chain_dir = make(tmp_path / "chain", {}, poses=20)
     assert cellctl(["diagnose", str(chain_dir), "--engine", "planar"]) == 2
     assert "only the chain engine" in capsys.readouterr().err
     assert cellctl(["diagnose", str(chain_dir), "--engine", "chain"]) == 2
-    assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "1"]) == 2
+    capsys.readouterr()
+    for extra in (["--chain"], ["--both"]):
+        assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "1", *extra]) == 2
+        assert f"--engine: not with {extra[0]}" in capsys.readouterr().err
+
+
+def test_validate_diagnoses_its_planar_campaigns_with_the_engine_asked_for(capsys):
+    # the same drawn campaigns, judged from each engine's own report
+    from cell.diagnosis import validate
+    assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "2", "--seed", "3"]) == 0
+    assert "diagnosed by the chain engine" in capsys.readouterr().out
+    chain = validate.run(2, 3, engine="chain")
+    planar = validate.run(2, 3, engine="planar")
+    assert [t.truth_label for t in chain] == [t.truth_label for t in planar]
+    with pytest.raises(ValueError, match="unknown engine 'scara'"):
+        validate.run(1, 3, engine="scara")
 
 
 def test_a_short_cycle_log_through_the_chain_engine_prints_what_it_cannot_figure(tmp_path, capsys):
