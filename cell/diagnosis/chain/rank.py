@@ -347,14 +347,19 @@ def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
     (:attr:`~cell.effects.OnChain.still`), or because it is seen only as a sum with
     another (a backlash always approached from one side is an offset). Per effect: its
     rival entry (``label``, ``effects``, ``joints``, ``testable`` false and ``why``, as
-    the planar report's untestable rivals)."""
+    the planar report's untestable rivals). When the named cause (``shown[0]``) joins
+    several effects and the untestable one stands in for some of them only, also the cause
+    with those swapped for it (a link length beside a camera scale, where the poses'
+    temperature is unknown: thermal drift beside the camera scale), since the truth may be
+    that pair rather than either alone."""
     voc = {p.name: p for p in F.vocabulary(s.fit_d.chain)}
     named = set().union(*(_components(c) for c in shown)) if shown else set()
+    cause = _components(shown[0]) if shown else set()
     out = []
     for e, ident in s.idents.items():
         eff = fx.CHAIN_EFFECTS[e]
         use = eff.chain
-        joints, why = set(), ""
+        joints, why, in_cause = set(), "", set()
         for name, reason in ident.dropped.items():
             p = voc.get(name)
             if p is None or p.effect != e or not (reason in (use.unseen, use.still)
@@ -364,10 +369,24 @@ def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
             if shared:
                 joints |= {k for _, k in shared} if p.on_joint else set()
                 why = why or reason
+                in_cause |= {(m, k, p.on_joint) for m, k in shared & cause}
         if why:
             js = [f"j{k + 1}" for k in sorted(j for j in joints if j >= 0)]
             out.append({"label": e + (f" on {', '.join(js)}" if js else ""), "effects": [e],
                         "joints": js, "testable": False, "why": f"not testable: {why}"})
+        rest = {(m, k) for m, k in cause if m != e} - {(m, k) for m, k, _ in in_cause}
+        if in_cause and rest and len({m for m, _ in cause}) > 1:
+            on = {e: {k for _, k, joint in in_cause if joint}}
+            for m, k in sorted(rest):
+                on.setdefault(m, set()).add(k)
+
+            def joints_of(ks) -> list[str]:
+                return [f"j{k + 1}" for k in sorted(j for j in ks if j >= 0)]
+
+            out.append({"label": " + ".join(m + (f" on {', '.join(joints_of(ks))}" if joints_of(ks) else "")
+                                            for m, ks in on.items()),
+                        "effects": list(on), "joints": joints_of(set().union(*on.values())),
+                        "testable": False, "why": f"not testable: {why}"})
     return out
 
 
@@ -463,6 +482,8 @@ def decide(s: Search, noise_mm: float | None, noise_est: float | None = None) ->
                         "concluding there is no effect")
     untested = untestable_rivals(s, [chosen] + list(rivals)) if chosen is not None else []
     for u in untested:
+        if len(u["effects"]) > 1:        # the cause with a part swapped: its effect warned alone
+            continue
         warnings.append(f"the cause may be {u['label']}, which this campaign cannot test "
                         f"({u['why'].removeprefix('not testable: ')}): measure what it lacks "
                         "and diagnose again")

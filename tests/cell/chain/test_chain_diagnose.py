@@ -65,6 +65,24 @@ def test_without_directions_an_untestable_backlash_stays_a_rival(tmp_path):
     assert not c["separating_poses"]       # no pose can separate what the campaign cannot test
 
 
+def test_an_untestable_effect_behind_one_part_of_a_two_effect_cause_is_a_rival_with_the_rest(tmp_path):
+    # an offset of j2 beside a longer j3 link, no jK_dir columns: a backlash of j2 could stand
+    # behind the offset, so the truth may be that backlash *with* the link; the rival says
+    # so (the backlash alone is the other untestable entry, and the one warned about)
+    rep = diagnose_chain(read_campaign(chainsim.make(
+        tmp_path / "c", {"offset": {"j2": 0.05}, "a": {"j3": 0.8}}, seed=3, temps=True)), NOISE)
+    c = rep["cause"]
+    assert {(x["effect"], tuple(x["joints"])) for x in c["components"]} == \
+        {("joint_offset", ("j2",)), ("link_length", ("j3",))}
+    assert c["confidence"] == "ambiguous"
+    untested = [(r["label"], r["effects"], r["joints"]) for r in c["rivals"] if r.get("testable") is False]
+    assert untested == [("backlash on j2", ["backlash"], ["j2"]),
+                        ("backlash on j2 + link_length on j3", ["backlash", "link_length"], ["j2", "j3"])]
+    assert [w for w in c["warnings"] if w.startswith("the cause may be")] == [
+        "the cause may be backlash on j2, which this campaign cannot test (no jK_dir column: the "
+        "direction of the joint's last motion is not known): measure what it lacks and diagnose again"]
+
+
 def test_conditioning_sees_a_combination_the_data_cannot_separate():
     import numpy as np
 
