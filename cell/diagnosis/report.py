@@ -64,7 +64,8 @@ def _r(v: float, nd: int = 6) -> float:
     return float(round(v, nd)) if math.isfinite(v) else v
 
 
-def _stats(t: TableStats) -> dict:
+def table_stats(t: TableStats) -> dict:
+    """``n``, ``rms_mm``, ``max_mm`` of one table's residual (``gap.points``, ``gap.paths``)."""
     return {"n": t.n, "rms_mm": _r(t.rms), "max_mm": _r(t.max)}
 
 
@@ -129,17 +130,28 @@ def _holdout_inliers(s: rank.Search, chosen: FitResult | None) -> dict:
 def point_noise(d: DiagData, chosen: FitResult | None, keep_points, noise_mm: float | None,
                 path_sigma: float | None) -> tuple[noise_mod.Noise | None, dict]:
     """The point noise the unexplained test uses (:mod:`.noise`) and every estimate."""
+    r = None
+    if d.points is not None:
+        r, _ = hold_residuals(d, chosen.effects if chosen else [],
+                              chosen.path_temp_c if chosen else None)
+    return point_estimates(d, r, keep_points, noise_mm, path_sigma)
+
+
+def point_estimates(d: DiagData, r_points: np.ndarray | None, keep_points,
+                    noise_mm: float | None, path_sigma: float | None
+                    ) -> tuple[noise_mod.Noise | None, dict]:
+    """(the best point noise, every estimate by source) from the remainder ``r_points``
+    (N, 2) mm of a model on ``d``'s static points, those ``keep_points`` marks (not
+    outliers); ``noise_mm`` the given σ, ``path_sigma`` the paths' (:mod:`.noise`)."""
     est: dict = {}
     if noise_mm:
         est["given"] = noise_mod.given(noise_mm)
     p = d.points
     if p is not None:
-        effs = chosen.effects if chosen else []
-        r, _ = hold_residuals(d, effs, chosen.path_temp_c if chosen else None)
         k = np.asarray(keep_points, bool)
-        rep = noise_mod.repeats(p.cmd[k], p.dirs[k] if p.has_dirs else None, r[k])
-        res = noise_mod.residual(p.cmd[k], p.time[k], r[k],
-                                 (d.geometry.l1_mm, d.geometry.l2_mm))
+        r = r_points[k]
+        rep = noise_mod.repeats(p.cmd[k], p.dirs[k] if p.has_dirs else None, r)
+        res = noise_mod.residual(p.cmd[k], p.time[k], r, (d.geometry.l1_mm, d.geometry.l2_mm))
         if rep is not None:
             est["repeats"] = rep
         if res is not None:
@@ -148,6 +160,24 @@ def point_noise(d: DiagData, chosen: FitResult | None, keep_points, noise_mm: fl
     if pth is not None:
         est["paths"] = pth
     return noise_mod.best(*est.values()), est
+
+
+def remainder_where(w: where_mod.Where | None) -> dict:
+    """``remainder``'s ``depends_on``, ``joint``, ``rms_mm``: what the remainder of the named
+    cause varies with (:func:`.where.analyse`), all None when it was not analysed."""
+    return {"depends_on": w.depends_on if w else None, "joint": w.joint if w else None,
+            "rms_mm": _r(w.rms_mm) if w else None}
+
+
+def where_figures(wh: where_mod.Where) -> dict:
+    """The ``gap.where`` figures beyond the spec's: ``depends_on_joint``, ``effect_sizes``
+    and ``per_joint_rms_deg`` of :func:`.where.analyse`."""
+    return {"depends_on_joint": wh.joint,
+            "effect_sizes": {k: {kk: (_r(vv) if isinstance(vv, float) else vv)
+                                 for kk, vv in v.items() if kk != "explained_ms"}
+                             for k, v in wh.effect_sizes.items()},
+            "per_joint_rms_deg": {k: (None if v is None else _r(v, 7))
+                                  for k, v in wh.per_joint_rms_deg.items()}}
 
 
 def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = None,
@@ -235,13 +265,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
                                   pn.sigma_mm if pn is not None else None)
         if judged is not None and judged.rivals and dec.chosen is not None else [])
     where = {"subsystem": subsystem, "joints": joints, "depends_on": wh.depends_on,
-             "summary": _summary(gap, wh, cause, rem),
-             "depends_on_joint": wh.joint,
-             "effect_sizes": {k: {kk: (_r(vv) if isinstance(vv, float) else vv)
-                                  for kk, vv in v.items() if kk != "explained_ms"}
-                              for k, v in wh.effect_sizes.items()},
-             "per_joint_rms_deg": {k: (None if v is None else _r(v, 7))
-                                   for k, v in wh.per_joint_rms_deg.items()}}
+             "summary": _summary(gap, wh, cause, rem)} | where_figures(wh)
     not_ident = dict(s.skipped) | {r.label: r.reason for r in s.ranking if not r.identifiable}
     for j, (rho, pair) in s.order_layout.items():
         if rho > rank.MAX_CORR:
@@ -260,7 +284,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
         "format_version": FORMAT_VERSION,
         "source": c.source,
         "gap": {"rms_mm": _r(gap.rms), "max_mm": _r(gap.max), "n": gap.n, "where": where,
-                "points": _stats(gap_p), "paths": _stats(gap_q)},
+                "points": table_stats(gap_p), "paths": table_stats(gap_q)},
         "ranking": [_entry(r, s.fit_d, s) for r in s.ranking],
         "cause": cause,
         "holdout": {"n": before.n, "rms_before_mm": _r(before.rms), "rms_after_mm": _r(after.rms),
@@ -281,9 +305,7 @@ def diagnose(c: Campaign, lines: dict | None = None, noise_mm: float | None = No
                       else _r(rem.path_noise_ratio, 3),
                       "point_noise_ratio": None if rem.point_noise_ratio is None
                       else _r(rem.point_noise_ratio, 3),
-                      "depends_on": rem.where.depends_on if rem.where else None,
-                      "joint": rem.where.joint if rem.where else None,
-                      "rms_mm": _r(rem.where.rms_mm) if rem.where else None},
+                      } | remainder_where(rem.where),
         "not_identifiable": not_ident,
         "delay": dl,
         "noise": noise_rep,
