@@ -53,7 +53,8 @@ class ChainCampaign:
     since the move's first command frame (NaN static), ``rate`` (P, J) deg/s (mm/s) the
     commanded joint speed there (0 static), all three None for a campaign of static poses
     only; ``split_source`` where ``split`` came from when the reader set it ('': the
-    campaign's column)."""
+    campaign's column); ``planar`` the v1 campaign and its rows when the campaign is a
+    planar one read as a chain (:func:`planar_as_chain`; None otherwise)."""
 
     spec: ChainSpec
     chain: Chain
@@ -73,6 +74,7 @@ class ChainCampaign:
     rate: np.ndarray | None = None
     split_source: str = ""
     move_t: np.ndarray | None = None
+    planar: "PlanarRows | None" = None
 
     @property
     def n_poses(self) -> int:
@@ -367,6 +369,28 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
     return d
 
 
+@dataclass(frozen=True)
+class PlanarRows:
+    """Which pose of a planar campaign read as a chain (:func:`planar_as_chain`) is which
+    row of it: pose ``i < n_points`` is row ``i`` of points.csv; pose ``n_points + k`` is the
+    ``k``-th path sample with the moves in the order of their first row in paths.csv and
+    each move's samples in file order, which is the order of the planar diagnosis's
+    ``DiagData.path_cat`` (:func:`cell.diagnosis.replay.prepare`). Each pose has one
+    measured point (the tool centre), so point and pose indices are the same. ``campaign``
+    is the v1 campaign itself (:class:`~cell.measurements.Campaign`)."""
+
+    campaign: object
+    n_points: int
+
+    def points(self, a: np.ndarray) -> np.ndarray:
+        """The rows of per-pose array ``a`` that are static points."""
+        return a[:self.n_points]
+
+    def paths(self, a: np.ndarray) -> np.ndarray:
+        """The rows of per-pose array ``a`` that are path samples."""
+        return a[self.n_points:]
+
+
 def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     """A v1 (SCARA) campaign ``c`` (:class:`~cell.measurements.Campaign`) as the chain
     campaign it is: two revolute joints in standard DH (a = ``l1_mm``, ``l2_mm``; α, d, θ
@@ -382,7 +406,8 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     of the format's approach convention; its temperature is unknown (NaN in ``temp_c``:
     paths.csv records none). Without a ``split`` column the split is the v1 diagnosis's
     (:func:`drawn_fit`: 30 % of the points, then of the whole moves), so both engines hold
-    out the same rows. ``directory`` is where ``c`` was read from (messages name its files).
+    out the same rows. ``planar`` records which pose is which row (:class:`PlanarRows`).
+    ``directory`` is where ``c`` was read from (messages name its files).
     Raises CampaignFormatError for a campaign without points."""
     if c.points is None:
         raise CampaignFormatError(c.source or "campaign", "no points.csv: only static points "
@@ -444,6 +469,6 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
                          {k: np.concatenate(v) for k, v in extra.items()},
                          np.concatenate(dirs) if has_dirs else None,
                          move=np.concatenate(moves), rate=np.concatenate(rates),
-                         move_t=np.concatenate(times),
+                         move_t=np.concatenate(times), planar=PlanarRows(c, n),
                          split_source="campaign" if "split" in p and (c.paths is None or "split" in c.paths)
                          else f"generated as the v1 diagnosis's (seed {SPLIT_SEED})")
