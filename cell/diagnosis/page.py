@@ -28,8 +28,9 @@ from cell.diagnosis.action import recommend
 FORMAT = "cell-diagnosis/1"
 #: additive revisions of the report format (cell/measurements.md), planar and chain alike:
 #: 1.0 the v1 report, 1.1 chains, 1.2 the out-of-sample choice (cause.label, selection,
-#: rivals, separating_poses, and confidence "ambiguous")
-FORMAT_VERSION = "1.2"
+#: rivals, separating_poses, and confidence "ambiguous"), 1.3 the v1 report's keys in the
+#: chain diagnosis of a planar campaign, and in every chain ranking entry
+FORMAT_VERSION = "1.3"
 CARD_PARAMS = 3
 #: ranking rows shown (the rest are in report.json)
 TABLE_ROWS = 15
@@ -248,13 +249,13 @@ def ranking_table(rep: dict, chain: bool, chosen_label: str | None = None) -> st
     named cause) is marked."""
     chosen = next((i for i, r in enumerate(rep["ranking"]) if r["label"] == chosen_label), None)
     if chain:
-        h, g, reg = rep["holdout"], rep["gap"], rep["registration"]
+        h, reg = rep["holdout"], rep["registration"]
         head = ("<tr><th class='n'>rank</th><th>candidate</th><th>joints</th><th class='n'>k</th>"
                 "<th class='n'>leave-one-pose-out rms mm</th><th class='n'>FIT rms mm</th>"
                 "<th class='n'>HOLDOUT rms mm</th><th class='n'>condition</th></tr>")
         rows = [f"<tr><td class='n'>–</td><td>registration only</td><td></td><td class='n'>0</td>"
                 f"<td class='n'>{num(rep['noise'].get('registration_cv_rms_mm'))}</td>"
-                f"<td class='n'>{num(g['rms_mm'])}</td><td class='n'>{num(h['rms_before_mm'])}</td>"
+                f"<td class='n'>{num(reg['rms_mm'])}</td><td class='n'>{num(h['rms_before_mm'])}</td>"
                 f"<td class='n'>{num(reg.get('condition'), 1)}</td></tr>"]
         for i, r in enumerate(rep["ranking"]):
             rows.append(f"<tr{' class=chosen' if i == chosen else ''}><td class='n'>{i + 1}</td>"

@@ -76,11 +76,11 @@ def _ranking(rep: dict) -> list[str]:
                        f"{_n(r['holdout_rms_mm'], '.4f')} | "
                        f"{'yes' if r['identifiable'] else 'no: ' + r.get('reason', '')} |")
         return out + [""]
-    reg, g, h = rep["registration"], rep["gap"], rep["holdout"]
+    reg, h = rep["registration"], rep["holdout"]
     out = ["", "| rank | candidate | k | leave-one-pose-out rms mm | fit rms mm | holdout rms mm "
            "| condition |", "|---:|---|---:|---:|---:|---:|---:|",
            f"| – | registration only | 0 | {_n(rep['noise']['registration_cv_rms_mm'], '.4f')} | "
-           f"{_n(g['rms_mm'], '.4f')} | {_n(h['rms_before_mm'], '.4f')} | {_n(reg['condition'], '.3g')} |"]
+           f"{_n(reg['rms_mm'], '.4f')} | {_n(h['rms_before_mm'], '.4f')} | {_n(reg['condition'], '.3g')} |"]
     for i, r in enumerate(rows, 1):
         note = "" if r["identifiable"] else f", rank {r['rank']} of {r['columns']}"
         on = f" ({', '.join(r['joints'])})" if r["joints"] else ""
@@ -117,11 +117,14 @@ def _selection(rep: dict) -> list[str]:
     sel = rep["cause"].get("selection", {})
     if not sel.get("folds") or "places" not in sel:
         return []
+    mm = "cv_rms_mm" in (sel["table"] or [{}])[0]
     out = [f"chosen by predicting left-out places ({sel['folds']} folds, {sel['places']} "
-           "places): prediction rms in noise units, 1 ≈ noise"]
+           "places): prediction rms " + ("in mm" if mm else "in noise units, 1 ≈ noise")]
     for x in sel["table"][:6]:
-        mark = "tied" if x["tied"] else f"worse, p = {_n(x['p_worse_than_best'], '.2g')}"
-        out.append(f"  {x['label']:<40} k {x['k']}  {_n(x['cv_rms'], '.3f')}  ({mark})")
+        mark = ("tied" if x["tied"] else "worse" if "p_worse_than_best" not in x
+                else f"worse, p = {_n(x['p_worse_than_best'], '.2g')}")
+        out.append(f"  {x['label']:<40} k {x['k']}  "
+                   f"{_n(x['cv_rms_mm'], '.4f') if mm else _n(x['cv_rms'], '.3f')}  ({mark})")
     return out
 
 
@@ -154,7 +157,7 @@ def _outliers(rep: dict) -> list[str]:
     o, inl = rep.get("outliers") or {}, rep["holdout"].get("inliers") or {}
     if not o.get("n"):
         return []
-    if "cut_mm" in o:
+    if isinstance(o["points"], list):
         out = [f"outliers set aside: {o['n']} point(s) beyond {_n(o['cut_mm'], '.4f')} mm ("
                + ", ".join(f"sample {p['sample']} marker {p['marker']} {p['split']} "
                            f"{_n(p['distance_mm'], '.3f')} mm" for p in o["points"][:8])

@@ -63,7 +63,7 @@ def write_chain_html(cd: ChainDiagnosis, out_dir) -> Path:
          for w, f in (("before", f0), ("after", f1))}
     figs = [_poses(plt, s, r, after, out), _vectors(plt, s, r, after, out), _joints(plt, s, r, out)]
     (out / "report.json").write_text(json.dumps(rep, indent=2), encoding="utf-8")
-    fit = page.FitRms(rep["gap"]["rms_mm"], rep["noise"]["fit_rms_mm"],
+    fit = page.FitRms(rep["registration"]["rms_mm"], rep["noise"]["fit_rms_mm"],
                       f"{rep['split']['fit_poses']} poses, {rep['split']['fit_rows']} points")
     index = out / "index.html"
     index.write_text(page.render(rep, figs, fit, render(rep), chain=True,

@@ -10,6 +10,10 @@ agrees with the sensor noise seen within each pose's rigid marker constellation,
 sensor noise, else unknown (:func:`_noise`, :mod:`cell.diagnosis.chain.noise`). Revisits that
 disagree beyond the sensor noise make the gap unexplained: every vocabulary effect is a
 function of the readings, so they should agree.
+
+A planar campaign read as a chain (``cc.planar``) also gets the v1 report's figures with
+their v1 meaning (:mod:`cell.diagnosis.chain.planar`, ``cell/measurements.md`` "Format
+version 1.3"): the same report keys whichever engine diagnoses it.
 """
 from __future__ import annotations
 
@@ -20,7 +24,11 @@ import numpy as np
 
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
+from cell.diagnosis.chain import planar
 from cell.diagnosis.chain import robust
+from cell.diagnosis import tie
+from cell.diagnosis.crossval import MIN_FOLDS
+from cell.diagnosis.report import where_figures
 from cell.diagnosis.chain.noise import estimate
 from cell.diagnosis.noise import upper95
 from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
@@ -93,7 +101,11 @@ def _components(c: rank.Candidate) -> list[dict]:
 def _entry(c: rank.Candidate) -> dict:
     params, ci = _params(c)
     rk, cols, cond = c.fit.conditioning()
-    return {"label": c.label, "effects": list(c.effects), "joints": c.joints, "k": len(c.fit.params),
+    comps = _components(c)
+    for x in comps:
+        x["params"] = {n: v for p, (n, v) in zip(c.fit.params, params.items()) if p.effect == x["effect"]}
+    return {"effect": comps[0]["effect"] if comps else "none", "components": comps, "fit": "full",
+            "label": c.label, "effects": list(c.effects), "joints": c.joints, "k": len(c.fit.params),
             "params": params, "ci95": ci, "score": _r(c.fit.cv_rms), "cv_rms_mm": _r(c.fit.cv_rms),
             "fit_rms_mm": _r(c.fit.rms), "holdout_rms_mm": _r(c.hold_rms), "identifiable": rk == cols,
             "rank": rk, "columns": cols, "condition": _r(cond, 1)}
@@ -117,6 +129,7 @@ def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
 
 def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> ChainDiagnosis:
     """:func:`diagnose_chain` with the search and decision behind the report."""
+    given = noise_mm
     fit_mask, split_src = split_poses(cc)
     d_all = F.Data.of(cc)
     fit_all, hold_d = d_all.subset(fit_mask), d_all.subset(~fit_mask)
@@ -166,6 +179,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     cause["confidence"] = dec.confidence
     cause["warnings"] = dec.warnings
     cause["label"] = dec.chosen.label if dec.chosen is not None else "none"
+    testable = fit_d.folds()[1] >= MIN_FOLDS and tie.testable(fit_d.folds()[1])
     cause["selection"] = {
         "method": "leave-one-out prediction over "
                   + ("places (poses that share one are left out together)"
@@ -173,6 +187,11 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
                   + ", then fewest parameters",
         "folds": fit_d.folds()[1], "alpha": rank.ALPHA, "rival_ratio": rank.RIVAL_RATIO,
         "named": cause["label"],
+        "best": s.ranking[0].label if s.ranking else None,
+        "places": fit_d.folds()[1], "testable": testable,
+        "nominal_cv_rms_mm": _r(f0.cv_rms),
+        "notes": [] if testable else [f"{fit_d.folds()[1]} folds: too few for the test over folds "
+                                      f"to reach alpha {rank.ALPHA}"],
         "table": [{"label": c.label, "k": len(c.fit.params), "cv_rms_mm": _r(c.fit.cv_rms),
                    "tied": any(c is t for t in dec.tied)} for c in s.ranking]}
     cause["rivals"] = [{"label": c.label, "effects": list(c.effects), "joints": c.joints,
@@ -184,17 +203,24 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
                      "method": "one-sided Wilcoxon signed-rank over fit poses of the "
                                "leave-one-pose-out error, vs registration alone",
                      "runner_up": dec.runner_up.label if dec.runner_up else None,
-                     "runner_up_p_value": _r(dec.runner_up_p, 8)}
+                     "runner_up_p_value": _r(dec.runner_up_p, 8),
+                     "runner_up_fit": "full" if dec.runner_up else None}
+    pr = planar.reading(cc, d_all, fit_mask, keep, s, dec)
+    if pr is not None:          # what the gap varies with, as v1 has it (cell/measurements.md)
+        gap_v1, wh = planar.gap(pr)
+        depends = wh.depends_on
     chain = cc.chain
     summary = (f"After registration the gap is {f0.rms:.3f} mm rms over {len(fit_d.xyz)} points "
-               f"({fit_d.n_poses} poses)")
+               f"({fit_d.n_poses} poses)" if pr is None else
+               f"The gap is {gap_v1['rms_mm']:.4f} mm rms over {gap_v1['n']} rows ("
+               f"{gap_v1['points']['n']} points, {gap_v1['paths']['n']} path samples)")
     if cause["effect"] == "none":
         summary += "; no effect of the chain vocabulary is supported"
     else:
         summary += f"; it {DEPENDS_TEXT[depends]} and the best-supported cause is {describe_cause(cause)}"
     summary += (", but most of it is left unexplained." if dec.unexplained else ".")
     n_reg = F.n_registration(fit_d)
-    return ChainDiagnosis({
+    rep = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "source": cc.source,
@@ -235,4 +261,27 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
                   "registration_cv_rms_mm": _r(f0.cv_rms)},
         "split": {"source": split_src, "fit_poses": fit_all.n_poses, "holdout_poses": hold_d.n_poses,
                   "fit_rows": len(fit_all.xyz), "holdout_rows": len(hold_d.xyz)},
-    }, s, dec)
+    }
+    if pr is not None:
+        _planar_fields(rep, pr, gap_v1, wh, d_all, dec, outl, given)
+    return ChainDiagnosis(rep, s, dec)
+
+
+def _planar_fields(rep: dict, pr: "planar.Reading", gap_v1: dict, wh, d_all: F.Data,
+                   dec: rank.Decision, outl: robust.Outliers, given: float | None) -> None:
+    """Give the report of a planar campaign read as a chain the v1 report's figures with
+    their v1 meaning (:mod:`cell.diagnosis.chain.planar`; ``cell/measurements.md``, "Format
+    version 1.3"): the gap over every row with ``points`` / ``paths`` and where it lies,
+    the holdout per table, the per-station lags, the noise's v1 figures, the outliers per
+    table (the chain's list of them moves to ``outliers.marked``), the spread, the split's
+    source per table and what an unexplained remainder varies with."""
+    rep["chain"]["planar"] = True
+    rep["gap"] = gap_v1 | {"where": rep["gap"]["where"] | where_figures(wh)}
+    rep["holdout"] |= planar.holdout_tables(pr)
+    rep["delay"] = planar.station_lags(pr, d_all, dec)
+    rep["noise"] |= planar.noise(pr, given)
+    marked = rep["outliers"].pop("points")
+    rep["outliers"] |= planar.outlier_tables(pr, outl) | {"marked": marked}
+    rep["spread"] = planar.spread(pr)
+    rep["split"]["source"] = planar.split_source(pr)
+    rep["remainder"] |= planar.remainder(pr, dec)

@@ -1,0 +1,161 @@
+"""The chain diagnosis of a planar campaign (read by
+:func:`cell.measurements.chain.planar_as_chain`) carries the v1 report's keys with their
+v1 meaning (``cell/measurements.md``, "Format version 1.3"): the same campaigns diagnosed by
+both engines, the figures that must agree compared, and every planar key the chain report
+lacks in the documented list :data:`LEFT_OUT`."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cell import effects as fx
+from cell.diagnosis.chain.report import diagnose_chain
+from cell.diagnosis.report import diagnose
+from cell.diagnosis.text import render
+from cell.measurements import read_campaign, write_campaign
+from cell.measurements.chain import planar_as_chain
+from cell.sim.campaigns import make_campaign
+
+SEED = 5
+CAMPAIGNS = {
+    "backlash": [fx.make_effect("backlash", ("j2",), {"j2_backlash_deg": 0.04})],
+    "comm_delay": [fx.make_effect("comm_delay", (), {"comm_delay_sigma_ms": 2.0})],
+    "none": [],
+}
+#: planar report keys the chain report leaves out, each in cell/measurements.md (1.3)
+LEFT_OUT = {
+    "cause.test.delta_bic", "cause.test.pair_p_value", "cause.test.runner_up_margin_bic",
+    "cause.selection.nominal_cv_rms",
+    "search", "search.method", "search.screened", "search.full_fits", "search.outlier_rounds",
+    "remainder.systematic_share", "remainder.path_noise_ratio", "remainder.point_noise_ratio",
+    "noise.method",
+}
+#: the v1 report itself (cell/measurements.md, "Diagnosis report")
+V1 = {"format", "gap", "gap.rms_mm", "gap.max_mm", "gap.n", "gap.where", "gap.where.subsystem",
+      "gap.where.joints", "gap.where.depends_on", "gap.where.summary", "ranking",
+      "ranking[].effect", "ranking[].joints", "ranking[].params", "ranking[].holdout_rms_mm",
+      "ranking[].score", "cause", "cause.effect", "cause.joints", "cause.params", "cause.ci95",
+      "holdout", "holdout.n", "holdout.rms_before_mm", "holdout.rms_after_mm", "holdout.shrink",
+      "unexplained"}
+#: keys whose own keys are data (parameter names, sources), not the format's
+DATA = {"params", "ci95", "not_identifiable", "cyclic_orders", "estimates", "table", "rivals",
+        "separating_poses", "components", "marked"}
+
+
+def keys(d, pre: str = "") -> set[str]:
+    """Every key path of report ``d`` (``ranking[]`` for the ranking's entries)."""
+    out = set()
+    for k, v in d.items():
+        p = f"{pre}.{k}" if pre else k
+        out.add(p)
+        if k in DATA:
+            continue
+        if isinstance(v, dict):
+            out |= keys(v, p)
+        elif k == "ranking":
+            for e in v:
+                out |= keys(e, "ranking[]")
+    return out
+
+
+@pytest.fixture(scope="module", params=sorted(CAMPAIGNS))
+def both(request, tmp_path_factory):
+    """(planar report, chain report) of one generated campaign."""
+    d = tmp_path_factory.mktemp(request.param)
+    write_campaign(make_campaign(CAMPAIGNS[request.param], SEED), d)
+    c = read_campaign(d)
+    return request.param, diagnose(c).report, diagnose_chain(planar_as_chain(c, d))
+
+
+def test_the_chain_report_has_every_v1_key_and_lacks_only_the_documented_ones(both):
+    _, p, c = both
+    assert c["chain"]["planar"] is True
+    assert V1 <= keys(c)
+    missing = keys(p) - keys(c)
+    assert missing <= LEFT_OUT, sorted(missing - LEFT_OUT)
+    assert c["format"] == p["format"] and c["format_version"] == p["format_version"] == "1.3"
+
+
+def test_the_left_out_keys_are_documented():
+    text = (Path(__file__).parents[3] / "cell" / "measurements.md").read_text(encoding="utf-8")
+    section = text[text.index("## Format version 1.3"):]
+    section = section[:section.index("\n# ")]
+    for k in LEFT_OUT:
+        assert f"`{k}`" in section or f"`{k.split('.')[-1]}`" in section, k
+
+
+def test_the_gap_and_holdout_figures_are_the_planar_reports(both):
+    _, p, c = both
+    for t in ("points", "paths"):            # the same rows, the same nominal model
+        assert c["gap"][t]["n"] == p["gap"][t]["n"]
+        assert c["gap"][t]["rms_mm"] == pytest.approx(p["gap"][t]["rms_mm"], abs=2e-6)
+        assert c["gap"][t]["max_mm"] == pytest.approx(p["gap"][t]["max_mm"], abs=2e-6)
+        h, hp = c["holdout"][t], p["holdout"][t]
+        assert h["n"] == hp["n"]
+        assert h["rms_before_mm"] == pytest.approx(hp["rms_before_mm"], abs=2e-6)
+        # each engine's own fit of the same cause: within 5 % (or a micrometre)
+        assert h["rms_after_mm"] == pytest.approx(hp["rms_after_mm"], rel=0.05, abs=1e-3)
+    assert (c["gap"]["n"], c["gap"]["rms_mm"], c["gap"]["max_mm"]) == pytest.approx(
+        (p["gap"]["n"], p["gap"]["rms_mm"], p["gap"]["max_mm"]), abs=2e-6)
+    assert c["gap"]["n"] == c["gap"]["points"]["n"] + c["gap"]["paths"]["n"]
+    assert (c["holdout"]["n"], c["holdout"]["rms_before_mm"]) == (p["holdout"]["n"], p["holdout"]["rms_before_mm"])
+    assert c["split"]["source"] == p["split"]["source"]
+    assert c["spread"] == p["spread"]
+
+
+def test_where_the_gap_lies_is_the_v1_analysis(both):
+    _, p, c = both
+    w, wp = c["gap"]["where"], p["gap"]["where"]
+    assert w["depends_on"] == wp["depends_on"]
+    assert set(w["effect_sizes"]) == set(wp["effect_sizes"])
+    # outliers are each engine's own: the share the winning variable explains is within 0.05
+    assert w["effect_sizes"][w["depends_on"]]["r2"] == pytest.approx(
+        wp["effect_sizes"][wp["depends_on"]]["r2"], abs=0.05)
+    for j in ("j1", "j2"):
+        assert w["per_joint_rms_deg"][j] == pytest.approx(wp["per_joint_rms_deg"][j], rel=0.25, abs=5e-4)
+
+
+def test_the_station_lags_agree_with_the_planar_engine(both):
+    name, p, c = both
+    dl, dp = c["delay"], p["delay"]
+    assert (dl["detected"], dl["proportional"], dl["stations"], dl["moves"]) == \
+        (dp["detected"], dp["proportional"], dp["stations"], dp["moves"])
+    for j in ("j1", "j2"):
+        assert dl["lags_ms"][j] == pytest.approx(dp["lags_ms"][j], abs=0.01)
+    if name == "comm_delay":                 # σ = 2 ms: station k is 2·k ms late
+        assert dl["sigma_ms"] == pytest.approx(2.0, abs=0.01) and dl["proportional"]
+
+
+def test_noise_and_outliers_have_the_v1_shape(both):
+    _, p, c = both
+    nz, nzp = c["noise"], p["noise"]
+    assert nz["path_sigma_mm"] == pytest.approx(nzp["path_sigma_mm"], abs=1e-7)
+    assert nz["fit_rms_points_mm"] == pytest.approx(nzp["fit_rms_points_mm"], rel=0.1)
+    assert nz["fit_rms_paths_mm"] == pytest.approx(nzp["fit_rms_paths_mm"], rel=0.1)
+    assert set(nz["estimates"]) == set(nzp["estimates"])
+    for src, e in nz["estimates"].items():
+        assert e["source"] == src
+        assert e["sigma_mm"] == pytest.approx(nzp["estimates"][src]["sigma_mm"], rel=0.2)
+    o = c["outliers"]
+    assert o["n"] == o["points"]["n"] + o["paths"]["n"] == len(o["marked"])
+    for t in ("points", "paths"):
+        assert set(o[t]) == set(p["outliers"][t])
+        assert o[t]["n"] == len(o[t]["samples"])
+    assert sorted(m["sample"] for m in o["marked"] if m["sample"] in o["points"]["samples"]) \
+        == o["points"]["samples"]
+
+
+def test_every_chain_ranking_entry_names_its_main_effect(both):
+    _, _, c = both
+    for e in c["ranking"]:
+        assert e["effect"] == e["components"][0]["effect"] and e["effect"] in e["effects"]
+        assert e["fit"] == "full"
+        assert set().union(*(x["params"] for x in e["components"])) == set(e["params"])
+
+
+def test_the_text_shows_the_planar_sections(both):
+    _, p, c = both
+    heads = re.compile(r"^(gap: rms|effect sizes|per joint|comm lags:|holdout \(|noise:)", re.M)
+    assert set(heads.findall(render(p))) <= set(heads.findall(render(c)))
