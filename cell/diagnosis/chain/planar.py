@@ -18,6 +18,8 @@ it. Pure numerics.
 from __future__ import annotations
 
 import math
+import re
+from collections import Counter
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -35,6 +37,8 @@ from cell.measurements import CampaignFormatError
 from cell.measurements.chain import ChainCampaign, PlanarRows
 
 COMMS = "comm_delay"     # the chain effect whose parameters are the lags, not a static part
+#: a chain harmonic's sine coefficient: joint, stem (``cyclic{n}`` or ``motor_cyclic``), n
+HARMONIC = re.compile(r"^(j\d+)_(cyclic(\d+)|motor_cyclic)_sin_deg$")
 
 
 @dataclass
@@ -181,3 +185,47 @@ def spread(r: Reading) -> dict:
     """``spread``: the places the fit rows cover (:func:`cell.diagnosis.robust.spread`)."""
     return {k: (_r(v, 3) if isinstance(v, float) else v)
             for k, v in planar_robust.spread(subset(r.d, "fit")).items()}
+
+
+def _box(s: float, c: float, s_ci, c_ci) -> tuple[list, list]:
+    """Amplitude and phase intervals (deg) of s·sin x + c·cos x = a·sin(x + φ) over the box
+    of the two coefficients' 95 % intervals: conservative (the box is wider than their
+    joint 95 % region); the phase is anything when the box holds the origin."""
+    corners = [(x, y) for x in s_ci for y in c_ci]
+    inside = s_ci[0] <= 0 <= s_ci[1] and c_ci[0] <= 0 <= c_ci[1]
+    lo = 0.0 if inside else math.hypot(min(max(0.0, s_ci[0]), s_ci[1]), min(max(0.0, c_ci[0]), c_ci[1]))
+    amp = [_r(lo, 9), _r(max(math.hypot(x, y) for x, y in corners), 9)]
+    phi = math.degrees(math.atan2(c, s)) % 360.0
+    if inside:
+        return amp, [0.0, 360.0]
+    d = [(math.degrees(math.atan2(y, x)) - phi + 180.0) % 360.0 - 180.0 for x, y in corners]
+    return amp, [_r(phi + min(d), 9), _r(phi + max(d), 9)]
+
+
+def harmonic_params(params: dict, ci95: dict) -> tuple[dict, dict]:
+    """The v1 names of a chain's harmonic parameters, to add beside them: a joint's
+    ``jK_cyclic{n}_sin_deg`` / ``_cos_deg`` (one order n only: v1 has one per joint) as
+    ``jK_cyclic_amp_deg``, ``jK_cyclic_phase_deg`` (a·sin(n·θ + φ)), ``jK_cyclic_order``
+    and ``jK_cyclic_period_deg`` (their intervals the one order: the chain does not report
+    a likelihood set of orders), and ``jK_motor_cyclic_sin_deg`` / ``_cos_deg`` as
+    ``jK_motor_cyclic_amp_deg``, ``jK_motor_cyclic_phase_deg``; amplitude and phase
+    intervals by :func:`_box`."""
+    out, ci = {}, {}
+    found = [(m, n) for n in params if (m := HARMONIC.match(n))]
+    orders = Counter(m[1] for m, _ in found if m[3])
+    for m, name in found:
+        j, stem, order = m[1], m[2], m[3]
+        cos = f"{j}_{stem}_cos_deg"
+        s, c = params[name], params.get(cos)
+        if (order and orders[j] > 1) or s is None or c is None or name not in ci95 or cos not in ci95:
+            continue
+        base = "cyclic" if order else "motor_cyclic"
+        out[f"{j}_{base}_amp_deg"] = _r(math.hypot(s, c), 9)
+        out[f"{j}_{base}_phase_deg"] = _r(math.degrees(math.atan2(c, s)) % 360.0, 9)
+        ci[f"{j}_{base}_amp_deg"], ci[f"{j}_{base}_phase_deg"] = _box(s, c, ci95[name], ci95[cos])
+        if order:
+            n = int(order)
+            out[f"{j}_cyclic_order"], ci[f"{j}_cyclic_order"] = n, [n, n]
+            out[f"{j}_cyclic_period_deg"] = _r(360.0 / n, 9)
+            ci[f"{j}_cyclic_period_deg"] = [_r(360.0 / n, 9)] * 2
+    return out, ci

@@ -274,7 +274,8 @@ def _planar_fields(rep: dict, pr: "planar.Reading", gap_v1: dict, wh, d_all: F.D
     version 1.3"): the gap over every row with ``points`` / ``paths`` and where it lies,
     the holdout per table, the per-station lags, the noise's v1 figures, the outliers per
     table (the chain's list of them moves to ``outliers.marked``), the spread, the split's
-    source per table and what an unexplained remainder varies with."""
+    source per table, what an unexplained remainder varies with, and a cyclic error's
+    parameters by their v1 names."""
     rep["chain"]["planar"] = True
     rep["gap"] = gap_v1 | {"where": rep["gap"]["where"] | where_figures(wh)}
     rep["holdout"] |= planar.holdout_tables(pr)
@@ -285,3 +286,7 @@ def _planar_fields(rep: dict, pr: "planar.Reading", gap_v1: dict, wh, d_all: F.D
     rep["spread"] = planar.spread(pr)
     rep["split"]["source"] = planar.split_source(pr)
     rep["remainder"] |= planar.remainder(pr, dec)
+    for x in [rep["cause"]] + rep["ranking"]:      # a cyclic error's v1 parameters beside its own
+        add, ci = planar.harmonic_params(x["params"], x["ci95"])
+        x["params"] |= add
+        x["ci95"] |= ci

@@ -2,7 +2,9 @@
 :func:`cell.measurements.chain.planar_as_chain`) carries the v1 report's keys with their
 v1 meaning (``cell/measurements.md``, "Format version 1.3"): the same campaigns diagnosed by
 both engines, the figures that must agree compared, and every planar key the chain report
-lacks in the documented list :data:`LEFT_OUT`."""
+lacks in the documented list :data:`LEFT_OUT`. Tolerances: figures of the same rows and the
+same nominal model to the report's rounding (1 µm); figures of each engine's own fit of the
+same cause within 5 % (10 % for a remainder's rms, 20 % for a noise estimate from it)."""
 from __future__ import annotations
 
 import re
@@ -23,6 +25,9 @@ CAMPAIGNS = {
     "backlash": [fx.make_effect("backlash", ("j2",), {"j2_backlash_deg": 0.04})],
     "comm_delay": [fx.make_effect("comm_delay", (), {"comm_delay_sigma_ms": 2.0})],
     "none": [],
+    "thermal_drift": [fx.make_effect("thermal_drift", (), {"thermal_expansion_per_k": 2e-5})],
+    "cyclic_error": [fx.make_effect("cyclic_error", ("j1",), {
+        "j1_cyclic_amp_deg": 0.02, "j1_cyclic_phase_deg": 30.0, "j1_cyclic_period_deg": 180.0})],
 }
 #: planar report keys the chain report leaves out, each in cell/measurements.md (1.3)
 LEFT_OUT = {
@@ -31,6 +36,8 @@ LEFT_OUT = {
     "search", "search.method", "search.screened", "search.full_fits", "search.outlier_rounds",
     "remainder.systematic_share", "remainder.path_noise_ratio", "remainder.point_noise_ratio",
     "noise.method",
+    "cause.nuisance", "cause.nuisance.path_temp_c", "cause.nuisance.path_temp_c_ci95",
+    "cause.cyclic_orders",
 }
 #: the v1 report itself (cell/measurements.md, "Diagnosis report")
 V1 = {"format", "gap", "gap.rms_mm", "gap.max_mm", "gap.n", "gap.where", "gap.where.subsystem",
@@ -152,7 +159,16 @@ def test_every_chain_ranking_entry_names_its_main_effect(both):
     for e in c["ranking"]:
         assert e["effect"] == e["components"][0]["effect"] and e["effect"] in e["effects"]
         assert e["fit"] == "full"
-        assert set().union(*(x["params"] for x in e["components"])) == set(e["params"])
+        assert set().union(*(x["params"] for x in e["components"])) <= set(e["params"])
+
+
+def test_the_cause_carries_the_v1_parameter_names_and_values(both):
+    _, p, c = both
+    assert c["cause"]["effect"] == p["cause"]["effect"]       # these campaigns: the same cause
+    for n, v in p["cause"]["params"].items():
+        assert c["cause"]["params"][n] == pytest.approx(v, rel=0.05, abs=1e-6), n
+        lo, hi = c["cause"]["ci95"][n]
+        assert lo <= c["cause"]["params"][n] <= hi
 
 
 def test_the_text_shows_the_planar_sections(both):
