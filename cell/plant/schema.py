@@ -1,8 +1,11 @@
-"""The plant messages' JSON payloads, version 1 (contract: ``cell/plant.md``), checked with
-pydantic both ways: :func:`cycle_payload` and friends build them, :func:`parse` reads one.
+"""The plant messages' JSON payloads (contract: ``cell/plant.md``), checked with pydantic
+both ways: :func:`cycle_payload` and friends build them, :func:`parse` reads one.
 
-Every payload is one JSON object with ``schema`` (the payload version, :data:`SCHEMA_VERSION`)
-and ``cell`` (the cell's id, ``site/line/cell``, which must match the topic). A cycle message
+Every payload is one JSON object with ``schema`` (the version of that kind's payload:
+:data:`KNOWN_VERSIONS`; cycle, event and watermark are at 1, status at 2, which adds the
+cell's state to version 1 and is the one written) and ``cell`` (the cell's id,
+``site/line/cell``, which must match the topic). An event's ``data`` is checked against its
+kind's model in :mod:`cell.plant.events` when the kind is known. A cycle message
 carries one row of the cell's SQLite log:
 
 * ``log_id``: the identity of that log file (a new log starts its row ids at 1 again);
@@ -30,8 +33,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from cell.errors import CellError
 
-SCHEMA_VERSION = 1          #: the payload version this code writes and reads
-KNOWN_VERSIONS = (1,)
+SCHEMA_VERSION = 1          #: the version of the cycle, event and watermark payloads
+STATUS_VERSION = 2          #: the version of the status payload this code writes
+#: the versions this reader knows, per kind (status 2 is status 1 with the cell's state)
+KNOWN_VERSIONS: dict[str, tuple[int, ...]] = {"cycle": (1,), "status": (1, 2), "event": (1,), "watermark": (1,)}
 
 
 class PayloadError(CellError, ValueError):
@@ -67,7 +72,7 @@ class CycleFields(_Strict):
 
 
 class _Envelope(_Strict):
-    schema_: Literal[1] = Field(SCHEMA_VERSION, alias="schema")
+    schema_: Literal[1, 2] = Field(SCHEMA_VERSION, alias="schema")
     cell: str = Field(min_length=5, max_length=200)
 
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
@@ -91,12 +96,25 @@ class CycleMessage(_Envelope):
 
 
 class StatusMessage(_Envelope):
-    """``<cell>/status`` (retained): the birth (``online``) or the Last Will (offline)."""
+    """``<cell>/status`` (retained): the birth (``online``) or the Last Will (offline).
+    Version 2 adds the cell's state (:mod:`cell.plant.events`): ``state`` (the state
+    machine's state, lower case; None: not known, as in a Last Will), ``fault_code`` (0:
+    none) and ``fault_text``; a version-1 payload has none of them."""
 
     online: bool
     session: int = Field(ge=0)
     log_id: str | None = None
     at: str
+    state: str | None = Field(None, min_length=1, max_length=32)
+    fault_code: int | None = Field(None, ge=0)
+    fault_text: str | None = Field(None, max_length=500)
+
+    @model_validator(mode="after")
+    def _state_is_version_2(self) -> "StatusMessage":
+        given = [k for k in ("state", "fault_code", "fault_text") if getattr(self, k) is not None]
+        if self.schema_ == 1 and given:
+            raise ValueError(f"{', '.join(given)}: a field of status version 2, not 1")
+        return self
 
 
 class EventMessage(_Envelope):
@@ -104,9 +122,23 @@ class EventMessage(_Envelope):
 
     session: int = Field(ge=0)
     seq: int = Field(ge=1)
-    kind: str = Field(min_length=1, max_length=64)
+    kind: str = Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")
     at: str
     data: dict = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _known_kind_data(self) -> "EventMessage":
+        # a kind this reader knows has its data checked; one it does not know (added by a
+        # newer cell) is taken as it is, its data uninterpreted (cell/plant.md)
+        from cell.plant.events import EVENT_KINDS
+        model = EVENT_KINDS.get(self.kind)
+        if model is not None:
+            try:
+                model.model_validate(self.data)
+            except ValidationError as exc:
+                problems = "; ".join(f"data.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:5])
+                raise ValueError(f"{self.kind} event: {problems}") from None
+        return self
 
 
 class Watermark(_Envelope):
@@ -142,8 +174,14 @@ def cycle_payload(cell: str, log_id: str, record, prev_id: int, session: int, se
     return _dump(msg)
 
 
-def status_payload(cell: str, online: bool, session: int, log_id: str | None = None) -> bytes:
-    return _dump(StatusMessage(cell=cell, online=online, session=session, log_id=log_id, at=utc_now()))
+def status_payload(cell: str, online: bool, session: int, log_id: str | None = None,
+                   state: dict | None = None) -> bytes:
+    """A status message, version :data:`STATUS_VERSION`; ``state``: the cell's state
+    (:func:`cell.plant.events.cell_state`; None: not known, the three fields null)."""
+    st = state or {}
+    return _dump(StatusMessage(schema=STATUS_VERSION, cell=cell, online=online, session=session, log_id=log_id,
+                               at=utc_now(), state=st.get("state") or None, fault_code=st.get("fault_code"),
+                               fault_text=st.get("fault_text")))
 
 
 def event_payload(cell: str, session: int, seq: int, kind: str, data: dict | None = None) -> bytes:
@@ -165,10 +203,12 @@ def parse(kind: str, topic: str, payload: bytes, cell: str | None = None) -> _En
     if not isinstance(data, dict):
         raise PayloadError(f"{where}payload is a JSON {type(data).__name__}, not an object")
     if "schema" not in data:
-        raise PayloadError(f"{where}payload has no 'schema' version (this reader knows {KNOWN_VERSIONS})")
-    if data["schema"] not in KNOWN_VERSIONS or isinstance(data["schema"], bool):
-        raise PayloadError(f"{where}unknown schema version {data['schema']!r}: this reader knows "
-                           f"{', '.join(map(str, KNOWN_VERSIONS))}; nothing of it was read")
+        raise PayloadError(f"{where}payload has no 'schema' version (this reader knows "
+                           f"{', '.join(map(str, KNOWN_VERSIONS[kind]))} for {kind})")
+    known = KNOWN_VERSIONS[kind]
+    if data["schema"] not in known or isinstance(data["schema"], bool):
+        raise PayloadError(f"{where}unknown schema version {data['schema']!r} for {kind}: this reader "
+                           f"knows {', '.join(map(str, known))}; nothing of it was read")
     try:
         msg = MODELS[kind].model_validate(data)
     except ValidationError as exc:

@@ -92,3 +92,83 @@ def test_the_payloads_record_is_the_logs_record_without_trace_and_id():
     from cell.cyclelog import CycleRecord
     from cell.plant.schema import CycleFields
     assert set(CycleFields.model_fields) == {f.name for f in fields(CycleRecord)} - {"trace", "id"}
+
+
+def test_a_status_carries_the_cells_state_in_version_2_and_version_1_still_reads():
+    st = schema.parse("status", TOPICS.status, schema.status_payload(
+        TOPICS.path, True, 4, "log1", {"state": "fault", "fault_code": 31, "fault_text": "camera lost the part"}),
+        TOPICS.path)
+    assert (st.schema_, st.state, st.fault_code, st.fault_text) == (2, "fault", 31, "camera lost the part")
+    will = schema.parse("status", TOPICS.status, schema.status_payload(TOPICS.path, False, 4, "log1"))
+    assert (will.schema_, will.state, will.fault_code) == (2, None, None)
+    v1 = (b'{"schema":1,"cell":"site1/line2/cell-1","online":true,"session":3,"log_id":null,'
+          b'"at":"2026-01-01T00:00:00Z"}')
+    old = schema.parse("status", TOPICS.status, v1, TOPICS.path)
+    assert (old.online, old.session, old.state) == (True, 3, None)
+
+
+@pytest.mark.parametrize("payload, says", [
+    (b'{"schema":1,"cell":"site1/line2/cell-1","online":true,"session":3,"at":"x","state":"idle"}',
+     "state: a field of status version 2, not 1"),
+    (b'{"schema":3,"cell":"site1/line2/cell-1","online":true,"session":3,"at":"x"}',
+     "unknown schema version 3 for status: this reader knows 1, 2"),
+    (b'{"schema":2,"cell":"site1/line2/cell-1","online":true,"session":3,"at":"x","fault_code":-1}',
+     "fault_code: Input should be greater than or equal to 0"),
+])
+def test_a_bad_status_is_refused_naming_what_is_wrong(payload, says):
+    with pytest.raises(schema.PayloadError) as exc:
+        schema.parse("status", TOPICS.status, payload, TOPICS.path)
+    assert says in str(exc.value) and str(exc.value).startswith(TOPICS.status)
+
+
+def _event(kind="fault", data=None, **change) -> bytes:
+    body = json.loads(schema.event_payload(TOPICS.path, 3, 5, "fault", {"code": 31, "text": "lost", "state": "fault"}))
+    body.update(kind=kind, **change)
+    if data is not None:
+        body["data"] = data
+    return json.dumps(body).encode()
+
+
+def test_each_event_kind_reads_back_and_an_unknown_kind_is_taken_as_it_is():
+    from cell.plant.events import EVENT_KINDS
+    examples = {"fault": {"code": 31, "text": "lost", "state": "fault"}, "reset": {"code": 31, "state": "idle"},
+                "recipe_selected": {"number": 2, "name": "bracket-b"},
+                "recipe_changed": {"action": "activate", "target": "recipes/a.yaml", "hash": "ab12"},
+                "calibration_applied": {"calibration": "cal-0003", "sha256": "00ff"}}
+    assert set(examples) == set(EVENT_KINDS)
+    for kind, data in examples.items():
+        ev = schema.parse("event", TOPICS.event, schema.event_payload(TOPICS.path, 3, 5, kind, data), TOPICS.path)
+        assert (ev.kind, ev.data, ev.session, ev.seq) == (kind, data, 3, 5)
+    later = schema.parse("event", TOPICS.event, _event("door_opened", {"door": 2}), TOPICS.path)
+    assert (later.kind, later.data) == ("door_opened", {"door": 2})
+
+
+@pytest.mark.parametrize("payload, says", [
+    (_event(schema=2), "unknown schema version 2 for event: this reader knows 1"),
+    (_event(data={"text": "no code"}), "fault event: data.code: Field required"),
+    (_event(data={"code": 0}), "data.code: Input should be greater than or equal to 1"),
+    (_event("recipe_changed", {"action": "burn", "target": "a.yaml"}), "data.action"),
+    (_event("reset", {"code": 3, "colour": "red"}), "data.colour: Extra inputs are not permitted"),
+    (_event("Fault!"), "kind: String should match pattern"),
+    (_event(seq=0), "seq: Input should be greater than or equal to 1"),
+    (_event(cell="site1/line2/cell-9"), "not the topic's"),
+])
+def test_a_bad_event_is_refused_naming_what_is_wrong(payload, says):
+    with pytest.raises(schema.PayloadError) as exc:
+        schema.parse("event", TOPICS.event, payload, TOPICS.path)
+    assert says in str(exc.value) and str(exc.value).startswith(TOPICS.event)
+
+
+def test_events_between_two_states():
+    from cell.plant.events import state_events
+    idle = {"state": "idle", "fault_code": 0, "fault_text": "", "recipe_number": 1, "recipe_name": "a"}
+    fault = dict(idle, state="fault", fault_code=31, fault_text="lost")
+    assert state_events(None, idle) == []
+    assert state_events(None, fault) == [("fault", {"code": 31, "text": "lost", "state": "fault"})]
+    assert state_events(idle, fault) == [("fault", {"code": 31, "text": "lost", "state": "fault"})]
+    assert state_events(fault, dict(fault, fault_code=32)) == [("fault", {"code": 32, "text": "lost",
+                                                                          "state": "fault"})]
+    assert state_events(fault, idle) == [("reset", {"code": 31, "state": "idle"})]
+    assert state_events(idle, dict(idle, recipe_number=2, recipe_name="b")) == [
+        ("recipe_selected", {"number": 2, "name": "b"})]
+    assert state_events(idle, dict(idle, state="approach", joints=[1.0])) == []
