@@ -71,17 +71,17 @@ class Cell:
                              heartbeat_timeout_s=config.plc.heartbeat_timeout_s, tls=tls,
                              plain=config.plc.plain_tcp)
         self.plc_port = config.plc.port if plc_port is None else plc_port
+        #: settled cycles, status changes and events for the plant (OPC UA, MQTT, the HMI):
+        #: subscribe before or after start (:mod:`cell.publish`)
+        self.publisher = Publisher()
         r = config.recipes
-        self.recipes = RecipeStore(r.directory, commit=self.cyclelog.record_recipe_changes,
+        self.recipes = RecipeStore(r.directory, commit=self._commit_recipe_changes,
                                    max_bytes=r.max_bytes, settle_s=r.settle_s,
                                    clock=file_clock or MonotonicClock(), allow_examples=r.allow_examples)
         # ^ wall time, not the cell's: editors write files in wall time. On a simulated clock
         # that runs ahead (run --sim), settle_s of *simulated* time passed in milliseconds and a
         # file left half-written for a moment was taken as complete
         self.with_jobs = jobs
-        #: settled cycles and status changes for the plant (OPC UA, MQTT, the HMI):
-        #: subscribe before or after start (:mod:`cell.publish`)
-        self.publisher = Publisher()
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
         #: the plant outbox (``plant`` section; None without it): :attr:`~cell.plant.outbox.PlantOutbox.backlog`
@@ -124,7 +124,8 @@ class Cell:
             if self.config.plant is not None:
                 # a thread of its own on wall time, reading the log read-only: never the scan's time
                 from cell.plant.outbox import PlantOutbox
-                self.outbox = PlantOutbox(self.config.log.path, self.config.plant.outbox_settings(self.config.name))
+                self.outbox = PlantOutbox(self.config.log.path, self.config.plant.outbox_settings(self.config.name),
+                                          publisher=self.publisher)
                 self.outbox.start()
                 self.controller.plant_backlog = lambda: self.outbox.backlog
             if self.with_jobs:
@@ -158,6 +159,19 @@ class Cell:
         self.cyclelog.audit("plc", "calibration_write", str(self.calibrator.path),
                             str(doc.get("sha256", "")), f"applied {robot.calibration}")
         log.info("robot_calibration_applied", calibration=robot.calibration)
+        self.publisher.event(self.clock.now(), "calibration_applied", {
+            "calibration": str(robot.calibration), "path": str(self.calibrator.path),
+            "sha256": str(doc.get("sha256", ""))})
+
+    def _commit_recipe_changes(self, changes) -> None:
+        """The recipe store's commit: the log's audit first (it raises: nothing applied, nothing
+        said), then one ``recipe_changed`` event per change for the plant."""
+        self.cyclelog.record_recipe_changes(changes)
+        now = self.clock.now()
+        for who, action, target, hash_, result, _version in changes:
+            self.publisher.event(now, "recipe_changed", {"action": str(action), "target": str(target),
+                                                         "hash": str(hash_ or ""), "result": str(result or ""),
+                                                         "who": str(who or "")})
 
     def stop(self) -> None:
         with self.clock.attach():

@@ -10,7 +10,10 @@ the log itself: :mod:`cell.plant.outbox`):
   it is large and stays in the log);
 * topic ``status``: one message whenever what a PLC or an operator would look at changes:
   state, fault code and text, cycles done, active recipe number, recalibration due, and
-  the PLC client that owns the link.
+  the PLC client that owns the link;
+* topic ``event``: something that happened to the cell that is not a cycle nor a state,
+  as ``kind`` and ``data`` (the kinds: :data:`cell.plant.events.EVENT_KINDS`), e.g. a
+  calibration applied or a recipe file activated.
 
 Publishing never blocks the publisher (the controller's scan and its log worker): every
 subscription is a bounded queue of its own; when a slow consumer lets it fill, the oldest
@@ -25,7 +28,7 @@ from collections import deque
 from dataclasses import asdict
 from typing import Iterable
 
-TOPICS = ("cycle", "status")
+TOPICS = ("cycle", "status", "event")
 DEFAULT_MAXLEN = 1000
 
 
@@ -118,6 +121,16 @@ class Publisher:
             self._last_status = dict(snapshot)
         self.publish("status", clock_s, snapshot)
         return True
+
+    def event(self, clock_s: float, kind: str, data: dict) -> None:
+        """Publish that ``kind`` happened, with ``data`` (JSON-ready), on ``event``."""
+        self.publish("event", clock_s, {"kind": kind, "data": dict(data)})
+
+    def last_status(self) -> dict | None:
+        """A copy of the last status snapshot published (None: none yet), for a subscriber
+        that comes after it."""
+        with self._lock:
+            return None if self._last_status is None else dict(self._last_status)
 
     def cycle(self, clock_s: float, record) -> None:
         """Publish a settled :class:`~cell.cyclelog.CycleRecord` on ``cycle``."""

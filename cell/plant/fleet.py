@@ -217,6 +217,9 @@ class CellLine:
     cell: str
     online: bool | None            #: None: no status heard from it
     status_since: str | None       #: when online last changed (ISO, UTC)
+    cell_state: str | None         #: the state machine's state in its status (None: not said)
+    fault_code: int | None         #: its fault code then (0: none)
+    fault_text: str | None
     session: int | None
     log_id: str | None
     last_part: int | None
@@ -234,11 +237,17 @@ class CellLine:
 
     @property
     def state(self) -> str:
-        """In words: offline, not heard from, or online with the last cycle's outcome."""
+        """In words: offline, not heard from, or online with its state (and fault) when its
+        status says them, else with the last cycle's outcome."""
         if self.online is None:
             return "no status heard"
         if not self.online:
             return "offline"
+        if self.cell_state is not None:
+            if not self.fault_code:
+                return f"online, {self.cell_state}"
+            fault = f"fault {self.fault_code}" + (f": {self.fault_text}" if self.fault_text else "")
+            return f"online, {fault}" if self.cell_state == "fault" else f"online, {self.cell_state} ({fault})"
         if self.last_outcome == "fault":
             return "online, last cycle faulted"
         return "online" if self.last_outcome is None else f"online, last cycle {self.last_outcome}"
@@ -254,8 +263,12 @@ def line_status(dsn: str, now: datetime | None = None) -> list[CellLine]:
     with connect(dsn) as db:
         _require_tables(db, dsn)
         has_status = db.execute("SELECT to_regclass('cell_status')").fetchone()[0] is not None
+        with_state = has_status and db.execute(      # migration 4: a status's state
+            "SELECT count(*) FROM information_schema.columns WHERE table_name = 'cell_status'"
+            " AND column_name = 'state'").fetchone()[0] > 0
+        state_cols = "state, fault_code, fault_text" if with_state else "NULL, NULL, NULL"
         status = {r[0]: r[1:] for r in db.execute(
-            "SELECT cell, online, changed_at, session, log_id FROM cell_status")} if has_status else {}
+            f"SELECT cell, online, changed_at, session, log_id, {state_cols} FROM cell_status")} if has_status else {}
         latest_log = dict(db.execute("SELECT DISTINCT ON (cell) cell, log_id FROM cycles"
                                      " ORDER BY cell, received_at DESC, cycle_id DESC").fetchall())
         recent = [Cycle(*r) for r in db.execute(
@@ -264,7 +277,7 @@ def line_status(dsn: str, now: datetime | None = None) -> list[CellLine]:
             " WHERE finished_at::timestamptz >= %s", (prev_start,))]
         out = []
         for cell in sorted(set(status) | set(latest_log)):
-            online, changed, session, status_log = status.get(cell, (None, None, None, None))
+            online, changed, session, status_log, cell_state, fault_code, fault_text = status.get(cell, (None,) * 7)
             log_id = status_log or latest_log.get(cell)
             received, highest, last_at = db.execute(
                 "SELECT count(*), max(cycle_id), max(received_at) FROM cycles WHERE cell = %s AND log_id = %s",
@@ -283,7 +296,8 @@ def line_status(dsn: str, now: datetime | None = None) -> list[CellLine]:
                                "parts": g.parts, "faults": g.faults, "final_p50_mm": g.final_p50_mm,
                                "final_p95_mm": g.final_p95_mm})
             out.append(CellLine(
-                cell=cell, online=online, status_since=changed.isoformat() if changed else None, session=session,
+                cell=cell, online=online, status_since=changed.isoformat() if changed else None,
+                cell_state=cell_state, fault_code=fault_code, fault_text=fault_text, session=session,
                 log_id=log_id, last_part=last[0] if last else None, last_recipe=last[1] if last else None,
                 last_outcome=last[2] if last else None,
                 last_fault=f"{last[3]}: {last[4] or ''}".strip(": ") if last and last[2] == "fault" else None,

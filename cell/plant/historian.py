@@ -1,4 +1,5 @@
-"""The plant historian: cycle records from the broker into PostgreSQL, nothing lost.
+"""The plant historian: cycle records from the broker into PostgreSQL, nothing lost; the
+cells' events beside them.
 
 :class:`Historian` subscribes to ``+/+/+/cycle`` (any cell) with a persistent MQTT 5
 session (``clean_start=False``, ``session_expiry_s``): while it is away the broker keeps
@@ -19,10 +20,15 @@ arrived and publishes each touched cell's watermark, retained, on ``<cell>/water
 After every connect to the broker it publishes every cell's latest watermark again (a
 broker restarted without persistence has lost the retained ones).
 
-A payload that is not a valid cycle message (not JSON, an unknown schema version, a
-field wrong, another cell's id) is refused: logged (``plant_record_refused``, naming what
-was wrong), counted in ``rejected``, acknowledged (sending it again cannot mend it) and
-never written. A connect the broker refuses (a wrong password, a login the ACL does
+Events (``+/+/+/event``, ``event_filter``) come on the same persistent session and go
+through the same batches: checked, committed with the batch's records into ``events``
+(a copy of one already there dropped), acknowledged after the commit. They carry no
+watermark: a cell does not send an event again (``cell/plant.md``: their guarantee).
+
+A payload that is not a valid cycle or event message (not JSON, an unknown schema
+version, a field wrong, an event's data not its kind's, another cell's id) is refused:
+logged (``plant_record_refused``, naming the topic and what was wrong), counted in
+``rejected``, acknowledged (sending it again cannot mend it) and never written. A connect the broker refuses (a wrong password, a login the ACL does
 not know) is logged as ``historian_connect_refused`` with the broker's reason; paho keeps
 trying.
 
@@ -63,6 +69,7 @@ class HistorianSettings:
     dsn: str
     client_id: str = "plant-historian"
     topic_filter: str = subscription("cycle")
+    event_filter: str | None = subscription("event")
     session_expiry_s: int = 7 * 24 * 3600
     keepalive_s: int = 10
     batch_max: int = 500
@@ -73,7 +80,7 @@ class HistorianSettings:
 
 class Historian:
     """See the module doc. ``start()``/``stop()``; counters readable from any thread:
-    ``received``, ``inserted``, ``duplicates``, ``rejected``, ``acked``, ``commits``,
+    ``received``, ``inserted``, ``duplicates``, ``events``, ``rejected``, ``acked``, ``commits``,
     ``failed_commits``, ``clock_backwards``; ``last_refusal``: the text of the last refused
     payload."""
 
@@ -85,7 +92,7 @@ class Historian:
         self._thread: threading.Thread | None = None
         self._logger = logger
         self.link = None
-        self.received = self.inserted = self.duplicates = self.rejected = 0
+        self.received = self.inserted = self.duplicates = self.rejected = self.events = 0
         self.acked = self.commits = self.failed_commits = self.clock_backwards = 0
         #: (cell, log_id) -> (cycle_id, finished_at) of the highest id committed by this process
         self._last: dict[tuple[str, str], tuple[int, str]] = {}
@@ -102,7 +109,8 @@ class Historian:
             self._say("historian_commit_failed", error=str(exc).strip()[:300], records=0, retry_in_s=0)
         self.link = MqttLink(self.s.host, self.s.port, self.s.client_id, clean_start=False,
                              session_expiry_s=self.s.session_expiry_s,
-                             subscriptions=((self.s.topic_filter, 1),), manual_ack=True,
+                             subscriptions=((self.s.topic_filter, 1),)
+                             + (((self.s.event_filter, 1),) if self.s.event_filter else ()), manual_ack=True,
                              keepalive_s=self.s.keepalive_s, on_up=self._up, on_message=self._message,
                              security=self.s.security, receive_maximum=self.s.batch_max)
         self._thread = threading.Thread(target=self._run, name="historian-writer", daemon=True)
@@ -150,7 +158,7 @@ class Historian:
                 self._say("historian_error", error=repr(exc))
 
     def _batch(self, items: list) -> None:
-        good, taken, republish = [], [], False
+        good, events, taken, republish = [], [], [], False
         for kind, generation, message in items:
             if kind == "republish":
                 republish = True
@@ -159,15 +167,18 @@ class Historian:
             taken.append((generation, message))
             try:
                 cell, what = parse_topic(message.topic)
+                if what == "event":
+                    events.append(schema.parse("event", message.topic, message.payload, cell.path))
+                    continue
                 if what != "cycle":
-                    raise schema.PayloadError(f"{message.topic}: not a cycle topic")
+                    raise schema.PayloadError(f"{message.topic}: not a cycle or event topic")
                 good.append(schema.parse("cycle", message.topic, message.payload, cell.path))
             except (schema.PayloadError, TopicError) as exc:
                 self.rejected += 1
                 self.last_refusal = str(exc)
                 self._say("plant_record_refused", error=str(exc))
-        result = self._commit(good) if good else None
-        if self._stop.is_set() and good and result is None:
+        result = self._commit(good, events) if good or events else None
+        if self._stop.is_set() and (good or events) and result is None:
             return                                      # not committed: leave it to the broker
         for generation, message in taken:
             if message.qos >= 1 and self.link.ack(message.mid, generation, message.qos):
@@ -175,6 +186,7 @@ class Historian:
         if result is not None:
             self.inserted += result.inserted
             self.duplicates += result.duplicates
+            self.events += result.events
             for (cell, log_id), w in result.watermarks.items():
                 self.watermarks[(cell, log_id)] = w
                 self._publish_watermark(cell, log_id, w)
@@ -199,13 +211,14 @@ class Historian:
                           finished_at=m.record.finished_at, previous_id=last[0], previous_finished_at=last[1],
                           back_s=round(back, 3))
 
-    def _commit(self, good: list):
-        """Commit ``good``, retrying while the database is away; None if stopped first."""
+    def _commit(self, good: list, events: list = ()):
+        """Commit ``good`` and ``events``, retrying while the database is away; None if
+        stopped first."""
         import psycopg
         wait = 0.2
         while not self._stop.is_set():
             try:
-                result = self.store.commit(good)
+                result = self.store.commit(good, events)
                 self.commits += 1
                 return result
             except psycopg.OperationalError as exc:

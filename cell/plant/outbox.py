@@ -34,16 +34,34 @@ publishes the Last Will, ``online: false`` with the same number, if the cell goe
 a goodbye; a clean stop publishes it itself. The session number goes up by one at every
 connect, kept in ``<log>.plant-session`` beside the log, so it keeps going up across
 restarts; ``seq`` numbers the messages of a session from 1.
+
+The cell's state and events (given the controller's :class:`~cell.publish.Publisher`):
+the outbox's thread drains a subscription to the publisher's ``status`` and ``event``
+topics at every turn (a bounded queue: the scan and the cycle never wait for it, nor for
+the broker). The state (:func:`cell.plant.events.cell_state`) goes into the birth and, when
+it changes, into a new retained status of the same session, published from the outbox's
+thread, at most once a turn (the latest state; one in between may be skipped), and only on
+a connection whose birth has come back: so the first status of the session on the
+broker is the birth, and the birth's echo stays what makes a connection ready (a state
+update with the session's number comes only after it, on the same connection; one built
+before a drop carries the old number, which readiness ignores). A check of the connection
+and the publish are made under one lock with the session's change at a drop. The events
+(:func:`cell.plant.events.state_events` from consecutive states, and the publisher's
+``event`` messages) are published on ``<cell>/event`` at QoS 1 with the session's
+``seq``; while the link is down they wait in memory, at most ``events_held`` of them (the
+oldest dropped and counted in ``events_dropped``): events are best effort, not kept in the
+log, and a restart of the cell loses those waiting.
 """
 from __future__ import annotations
 
 import os
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from cell.plant import schema
+from cell.plant import events, schema
 from cell.plant.mqtt import Security
 from cell.plant.topics import CellTopics
 
@@ -60,6 +78,7 @@ class OutboxSettings:
     :param report_s: the backlog is logged at most this often.
     :param security: TLS and the cell's login (:class:`~cell.plant.mqtt.Security`; None:
         plain TCP, anonymous).
+    :param events_held: events kept in memory while the link is down, at most.
     """
 
     host: str
@@ -71,6 +90,7 @@ class OutboxSettings:
     poll_s: float = 0.2
     report_s: float = 10.0
     security: Security | None = None
+    events_held: int = 1000
 
 
 class PlantOutbox:
@@ -78,10 +98,15 @@ class PlantOutbox:
 
     ``start()`` opens the log read-only and starts the thread and the MQTT link; ``stop()``
     says goodbye (status offline) and ends both. Counters (read them from any thread):
-    ``sent`` (messages published), ``resends`` (times it went back to the watermark).
+    ``sent`` (cycle messages published), ``resends`` (times it went back to the
+    watermark), ``events_sent``, ``events_dropped`` and ``status_sent`` (state updates
+    after the birth).
+
+    :param publisher: the controller's :class:`~cell.publish.Publisher`, whose status and
+        events the outbox publishes (module doc); None: births and goodbyes without a state.
     """
 
-    def __init__(self, log_path: Path | str, settings: OutboxSettings, logger=None):
+    def __init__(self, log_path: Path | str, settings: OutboxSettings, logger=None, publisher=None):
         self.log_path = Path(log_path)
         self.s = settings
         self.topics = settings.topics
@@ -101,6 +126,14 @@ class PlantOutbox:
         self._ready_gen = 0            # the connection on which our birth came back
         self.sent = 0
         self.resends = 0
+        self._publisher = publisher
+        self._sub = None
+        self._status_lock = threading.Lock()   # the session and what status is on the broker
+        self._state: dict | None = None        # the cell's state (events.cell_state), None: not known
+        self._status_on: tuple | None = None   # (connection, state) of the last status published
+        self._last_status: dict | None = None  # the last publisher status message taken
+        self._events: deque = deque()
+        self.events_sent = self.events_dropped = self.status_sent = 0
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
@@ -113,6 +146,11 @@ class PlantOutbox:
             self.log.close()
             raise ValueError(f"{self.log_path}: the log has no log_id yet (open it once as the controller)")
         self.session = self._next_session()
+        if self._publisher is not None:
+            self._sub = self._publisher.subscribe(("status", "event"), maxlen=max(100, self.s.events_held))
+            last = self._publisher.last_status()      # the state before the subscription, if any
+            if last is not None:
+                self._last_status, self._state = last, events.cell_state(last)
         self.link = MqttLink(self.s.host, self.s.port, f"{self.topics.path}/outbox", clean_start=True,
                              subscriptions=((self.topics.watermark, 1), (self.topics.status, 1)),
                              will=self._will(),
@@ -132,12 +170,19 @@ class PlantOutbox:
                 self.topics.path, False, self.session, self.log_id), True))
         if self.log is not None:
             self.log.close()
+        if self._sub is not None:
+            self._sub.close()
 
     # ------------------------------------------------------------------ what it shows
     @property
     def watermark(self) -> int:
         """The historian's watermark for this log (0: nothing committed, or not heard yet)."""
         return self._watermark
+
+    @property
+    def state(self) -> dict | None:
+        """The cell's state as last taken from the publisher (None: none yet)."""
+        return self._state
 
     @property
     def backlog(self) -> int | None:
@@ -164,14 +209,18 @@ class PlantOutbox:
 
     # paho's thread ------------------------------------------------------------------
     def _up(self, generation: int, session_present: bool) -> None:
-        self.link.publish(self.topics.status, schema.status_payload(self.topics.path, True, self.session,
-                                                                    self.log_id), retain=True)
+        with self._status_lock:
+            state = self._state
+            self.link.publish(self.topics.status, schema.status_payload(self.topics.path, True, self.session,
+                                                                        self.log_id, state), retain=True)
+            self._status_on = (generation, state)
         self._wake.set()
 
     def _down(self) -> None:
         # the next connect is a new session: its Last Will carries the new number
-        self.session = self._next_session()
-        self.link.set_will(self._will())
+        with self._status_lock:
+            self.session = self._next_session()
+            self.link.set_will(self._will())
 
     def _message(self, generation: int, message) -> None:
         if message.topic == self.topics.status:
@@ -209,6 +258,7 @@ class PlantOutbox:
             self._wake.wait(self.s.poll_s)
             self._wake.clear()
             try:
+                self._take_cell()
                 # readiness before the watermark: paho's thread sets the retained watermark
                 # before the birth's echo makes the connection ready, so a ready read first
                 # is never paired with a watermark read before the retained one came
@@ -232,6 +282,7 @@ class PlantOutbox:
                 if gen != ready_gen:                     # a new connection: send again from the watermark
                     gen, cursor, out, moved = ready_gen, wm, [], now
                     self._seq = 0
+                self._send_cell(link, gen)
                 if out and now - moved > self.s.resend_s:
                     cursor, out, moved = wm, [], now
                     self.resends += 1
@@ -260,6 +311,54 @@ class PlantOutbox:
             except Exception as exc:                     # noqa: BLE001 -- the outbox must keep going
                 self._say("plant_outbox_error", error=repr(exc))
                 self._stop.wait(1.0)
+
+    def _take_cell(self) -> None:
+        """Take what the publisher sent: the latest state, and the events to send."""
+        if self._sub is None:
+            return
+        for m in self._sub.drain():
+            if m["topic"] == "status":
+                found = events.state_events(self._last_status, m)
+                self._last_status = m
+                state = events.cell_state(m)
+                if state != self._state:
+                    with self._status_lock:
+                        self._state = state
+            else:
+                found = [(str(m.get("kind", "")), dict(m.get("data") or {}))]
+            for kind, data in found:
+                if len(self._events) >= self.s.events_held:
+                    self._events.popleft()
+                    self.events_dropped += 1
+                self._events.append((kind, data, schema.utc_now()))
+
+    def _send_cell(self, link, gen: int) -> None:
+        """On a ready connection ``gen``: the state if it is not the one on the broker, then
+        the events waiting (module doc)."""
+        with self._status_lock:
+            if link.generation != gen or not link.connected.is_set():
+                return
+            state = self._state
+            if self._status_on != (gen, state):
+                payload = schema.status_payload(self.topics.path, True, self.session, self.log_id, state)
+                if not link.publish(self.topics.status, payload, retain=True):
+                    return
+                self._status_on = (gen, state)
+                self.status_sent += 1
+            while self._events:
+                kind, data, at = self._events[0]
+                try:
+                    payload = schema.event_payload(self.topics.path, self.session, self._seq + 1, kind, data, at)
+                except ValueError as exc:                # an event the schema refuses: say so, drop it
+                    self._events.popleft()
+                    self.events_dropped += 1
+                    self._say("plant_event_refused", kind=kind, error=str(exc)[:300])
+                    continue
+                if not link.publish(self.topics.event, payload, qos=1):
+                    return
+                self._seq += 1
+                self._events.popleft()
+                self.events_sent += 1
 
     def _unsettled(self) -> int | None:
         """The id of a row the PLC has not been told of (may still change), or None."""

@@ -184,8 +184,11 @@ def status_payload(cell: str, online: bool, session: int, log_id: str | None = N
                                fault_text=st.get("fault_text")))
 
 
-def event_payload(cell: str, session: int, seq: int, kind: str, data: dict | None = None) -> bytes:
-    return _dump(EventMessage(cell=cell, session=session, seq=seq, kind=kind, at=utc_now(), data=data or {}))
+def event_payload(cell: str, session: int, seq: int, kind: str, data: dict | None = None,
+                  at: str | None = None) -> bytes:
+    """An event message; ``at``: when it happened (default now). Raises ``ValueError``
+    (pydantic's) for a kind or data the schema refuses."""
+    return _dump(EventMessage(cell=cell, session=session, seq=seq, kind=kind, at=at or utc_now(), data=data or {}))
 
 
 def watermark_payload(cell: str, log_id: str, cycle_id: int) -> bytes:
@@ -212,8 +215,8 @@ def parse(kind: str, topic: str, payload: bytes, cell: str | None = None) -> _En
     try:
         msg = MODELS[kind].model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'payload'}: {e['msg']}"
-                             for e in exc.errors()[:5])
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) + ': ' if e['loc'] else ''}"
+                             f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()[:5])
         raise PayloadError(f"{where}invalid {kind} message: {problems}") from None
     if cell is not None and msg.cell != cell:
         raise PayloadError(f"{where}message is for cell {msg.cell!r}, not the topic's {cell!r}")

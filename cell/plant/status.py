@@ -10,7 +10,9 @@ while it was away is the retained one it gets then.
 Each valid message upserts the cell's one row (``cell_status``, migration 2 of
 :mod:`cell.plant.store`): ``online``, ``session``, ``log_id``, ``at`` (the payload's time:
 for a Last Will the time the cell connected, when it was made), ``received_at`` and
-``changed_at`` (when ``online`` last changed, as this recorder saw it). The last message
+``changed_at`` (when ``online`` last changed, as this recorder saw it), and the cell's
+``state``, ``fault_code`` and ``fault_text`` (status version 2; null from a version-1 status
+and from a Last Will, which knows no state). The last message
 received wins: the broker keeps one order per topic. A payload that is not a valid status
 message is logged (``plant_status_refused``) and dropped.
 
@@ -26,9 +28,11 @@ import threading
 from cell.plant import schema
 from cell.plant.topics import TopicError, parse as parse_topic, subscription
 
-UPSERT = ("INSERT INTO cell_status (cell, online, session, log_id, at) VALUES (%s, %s, %s, %s, %s)"
+UPSERT = ("INSERT INTO cell_status (cell, online, session, log_id, at, state, fault_code, fault_text)"
+          " VALUES (%s, %s, %s, %s, %s, %s, %s, %s)"
           " ON CONFLICT (cell) DO UPDATE SET online = EXCLUDED.online, session = EXCLUDED.session,"
-          " log_id = EXCLUDED.log_id, at = EXCLUDED.at, received_at = now(),"
+          " log_id = EXCLUDED.log_id, at = EXCLUDED.at, state = EXCLUDED.state, fault_code = EXCLUDED.fault_code,"
+          " fault_text = EXCLUDED.fault_text, received_at = now(),"
           " changed_at = CASE WHEN cell_status.online = EXCLUDED.online THEN cell_status.changed_at"
           " ELSE now() END")
 
@@ -113,7 +117,7 @@ class StatusRecorder:
         db = self.store.db
         with db.transaction():
             for cell, m in pending.items():
-                db.execute(UPSERT, (cell, m.online, m.session, m.log_id, m.at))
+                db.execute(UPSERT, (cell, m.online, m.session, m.log_id, m.at, m.state, m.fault_code, m.fault_text))
         db.commit()
         self.written += len(pending)
 

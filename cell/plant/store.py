@@ -17,7 +17,12 @@ historians starting together do not both migrate):
   ``w`` it moves to the next committed id ``c`` whose ``prev_id <= w`` (no id between ``w``
   and ``c`` exists in the log), and on from there.
 * ``cell_status`` (migration 2): each cell's latest retained ``status`` (online or its Last
-  Will), one row per cell, written by :class:`cell.plant.status.StatusRecorder`.
+  Will), one row per cell, written by :class:`cell.plant.status.StatusRecorder`; its
+  ``state``, ``fault_code`` and ``fault_text`` (migration 4; null from a version-1 status
+  or a Last Will).
+* ``events`` (migration 4): the cells' events (``<cell>/event``), keyed by ``(cell,
+  session, seq, at)``: a copy of one (the same message again) is dropped; committed in
+  the batch that brought it, with the cycles.
 
 :meth:`HistorianStore.commit` writes a batch in ONE transaction and returns what moved; a
 connection lost before the commit raises ``psycopg.OperationalError`` and nothing of the
@@ -73,6 +78,20 @@ CREATE TABLE cell_status (
     (3, """
 ALTER TABLE cycles ADD COLUMN duplicates integer NOT NULL DEFAULT 0;
 """),
+    (4, """
+ALTER TABLE cell_status ADD COLUMN state text, ADD COLUMN fault_code integer, ADD COLUMN fault_text text;
+CREATE TABLE events (
+    cell text NOT NULL,
+    session bigint NOT NULL,
+    seq bigint NOT NULL,
+    at text NOT NULL,
+    kind text NOT NULL,
+    data jsonb NOT NULL,
+    received_at timestamptz NOT NULL DEFAULT now(),
+    PRIMARY KEY (cell, session, seq, at)
+);
+CREATE INDEX events_at ON events (cell, at);
+"""),
 )
 SCHEMA_VERSION = MIGRATIONS[-1][0]
 #: one record; a copy already there is counted in its row (returns True for a new row)
@@ -81,6 +100,8 @@ _INSERT = ("INSERT INTO cycles (cell, log_id, cycle_id, prev_id, session, seq, p
            " VALUES (%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s::jsonb)"
            " ON CONFLICT (cell, log_id, cycle_id) DO UPDATE SET duplicates = cycles.duplicates + 1,"
            " prev_id = LEAST(cycles.prev_id, EXCLUDED.prev_id) RETURNING (xmax = 0)")
+_INSERT_EVENT = ("INSERT INTO events (cell, session, seq, at, kind, data) VALUES (%s,%s,%s,%s,%s,%s::jsonb)"
+                 " ON CONFLICT DO NOTHING")
 _LOCK_KEY = 25_0001          # pg_advisory_xact_lock key of the migration
 
 
@@ -92,6 +113,7 @@ class CommitResult:
     duplicates: int = 0
     #: (cell, log_id) -> the watermark after the commit, for every log the batch touched
     watermarks: dict[tuple[str, str], int] = field(default_factory=dict)
+    events: int = 0          #: events written (copies of one already there are not)
 
 
 class HistorianStore:
@@ -131,9 +153,10 @@ class HistorianStore:
         db.commit()
         return SCHEMA_VERSION
 
-    def commit(self, messages) -> CommitResult:
-        """Write ``messages`` (:class:`~cell.plant.schema.CycleMessage`) and move the
-        watermarks, in one transaction. Raises ``psycopg.Error``; then nothing is committed."""
+    def commit(self, messages, events=()) -> CommitResult:
+        """Write ``messages`` (:class:`~cell.plant.schema.CycleMessage`) and ``events``
+        (:class:`~cell.plant.schema.EventMessage`) and move the watermarks, in one
+        transaction. Raises ``psycopg.Error``; then nothing is committed."""
         if self.db is None:
             self.connect()
         db, result = self.db, CommitResult()
@@ -143,20 +166,24 @@ class HistorianStore:
                 # one statement per record, sent in one pipeline (psycopg's executemany):
                 # no round trip per record
                 cur = db.cursor()
-                cur.executemany(_INSERT, [
-                    (m.cell, m.log_id, m.cycle_id, m.prev_id, m.session, m.seq, m.record.part_id, m.record.recipe,
-                     m.record.status, m.record.fault_code, m.record.started_at, m.record.finished_at,
-                     m.record.final_error_mm, m.record.cycle_time_s, json.dumps(m.record.model_dump()))
-                    for m in messages], returning=True)
-                for m in messages:
-                    if cur.fetchone()[0]:
-                        result.inserted += 1
-                    else:
-                        result.duplicates += 1
-                    touched.add((m.cell, m.log_id))
-                    cur.nextset()
+                if messages:
+                    cur.executemany(_INSERT, [
+                        (m.cell, m.log_id, m.cycle_id, m.prev_id, m.session, m.seq, m.record.part_id, m.record.recipe,
+                         m.record.status, m.record.fault_code, m.record.started_at, m.record.finished_at,
+                         m.record.final_error_mm, m.record.cycle_time_s, json.dumps(m.record.model_dump()))
+                        for m in messages], returning=True)
+                    for m in messages:
+                        if cur.fetchone()[0]:
+                            result.inserted += 1
+                        else:
+                            result.duplicates += 1
+                        touched.add((m.cell, m.log_id))
+                        cur.nextset()
                 for cell, log_id in sorted(touched):
                     result.watermarks[(cell, log_id)] = self._advance(cell, log_id)
+                for e in events:
+                    result.events += db.execute(_INSERT_EVENT, (e.cell, e.session, e.seq, e.at, e.kind,
+                                                                json.dumps(e.data))).rowcount
             db.commit()
         except BaseException:
             try:

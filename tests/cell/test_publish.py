@@ -57,3 +57,21 @@ def test_a_consumer_thread_gets_messages_as_they_come_and_can_leave():
 def test_a_bad_subscription_is_refused_by_name(topics, maxlen, words):
     with pytest.raises(ValueError, match=words):
         Publisher().subscribe(topics, maxlen)
+
+
+def test_events_go_only_to_their_subscribers():
+    p = Publisher()
+    status_only, events = p.subscribe(("status",)), p.subscribe(("event",))
+    p.event(4.0, "calibration_applied", {"calibration": "cal-0002"})
+    assert status_only.drain() == []
+    [m] = events.drain()
+    assert (m["topic"], m["kind"], m["data"], m["clock_s"]) == ("event", "calibration_applied",
+                                                                {"calibration": "cal-0002"}, 4.0)
+
+
+def test_the_last_status_is_there_for_a_late_subscriber():
+    p = Publisher()
+    assert p.last_status() is None
+    p.status(1.0, {"state": "idle"})
+    p.status(2.0, {"state": "fault", "fault_code": 3})
+    assert p.last_status() == {"state": "fault", "fault_code": 3}

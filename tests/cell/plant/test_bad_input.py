@@ -1,5 +1,5 @@
 """Input a plant historian must live with: a cell whose clock jumps back, and a record
-that comes twice. Servers are real (``conftest.py``); waits are on conditions."""
+that comes twice, malformed events. Servers are real (``conftest.py``); waits are on conditions."""
 from __future__ import annotations
 
 from datetime import datetime, timedelta, timezone
@@ -85,6 +85,41 @@ def test_a_record_that_comes_twice_is_kept_once_and_the_copy_is_counted(broker, 
         assert historian.inserted == 1 and historian.duplicates == 1
         with psycopg.connect(historian_db) as pg:
             assert pg.execute("SELECT session, duplicates FROM cycles").fetchall() == [(1, 1)]
+    finally:
+        client.loop_stop()
+        client.disconnect()
+        historian.stop()
+
+
+def test_a_malformed_event_or_one_of_an_unknown_version_is_refused_and_writes_nothing(broker, historian_db):
+    import paho.mqtt.client as mqtt
+    import psycopg
+    historian = Historian(historian_settings(broker, historian_db, client_id="h-bad-event"))
+    historian.start()
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
+    client.connect(broker.host, broker.port)
+    client.loop_start()
+    good = schema.event_payload(TOPICS.path, 2, 1, "reset", {"code": 31, "state": "idle"})
+    bad = [(b'{"schema": 1, "cell": ', "payload is not JSON"),
+           (good.replace(b'"schema":1', b'"schema":9'), "unknown schema version 9 for event"),
+           (good.replace(b'"code":31', b'"code":"thirty-one"'), "reset event: data.code: Input should be a valid"),
+           (good.replace(b'"state":"idle"', b'"state":"idle","colour":"red"'),
+            "invalid event message: reset event: data.colour: Extra inputs are not permitted"),
+           (good.replace(b'"seq":1', b'"seq":0'), "invalid event message: seq")]
+    try:
+        wait_for(historian.link.subscribed.is_set, 60, "the historian's subscriptions")
+        for k, (payload, says) in enumerate(bad, 1):
+            client.publish(TOPICS.event, payload, qos=1).wait_for_publish(30)
+            wait_for(lambda: historian.rejected == k, 60, f"bad event {k} refused")
+            assert says in historian.last_refusal and historian.last_refusal.startswith(TOPICS.event)
+        with psycopg.connect(historian_db) as pg:
+            assert pg.execute("SELECT count(*) FROM events").fetchone()[0] == 0
+        client.publish(TOPICS.event, good, qos=1).wait_for_publish(30)      # a good one, twice: kept once
+        client.publish(TOPICS.event, good, qos=1).wait_for_publish(30)
+        wait_for(lambda: historian.acked == len(bad) + 2, 60, "all acknowledged")
+        with psycopg.connect(historian_db) as pg:
+            assert pg.execute("SELECT kind, data FROM events").fetchall() == [("reset", {"code": 31, "state": "idle"})]
+        assert historian.events == 1
     finally:
         client.loop_stop()
         client.disconnect()

@@ -96,8 +96,12 @@ def test_the_line_status_of_each_cell(historian_db):
     with psycopg.connect(historian_db) as db:
         db.execute("INSERT INTO cell_status (cell, online, session, log_id, at) VALUES"
                    " ('s/l/cell-1', true, 4, %s, 'x'), ('s/l/cell-3', false, 2, NULL, 'x')", ("a" * 32,))
+        db.execute("INSERT INTO cell_status (cell, online, session, log_id, at, state, fault_code, fault_text)"
+                   " VALUES ('s/l/cell-4', true, 5, NULL, 'x', 'fault', 31, 'camera lost the part'),"
+                   " ('s/l/cell-5', true, 2, NULL, 'x', 'idle', 0, ''),"
+                   " ('s/l/cell-6', true, 2, NULL, 'x', 'resetting', 31, '')")
     lines = {c.cell: c for c in fleet.line_status(historian_db, now)}
-    assert sorted(lines) == ["s/l/cell-1", "s/l/cell-2", "s/l/cell-3"]
+    assert sorted(lines) == ["s/l/cell-1", "s/l/cell-2", "s/l/cell-3", "s/l/cell-4", "s/l/cell-5", "s/l/cell-6"]
     c1, c2, c3 = lines["s/l/cell-1"], lines["s/l/cell-2"], lines["s/l/cell-3"]
     assert c1.online is True and c1.session == 4 and c1.received == 8 and c1.watermark == 8 and c1.held_above == 0
     assert (c1.last_part, c1.last_recipe, c1.last_outcome) == (8, "plate-b", "done")
@@ -105,6 +109,11 @@ def test_the_line_status_of_each_cell(historian_db):
     assert c2.online is None and c2.state == "no status heard"
     assert (c2.received, c2.highest_id, c2.watermark, c2.held_above) == (4, 6, 3, 1)
     assert c3.state == "offline" and c3.received == 0 and c3.last_part is None
+    # a status of version 2 says the cell's state, and its fault
+    assert lines["s/l/cell-4"].state == "online, fault 31: camera lost the part"
+    assert (lines["s/l/cell-4"].cell_state, lines["s/l/cell-4"].fault_code) == ("fault", 31)
+    assert lines["s/l/cell-5"].state == "online, idle"
+    assert lines["s/l/cell-6"].state == "online, resetting (fault 31)"
     # this shift (early of the 27th) and the one before (night of the 26th, nothing)
     early = [s for s in c1.shifts if s["current"]]
     assert early and early[0]["parts"] == 5 and early[0]["faults"] == 1

@@ -27,15 +27,17 @@ pytestmark = pytest.mark.timeout(300)
 ERRORS = [0.002, 0.004, 0.006, 0.008, 0.030]
 
 
-def status(cell: str, online: bool, session: int) -> bytes:
-    return (f'{{"schema":1,"cell":"{cell}","online":{str(online).lower()},"session":{session},'
-            f'"log_id":"{"a" * 32}","at":"2026-01-01T00:00:00Z"}}').encode()
+def status(cell: str, online: bool, session: int, state: str | None = None) -> bytes:
+    """A status of version 1, or of version 2 with the cell's ``state``."""
+    v2 = f',"state":"{state}","fault_code":0,"fault_text":""' if state else ""
+    return (f'{{"schema":{2 if state else 1},"cell":"{cell}","online":{str(online).lower()},"session":{session},'
+            f'"log_id":"{"a" * 32}","at":"2026-01-01T00:00:00Z"{v2}}}').encode()
 
 
 def fill(broker, dsn: str) -> None:
     """cell-1 online, 5 done parts in this shift (ERRORS) and a fault last; cell-2 offline
-    (its Last Will), 3 parts with record 3 missing (held above the watermark); cell-3 online,
-    no record yet."""
+    (its Last Will), 3 parts with record 3 missing (held above the watermark); cell-3 online
+    and idle (a status of version 2, which says the cell's state), no record yet."""
     import paho.mqtt.client as mqtt
     from cell.plant.fleet import shift_of, shift_start
     now = datetime.now(timezone.utc).replace(microsecond=0)
@@ -50,8 +52,9 @@ def fill(broker, dsn: str) -> None:
     c.connect(broker.host, broker.port)
     c.loop_start()
     try:
-        for cell, online in (("s1/l2/cell-1", True), ("s1/l2/cell-2", False), ("s1/l2/cell-3", True)):
-            c.publish(f"{cell}/status", status(cell, online, 3), qos=1, retain=True).wait_for_publish(10)
+        for cell, online, state in (("s1/l2/cell-1", True, None), ("s1/l2/cell-2", False, None),
+                                    ("s1/l2/cell-3", True, "idle")):
+            c.publish(f"{cell}/status", status(cell, online, 3, state), qos=1, retain=True).wait_for_publish(10)
         recorder = StatusRecorder(broker.host, broker.port, dsn, client_id="line-view-status", keepalive_s=5,
                                   topic_filter="s1/l2/+/status")
         recorder.start()
@@ -83,7 +86,7 @@ def test_the_line_view_shows_every_cell_and_leads_to_its_trend(tmp_path, broker,
                 " out[tr.dataset.cell] = [...tr.cells].map((td) => td.textContent); return out;")
         got = poll(lambda: len(rows()) == 3 and rows(), WAIT_S, "three cells on the line view")
         c1, c2, c3 = got["s1/l2/cell-1"], got["s1/l2/cell-2"], got["s1/l2/cell-3"]
-        assert c1[1] == "online, last cycle faulted" and c2[1] == "offline" and c3[1] == "online"
+        assert c1[1] == "online, last cycle faulted" and c2[1] == "offline" and c3[1] == "online, idle"
         assert c1[3].startswith("106 (bracket-a, fault) 31") and TIME.fullmatch(c1[4])
         p50, p95 = np.percentile(ERRORS, [50, 95]) * 1000
         assert c1[5] == f"{p50:.1f} / {p95:.1f}" and c1[7] == "5 · 1"

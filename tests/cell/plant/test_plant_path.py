@@ -225,3 +225,46 @@ def test_retention_deletes_only_what_the_historians_watermark_covers(tmp_path, b
     finally:
         outbox.stop()
         log.close()
+
+
+def test_state_updates_flowing_at_every_turn_neither_make_a_connection_ready_nor_resend_what_is_covered(
+        tmp_path, broker, historian_db, running):
+    # the birth's echo is what makes a connection ready (the retained watermark is in then);
+    # a retained status of the cell's own carrying its state must not stand in for it
+    import threading
+
+    from cell.publish import Publisher
+    db = tmp_path / "cell.sqlite"
+    log = write_log(db, 20)
+    running.add(Historian(historian_settings(broker, historian_db, client_id="h-ready")))
+    publisher, stop = Publisher(), threading.Event()
+
+    def flip():
+        k = 0
+        while not stop.is_set():
+            k += 1
+            publisher.status(float(k), {"state": ("idle", "approach", "capture")[k % 3], "fault_code": 0,
+                                        "fault_text": "", "recipe_number": 1})
+            stop.wait(0.002)
+    flipper = threading.Thread(target=flip, daemon=True)
+    flipper.start()
+    try:
+        first = PlantOutbox(db, outbox_settings(broker), publisher=publisher)
+        first.start()
+        wait_for(lambda: first.backlog == 0 and first.status_sent >= 3, 120, "the 20 records, and state updates")
+        first.stop()
+        for k in range(5):
+            log.add_cycle(record(100 + k))
+        for _ in range(3):                              # each restart: a new session, the last one's retained
+            second = PlantOutbox(db, outbox_settings(broker), publisher=publisher)
+            second.start()
+            try:
+                wait_for(lambda: second.backlog == 0 and second.status_sent >= 3, 120, "the rest, and updates")
+                assert second.sent <= 5                 # never the 20 the watermark covers
+            finally:
+                second.stop()
+    finally:
+        stop.set()
+        flipper.join(10)
+        log.close()
+    assert pg_ids(historian_db) == log_ids(db)

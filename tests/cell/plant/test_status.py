@@ -75,3 +75,76 @@ def test_a_status_sent_while_the_recorder_was_away_and_a_bad_one(tmp_path, broke
     finally:
         c.loop_stop()
         c.disconnect()
+
+
+def _state(state: str, code: int = 0, text: str = "", recipe: int = 1) -> dict:
+    """A status snapshot as the controller publishes it (cell.controller status_snapshot)."""
+    return {"state": state, "fault_code": code, "fault_text": text, "cycle_count": 0, "recipe_number": recipe,
+            "recipe_name": f"recipe-{recipe}", "recalibration_due": False, "plc_owner": None, "joints": None}
+
+
+def cell_state(dsn: str, cell: str = TOPICS.path):
+    import psycopg
+    with psycopg.connect(dsn) as db:
+        if db.execute("SELECT to_regclass('cell_status')").fetchone()[0] is None:
+            return None
+        return db.execute("SELECT online, state, fault_code, fault_text FROM cell_status WHERE cell = %s",
+                          (cell,)).fetchone()
+
+
+def event_rows(dsn: str, cell: str = TOPICS.path) -> list:
+    import psycopg
+    with psycopg.connect(dsn) as db:
+        if db.execute("SELECT to_regclass('events')").fetchone()[0] is None:
+            return []
+        return db.execute("SELECT kind, data, session FROM events WHERE cell = %s ORDER BY session, seq",
+                          (cell,)).fetchall()
+
+
+def test_the_cells_state_and_its_events_reach_postgres_and_the_line_view(tmp_path, broker, historian_db):
+    from cell.hmi.line import line_rows
+    from cell.plant.historian import Historian
+    from cell.publish import Publisher
+    from tests.cell.plant.helpers import historian_settings, log_ids, pg_ids
+    log = write_log(tmp_path / "cell.sqlite", 3)
+    log.close()
+    publisher = Publisher()
+    publisher.status(0.0, _state("idle"))                  # before the outbox: its birth says it
+    historian = Historian(historian_settings(broker, historian_db, client_id="h-events"))
+    recorder = StatusRecorder(broker.host, broker.port, historian_db, client_id="status-3", keepalive_s=5)
+    outbox = PlantOutbox(tmp_path / "cell.sqlite", outbox_settings(broker), publisher=publisher)
+    try:
+        historian.start()
+        recorder.start()
+        wait_for(historian.link.subscribed.is_set, 60, "the historian's subscriptions")
+        outbox.start()
+        wait_for(lambda: cell_state(historian_db) == (True, "idle", 0, ""), 60, "online and idle")
+        publisher.status(1.0, _state("approach"))
+        publisher.status(1.1, _state("fault", 31, "camera lost the part"))
+        publisher.event(1.2, "calibration_applied", {"calibration": "cal-0002", "sha256": "00ff"})
+        wait_for(lambda: cell_state(historian_db) == (True, "fault", 31, "camera lost the part"), 60,
+                 "the fault in the cell's status")
+        publisher.status(2.0, _state("resetting", 31, "camera lost the part"))
+        publisher.status(2.1, _state("idle"))
+        publisher.status(2.2, _state("idle", recipe=2))
+        wait_for(lambda: len(event_rows(historian_db)) == 4, 60, "four events")
+        wait_for(lambda: cell_state(historian_db) == (True, "idle", 0, ""), 60, "idle again")
+        assert [(k, d) for k, d, _ in event_rows(historian_db)] == [
+            ("fault", {"code": 31, "text": "camera lost the part", "state": "fault"}),
+            ("calibration_applied", {"calibration": "cal-0002", "sha256": "00ff"}),
+            ("reset", {"code": 31, "state": "idle"}),
+            ("recipe_selected", {"number": 2, "name": "recipe-2"})]
+        assert {s for _, _, s in event_rows(historian_db)} == {outbox.session}
+        assert outbox.events_sent == 4 and outbox.events_dropped == 0 and historian.events == 4
+        [row] = [c for c in line_rows(historian_db, {})["cells"] if c["cell"] == TOPICS.path]
+        assert row["state"] == "online, idle" and row["cell_state"] == "idle"
+        # the cycles went on as before
+        wait_for(lambda: outbox.backlog == 0, 60, "the log delivered")
+        assert pg_ids(historian_db) == log_ids(tmp_path / "cell.sqlite")
+        outbox.stop()
+        wait_for(lambda: cell_state(historian_db) == (False, None, None, None), 60,
+                 "the goodbye, which knows no state")
+    finally:
+        outbox.stop()
+        recorder.stop()
+        historian.stop()
