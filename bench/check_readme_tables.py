@@ -132,6 +132,8 @@ SOURCES: tuple[Source, ...] = (
            probe=("bench/bench_scan.py", "--seconds", "1")),
     Source("opcua-scan", ".venv/bin/python bench/bench_opcua_scan.py", ("bench/bench_opcua_scan.py",), 1, (ALL,),
            probe=("bench/bench_opcua_scan.py", "--seconds", "1", "--rounds", "1")),
+    Source("plant-scan", ".venv/bin/python bench/bench_plant_scan.py", ("bench/bench_plant_scan.py",), 1, (ALL,),
+           probe=("bench/bench_plant_scan.py", "--seconds", "1", "--rounds", "1")),
     Source("soak", ".venv/bin/python bench/bench_soak.py --wall-min 60 --every-min 60",
            ("bench/bench_soak.py", "--wall-min", "60", "--every-min", "60"), 2, (ALL, ALL), slow=True),
     Source("thread-state", ".venv/bin/python bench/bench_thread_state.py", ("bench/bench_thread_state.py",),
