@@ -74,6 +74,13 @@ class Cell:
         #: settled cycles, status changes and events for the plant (OPC UA, MQTT, the HMI):
         #: subscribe before or after start (:mod:`cell.publish`)
         self.publisher = Publisher()
+        #: the plant outbox (``plant`` section; None without it): :attr:`~cell.plant.outbox.PlantOutbox.backlog`;
+        #: made here so its subscription to the publisher has the events of the start-up too
+        self.outbox = None
+        if config.plant is not None:
+            from cell.plant.outbox import PlantOutbox
+            self.outbox = PlantOutbox(config.log.path, config.plant.outbox_settings(config.name),
+                                      publisher=self.publisher)
         r = config.recipes
         self.recipes = RecipeStore(r.directory, commit=self._commit_recipe_changes,
                                    max_bytes=r.max_bytes, settle_s=r.settle_s,
@@ -84,8 +91,6 @@ class Cell:
         self.with_jobs = jobs
         self.controller: CellController | None = None
         self.jobs: CellJobs | None = None
-        #: the plant outbox (``plant`` section; None without it): :attr:`~cell.plant.outbox.PlantOutbox.backlog`
-        self.outbox = None
         #: the read-only OPC UA server (``opcua`` section), started by :meth:`start`
         self.opcua = None
         self._insecure_opcua = devices == "sim"      # no security, anonymous: simulated cells only
@@ -121,11 +126,8 @@ class Cell:
                                              publisher=self.publisher)
             self.controller.start()
             port = self.plc.start(self.config.plc.host, self.plc_port)
-            if self.config.plant is not None:
+            if self.outbox is not None:
                 # a thread of its own on wall time, reading the log read-only: never the scan's time
-                from cell.plant.outbox import PlantOutbox
-                self.outbox = PlantOutbox(self.config.log.path, self.config.plant.outbox_settings(self.config.name),
-                                          publisher=self.publisher)
                 self.outbox.start()
                 self.controller.plant_backlog = lambda: self.outbox.backlog
             if self.with_jobs:
@@ -169,7 +171,9 @@ class Cell:
         self.cyclelog.record_recipe_changes(changes)
         now = self.clock.now()
         for who, action, target, hash_, result, _version in changes:
-            self.publisher.event(now, "recipe_changed", {"action": str(action), "target": str(target),
+            # the audit's action is recipe_<what the store did>
+            self.publisher.event(now, "recipe_changed", {"action": str(action).removeprefix("recipe_"),
+                                                         "target": str(target),
                                                          "hash": str(hash_ or ""), "result": str(result or ""),
                                                          "who": str(who or "")})
 

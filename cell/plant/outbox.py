@@ -103,7 +103,9 @@ class PlantOutbox:
     after the birth).
 
     :param publisher: the controller's :class:`~cell.publish.Publisher`, whose status and
-        events the outbox publishes (module doc); None: births and goodbyes without a state.
+        events the outbox publishes (module doc), subscribed to here (what comes before
+        ``start()`` is kept, and sent once connected); None: births and goodbyes without a
+        state. A clean ``stop()`` sends what it still holds before its goodbye.
     """
 
     def __init__(self, log_path: Path | str, settings: OutboxSettings, logger=None, publisher=None):
@@ -134,6 +136,11 @@ class PlantOutbox:
         self._last_status: dict | None = None  # the last publisher status message taken
         self._events: deque = deque()
         self.events_sent = self.events_dropped = self.status_sent = 0
+        if publisher is not None:                # from now on: what happens before start() is kept too
+            self._sub = publisher.subscribe(("status", "event"), maxlen=max(100, settings.events_held))
+            last = publisher.last_status()       # the state before the subscription, if any
+            if last is not None:
+                self._last_status, self._state = last, events.cell_state(last)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
@@ -146,11 +153,6 @@ class PlantOutbox:
             self.log.close()
             raise ValueError(f"{self.log_path}: the log has no log_id yet (open it once as the controller)")
         self.session = self._next_session()
-        if self._publisher is not None:
-            self._sub = self._publisher.subscribe(("status", "event"), maxlen=max(100, self.s.events_held))
-            last = self._publisher.last_status()      # the state before the subscription, if any
-            if last is not None:
-                self._last_status, self._state = last, events.cell_state(last)
         self.link = MqttLink(self.s.host, self.s.port, f"{self.topics.path}/outbox", clean_start=True,
                              subscriptions=((self.topics.watermark, 1), (self.topics.status, 1)),
                              will=self._will(),
@@ -165,6 +167,12 @@ class PlantOutbox:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
+        if self.link is not None and self._ready_gen == self.link.generation and self.link.connected.is_set():
+            try:                                         # a clean stop sends what it still holds
+                self._take_cell()
+                self._send_cell(self.link, self._ready_gen)
+            except Exception as exc:                     # noqa: BLE001 -- the goodbye must still go
+                self._say("plant_outbox_error", error=repr(exc))
         if self.link is not None:
             self.link.stop(final=(self.topics.status, schema.status_payload(
                 self.topics.path, False, self.session, self.log_id), True))

@@ -16,6 +16,12 @@ from tests.cell.plant.helpers import historian_settings, log_ids, pg_ids
 from tests.waiting import wait_for
 
 
+def events(dsn: str, cell: str) -> list:
+    import psycopg
+    with psycopg.connect(dsn) as db:
+        return db.execute("SELECT kind, data FROM events WHERE cell = %s ORDER BY session, seq", (cell,)).fetchall()
+
+
 def test_no_plant_section_by_default_and_a_bad_one_is_refused_at_load(tmp_path):
     assert CellConfig().plant is None
     s = PlantSection(host="broker", site="site1", line="line2")
@@ -54,6 +60,12 @@ def test_a_simulated_cell_with_a_plant_section_sends_its_cycles(tmp_path, broker
         finally:
             outbox.stop()
         assert len(log_ids(db)) == 4 and pg_ids(historian_db, "site1/line2/cell-1") == log_ids(db)
+        # the cell's events: its recipe files activated at start-up (before its outbox had
+        # started) and the recipe the run selected
+        kinds = {k for k, _ in events(historian_db, "site1/line2/cell-1")}
+        assert {"recipe_changed", "recipe_selected"} <= kinds, kinds
+        assert any(d["action"] == "activate" and d["target"].endswith(".yaml")
+                   for k, d in events(historian_db, "site1/line2/cell-1") if k == "recipe_changed")
     finally:
         historian.stop()
 
