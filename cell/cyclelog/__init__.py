@@ -363,6 +363,17 @@ class CycleLog:
                               (int(after_id), int(below), int(limit)))
         return [self._record(r) for r in rows]
 
+    def settled_after(self, after_id: int, limit: int) -> list[CycleRecord]:
+        """Up to ``limit`` cycles with ids above ``after_id``, in id order, stopping before a
+        row the PLC has not been told of (the ``open_cycle`` row in stage ``logged``:
+        :meth:`settle_cycle` may still correct it). One statement, so one snapshot: a cycle
+        logged, or settled and corrected, between a read of ``open_cycle`` and a read of
+        ``cycles`` cannot pass as settled, nor its row be read from before its correction."""
+        rows = self._read("SELECT * FROM cycles WHERE id > ? AND id < COALESCE((SELECT cycle_id FROM open_cycle"
+                          " WHERE stage = 'logged' AND cycle_id IS NOT NULL), 9223372036854775807)"
+                          " ORDER BY id LIMIT ?", (int(after_id), int(limit)))
+        return [self._record(r) for r in rows]
+
     def id_before(self, cycle_id: int) -> int:
         """The id of the row before ``cycle_id`` (0: none)."""
         return int(self._read("SELECT COALESCE(MAX(id), 0) FROM cycles WHERE id < ?", (int(cycle_id),))[0][0])

@@ -299,7 +299,7 @@ class PlantOutbox:
                 room = self.s.window - len(out)
                 if room <= 0:
                     continue
-                rows = self.log.cycles_after(cursor, room, below=self._unsettled())
+                rows = self.log.settled_after(cursor, room)
                 if not rows:
                     continue
                 prev = self.log.id_before(rows[0].id)
@@ -367,13 +367,6 @@ class PlantOutbox:
                 self._seq += 1
                 self._events.popleft()
                 self.events_sent += 1
-
-    def _unsettled(self) -> int | None:
-        """The id of a row the PLC has not been told of (may still change), or None."""
-        open_ = self.log.open_cycle()
-        if open_ and open_.get("stage") == "logged" and open_.get("cycle_id") is not None:
-            return int(open_["cycle_id"])
-        return None
 
     def _say(self, event: str, **kw) -> None:
         if self._logger is None:

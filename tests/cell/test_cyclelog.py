@@ -120,6 +120,16 @@ def test_a_log_has_one_identity_for_life_and_the_outbox_reads_rows_above_an_id(t
     assert [c.id for c in log.cycles_after(ids[0], limit=9, below=ids[5])] == [ids[1], ids[4]]
     assert log.id_before(ids[4]) == ids[1] and log.id_before(ids[0]) == 0
     assert log.count_after(ids[1]) == 2
+    # what the outbox sends: rows up to the one the PLC has not been told of
+    assert [c.id for c in log.settled_after(ids[0], limit=9)] == [ids[1], ids[4], ids[5]]
+    rec = record(7)
+    log.begin_cycle(rec.part_id, rec.recipe, rec.recipe_hash, rec.started_at)
+    assert [c.id for c in log.settled_after(ids[0], limit=9)] == [ids[1], ids[4], ids[5]]    # running: no row
+    held = log.add_cycle(rec)
+    after = log.add_cycle(record(8))
+    assert [c.id for c in log.settled_after(ids[0], limit=9)] == [ids[1], ids[4], ids[5]]    # logged: held back
+    log.settle_cycle(rec.started_at, held, rec.status, 0, "")
+    assert [c.id for c in log.settled_after(ids[4], limit=9)] == [ids[5], held, after]
     log.close()
     again = CycleLog(tmp_path / "cell.sqlite", readonly=True)
     assert again.log_id == first                       # kept across opens
