@@ -3,7 +3,9 @@ schedule kills and cuts everything between them and PostgreSQL; at the end every
 log and the historian's database hold the same cycle ids.
 
 Each cell is a process of its own (``tests/cell/plant/cell_process.py``: the project's
-``CycleLog`` written at 100 records/s and the ``PlantOutbox`` on it) that reaches the broker
+``CycleLog`` written at 100 cycles/s the controller's way, each cycle begun, logged, then
+settled once the PLC is told, every fifth with a correction, and the ``PlantOutbox`` on it;
+a restarted cell records the cycle it left in flight as interrupted) that reaches the broker
 through its own TCP proxy on loopback (``tests/cell/plant/netcut.py``); the historian is
 ``cellctl historian``, a process; the broker is a real mosquitto without persistence (a
 kill -9 loses its sessions, its queues and the retained watermarks); PostgreSQL is the
@@ -18,7 +20,10 @@ random; faults on different targets overlap:
 * ``cell``: kill -9 of one cell, started again on its own log.
 
 The invariant, per cell: the set of cycle ids in its log equals the set in PostgreSQL for
-that log. The copies the historian dropped (``cycles.duplicates``) are counted and shown
+that log, and each record's status and fault code are the same in both (a row is sent only
+once settled, so a cell killed between a cycle's begin and its settle, which the random
+kills often are, sends it only as its restart recorded it). Two more tests kill a cell
+there on purpose, in each stage of the cycle. The copies the historian dropped (``cycles.duplicates``) are counted and shown
 (``-s``), not bounded: re-sending is how nothing is lost. Waits are on conditions with
 generous bounds; nothing asserts a wall time.
 """
@@ -37,7 +42,8 @@ from pathlib import Path
 import pytest
 
 from cell.cyclelog import CycleLog
-from tests.cell.plant.helpers import log_ids, pg_ids
+from cell.faults import Fault as CellFault
+from tests.cell.plant.helpers import historian_settings, log_ids, pg_ids
 from tests.cell.plant.netcut import NetCut
 from tests.waiting import wait_for
 
@@ -181,6 +187,22 @@ class Plant:
         self.broker.stop()
 
 
+def _log_outcomes(path: Path) -> dict[int, tuple[str, int]]:
+    """id -> (status, fault code) of every row of a cell's log."""
+    log = CycleLog(path, readonly=True)
+    try:
+        return {r.id: (str(r.status), int(r.fault_code)) for r in log.cycles()}
+    finally:
+        log.close()
+
+
+def _pg_outcomes(dsn: str, cell: str) -> dict[int, tuple[str, int]]:
+    import psycopg
+    with psycopg.connect(dsn) as db:
+        return {r[0]: (r[1], int(r[2])) for r in db.execute(
+            "SELECT cycle_id, status, fault_code FROM cycles WHERE cell = %s", (cell,))}
+
+
 def _log_state(path: Path) -> tuple[str | None, int, int]:
     """(log_id, rows, highest id) of a cell's log, (None, 0, 0) before its first writer."""
     if not path.exists():
@@ -218,14 +240,68 @@ def test_three_cells_under_a_random_fault_schedule_lose_no_record(seed, tmp_path
                     return False
             return True
         wait_for(delivered, 120, f"every log written and covered by its watermark (schedule {seed})", every=0.2)
-        counts = []
+        counts, interrupted = [], []
         for k, cell in enumerate(CELLS):
             in_log = log_ids(plant.db(k))
             assert len(in_log) == RECORDS
             assert pg_ids(historian_db, cell) == in_log, f"{cell}: log and PostgreSQL differ (schedule {seed})"
+            assert _pg_outcomes(historian_db, cell) == _log_outcomes(plant.db(k)), \
+                f"{cell}: a record's outcome differs between log and PostgreSQL (schedule {seed})"
             counts.append(plant.duplicates(cell))
+            interrupted.append(sum(code == CellFault.INTERRUPTED for _, code in _log_outcomes(plant.db(k)).values()))
         assert plant.starts["historian"] == 1 + sum(f.kind == "historian" for f in faults)
         print(f"\nschedule {seed}: {'; '.join(map(str, faults))}\n  {len(CELLS) * RECORDS} records, "
-              f"duplicates dropped per cell {counts}, {time.monotonic() - began:.1f} s")
+              f"duplicates dropped per cell {counts}, cycles a kill left in flight per cell {interrupted}, "
+              f"{time.monotonic() - began:.1f} s")
     finally:
         plant.stop()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stage", ["running", "logged"])
+def test_a_cell_killed_between_a_cycles_begin_and_its_settle_sends_it_only_as_its_restart_recorded_it(
+        stage, tmp_path, broker, historian_db):
+    # running: begun, no row yet; logged: its row written, the PLC not told (the outbox holds
+    # it back). Killed there, the cell's restart records it as aborted with fault 503
+    # (recover_interrupted), and that is what must reach PostgreSQL, once
+    from cell.plant.historian import Historian
+    cell, db, hold = "site1/line2/cell-h", tmp_path / "cell.sqlite", 12
+    historian = Historian(historian_settings(broker, historian_db, client_id=f"h-hold-{stage}"))
+    historian.start()
+    argv = [sys.executable, "-m", "tests.cell.plant.cell_process", "--db", str(db), "--broker",
+            f"{broker.host}:{broker.port}", "--cell", cell, "--records", "20", "--rate", "50"]
+    proc = subprocess.Popen(argv + ["--hold-at", str(hold), "--hold-stage", stage], cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        def in_flight():
+            if not db.exists():
+                return None
+            log = CycleLog(db, readonly=True)
+            try:
+                return log.open_cycle()
+            finally:
+                log.close()
+        wait_for(lambda: ((in_flight() or {}).get("part_id"), (in_flight() or {}).get("stage")) == (hold, stage),
+                 120, f"cycle {hold} held {stage}")
+        log_id, rows, top = _log_state(db)
+        wait_for(lambda: historian.watermarks.get((cell, log_id), 0) >= hold - 1, 120,
+                 "every cycle before it delivered")
+        assert rows == (hold if stage == "logged" else hold - 1)
+        assert hold not in pg_ids(historian_db, cell)  # logged, not settled: not sent
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+        proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        def delivered():
+            _, rows, top = _log_state(db)
+            return rows == 20 and historian.watermarks.get((cell, log_id), 0) >= top
+        wait_for(delivered, 120, "the log written on and delivered after the restart")
+        outcomes = _log_outcomes(db)
+        assert _pg_outcomes(historian_db, cell) == outcomes
+        assert outcomes[hold][0] == "aborted" and outcomes[hold][1] == CellFault.INTERRUPTED
+        assert [i for i, (_, code) in outcomes.items() if code == CellFault.INTERRUPTED] == [hold]
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
+        historian.stop()
