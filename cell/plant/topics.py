@@ -6,7 +6,7 @@ the same prefix. Kinds:
 ========== ============== ======== ===== ====================================================
 kind       published by   retained QoS   payload (:mod:`cell.plant.schema`)
 ========== ============== ======== ===== ====================================================
-status     the cell       yes      1     birth (online, session) / Last Will (offline)
+status     the cell       yes      1     birth (online, session, state) / Last Will (offline)
 cycle      the cell       no       1     one cycle record of the log
 event      the cell       no       1     something that happened (not a cycle)
 watermark  the historian  yes      1     highest cycle id committed with every one below it
