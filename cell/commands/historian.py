@@ -1,11 +1,12 @@
 """``cellctl historian``: take every cell's cycle records from the MQTT broker into PostgreSQL.
 
-It subscribes to ``+/+/+/cycle`` (``--cells`` narrows it) with a persistent session, commits
-each batch to the database named by ``--dsn`` (or ``CELL_HISTORIAN_DSN``), acknowledges a
-record to the broker only once it is committed, and publishes each cell's watermark,
-retained, on ``<site>/<line>/<cell>/watermark``: the cells send again what it does not
-cover. Beside it, each cell's retained status (online, or its Last Will) goes to the
-table ``cell_status`` (:mod:`cell.plant.status`). It migrates its own tables at start.
+It subscribes to ``+/+/+/cycle`` and ``+/+/+/event`` (``--cells`` narrows both) with a
+persistent session, commits each batch to the database named by ``--dsn`` (or
+``CELL_HISTORIAN_DSN``), acknowledges a record or event to the broker only once it is
+committed, and publishes each cell's watermark, retained, on
+``<site>/<line>/<cell>/watermark``: the cells send again what it does not cover. Beside it,
+each cell's retained status (online with its state, or its Last Will) goes to the table
+``cell_status`` (:mod:`cell.plant.status`). It migrates its own tables at start.
 Against the plant's broker (``deploy/mosquitto/``) it connects over TLS (``--tls``,
 ``--ca-file``) and logs in (``--username``, by default ``historian``, the ACL's name for it,
 and ``--password-file``). Runs until SIGINT or SIGTERM (or ``--seconds``); what is not
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the MQTT broker (default 127.0.0.1:1883)")
     p.add_argument("--dsn", help=f"PostgreSQL connection string (default: ${DSN_ENV})")
     p.add_argument("--cells", default="+/+/+", metavar="SITE/LINE/CELL",
-                   help="whose records to take, '+' for any one level (default +/+/+: every cell)")
+                   help="whose records, events and status to take, '+' for any one level (default +/+/+: every cell)")
     p.add_argument("--client-id", default="plant-historian",
                    help="MQTT client id: the broker keeps this id's session (default plant-historian)")
     p.add_argument("--session-expiry-s", type=int, default=7 * 24 * 3600,
@@ -78,11 +79,13 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--cells {args.cells!r} is not SITE/LINE/CELL")
     try:
         topic_filter = subscription("cycle", *parts)
+        event_filter = subscription("event", *parts)
         status_filter = subscription("status", *parts)
     except TopicError as exc:
         raise ConfigError(f"--cells: {exc}") from None
     security = _security(args)
     historian = Historian(HistorianSettings(host, port, dsn, client_id=args.client_id, topic_filter=topic_filter,
+                                            event_filter=event_filter,
                                             session_expiry_s=args.session_expiry_s, security=security))
     status = StatusRecorder(host, port, dsn, client_id=f"{args.client_id}-status", topic_filter=status_filter,
                             security=security)
