@@ -145,7 +145,7 @@ class PlantOutbox:
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
         from cell.cyclelog import CycleLog
-        from cell.plant.mqtt import MqttLink, Will
+        from cell.plant.mqtt import MqttLink
 
         self.log = CycleLog(self.log_path, readonly=True)
         self.log_id = self.log.log_id
