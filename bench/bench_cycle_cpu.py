@@ -20,11 +20,12 @@ Goals (the issue): controller <= 25 ms CPU per part, simulated devices <= 50 ms 
    not counted. The sampler's own CPU is shown apart and counted nowhere.
 2. Mixed threads. A thread's side is its name's: ``cell-*``, ``plc-*`` (the controller's Modbus
    server), ``stations-*``, ``camera-grab`` (the driver's grab task): controller; ``sim-*``
-   (``sim-clock``, ``sim-plc-scan`` = the simulated PLC): simulated devices; others
-   (MainThread: run_sim's loop, presenting parts and waiting on the simulated PLC; native
-   threads): unattributed. But clock callbacks (the wire, the simulated stations) run in
-   ``sim-clock`` or, where the clock has a parking participant run the agenda itself, in
-   whichever thread waits (``cell-cycle``, ``sim-plc-scan``, ...), and the camera driver's
+   (``sim-clock``; ``sim-plc-scan``, the simulated PLC's scan where it is a thread):
+   simulated devices; others (MainThread: run_sim's loop, presenting parts and waiting on
+   the simulated PLC; native threads): unattributed. But clock callbacks (the wire, the
+   simulated stations, the simulated PLC's scan) run in ``sim-clock`` or, where the clock
+   has a parking participant run the agenda itself, in whichever thread waits
+   (``cell-cycle``, ``cell-scan``, ...), and the camera driver's
    task runs the simulated camera. So the child wraps (monkeypatch) the calls below, each
    counted for one side with its ``time.thread_time()`` *exclusive* of wrapped calls nested
    in it (a per-thread stack: nothing counts twice, and the controller's receive nested in the
@@ -32,7 +33,8 @@ Goals (the issue): controller <= 25 ms CPU per part, simulated devices <= 50 ms 
    moves that CPU from its thread's side to its own:
    * every clock callback, wrapped where it is scheduled (``VirtualClock.call_at``, which
      ``call_later`` uses), one row per ``__qualname__``: simulated devices
-     (``VirtualWire._deliver``, ``SimStation._on_timer``, the stations' heartbeats) -- except a
+     (``VirtualWire._deliver``, ``SimStation._on_timer``, the stations' heartbeats, the
+     simulated PLC's scan ``SimPlc._tick``) -- except a
      ``ClockCyclicTask._tick`` on the controller's bus: its heartbeat (``net.send_periodic``).
      The controller schedules nothing else on the clock (``call_at``/``call_later`` appear only
      in ``cell/sim``; its tasks are threads);

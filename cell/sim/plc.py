@@ -10,7 +10,11 @@ request blocks the scan until the answer is back, so on the simulated clock no t
 passes while a request is in flight. The only wall-time limit is the socket's own
 ``timeout_s`` (a dead server, not a slow host).
 
-Scan (task ``sim-plc-scan``, every ``scan_s`` of the injected clock, default 10 ms):
+Scan (every ``scan_s`` of the injected clock, default 10 ms): on a clock that runs timed
+callbacks (``call_at``: the simulated clock) each scan is one such callback, run by whichever
+thread runs the clock's agenda, as the simulated drives' timers are, so a scan costs no
+thread switch of its own; on another clock (the wall clock) the scan is a task,
+``sim-plc-scan``. Either way a scan happens at the same clock times, in the same order:
 
 1. write ``plc_heartbeat`` + 1 and read the whole map in one FC23 (read/write multiple
    registers: the write happens first) -> input image; a plain FC3 read while the
@@ -111,13 +115,16 @@ class SimPlc:
         self._scans = 0
         self._stop = self._clock.event()
         self._thread = None
+        self._timer = None                       # the next scan's clock callback (call_at clocks)
+        self._next_t = 0.0
+        self._tick_lock = threading.Lock()       # a stop from outside the clock waits for a scan
         self.write_errors: list[tuple[str, int, int]] = []   # (name, value, exception code)
         self.link_errors = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Connect, check ``map_version``, start the scan task."""
-        if self._thread is not None:
+        if self._thread is not None or self._timer is not None:
             raise SimPlcError("SimPlc already started")
         if not self._client.connect():
             raise SimPlcError(f"SimPlc: cannot connect to {self._client.comm_params.host}:"
@@ -137,10 +144,19 @@ class SimPlc:
             self._outputs = {n: image[n] for n in OUTPUTS}
             self._written = {**self._outputs, "command_word": None}
         self._stop.clear()
-        self._thread = self._clock.spawn(self._run, "sim-plc-scan")
+        call_at = getattr(self._clock, "call_at", None)
+        if call_at is not None:
+            self._next_t = self._clock.now()
+            self._timer = call_at(self._next_t, self._tick)
+        else:
+            self._thread = self._clock.spawn(self._run, "sim-plc-scan")
 
     def stop(self) -> None:
         """Stop scanning and close the connection. Idempotent."""
+        if self._timer is not None:
+            with self._tick_lock:                # (a scan runs only as a callback: not ours)
+                self._timer.cancel()
+                self._timer = None
         if self._thread is not None:
             self._stop.set()
             self._thread.join(timeout=10)
@@ -351,13 +367,30 @@ class SimPlc:
 
     # ------------------------------------------------------------------ scan loop
     def _run(self) -> None:
+        """The scan as a task (a clock without ``call_at``)."""
         next_t = self._clock.now()
         while not self._stop.is_set():
             self._scan()
-            next_t += self.scan_s
-            if next_t - self._clock.now() < -self.scan_s:  # overran: do not try to catch up
-                next_t = self._clock.now()
+            next_t = self._next(next_t)
             self._stop.wait(max(0.0, next_t - self._clock.now()))
+
+    def _tick(self) -> None:
+        """The scan as a clock callback; schedules the next one at the time the task's
+        wait would end (``now + (next - now)``, to the last bit)."""
+        with self._tick_lock:
+            if self._timer is None:              # stopped meanwhile
+                return
+            self._scan()
+            self._next_t = self._next(self._next_t)
+            now = self._clock.now()
+            self._timer = self._clock.call_at(now + max(0.0, self._next_t - now), self._tick)
+
+    def _next(self, next_t: float) -> float:
+        """The next scan's time after the one due at ``next_t``."""
+        next_t += self.scan_s
+        if next_t - self._clock.now() < -self.scan_s:  # overran: do not try to catch up
+            next_t = self._clock.now()
+        return next_t
 
     def _scan(self) -> None:
         with self._cv:

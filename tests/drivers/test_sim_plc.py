@@ -258,6 +258,20 @@ def test_plc_writes_are_register_map_writes_seen_by_the_controller(link, clock):
         assert link.read("plc_heartbeat") == 5
 
 
+def test_on_the_simulated_clock_a_scan_is_a_clock_callback_not_a_thread(link, clock):
+    # a scan run by whichever thread runs the agenda costs no thread switch of its own
+    sim = SimPlc("127.0.0.1", link.port, scan_s=SCAN_S, clock=clock)
+    sim.start()
+    try:
+        sim.wait_scans(3)
+        assert "sim-plc-scan" not in {t.name for t in threading.enumerate()}
+        assert link.read("plc_heartbeat") == 3
+    finally:
+        sim.stop()
+    clock.sleep(5 * SCAN_S)                   # stopped: no scan comes any more
+    assert sim.scans == 3 and link.read("plc_heartbeat") == 3
+
+
 def test_scans_run_every_scan_s_of_clock_time(link, clock):
     scan_s = 0.025                   # not a multiple of anything else running here
     with SimPlc("127.0.0.1", link.port, scan_s=scan_s, clock=clock) as sim:
