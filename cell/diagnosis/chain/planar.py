@@ -153,9 +153,9 @@ def noise(r: Reading, noise_mm: float | None) -> dict:
 
 def outlier_tables(r: Reading, outl: Outliers) -> dict:
     """``outliers.points`` / ``outliers.paths`` in the v1 shape: per table the flagged
-    rows (points: their ``sample``; path samples: ``[move, time_s]``), the chain's one
-    robust scale, threshold and cut (the same for both tables), and ``set_aside`` (the
-    fit set's: the flags the fit left out)."""
+    rows (points: their ``sample``; path samples: ``[move, time_s]``), the table's robust
+    scale, threshold and cut (:func:`cell.diagnosis.chain.robust.flag`: static poses and
+    moves apart), and ``set_aside`` (the fit set's: the flags the fit left out)."""
     out = ~r.keep
     sample = np.asarray(r.d.points.sample) if r.d.points is not None else np.zeros(0)
     pts = sorted(int(x) for x in sample[r.rows.points(out)])
@@ -163,10 +163,12 @@ def outlier_tables(r: Reading, outl: Outliers) -> dict:
     t = r.d.path_cat("t")
     pq = r.rows.paths(out)
     path = sorted([int(m), round(float(x), 6)] for m, x in zip(moves[pq], t[pq]))
-    common = {"sigma_mm": _r(outl.sigma), "threshold_sigma": _r(outl.threshold, 3),
-              "cut_mm": _r(outl.cut_mm), "set_aside": bool(outl.set_aside[0])}
-    return {"points": {"n": len(pts), "samples": pts} | common,
-            "paths": {"n": len(path), "samples": path} | common}
+    def scale(table: str) -> dict:
+        s, q, cut = outl.scales.get(table, (None, None, None))
+        return {"sigma_mm": _r(s), "threshold_sigma": _r(q, 3), "cut_mm": _r(cut),
+                "set_aside": bool(outl.set_aside[0])}
+    return {"points": {"n": len(pts), "samples": pts} | scale("static"),
+            "paths": {"n": len(path), "samples": path} | scale("moves")}
 
 
 def remainder(r: Reading, dec: rank.Decision) -> dict:

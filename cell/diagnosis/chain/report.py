@@ -148,7 +148,9 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     dec = rank.decide(s, noise_hi, noise_mm)
     dec.warnings += outl.warnings
     if outl.n:
-        dec.notes.append(f"{outl.n} measured point(s) lie beyond {outl.cut_mm:.3f} mm of the best "
+        cut = f"{outl.cut_mm:.3f} mm" if len(outl.scales) < 2 else " (static poses), ".join(
+            f"{c:.3f} mm" for _, _, c in outl.scales.values()) + " (measured moves)"
+        dec.notes.append(f"{outl.n} measured point(s) lie beyond {cut} of the best "
                          "candidate's residual and were set aside as outliers (outliers)")
     dec.notes += outl.notes
     if drift:

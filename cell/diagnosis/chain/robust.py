@@ -13,7 +13,10 @@ campaign with no error at all comes back ``unexplained``.
 * **Scale**: σ per axis = 1.4826 × the median absolute deviation of the fit points'
   residual components about that median (unaffected by up to half the points being
   outliers), taken at its 95 % upper bound (:func:`cell.diagnosis.noise.upper95`) so that
-  few points do not make a tight scale.
+  few points do not make a tight scale. Static poses and the samples of measured moves
+  (:func:`tables`) each have their own median, scale and threshold, as the planar
+  diagnosis keeps points and paths apart: a static arrival carries the arm's
+  repeatability, a sample of a move at its commanded angles does not.
 * **Threshold**: a point is an outlier when its squared distance from the median exceeds
   σ² × the χ²₃ quantile at :data:`ALPHA` / (points of fit and holdout), i.e. a Gaussian
   point is flagged anywhere in the campaign with probability ≤ :data:`ALPHA` (Bonferroni;
@@ -63,6 +66,7 @@ class Outliers:
     threshold: float | None = None
     cut_mm: float | None = None
     set_aside: tuple[bool, bool] = (True, True)
+    scales: dict = field(default_factory=dict)    # table → (sigma, threshold, cut_mm)
     rounds: int = 0
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -98,39 +102,65 @@ def _keep_markers(d: F.Data, out: np.ndarray) -> np.ndarray:
     return out
 
 
+def tables(d: F.Data) -> np.ndarray:
+    """Each point's table: 0 a static pose, 1 a sample of a measured move (a planar
+    campaign's paths.csv read as poses, which a repeatability that only static arrivals
+    carry does not touch)."""
+    if d.move is None:
+        return np.zeros(len(d.xyz), dtype=np.int64)
+    return (d.move[d.obs_pose] >= 0).astype(np.int64)
+
+
+TABLES = ("static", "moves")
+
+
 def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
     """The outliers of the residual of fit ``f`` (module docstring) over every point of
-    ``fit_d`` and ``hold_d`` (``f`` may have been fitted without some of them)."""
+    ``fit_d`` and ``hold_d`` (``f`` may have been fitted without some of them). Static
+    poses and the samples of measured moves are judged each on their own median and
+    scale (:func:`tables`): the two scatter differently, and one scale would flag the
+    wider table's tail."""
     out = none_flagged(fit_d, hold_d)
-    if len(fit_d.xyz) < MIN_POINTS:
-        return out
     ef = fit_d.xyz - F.model(fit_d, f.reg, f.params, f.values)[0]
     eh = hold_d.xyz - F.model(hold_d, f.reg, f.params, f.values)[0] if len(hold_d.xyz) else \
         np.zeros((0, fit_d.dims))
-    med = median(ef, axis=0)
-    s = mad(ef - med)
-    if not s > 0:
-        return out
-    su = upper95(s, MAD_EFFICIENCY * ef.size)
-    q = math.sqrt(float(chi2_isf(ALPHA / (len(ef) + len(eh)), fit_d.dims)))
-    dist_f = np.linalg.norm(ef - med, axis=1)
-    dist_h = np.linalg.norm(eh - med, axis=1)
-    out.dist_fit, out.dist_hold = dist_f, dist_h
-    out.sigma, out.threshold, out.cut_mm = s, q, q * su
+    tf, th = tables(fit_d), tables(hold_d)
+    moved = bool(np.any(tf == 1) or np.any(th == 1))
+    far_f, far_h = np.zeros(len(ef), bool), np.zeros(len(eh), bool)
+    out.dist_fit, out.dist_hold = np.zeros(len(ef)), np.zeros(len(eh))
     aside = [True, True]
-    for k, (dist, name) in enumerate(((dist_f, "fit"), (dist_h, "holdout"))):
-        far = dist > q * su
-        if len(far) and far.mean() > MAX_SHARE:
-            aside[k] = False
-            out.warnings.append(
-                f"{100 * far.mean():.0f} % of the {name} points lie beyond {q:.1f} σ of the best "
-                f"candidate's residual (σ {s:.4f} mm per axis): heavy tails or an effect outside the "
-                f"vocabulary, not a few glitches; none set aside (at most {100 * MAX_SHARE:.0f} % are)")
+    for t, table in enumerate(TABLES):
+        mf, mh = tf == t, th == t
+        if mf.sum() < MIN_POINTS:
             continue
-        if k == 0:
-            out.fit = _keep_markers(fit_d, far)
-        else:
-            out.hold = far
+        med = median(ef[mf], axis=0)
+        s = mad(ef[mf] - med)
+        if not s > 0:
+            continue
+        su = upper95(s, MAD_EFFICIENCY * ef[mf].size)
+        q = math.sqrt(float(chi2_isf(ALPHA / (mf.sum() + mh.sum()), fit_d.dims)))
+        out.dist_fit[mf] = np.linalg.norm(ef[mf] - med, axis=1)
+        out.dist_hold[mh] = np.linalg.norm(eh[mh] - med, axis=1)
+        out.scales[table] = (s, q, q * su)
+        if out.sigma is None:
+            out.sigma, out.threshold, out.cut_mm = s, q, q * su
+        for k, (mask, dist, far, name) in enumerate(((mf, out.dist_fit, far_f, "fit"),
+                                                     (mh, out.dist_hold, far_h, "holdout"))):
+            beyond = dist[mask] > q * su
+            what = f"{name} points" + (f" of the {'static poses' if t == 0 else 'measured moves'}"
+                                       if moved else "")
+            if len(beyond) and beyond.mean() > MAX_SHARE:
+                aside[k] = False
+                out.warnings.append(
+                    f"{100 * beyond.mean():.0f} % of the {what} lie beyond {q:.1f} σ of the best "
+                    f"candidate's residual (σ {s:.4f} mm per axis): heavy tails or an effect outside the "
+                    f"vocabulary, not a few glitches; none set aside (at most {100 * MAX_SHARE:.0f} % are)")
+                continue
+            far[mask] = beyond
+    if aside[0]:
+        out.fit = _keep_markers(fit_d, far_f)
+    if aside[1]:
+        out.hold = far_h
     out.set_aside = (aside[0], aside[1])
     return out
 

@@ -154,6 +154,29 @@ def test_noise_and_outliers_have_the_v1_shape(both):
         == o["points"]["samples"]
 
 
+def test_static_poses_and_move_samples_are_judged_for_outliers_each_on_their_own_scale(both):
+    # a static arrival carries the arm's repeatability, a move's sample at its commanded
+    # angles does not: with one scale for both, the samples' tighter spread made the static
+    # poses' ordinary tail look like outliers (7-9 flagged on these clean campaigns, none
+    # by the planar engine)
+    _, p, c = both
+    for t in ("points", "paths"):
+        assert c["outliers"][t]["samples"] == p["outliers"][t]["samples"] == []
+        assert c["outliers"][t]["sigma_mm"] == pytest.approx(p["outliers"][t]["sigma_mm"], rel=0.2)
+        assert c["outliers"][t]["threshold_sigma"] == pytest.approx(p["outliers"][t]["threshold_sigma"],
+                                                                    abs=0.05)
+    assert c["outliers"]["points"]["sigma_mm"] > 1.5 * c["outliers"]["paths"]["sigma_mm"]
+
+
+def test_a_gross_error_in_a_move_sample_is_still_set_aside(tmp_path):
+    d = tmp_path / "c"
+    camp = make_campaign([], SEED)
+    camp.paths["x_mm"][300] += 0.5
+    write_campaign(camp, d)
+    o = diagnose_chain(planar_as_chain(read_campaign(d), d))["outliers"]
+    assert o["points"]["n"] == 0 and o["paths"]["n"] == 1, o
+
+
 def test_every_chain_ranking_entry_names_its_main_effect(both):
     _, _, c = both
     for e in c["ranking"]:
