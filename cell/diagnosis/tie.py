@@ -59,11 +59,14 @@ def testable(n_folds: int) -> bool:
     return 0.5 ** n_folds < ALPHA
 
 
-def simplest(candidates: Sequence[T], k: Callable[[T], int], rms: Callable[[T], float]) -> T:
+def simplest(candidates: Sequence[T], k: Callable[[T], int], rms: Callable[[T], float],
+             effects: Callable[[T], int] = lambda c: 0) -> T:
     """The candidate to name among ``candidates`` (tied ones): the fewest parameters ``k``,
-    then the lowest prediction ``rms``. A cause with more parameters is named only when it
-    predicts the left-out folds better, not when it fits the fit rows better."""
-    return min(candidates, key=lambda c: (k(c), rms(c)))
+    then the fewest ``effects`` (one effect on two joints is a simpler story than two
+    effects on one, at as many parameters), then the lowest prediction ``rms``. A cause
+    with more parameters is named only when it predicts the left-out folds better, not
+    when it fits the fit rows better."""
+    return min(candidates, key=lambda c: (k(c), effects(c), rms(c)))
 
 
 def rivals(named: T, tied: Sequence[T], components: Callable[[T], set]) -> list[T]:
@@ -103,5 +106,6 @@ def choose(ranked: Sequence[T], errors: Callable[[T], np.ndarray], rms: Callable
             p[i] = p_worse(errors(c), errors(best))
         flags[i] = c is best or tied(p[i], rms(c), rms(best))
     ties = [c for c, f in zip(ranked, flags) if f]
-    named = simplest([c for c in ties if passes(c)] or [best], k, rms)
+    named = simplest([c for c in ties if passes(c)] or [best], k, rms,
+                     lambda c: len({e for e, _ in components(c)}))
     return Choice(best, p, flags, named, rivals(named, ties, components))
