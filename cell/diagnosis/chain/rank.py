@@ -10,7 +10,10 @@
 4. **Full non-linear fits** of each effect's selection, of every pair of the best
    :data:`PAIR_TOPS` effects, and of the best effect paired with every other effect the
    campaign can see (their pools screened jointly: a second effect too small to rank
-   alone still joins the first).
+   alone still joins the first). Where poses sit at places, an effect's selection on
+   several joints is fitted again without the joint that left-out places need least, when
+   they do not need it (:func:`_places_trim`): the test over poses counts the samples of
+   a measured move one by one, and can keep a joint that only absorbs what the moves share.
 5. **Decision**: an effect exists when the candidate with the lowest leave-out error
    predicts poses left out one at a time better than registration alone, by a one-sided
    Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
@@ -290,8 +293,38 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
             if _own_effects(both) == {a, b} else None
         if c is not None:
             ranking.append(c)
+    for c in [c for c in ranking if len(c.effects) == 1]:
+        trimmed = _places_trim(fit_d, design, c.fit.params)
+        if trimmed is not None:
+            js = sorted({f"j{p.joint + 1}" for p in trimmed if p.on_joint and not p.nuisance})
+            e = c.effects[0]
+            t = _candidate(f"{e} on {', '.join(js)}", (e,), fit_d, hold_d, trimmed, f0, idents[e],
+                           hold_keep, beyond)
+            if t is not None:
+                ranking.append(t)
     ranking.sort(key=lambda c: c.fit.cv_rms)
     return Search(fit_d, hold_d, nominal, ranking, idents, hold_keep, beyond)
+
+
+def _places_trim(d: F.Data, design: Screen, params: list[F.Param]) -> list[F.Param] | None:
+    """``params`` (one effect's, on two joints or more) without the joint whose parameters
+    left-out places need least, when the linearised model without them is tied with the
+    full one over places (the rule of :func:`cell.diagnosis.tie.tied`); None when every
+    joint is needed, or the poses do not sit at :data:`MIN_FOLDS` places or more."""
+    n = d.folds()[1]
+    joints = sorted({p.joint for p in params if p.on_joint and not p.nuisance})
+    if n >= d.n_poses or n < MIN_FOLDS or len(joints) < 2:
+        return None
+    full = design.places.loo(design.cols(params))[1]
+    best = None
+    for k in joints:
+        rest = [q for q in params if not (q.on_joint and q.joint == k)]
+        per = design.places.loo(design.cols(rest))[1]
+        pv = tie.p_worse(per, full)
+        if tie.tied(pv, math.sqrt(float(np.mean(per))), math.sqrt(float(np.mean(full)))) \
+                and (best is None or pv > best[0]):
+            best = (pv, rest)
+    return None if best is None else best[1]
 
 
 def instrument_scale(d: F.Data, f0: F.Fit) -> tuple[float, np.ndarray]:
@@ -345,48 +378,52 @@ def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
     is a parameter dropped because the campaign lacks its column (its effect's
     :attr:`~cell.effects.OnChain.unseen`), because the column hardly varies
     (:attr:`~cell.effects.OnChain.still`), or because it is seen only as a sum with
-    another (a backlash always approached from one side is an offset). Per effect: its
-    rival entry (``label``, ``effects``, ``joints``, ``testable`` false and ``why``, as
-    the planar report's untestable rivals). When the named cause (``shown[0]``) joins
-    several effects and the untestable one stands in for some of them only, also the cause
-    with those swapped for it (a link length beside a camera scale, where the poses'
-    temperature is unknown: thermal drift beside the camera scale), since the truth may be
-    that pair rather than either alone."""
+    another (a backlash always approached from one side is an offset). One rival entry
+    (``label``, ``effects``, ``joints``, ``testable`` false and ``why``, as the planar
+    report's untestable rivals) per effect and candidate it could stand behind, on the
+    joints it would replace there (a gear ratio of j2 named, a cyclic error of j1 a rival:
+    backlash on j2, and backlash on j1), the same entry once. When the named cause
+    (``shown[0]``) joins several effects and the untestable one stands in for some of them
+    only, also the cause with those swapped for it (a link length beside a camera scale,
+    where the poses' temperature is unknown: thermal drift beside the camera scale), since
+    the truth may be that pair rather than either alone."""
     voc = {p.name: p for p in F.vocabulary(s.fit_d.chain)}
-    named = set().union(*(_components(c) for c in shown)) if shown else set()
-    cause = _components(shown[0]) if shown else set()
-    out = []
+    out, seen = [], set()
+
+    def add(on: dict[str, set], why: str) -> None:
+        def js(ks) -> list[str]:
+            return [f"j{k + 1}" for k in sorted(j for j in ks if j >= 0)]
+        key = tuple((m, tuple(sorted(ks))) for m, ks in on.items())
+        if key in seen:
+            return
+        seen.add(key)
+        out.append({"label": " + ".join(m + (f" on {', '.join(js(ks))}" if js(ks) else "")
+                                        for m, ks in on.items()),
+                    "effects": list(on), "joints": js(set().union(*on.values())),
+                    "testable": False, "why": f"not testable: {why}"})
+
     for e, ident in s.idents.items():
         eff = fx.CHAIN_EFFECTS[e]
         use = eff.chain
-        joints, why, in_cause = set(), "", set()
-        for name, reason in ident.dropped.items():
-            p = voc.get(name)
-            if p is None or p.effect != e or not (reason in (use.unseen, use.still)
-                                                  or reason.startswith("seen only as a sum")):
+        untested = [(voc[n], r) for n, r in ident.dropped.items()
+                    if n in voc and voc[n].effect == e
+                    and (r in (use.unseen, use.still) or r.startswith("seen only as a sum"))]
+        for i, c in enumerate(shown):
+            comps = _components(c)
+            behind, why = set(), ""         # (effect, joint, on a joint) it would replace
+            for p, reason in untested:
+                hit = {(m, k) for m, k in comps if m in eff.mimics and (not p.on_joint or k == p.joint)}
+                behind |= {(m, k, p.on_joint) for m, k in hit}
+                why = why or (reason if hit else "")
+            if not behind:
                 continue
-            shared = {(m, k) for m, k in named if m in eff.mimics and (not p.on_joint or k == p.joint)}
-            if shared:
-                joints |= {k for _, k in shared} if p.on_joint else set()
-                why = why or reason
-                in_cause |= {(m, k, p.on_joint) for m, k in shared & cause}
-        if why:
-            js = [f"j{k + 1}" for k in sorted(j for j in joints if j >= 0)]
-            out.append({"label": e + (f" on {', '.join(js)}" if js else ""), "effects": [e],
-                        "joints": js, "testable": False, "why": f"not testable: {why}"})
-        rest = {(m, k) for m, k in cause if m != e} - {(m, k) for m, k, _ in in_cause}
-        if in_cause and rest and len({m for m, _ in cause}) > 1:
-            on = {e: {k for _, k, joint in in_cause if joint}}
-            for m, k in sorted(rest):
-                on.setdefault(m, set()).add(k)
-
-            def joints_of(ks) -> list[str]:
-                return [f"j{k + 1}" for k in sorted(j for j in ks if j >= 0)]
-
-            out.append({"label": " + ".join(m + (f" on {', '.join(joints_of(ks))}" if joints_of(ks) else "")
-                                            for m, ks in on.items()),
-                        "effects": list(on), "joints": joints_of(set().union(*on.values())),
-                        "testable": False, "why": f"not testable: {why}"})
+            add({e: {k for _, k, joint in behind if joint}}, why)
+            rest = {(m, k) for m, k in comps if m != e} - {(m, k) for m, k, _ in behind}
+            if i == 0 and rest and len({m for m, _ in comps}) > 1:
+                on = {e: {k for _, k, joint in behind if joint}}
+                for m, k in sorted(rest):
+                    on.setdefault(m, set()).add(k)
+                add(on, why)
     return out
 
 
@@ -481,11 +518,15 @@ def decide(s: Search, noise_mm: float | None, noise_est: float | None = None) ->
                         "the campaign may be too small to show it; measure more places before "
                         "concluding there is no effect")
     untested = untestable_rivals(s, [chosen] + list(rivals)) if chosen is not None else []
+    by_effect: dict[str, tuple[set, str]] = {}   # one warning per effect, its joints together
     for u in untested:
-        if len(u["effects"]) > 1:        # the cause with a part swapped: its effect warned alone
-            continue
-        warnings.append(f"the cause may be {u['label']}, which this campaign cannot test "
-                        f"({u['why'].removeprefix('not testable: ')}): measure what it lacks "
+        if len(u["effects"]) == 1:       # the cause with a part swapped: its effect warns alone
+            js, why = by_effect.setdefault(u["effects"][0], (set(), u["why"]))
+            js.update(u["joints"])
+    for e, (js, why) in by_effect.items():
+        on = f" on {', '.join(sorted(js, key=lambda j: int(j[1:])))}" if js else ""
+        warnings.append(f"the cause may be {e}{on}, which this campaign cannot test "
+                        f"({why.removeprefix('not testable: ')}): measure what it lacks "
                         "and diagnose again")
     if rivals:
         warnings.append("the campaign cannot tell the cause from " + ", ".join(

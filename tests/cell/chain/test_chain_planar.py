@@ -98,7 +98,7 @@ def test_a_planar_campaign_is_diagnosed_by_the_chain_engine(tmp_path):
     assert np.array_equal(cc.readings[n:, 1], camp.paths["j2_cmd_deg"])
     assert (cc.move[:n] == -1).all() and len(set(cc.move[n:])) == len(set(camp.paths["move"]))
     rep = diagnose_chain(cc)
-    assert rep["cause"]["label"] == "joint_offset" and rep["cause"]["joints"] == ["j2"], rep["cause"]
+    assert rep["cause"]["label"] == "joint_offset on j2" and rep["cause"]["joints"] == ["j2"], rep["cause"]
     assert abs(rep["cause"]["params"]["j2_offset_deg"] - 0.08) < 0.0008
 
 
