@@ -118,6 +118,17 @@ def test_a_joint_zero_that_steps_mid_campaign_is_not_a_constant_offset(tmp_path,
     assert rep["cause"]["confidence"] != "high" or rep["unexplained"], rep["cause"]
 
 
+@pytest.mark.parametrize("trial, truth", [(101, "backlash[j2]"), (43, "thermal_drift + camera_scale")])
+def test_an_untestable_truth_is_among_the_rivals_on_the_joints_and_beside_the_effect_it_hides_behind(trial, truth):
+    # trials of the planar validation, seed 0, read as chains (cellctl diagnose validate
+    # --engine chain): 101, a backlash of j2 without direction columns, named a gear ratio of
+    # j2 beside a rival on j1 (the untestable backlash came as "on j1, j2"); 43, a thermal
+    # growth without temperatures beside a camera scale, named link lengths and the scale
+    # (the thermal growth came alone). Both were ambiguous answers without the truth
+    t = validate.run_trial(trial, 0, engine="chain")
+    assert (t.truth_label, t.verdict) == (truth, "ambiguous"), t.answer_label
+
+
 @pytest.mark.parametrize("part, name, value", [
     (parts.Part("camera_scale", 0, {"gain_excess": 1.2e-3}), "camera_scale_rel", 1.2e-3),
     (parts.Part("camera_rotation", 0, {"turn_rad": math.radians(0.05)}), "camera_rotation_deg",
