@@ -18,3 +18,18 @@ def test_planar_diagnosis_imports_no_scipy(tmp_path):
             "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split(" ", 1)[1].strip() == "[]", out.stdout
+
+
+def test_the_chain_diagnosis_of_a_chain_campaign_loads_no_planar_search(tmp_path):
+    # the v1 figures of a planar campaign read as a chain need the planar replay; a chain
+    # campaign's diagnosis must not pay for importing it (start-up is most of its CPU)
+    from cell.truth.chain_campaign import make
+    d = make(tmp_path / "c", {"offset": {"j2": 0.05}}, poses=30)
+    code = ("import sys\nfrom cell.measurements import read_campaign\n"
+            "from cell.diagnosis.answer import diagnose_campaign\n"
+            f"r = diagnose_campaign(read_campaign({str(d)!r})).report\n"
+            "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy') or m in "
+            "('cell.diagnosis.report', 'cell.diagnosis.screen', 'cell.diagnosis.replay', "
+            "'cell.diagnosis.delay', 'cell.diagnosis.chain.planar')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.rsplit(" ", 1)[1].strip() == "[]", out.stdout

@@ -24,11 +24,8 @@ import numpy as np
 
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
-from cell.diagnosis.chain import planar
 from cell.diagnosis.chain import robust
 from cell.diagnosis import tie
-from cell.diagnosis.crossval import MIN_FOLDS
-from cell.diagnosis.report import where_figures
 from cell.diagnosis.chain.noise import estimate
 from cell.diagnosis.noise import upper95
 from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
@@ -181,7 +178,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     cause["confidence"] = dec.confidence
     cause["warnings"] = dec.warnings
     cause["label"] = dec.chosen.label if dec.chosen is not None else "none"
-    testable = fit_d.folds()[1] >= MIN_FOLDS and tie.testable(fit_d.folds()[1])
+    testable = fit_d.folds()[1] >= rank.MIN_FOLDS and tie.testable(fit_d.folds()[1])
     cause["selection"] = {
         "method": "leave-one-out prediction over "
                   + ("places (poses that share one are left out together)"
@@ -207,7 +204,10 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
                      "runner_up": dec.runner_up.label if dec.runner_up else None,
                      "runner_up_p_value": _r(dec.runner_up_p, 8),
                      "runner_up_fit": "full" if dec.runner_up else None}
-    pr = planar.reading(cc, d_all, fit_mask, keep, s, dec)
+    pr = None
+    if cc.planar is not None:   # the v1 figures' code (the planar replay) only for a planar reading
+        from cell.diagnosis.chain import planar
+        pr = planar.reading(cc, d_all, fit_mask, keep, s, dec)
     if pr is not None:          # what the gap varies with, as v1 has it (cell/measurements.md)
         gap_v1, wh = planar.gap(pr)
         depends = wh.depends_on
@@ -269,7 +269,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     return ChainDiagnosis(rep, s, dec)
 
 
-def _planar_fields(rep: dict, pr: "planar.Reading", gap_v1: dict, wh, d_all: F.Data,
+def _planar_fields(rep: dict, pr, gap_v1: dict, wh, d_all: F.Data,
                    dec: rank.Decision, outl: robust.Outliers, given: float | None) -> None:
     """Give the report of a planar campaign read as a chain the v1 report's figures with
     their v1 meaning (:mod:`cell.diagnosis.chain.planar`; ``cell/measurements.md``, "Format
@@ -279,6 +279,8 @@ def _planar_fields(rep: dict, pr: "planar.Reading", gap_v1: dict, wh, d_all: F.D
     source per table, what an unexplained remainder varies with, and a cyclic error's
     parameters by their v1 names."""
     rep["chain"]["planar"] = True
+    from cell.diagnosis.chain import planar
+    from cell.diagnosis.report import where_figures
     rep["gap"] = gap_v1 | {"where": rep["gap"]["where"] | where_figures(wh)}
     rep["holdout"] |= planar.holdout_tables(pr)
     rep["delay"] = planar.station_lags(pr, d_all, dec)
