@@ -10,10 +10,11 @@
 4. **Full non-linear fits** of each effect's selection, of every pair of the best
    :data:`PAIR_TOPS` effects, and of the best effect paired with every other effect the
    campaign can see (their pools screened jointly: a second effect too small to rank
-   alone still joins the first). Where poses sit at places, an effect's selection on
-   several joints is fitted again without the joint that left-out places need least, when
-   they do not need it (:func:`_places_trim`): the test over poses counts the samples of
-   a measured move one by one, and can keep a joint that only absorbs what the moves share.
+   alone still joins the first). Where poses sit at places, a candidate with an effect on
+   several joints is fitted again without that effect on the joint left-out places need
+   least, when they do not need it (:func:`_places_trim`): the test over poses counts the
+   samples of a measured move one by one, and can keep a joint that only absorbs what the
+   moves share.
 5. **Decision**: an effect exists when the candidate with the lowest leave-out error
    predicts poses left out one at a time better than registration alone, by a one-sided
    Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
@@ -293,13 +294,14 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
             if _own_effects(both) == {a, b} else None
         if c is not None:
             ranking.append(c)
-    for c in [c for c in ranking if len(c.effects) == 1]:
+    for c in list(ranking):
         trimmed = _places_trim(fit_d, design, c.fit.params)
         if trimmed is not None:
-            js = sorted({f"j{p.joint + 1}" for p in trimmed if p.on_joint and not p.nuisance})
-            e = c.effects[0]
-            t = _candidate(f"{e} on {', '.join(js)}", (e,), fit_d, hold_d, trimmed, f0, idents[e],
-                           hold_keep, beyond)
+            label = " + ".join(e + (f" on {', '.join(js)}" if (js := sorted(
+                {f"j{p.joint + 1}" for p in trimmed if p.effect == e and p.on_joint and not p.nuisance},
+                key=lambda j: int(j[1:]))) else "") for e in c.effects)
+            t = _candidate(label, c.effects, fit_d, hold_d, trimmed, f0,
+                           idents[c.effects[0]] if len(c.effects) == 1 else c.ident, hold_keep, beyond)
             if t is not None:
                 ranking.append(t)
     ranking.sort(key=lambda c: c.fit.cv_rms)
@@ -307,18 +309,21 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
 
 
 def _places_trim(d: F.Data, design: Screen, params: list[F.Param]) -> list[F.Param] | None:
-    """``params`` (one effect's, on two joints or more) without the joint whose parameters
-    left-out places need least, when the linearised model without them is tied with the
-    full one over places (the rule of :func:`cell.diagnosis.tie.tied`); None when every
-    joint is needed, or the poses do not sit at :data:`MIN_FOLDS` places or more."""
+    """``params`` (a candidate's) without one effect's parameters on one joint (the pair
+    left-out places need least), when the linearised model without them is tied with the
+    full one over places (the rule of :func:`cell.diagnosis.tie.tied`) and every effect
+    keeps a parameter of its own on a joint; None when each such pair is needed, or the
+    poses do not sit at :data:`MIN_FOLDS` places or more."""
     n = d.folds()[1]
-    joints = sorted({p.joint for p in params if p.on_joint and not p.nuisance})
-    if n >= d.n_poses or n < MIN_FOLDS or len(joints) < 2:
+    units = sorted({(p.effect, p.joint) for p in params if p.on_joint and not p.nuisance})
+    if n >= d.n_poses or n < MIN_FOLDS or len(units) < 2:
         return None
     full = design.places.loo(design.cols(params))[1]
     best = None
-    for k in joints:
-        rest = [q for q in params if not (q.on_joint and q.joint == k)]
+    for e, k in units:
+        if not any(u != (e, k) and u[0] == e for u in units):
+            continue                      # the effect's only joint: that is another candidate
+        rest = [q for q in params if not (q.on_joint and q.effect == e and q.joint == k)]
         per = design.places.loo(design.cols(rest))[1]
         pv = tie.p_worse(per, full)
         if tie.tied(pv, math.sqrt(float(np.mean(per))), math.sqrt(float(np.mean(full)))) \
