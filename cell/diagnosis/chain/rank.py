@@ -287,13 +287,29 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
     pairs = {tuple(sorted((a, b), key=order.index)) for a in order[:PAIR_TOPS]
              for b in order[:PAIR_TOPS] if b != a}
     pairs |= {(order[0], b) for b in order[1:]}
-    for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
+
+    def pair(a: str, b: str) -> None:
         ident = F.identifiability(fit_d, idents[a].kept + idents[b].kept, f0.reg)
         both = screen(fit_d, f0, ident.kept, design=design)
         c = _candidate(f"{a} + {b}", (a, b), fit_d, hold_d, both, f0, ident, hold_keep, beyond) \
             if _own_effects(both) == {a, b} else None
         if c is not None:
             ranking.append(c)
+
+    for a, b in sorted(pairs, key=lambda ab: (order.index(ab[0]), order.index(ab[1]))):
+        pair(a, b)
+    # the best pair with one effect swapped for one that can stand in for it (a thermal
+    # growth for link lengths): the pairs above need not hold that one, and the tie rule
+    # can only weigh rivals that were fitted
+    ranking.sort(key=lambda c: c.fit.cv_rms)
+    top = ranking[0].effects if ranking else ()
+    for x, other in ((top[0], top[1]), (top[1], top[0])) if len(top) == 2 else ():
+        for e in order:
+            swap = tuple(sorted((e, other), key=order.index))
+            if e not in top and swap not in pairs and (x in fx.CHAIN_EFFECTS[e].mimics
+                                                        or e in fx.CHAIN_EFFECTS[x].mimics):
+                pairs.add(swap)
+                pair(*swap)
     for c in list(ranking):
         trimmed = _places_trim(fit_d, design, c.fit.params)
         if trimmed is not None:
