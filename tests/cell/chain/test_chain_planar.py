@@ -129,6 +129,19 @@ def test_an_untestable_truth_is_among_the_rivals_on_the_joints_and_beside_the_ef
     assert (t.truth_label, t.verdict) == (truth, "ambiguous"), t.answer_label
 
 
+@pytest.mark.parametrize("trial, truth", [
+    (94, "joint_offset[j1] + camera_rotation"),     # had named joint_offset on j1, j2 + the rotation
+    (178, "thermal_drift + camera_rotation"),       # had named link lengths + the rotation
+])
+def test_a_two_effect_truth_is_named_right_by_the_chain_engine(trial, truth):
+    # trials of the planar validation with a second effect (seed 0, --combos --engine chain):
+    # 94 needs the places trim of a pair (the test over poses kept a j2 offset the moves'
+    # samples carried), 178 the best pair fitted with link lengths swapped for the thermal
+    # growth that can stand in for them (no pair tried held it)
+    t = validate.run_trial(trial, 0, combos=True, engine="chain")
+    assert (t.truth_label, t.verdict) == (truth, "right"), t.answer_label
+
+
 @pytest.mark.parametrize("part, name, value", [
     (parts.Part("camera_scale", 0, {"gain_excess": 1.2e-3}), "camera_scale_rel", 1.2e-3),
     (parts.Part("camera_rotation", 0, {"turn_rad": math.radians(0.05)}), "camera_rotation_deg",
