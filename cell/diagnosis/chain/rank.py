@@ -310,7 +310,9 @@ def search(fit_d: F.Data, hold_d: F.Data, effects=F.EFFECTS, hold_keep: np.ndarr
                                                         or e in fx.CHAIN_EFFECTS[x].mimics):
                 pairs.add(swap)
                 pair(*swap)
-    for c in list(ranking):
+    ranking.sort(key=lambda c: c.fit.cv_rms)
+    # a trimmed candidate predicts about as its parent: it can be named only beside the best
+    for c in [c for c in ranking if tie.close(c.fit.cv_rms, ranking[0].fit.cv_rms)]:
         trimmed = _places_trim(fit_d, design, c.fit.params)
         if trimmed is not None:
             label = " + ".join(e + (f" on {', '.join(js)}" if (js := sorted(
