@@ -10,7 +10,9 @@
 4. **Full non-linear fits** of each effect's selection, of every pair of the best
    :data:`PAIR_TOPS` effects, and of the best effect paired with every other effect the
    campaign can see (their pools screened jointly: a second effect too small to rank
-   alone still joins the first). Where poses sit at places, a candidate with an effect on
+   alone still joins the first), and of the best pair with one effect swapped for one that
+   can stand in for it (:attr:`cell.effects.Effect.mimics`). Where poses sit at places, a
+   candidate close to the best with an effect on
    several joints is fitted again without that effect on the joint left-out places need
    least, when they do not need it (:func:`_places_trim`): the test over poses counts the
    samples of a measured move one by one, and can keep a joint that only absorbs what the
