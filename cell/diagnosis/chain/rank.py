@@ -12,11 +12,10 @@
    campaign can see (their pools screened jointly: a second effect too small to rank
    alone still joins the first), and of the best pair with one effect swapped for one that
    can stand in for it (:attr:`cell.effects.Effect.mimics`). Where poses sit at places, a
-   candidate close to the best with an effect on
-   several joints is fitted again without that effect on the joint left-out places need
-   least, when they do not need it (:func:`_places_trim`): the test over poses counts the
-   samples of a measured move one by one, and can keep a joint that only absorbs what the
-   moves share.
+   candidate close to the best with an effect on several joints is fitted again without
+   that effect on the joint left-out places need least, when they do not need it
+   (:func:`_places_trim`): the test over poses counts the samples of a measured move one
+   by one, and can keep a joint that only absorbs what the moves share.
 5. **Decision**: an effect exists when the candidate with the lowest leave-out error
    predicts poses left out one at a time better than registration alone, by a one-sided
    Wilcoxon signed-rank test over poses at :data:`ALPHA`; otherwise ``none``. Which effect:
