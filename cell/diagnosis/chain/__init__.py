@@ -13,6 +13,8 @@ format and its words (:mod:`cell.diagnosis.page`) and the validation harness
 * :mod:`.robust`    gross outliers found on the best candidate and set aside
 * :mod:`.noise`     the sensor noise from the data: rigid constellation, revisited poses
 * :mod:`.report`    the ``cell-diagnosis/1`` report for chains
+* :mod:`.planar`    a planar campaign read as a chain: the v1 report's figures (gap and
+                    holdout per table, station lags, noise, outliers) from the chain fits
 * :mod:`.html`      its HTML page
 * :mod:`.validate`  blind validation trials on the independent truth (:mod:`cell.truth`)
 """
