@@ -244,7 +244,7 @@ class Folds:
         cols = np.asarray(cols, dtype=np.int64)
         nb = self.base
         if self.points is not None and len(cols):
-            return self._one_point_loo(cols)
+            return self._one_point_each(cols[None])[0]
         if len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
             S = cols[nb:] - nb
             if not len(S):
@@ -271,26 +271,12 @@ class Folds:
                                  + np.einsum("fk,fkl,fl->f", beta, self.G[:, cols[:, None], cols], beta))
         return self._result(self.rg - np.einsum("frk,fk->fr", self.Jg[:, :, cols], beta))
 
-    def _one_point_loo(self, cols: np.ndarray) -> tuple[float, np.ndarray]:
-        """:meth:`loo` when every fold is one point and nothing is eliminated: the fit on
-        every fold, then each point's held-out residual ``(I − H_gg)⁻¹ e_g`` (``H_gg`` its
-        ``dims`` × ``dims`` block of the hat matrix), exact for any ``r``: one k × k solve
-        instead of one per fold."""
-        Jp, rp, fold_of = self.points
-        try:
-            Ainv = np.linalg.inv(self.Gt[np.ix_(cols, cols)])
-            Jc = Jp[:, :, cols]                                       # (P, dims, k)
-            e = rp - Jc @ (Ainv @ self.bt[cols])
-            H = (Jc @ Ainv) @ Jc.transpose(0, 2, 1)                   # (P, dims, dims)
-            out = solve_small(np.eye(H.shape[-1]) - H, e)
-        except np.linalg.LinAlgError:
-            return math.inf, np.full(self.n_folds, math.inf)
-        ss = np.empty(self.n_folds)
-        ss[fold_of] = np.sum(out * out, axis=1)
-        return self._from_ss(ss)
-
     def _one_point_each(self, S: np.ndarray) -> list[tuple[float, np.ndarray]]:
-        """:meth:`_one_point_loo` of each row of ``S`` (t, k), in one batch."""
+        """:meth:`loo` of each row of ``S`` (t, k) when every fold is one point and nothing
+        is eliminated: the fit on every fold, then each point's held-out residual
+        ``(I − H_gg)⁻¹ e_g`` (``H_gg`` its ``dims`` × ``dims`` block of the hat matrix),
+        exact for any ``r``: one k × k solve per subset instead of one per fold, all subsets
+        in one batch (a singular one alone fails, its errors inf)."""
         Jp, rp, fold_of = self.points
         try:
             Ainv = np.linalg.inv(self.Gt[S[:, :, None], S[:, None, :]])   # (t, k, k)
@@ -300,7 +286,9 @@ class Folds:
             H = (Jc @ Ainv[:, None]) @ Jc.transpose(0, 1, 3, 2)           # (t, P, dims, dims)
             out = solve_small(np.eye(H.shape[-1]) - H, e)
         except np.linalg.LinAlgError:                                     # tell which: one at a time
-            return [self._one_point_loo(c) for c in S]
+            if len(S) == 1:
+                return [(math.inf, np.full(self.n_folds, math.inf))]
+            return [self._one_point_each(c[None])[0] for c in S]
         ss = np.empty((len(S), self.n_folds))
         ss[:, fold_of] = np.sum(out * out, axis=2)
         return [self._from_ss(q) for q in ss]

@@ -121,6 +121,8 @@ def flag(fit_d: F.Data, hold_d: F.Data, f: F.Fit) -> Outliers:
     scale (:func:`tables`): the two scatter differently, and one scale would flag the
     wider table's tail."""
     out = none_flagged(fit_d, hold_d)
+    if len(fit_d.xyz) < MIN_POINTS:           # no table can have a robust scale
+        return out
     ef = fit_d.xyz - F.model(fit_d, f.reg, f.params, f.values)[0]
     eh = hold_d.xyz - F.model(hold_d, f.reg, f.params, f.values)[0] if len(hold_d.xyz) else \
         np.zeros((0, fit_d.dims))
