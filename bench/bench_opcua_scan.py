@@ -131,16 +131,11 @@ def phase_on(ctl: CellController, seconds: float, pki: Path) -> dict:
     return row
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=10.0, help="length of each phase (default 10)")
-    ap.add_argument("--rounds", type=int, default=2, help="off/on pairs (default 2)")
-    args = ap.parse_args()
-    log.configure("console", "ERROR")
-    tmp = Path(tempfile.mkdtemp(prefix="bench-opcua-"))
+def controller(tmp: Path, clock) -> tuple[CellController, PlcLink, CycleLog]:
+    """The real controller on ``clock`` with the repo's recipes copied into ``tmp``, a log
+    there, its PLC link (not started) and :class:`MovingStations`; not started."""
     rdir = tmp / "recipes"
     shutil.copytree(REPO / "recipes", rdir)
-    clock = MonotonicClock()
     cyclelog = CycleLog(tmp / "cell.sqlite")
     store = RecipeStore(rdir, commit=cyclelog.record_recipe_changes, clock=clock)
     link = PlcLink(clock=clock)
@@ -148,6 +143,18 @@ def main() -> int:
     runner = CycleRunner(Scara.preset("seed000"), stations, None, cyclelog, clock=clock)
     ctl = CellController(link, stations, runner, cyclelog, store,
                          ControllerSettings(scan_s=SCAN_S, plc_heartbeat_timeout_s=1.0), clock=clock)
+    return ctl, link, cyclelog
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0, help="length of each phase (default 10)")
+    ap.add_argument("--rounds", type=int, default=2, help="off/on pairs (default 2)")
+    args = ap.parse_args()
+    log.configure("console", "ERROR")
+    tmp = Path(tempfile.mkdtemp(prefix="bench-opcua-"))
+    clock = MonotonicClock()
+    ctl, link, cyclelog = controller(tmp, clock)
     ctl.start()
     port = link.start("127.0.0.1", 0)
     plc = SimPlc("127.0.0.1", port, clock=clock)

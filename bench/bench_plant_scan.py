@@ -46,16 +46,11 @@ from bench_plant import TOPICS, USERS, _record  # noqa: E402
 
 from cell import log, progress  # noqa: E402
 from cell.clock import MonotonicClock  # noqa: E402
-from cell.controller import CellController, ControllerSettings  # noqa: E402
-from cell.cycle.runner import CycleRunner  # noqa: E402
 from cell.cyclelog import CycleLog  # noqa: E402
-from cell.kinematics import Scara  # noqa: E402
 from cell.plant.mqtt import Security  # noqa: E402
 from cell.plant.outbox import OutboxSettings, PlantOutbox  # noqa: E402
 from cell.plant.servers import Mosquitto, Postgres  # noqa: E402
-from cell.recipes.store import RecipeStore  # noqa: E402
 from cell.sim.plc import SimPlc  # noqa: E402
-from drivers.plc.server import PlcLink  # noqa: E402
 
 
 class Plant:
@@ -131,16 +126,8 @@ def main() -> int:
     args = ap.parse_args()
     log.configure("console", "ERROR")
     tmp = Path(tempfile.mkdtemp(prefix="bench-plant-scan-"))
-    rdir = tmp / "recipes"
-    shutil.copytree(REPO / "recipes", rdir)
     clock = MonotonicClock()
-    cyclelog = CycleLog(tmp / "cell.sqlite")
-    store = RecipeStore(rdir, commit=cyclelog.record_recipe_changes, clock=clock)
-    link = PlcLink(clock=clock)
-    stations = scan.MovingStations()
-    runner = CycleRunner(Scara.preset("seed000"), stations, None, cyclelog, clock=clock)
-    ctl = CellController(link, stations, runner, cyclelog, store,
-                         ControllerSettings(scan_s=scan.SCAN_S, plc_heartbeat_timeout_s=1.0), clock=clock)
+    ctl, link, cyclelog = scan.controller(tmp, clock)
     plant = Plant(tmp, cyclelog, ctl.publisher)
     plant.start()
     ctl.start()
