@@ -48,3 +48,19 @@ def historian_db(postgres):
         db.execute("DROP SCHEMA public CASCADE")
         db.execute("CREATE SCHEMA public")
     return postgres.dsn
+
+
+@pytest.fixture
+def running():
+    """Start and always stop what a test starts (``running.add(x)``; x.stop() at the end,
+    last started first)."""
+    started = []
+
+    class Running:
+        def add(self, thing):
+            thing.start()
+            started.append(thing)
+            return thing
+    yield Running()
+    for thing in reversed(started):
+        thing.stop()

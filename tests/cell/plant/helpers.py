@@ -2,6 +2,7 @@
 historian on the test servers, and what PostgreSQL holds."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 from cell.cyclelog import CycleLog, CycleRecord, CycleStatus, utc_now
@@ -18,6 +19,21 @@ def record(part_id: int) -> CycleRecord:
                        step_times={"APPROACH": 0.5}, method="lattice", target_mm=(400.0, 10.0),
                        initial_error_mm=0.31, final_error_mm=0.004, verify_error_mm=0.005, moves=2,
                        temp_c=21.5, trace=[{"moved": True}], motion={"mode": "corrected"})
+
+
+@contextmanager
+def mqtt_client(broker):
+    """A plain MQTT 5 client connected to ``broker``, its network loop running (another cell,
+    or a stranger, on the plant's topics); stopped and disconnected at the end."""
+    import paho.mqtt.client as mqtt
+    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
+    c.connect(broker.host, broker.port)
+    c.loop_start()
+    try:
+        yield c
+    finally:
+        c.loop_stop()
+        c.disconnect()
 
 
 def write_log(path: Path, n: int, first_part: int = 1) -> CycleLog:

@@ -8,7 +8,8 @@ from cell.cyclelog import CycleLog
 from cell.plant import schema
 from cell.plant.historian import Historian
 from cell.plant.outbox import PlantOutbox
-from tests.cell.plant.helpers import TOPICS, historian_settings, log_ids, outbox_settings, pg_ids, record
+from tests.cell.plant.helpers import (TOPICS, historian_settings, log_ids, mqtt_client, outbox_settings,
+                                      pg_ids, record)
 from tests.waiting import wait_for
 
 
@@ -65,15 +66,10 @@ def test_a_cell_whose_clock_jumps_back_is_recorded_by_id_with_its_own_times_and_
         log.close()
 
 
-def test_a_record_that_comes_twice_is_kept_once_and_the_copy_is_counted(broker, historian_db):
-    import paho.mqtt.client as mqtt
+def test_a_record_that_comes_twice_is_kept_once_and_the_copy_is_counted(broker, historian_db, running):
     import psycopg
-    historian = Historian(historian_settings(broker, historian_db, client_id="h-dup"))
-    historian.start()
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
-    client.connect(broker.host, broker.port)
-    client.loop_start()
-    try:
+    historian = running.add(Historian(historian_settings(broker, historian_db, client_id="h-dup")))
+    with mqtt_client(broker) as client:
         wait_for(historian.link.subscribed.is_set, 60, "the historian's subscription")
         rec = record(7)
         rec.id = 1
@@ -85,20 +81,12 @@ def test_a_record_that_comes_twice_is_kept_once_and_the_copy_is_counted(broker, 
         assert historian.inserted == 1 and historian.duplicates == 1
         with psycopg.connect(historian_db) as pg:
             assert pg.execute("SELECT session, duplicates FROM cycles").fetchall() == [(1, 1)]
-    finally:
-        client.loop_stop()
-        client.disconnect()
-        historian.stop()
 
 
-def test_a_malformed_event_or_one_of_an_unknown_version_is_refused_and_writes_nothing(broker, historian_db):
-    import paho.mqtt.client as mqtt
+def test_a_malformed_event_or_one_of_an_unknown_version_is_refused_and_writes_nothing(
+        broker, historian_db, running):
     import psycopg
-    historian = Historian(historian_settings(broker, historian_db, client_id="h-bad-event"))
-    historian.start()
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
-    client.connect(broker.host, broker.port)
-    client.loop_start()
+    historian = running.add(Historian(historian_settings(broker, historian_db, client_id="h-bad-event")))
     good = schema.event_payload(TOPICS.path, 2, 1, "reset", {"code": 31, "state": "idle"})
     bad = [(b'{"schema": 1, "cell": ', "payload is not JSON"),
            (good.replace(b'"schema":1', b'"schema":9'), "unknown schema version 9 for event"),
@@ -106,7 +94,7 @@ def test_a_malformed_event_or_one_of_an_unknown_version_is_refused_and_writes_no
            (good.replace(b'"state":"idle"', b'"state":"idle","colour":"red"'),
             "invalid event message: reset event: data.colour: Extra inputs are not permitted"),
            (good.replace(b'"seq":1', b'"seq":0'), "invalid event message: seq")]
-    try:
+    with mqtt_client(broker) as client:
         wait_for(historian.link.subscribed.is_set, 60, "the historian's subscriptions")
         for k, (payload, says) in enumerate(bad, 1):
             client.publish(TOPICS.event, payload, qos=1).wait_for_publish(30)
@@ -120,7 +108,3 @@ def test_a_malformed_event_or_one_of_an_unknown_version_is_refused_and_writes_no
         with psycopg.connect(historian_db) as pg:
             assert pg.execute("SELECT kind, data FROM events").fetchall() == [("reset", {"code": 31, "state": "idle"})]
         assert historian.events == 1
-    finally:
-        client.loop_stop()
-        client.disconnect()
-        historian.stop()

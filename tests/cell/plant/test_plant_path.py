@@ -16,34 +16,11 @@ import pytest
 
 from cell.plant.historian import Historian
 from cell.plant.outbox import PlantOutbox
-from tests.cell.plant.helpers import (TOPICS, historian_settings, log_ids, outbox_settings, pg_ids,
-                                      record, write_log)
+from tests.cell.plant.helpers import (TOPICS, historian_settings, log_ids, mqtt_client, outbox_settings,
+                                      pg_ids, record, write_log)
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[3]
-
-
-def _client(broker):
-    import paho.mqtt.client as mqtt
-    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv5)
-    c.connect(broker.host, broker.port)
-    c.loop_start()
-    return c
-
-
-@pytest.fixture
-def running(tmp_path):
-    """Start and always stop what a test starts (``running.add(x)``; x.stop() at the end)."""
-    started = []
-
-    class Running:
-        def add(self, thing):
-            thing.start()
-            started.append(thing)
-            return thing
-    yield Running()
-    for thing in reversed(started):
-        thing.stop()
 
 
 def test_every_record_of_the_log_reaches_postgres_and_gaps_are_not_waited_for(tmp_path, broker,
@@ -102,17 +79,13 @@ def test_a_malformed_payload_or_an_unknown_schema_version_is_refused_and_writes_
     import psycopg
     historian = running.add(Historian(historian_settings(broker, historian_db, client_id="h-bad")))
     wait_for(historian.link.subscribed.is_set, 60, "the historian's subscription")
-    client = _client(broker)
-    try:
+    with mqtt_client(broker) as client:
         client.publish(TOPICS.cycle, b"{\"schema\": 1, \"cell\": ", qos=1).wait_for_publish(30)
         wait_for(lambda: historian.rejected == 1, 60, "the malformed payload refused")
         assert "payload is not JSON" in historian.last_refusal and TOPICS.cycle in historian.last_refusal
         client.publish(TOPICS.cycle, b'{"schema": 7, "cell": "site1/line2/cell-1"}', qos=1).wait_for_publish(30)
         wait_for(lambda: historian.rejected == 2, 60, "the unknown version refused")
         assert "unknown schema version 7" in historian.last_refusal
-    finally:
-        client.loop_stop()
-        client.disconnect()
     with psycopg.connect(historian_db) as pg:
         assert pg.execute("SELECT count(*) FROM cycles").fetchone()[0] == 0
         assert pg.execute("SELECT count(*) FROM watermarks").fetchone()[0] == 0
@@ -131,32 +104,30 @@ def test_postgres_going_away_mid_batch_acknowledges_nothing_not_committed(tmp_pa
         h1 = Historian(historian_settings(broker, pg.dsn, client_id="h-pgaway"))
         h1.start()
         wait_for(h1.link.subscribed.is_set, 60, "the historian's subscription")
-        client = _client(broker)
+        with mqtt_client(broker) as client:
 
-        def send(first: int, n: int, prev: int) -> None:
-            for k in range(first, first + n):
-                rec = record(k)
-                rec.id = k
-                info = client.publish(TOPICS.cycle, schema.cycle_payload(TOPICS.path, "log-pg", rec, k - 1, 1, k),
-                                      qos=1)
-                info.wait_for_publish(30)
-        send(1, 50, 0)
-        wait_for(lambda: len(pg_ids(pg.dsn)) == 50 and h1.acked == 50, 120, "the first 50 committed")
-        pg.kill()
-        send(51, 50, 50)
-        # the broker sends at most its in-flight limit (20) unacknowledged: the batch it holds
-        wait_for(lambda: h1.received > 50 and h1.failed_commits >= 2, 120, "commits failing")
-        assert h1.acked == 50                          # none of the uncommitted ones
-        h1.stop()                                      # what is not committed stays at the broker
-        pg.start()
-        h2 = Historian(historian_settings(broker, pg.dsn, client_id="h-pgaway"))
-        h2.start()
-        try:
-            wait_for(lambda: len(pg_ids(pg.dsn)) == 100, 120, "the other 50 from the broker")
-        finally:
-            h2.stop()
-            client.loop_stop()
-            client.disconnect()
+            def send(first: int, n: int, prev: int) -> None:
+                for k in range(first, first + n):
+                    rec = record(k)
+                    rec.id = k
+                    info = client.publish(TOPICS.cycle, schema.cycle_payload(TOPICS.path, "log-pg", rec, k - 1, 1, k),
+                                          qos=1)
+                    info.wait_for_publish(30)
+            send(1, 50, 0)
+            wait_for(lambda: len(pg_ids(pg.dsn)) == 50 and h1.acked == 50, 120, "the first 50 committed")
+            pg.kill()
+            send(51, 50, 50)
+            # the broker sends at most its in-flight limit (20) unacknowledged: the batch it holds
+            wait_for(lambda: h1.received > 50 and h1.failed_commits >= 2, 120, "commits failing")
+            assert h1.acked == 50                          # none of the uncommitted ones
+            h1.stop()                                      # what is not committed stays at the broker
+            pg.start()
+            h2 = Historian(historian_settings(broker, pg.dsn, client_id="h-pgaway"))
+            h2.start()
+            try:
+                wait_for(lambda: len(pg_ids(pg.dsn)) == 100, 120, "the other 50 from the broker")
+            finally:
+                h2.stop()
         assert pg_ids(pg.dsn) == set(range(1, 101))
     finally:
         pg.stop()

@@ -39,7 +39,6 @@ class Publisher:
     """A bare MQTT 5 client over TLS that remembers each publish's PUBACK reason code."""
 
     def __init__(self, broker, security: Security):
-        import paho.mqtt.client as mqtt
         self.acks: dict[int, object] = {}
         self._acked = threading.Condition()
         self.link = MqttLink(broker.host, broker.port, "test-publisher", security=security)
