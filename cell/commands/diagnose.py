@@ -22,11 +22,12 @@ interval coverage and the earlier scores as Markdown tables (:mod:`cell.diagnosi
 stations, optional columns often missing, outliers); ``uniform`` the earlier spread-out
 design. ``--out-of-vocabulary SHARE`` gives that share of the trials (0–1, default 0) an
 effect from outside the vocabulary instead (``--oov-kinds``; default all), which should come
-back unexplained or as none, never as a confident cause. ``--chain`` validates the chain
-diagnosis instead (:mod:`cell.diagnosis.chain.validate`: a UR5 measured by a tracker, drawn from
+back unexplained or as none, never as a confident cause. ``--chain`` validates on chain
+campaigns instead (:mod:`cell.diagnosis.chain.validate`: a UR5 measured by a tracker, drawn from
 :mod:`cell.truth.chain`; ``--points`` is then the poses per campaign). ``--both`` runs the
 planar and the chain validation (default 100 trials each) and prints one verdict table for
-both before each family's tables.
+both before each kind's tables. Every campaign goes through the one diagnosis
+(:func:`cell.diagnosis.answer.diagnose_campaign`).
 
 Bad input exits with status 2 and a message naming file, line and column
 (:class:`~cell.measurements.CampaignFormatError`, raised before anything is diagnosed).
@@ -66,11 +67,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-mm", type=float, metavar="SIGMA",
                    help="expected σ per axis of one point measurement incl. repeatability, mm "
                         "(optional; sharpens the 'unexplained' test)")
-    p.add_argument("--engine", choices=("planar", "chain"), default=None,
-                   help="planar campaigns and cycle logs: 'chain' reads it as the chain campaign it is "
-                        "(points and the moves' samples as poses, cell/measurements.md, last section) "
-                        "and diagnoses it with the chain engine (default: planar); with "
-                        "'validate', the engine that diagnoses its planar campaigns")
     p.add_argument("--robot", default="seed000",
                    help="cycle log only: robot preset of the nominal model (default seed000)")
     p.add_argument("--camera-center", type=float_list(2), metavar="X,Y",
@@ -98,9 +94,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.campaign == VALIDATE:
-        if args.engine is not None and (args.chain or args.both):
-            raise ConfigError(f"--engine: not with {'--chain' if args.chain else '--both'} (the "
-                              "engine is chosen for the validation's planar campaigns)")
         return run_validate(args)
     given = [f"--{n}" for n in ("trials", "seed", "points") if getattr(args, n) is not None]
     given += ["--combos"] if args.combos else []
@@ -114,17 +107,6 @@ def run(args: argparse.Namespace) -> int:
     if args.noise_mm is not None and not (args.noise_mm > 0 and math.isfinite(args.noise_mm)):
         raise ConfigError(f"--noise-mm {args.noise_mm} must be a positive number of mm")
     campaign, lines = load(args.campaign, args.robot, args.camera_center, args.model)
-    if args.engine == "chain":
-        from cell.measurements import Campaign
-        if not isinstance(campaign, Campaign):
-            raise ConfigError(f"--engine chain: {args.campaign} is a chain campaign already")
-        from cell.measurements.chain import planar_as_chain
-        campaign, lines = planar_as_chain(campaign, Path(args.campaign)), None
-    elif args.engine == "planar":
-        from cell.measurements import Campaign
-        if not isinstance(campaign, Campaign):
-            raise ConfigError(f"--engine planar: {args.campaign} is a chain campaign, which only "
-                              "the chain engine diagnoses")
     from cell.diagnosis.answer import diagnose_campaign   # the diagnosis itself: only now
     answer = diagnose_campaign(campaign, lines, args.noise_mm)
     if args.html:
@@ -238,10 +220,9 @@ def run_validate(args: argparse.Namespace) -> int:
     trials, seed, points, share, kinds = _validate_options(args, validate.OUTSIDE, 200, 300,
                                                            "static poses per campaign")
     layout = args.layout or "realistic"
-    engine = args.engine or "planar"
     with progress.bar("validate", total=trials, unit="campaign") as p:
         ts = validate.run(trials, seed, args.combos, points, outside_share=share, outside_kinds=kinds,
-                          progress=lambda i, t: p.update(1), layout=layout, engine=engine)
+                          progress=lambda i, t: p.update(1), layout=layout)
     kind = "main effect + second" if args.combos else "one or two effects" \
         if layout == "realistic" else "single effect"
     moves = "0 or 4 moves" if layout == "realistic" else "6 moves"
@@ -249,8 +230,6 @@ def run_validate(args: argparse.Namespace) -> int:
              f"{points} poses + {moves} each")
     if share:
         title += f", {share:g} of them outside the vocabulary ({', '.join(kinds)})"
-    if engine == "chain":
-        title += "; diagnosed by the chain engine (each campaign read as a chain campaign)"
     return _print_scores(args, validate, ts, title)
 
 

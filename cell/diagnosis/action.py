@@ -49,7 +49,7 @@ def recommend(rep: dict) -> Action:
     cause = rep.get("cause", {})
     effect = cause.get("effect", "none")
     joints = list(cause.get("joints", []))
-    chain = "chain" in rep
+    chain = "chain" in rep and not rep["chain"].get("planar")   # a SCARA keeps its remedies
     src = rep.get("source") or "CAMPAIGN"
     caveat = ("confidence is low: confirm on a second campaign before acting"
               if cause.get("confidence") == "low" else "")

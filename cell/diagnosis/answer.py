@@ -1,25 +1,25 @@
 """One call for any campaign: :func:`diagnose_campaign` diagnoses a planar campaign (v1) or
-a chain campaign (Extension v1.1) and returns one :class:`Answer`, whose report follows the
-one format (``cell-diagnosis/1``, the project's additions in ``cell/measurements.md``) and
-which renders as text and as an HTML page the same way for both. Which family computes it
-is the campaign's kind; a caller never branches on it.
+a chain campaign (Extension v1.1) with the one diagnosis (:mod:`cell.diagnosis.chain`) and
+returns one :class:`Answer`, whose report follows the one format (``cell-diagnosis/1``, the
+project's additions in ``cell/measurements.md``) and renders as text and as an HTML page.
+A planar campaign is read as the chain campaign it is (:func:`as_chain`: a two-joint arm
+whose sensor sees x and y), and its report carries the v1 report's figures as well
+("Format version 1.3"); a caller never branches on the campaign's kind.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 
 @dataclass
 class Answer:
-    """A diagnosis: ``report`` (JSON-ready dict), ``family`` (``planar`` or ``chain``) and
-    what it was computed from (``computed``: the family's own record, which the HTML page's
-    plots need)."""
+    """A diagnosis: ``report`` (JSON-ready dict) and what it was computed from
+    (``computed``: :class:`~cell.diagnosis.chain.report.ChainDiagnosis`, which the HTML
+    page's plots need)."""
 
     report: dict
-    family: str
-    computed: Any
+    computed: object
 
     def text(self) -> str:
         """The report as readable lines (:func:`cell.diagnosis.text.render`)."""
@@ -28,24 +28,34 @@ class Answer:
 
     def write_html(self, out_dir) -> Path:
         """Write ``out_dir/index.html`` with its PNG plots; its path. Raises OSError."""
-        if self.family == "chain":
-            from cell.diagnosis.chain.html import write_chain_html
-            return write_chain_html(self.computed, out_dir)
-        from cell.diagnosis.html import write_html
-        return write_html(self.computed, out_dir)
+        from cell.diagnosis.chain.html import write_chain_html
+        return write_chain_html(self.computed, out_dir)
 
 
 def diagnose_campaign(campaign, lines: dict | None = None,
                       noise_mm: float | None = None) -> Answer:
-    """The diagnosis of ``campaign`` (what :func:`cell.measurements.read_campaign` returns);
-    ``lines`` maps table → file line of each row (planar error messages), ``noise_mm`` the
-    expected σ per axis of one point measurement if known. Raises CampaignFormatError for
-    data that cannot be diagnosed."""
+    """The diagnosis of ``campaign`` (what :func:`cell.measurements.read_campaign` returns,
+    or a chain campaign already); ``lines`` maps table → file line of each row of a planar
+    campaign (its error messages), ``noise_mm`` the expected σ per axis of one point
+    measurement if known. Raises CampaignFormatError for data that cannot be diagnosed."""
     from cell.measurements import Campaign
     if isinstance(campaign, Campaign):
-        from cell.diagnosis.report import diagnose
-        dg = diagnose(campaign, lines, noise_mm)
-        return Answer(dg.report, "planar", dg)
+        campaign = as_chain(campaign, lines)
     from cell.diagnosis.chain.report import diagnose_chain_full
     cd = diagnose_chain_full(campaign, noise_mm)
-    return Answer(cd.report, "chain", cd)
+    return Answer(cd.report, cd)
+
+
+def as_chain(campaign, lines: dict | None = None):
+    """Planar campaign ``campaign`` read as the chain campaign it is
+    (:func:`cell.measurements.chain.planar_as_chain`), after the planar checks that name a
+    file line (:func:`cell.diagnosis.replay.prepare`: time running backwards in a move, a
+    split that leaves too few rows, a cycle log with too few cycles), whose arrays the v1
+    figures then use; ``lines`` maps table → file line of each row. Raises
+    CampaignFormatError."""
+    from cell.diagnosis.replay import prepare
+    from cell.measurements.chain import planar_as_chain
+    arrays = prepare(campaign, lines)
+    cc = planar_as_chain(campaign, campaign.source or ".")
+    cc.planar = replace(cc.planar, arrays=arrays)
+    return cc

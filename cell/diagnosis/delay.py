@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from cell import effects as fx
-from cell.diagnosis.fit import Z95, subset
+from cell.diagnosis.figures import Z95, subset
 from cell.diagnosis.jacobian import evaluate, rows_of
 from cell.diagnosis.replay import DiagData
 from cell.numerics.lsq import least_squares

@@ -46,7 +46,6 @@ import numpy as np
 from cell import effects as fx
 from cell.diagnosis import harness
 from cell.diagnosis.harness import Trial, summarise  # noqa: F401 (this family's scores)
-from cell.diagnosis.report import diagnose
 from cell.measurements import read_campaign
 from cell.truth import campaign as truth_campaign
 from cell.truth import parts as tp
@@ -157,27 +156,19 @@ def _same_order(truth: fx.EffectInstance, named: dict) -> bool:
                for j in truth.joints)
 
 
-ENGINES = ("planar", "chain")
-
-
-def diagnose_with(engine: str, camp) -> dict:
-    """The report of planar campaign ``camp`` by ``engine``: ``planar`` (:mod:`.report`) or
-    ``chain``, the campaign read as a chain campaign
-    (:func:`cell.measurements.chain.planar_as_chain`, ``cell/measurements.md``, last section)
-    and diagnosed by :mod:`cell.diagnosis.chain`."""
-    if engine == "planar":
-        return diagnose(camp).report
-    if engine == "chain":
-        from cell.diagnosis.chain.report import diagnose_chain
-        from cell.measurements.chain import planar_as_chain
-        return diagnose_chain(planar_as_chain(camp, camp.source or "."))
-    raise ValueError(f"unknown engine {engine!r}; known: {', '.join(ENGINES)}")
+def diagnose_planar(camp) -> dict:
+    """The report of planar campaign ``camp``: read as the chain campaign it is
+    (:func:`cell.diagnosis.answer.as_chain`, ``cell/measurements.md``, last section) and
+    diagnosed by :mod:`cell.diagnosis.chain`."""
+    from cell.diagnosis.answer import as_chain
+    from cell.diagnosis.chain.report import diagnose_chain
+    return diagnose_chain(as_chain(camp))
 
 
 def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = None,
               outside_share: float = 0.0, outside_kinds: Sequence[str] = OUTSIDE,
-              layout: str = "realistic", points: int = 300, engine: str = "planar") -> Trial:
-    """Draw, write, read, diagnose (by ``engine``, :func:`diagnose_with`) and judge trial
+              layout: str = "realistic", points: int = 300) -> Trial:
+    """Draw, write, read, diagnose (:func:`diagnose_planar`) and judge trial
     ``i`` of validation run ``seed``. ``design`` fixes the campaign design (else
     :func:`draw_layout` draws it)."""
     tseed = seed * 100_003 + i
@@ -192,7 +183,7 @@ def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = N
         camp = read_campaign(truth_campaign.write_campaign(Path(tmp) / "campaign", truth,
                                                            tseed, design, rows))
         t0 = time.process_time()
-        rep = diagnose_with(engine, camp)
+        rep = diagnose_planar(camp)
         secs = time.process_time() - t0
     wants = [] if odd is not None else [expected(p) for p in truth]
     want = vd.Expected(tuple((e.effect, tuple(e.joints)) for e in wants), odd is not None)
@@ -221,15 +212,13 @@ def run_trial(i: int, seed: int, combos: bool = False, design: Design | None = N
 def run(trials: int, seed: int, combos: bool = False, points: int = 300,
         progress=None, outside_share: float = 0.0,
         outside_kinds: Sequence[str] = OUTSIDE, layout: str = "realistic",
-        start: int = 0, engine: str = "planar") -> list[Trial]:
-    """Trials ``start`` … ``start + trials − 1`` of run ``seed``, diagnosed by ``engine``;
-    ``progress(i, trial)`` is called after each. Raises ValueError for an
-    ``outside_share`` outside [0, 1], an unknown kind, layout or engine."""
+        start: int = 0) -> list[Trial]:
+    """Trials ``start`` … ``start + trials − 1`` of run ``seed``; ``progress(i, trial)`` is
+    called after each. Raises ValueError for an ``outside_share`` outside [0, 1], an unknown
+    kind or layout."""
     harness.check_outside(outside_share, tuple(outside_kinds) or OUTSIDE, OUTSIDE, layout, LAYOUTS)
-    if engine not in ENGINES:
-        raise ValueError(f"unknown engine {engine!r}; known: {', '.join(ENGINES)}")
     return harness.run(lambda i: run_trial(i, seed, combos, None, outside_share,
-                                           tuple(outside_kinds), layout, points, engine),
+                                           tuple(outside_kinds), layout, points),
                        trials, start, progress)
 
 

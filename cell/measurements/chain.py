@@ -377,10 +377,12 @@ class PlanarRows:
     each move's samples in file order, which is the order of the planar diagnosis's
     ``DiagData.path_cat`` (:func:`cell.diagnosis.replay.prepare`). Each pose has one
     measured point (the tool centre), so point and pose indices are the same. ``campaign``
-    is the v1 campaign itself (:class:`~cell.measurements.Campaign`)."""
+    is the v1 campaign itself (:class:`~cell.measurements.Campaign`); ``arrays`` its checked
+    planar arrays (:func:`cell.diagnosis.replay.prepare`) once the diagnosis has made them."""
 
     campaign: object
     n_points: int
+    arrays: object = None
 
     def points(self, a: np.ndarray) -> np.ndarray:
         """The rows of per-pose array ``a`` that are static points."""
@@ -405,13 +407,10 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     there and the directions
     of the format's approach convention; its temperature is unknown (NaN in ``temp_c``:
     paths.csv records none). Without a ``split`` column the split is the v1 diagnosis's
-    (:func:`drawn_fit`: 30 % of the points, then of the whole moves), so both engines hold
-    out the same rows. ``planar`` records which pose is which row (:class:`PlanarRows`).
-    ``directory`` is where ``c`` was read from (messages name its files).
-    Raises CampaignFormatError for a campaign without points."""
-    if c.points is None:
-        raise CampaignFormatError(c.source or "campaign", "no points.csv: only static points "
-                                  "make a chain campaign", column="points.csv")
+    (:func:`drawn_fit`: 30 % of the points, then of the whole moves), so the holdout
+    is the rows v1 held out. ``planar`` records which pose is which row (:class:`PlanarRows`).
+    A campaign of measured moves only has no static poses. ``directory`` is where ``c``
+    was read from (messages name its files)."""
     from cell.effects import path_directions, station_order
     from cell.effects.motor_cyclic_error import MOTOR_GEAR_RATIO   # v1: "50 unless stated"
     m = c.model
@@ -427,7 +426,9 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
     chain = build_chain(spec, Path(directory) / "model.yaml")
     bus = station_order(c.station_order)
     chain.joints = [replace(j, bus_position=int(k)) for j, k in zip(chain.joints, bus)]
-    p = c.points
+    p = c.points if c.points is not None else {
+        "sample": np.zeros(0, np.int64), "split": np.zeros(0, "<U7"),
+        **{k: np.zeros(0) for k in ("j1_deg", "j2_deg", "x_mm", "y_mm")}}
     n = len(p["sample"])
     rng = np.random.default_rng(SPLIT_SEED)
     fit = p["split"] == "fit" if "split" in p else drawn_fit(n, rng)
@@ -470,5 +471,6 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
                          np.concatenate(dirs) if has_dirs else None,
                          move=np.concatenate(moves), rate=np.concatenate(rates),
                          move_t=np.concatenate(times), planar=PlanarRows(c, n),
-                         split_source="campaign" if "split" in p and (c.paths is None or "split" in c.paths)
+                         split_source="campaign" if (c.points is None or "split" in p)
+                         and (c.paths is None or "split" in c.paths)
                          else f"generated as the v1 diagnosis's (seed {SPLIT_SEED})")

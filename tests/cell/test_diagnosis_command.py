@@ -159,7 +159,7 @@ def test_html_page_with_plots(campaign_dir, tmp_path, capsys):
     out = tmp_path / "page"
     assert cellctl(["diagnose", str(campaign_dir), "--html", str(out)]) == 0
     html = (out / "index.html").read_text()
-    for png in ("workspace.png", "variables.png", "holdout.png", "paths.png"):
+    for png in ("poses.png", "residuals.png", "joints.png", "paths.png"):
         assert (out / png).stat().st_size > 5000
         assert f'src="{png}"' in html
     assert json.loads((out / "report.json").read_text())["cause"]["effect"] == "backlash"
@@ -191,7 +191,7 @@ def test_cycle_log_is_diagnosed(tmp_path, capsys):
     rep = json.loads(capsys.readouterr().out)
     assert rep["gap"]["n"] == 120
     assert rep["cause"]["effect"] == "joint_offset" and rep["cause"]["joints"] == ["j1"]
-    assert "thermal_drift" in rep["not_identifiable"]          # one temperature throughout
+    assert "thermal_expansion_per_k" in rep["not_identifiable"]    # one temperature throughout
     empty = tmp_path / "empty.sqlite"
     CycleLog(empty).close()
     assert cellctl(["diagnose", str(empty)]) == 2
@@ -240,38 +240,17 @@ def test_outside_options_only_with_validate(campaign_dir, capsys):
     assert "--out-of-vocabulary: only with 'cellctl diagnose validate'" in capsys.readouterr().err
 
 
-def test_a_planar_campaign_through_the_chain_engine(campaign_dir, capsys, tmp_path):
-    # --engine chain reads the planar campaign as the chain campaign it is (its points and its
-    # 3 moves' samples as poses) and answers in the chain report's shape
-    assert cellctl(["diagnose", str(campaign_dir), "--engine", "chain", "--json"]) == 0
+def test_a_planar_campaign_is_read_as_the_chain_it_is(campaign_dir, capsys):
+    # the one diagnosis reads the planar campaign as a two-joint chain seen in x and y (its
+    # points and its 3 moves' samples as poses) and answers in the one report's shape
+    assert cellctl(["diagnose", str(campaign_dir), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["chain"]["kinematics"] == "dh" and rep["chain"]["sensor_axes"] == ["x", "y"]
+    assert rep["chain"]["planar"] is True
     assert rep["cause"]["effect"] == "backlash" and rep["cause"]["joints"] == ["j2"], rep["cause"]
-    # a chain campaign has no planar engine; validate's engine is for its planar campaigns
-    from cell.truth.chain_campaign import make
-    chain_dir = make(tmp_path / "chain", {}, poses=20)
-    assert cellctl(["diagnose", str(chain_dir), "--engine", "planar"]) == 2
-    assert "only the chain engine" in capsys.readouterr().err
-    assert cellctl(["diagnose", str(chain_dir), "--engine", "chain"]) == 2
-    capsys.readouterr()
-    for extra in (["--chain"], ["--both"]):
-        assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "1", *extra]) == 2
-        assert f"--engine: not with {extra[0]}" in capsys.readouterr().err
 
 
-def test_validate_diagnoses_its_planar_campaigns_with_the_engine_asked_for(capsys):
-    # the same drawn campaigns, judged from each engine's own report
-    from cell.diagnosis import validate
-    assert cellctl(["diagnose", "validate", "--engine", "chain", "--trials", "2", "--seed", "3"]) == 0
-    assert "diagnosed by the chain engine" in capsys.readouterr().out
-    chain = validate.run(2, 3, engine="chain")
-    planar = validate.run(2, 3, engine="planar")
-    assert [t.truth_label for t in chain] == [t.truth_label for t in planar]
-    with pytest.raises(ValueError, match="unknown engine 'scara'"):
-        validate.run(1, 3, engine="scara")
-
-
-def test_a_short_cycle_log_through_the_chain_engine_prints_what_it_cannot_figure(tmp_path, capsys):
+def test_a_short_cycle_log_prints_what_it_cannot_figure(tmp_path, capsys):
     # 8 cycles at one target: one place, none to leave out, so the candidates' leave-out
     # errors are undefined (null in JSON); the text shows them as '–' instead of failing
     from cell.kinematics import Scara
@@ -288,9 +267,9 @@ def test_a_short_cycle_log_through_the_chain_engine_prints_what_it_cannot_figure
                                   trace=[{"joints_deg": q.tolist(), "point_mm": xy.tolist(),
                                           "error_mm": 0.3, "moved": True}]))
     log.close()
-    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite"), "--engine", "chain", "--json"]) == 0
+    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert any(r["cv_rms_mm"] is None for r in rep["ranking"]), rep["ranking"]
-    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite"), "--engine", "chain"]) == 0
+    assert cellctl(["diagnose", str(tmp_path / "cell.sqlite")]) == 0
     text = capsys.readouterr().out
     assert "| – |" in text and "cause:" in text

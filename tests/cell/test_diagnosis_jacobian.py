@@ -1,13 +1,12 @@
-"""The replay's exact Jacobian (cell/diagnosis/jacobian.py) against central finite
-differences, for every vocabulary effect at once and for the per-station lags; its values
-against the replay itself; the linearised screening against the full fit."""
+"""The planar replay's exact Jacobian (cell/diagnosis/jacobian.py, what the station lags'
+fit of a planar campaign evaluates) against central finite differences, for every
+vocabulary effect at once and for the per-station lags; its values against the replay
+itself."""
 import numpy as np
 import pytest
 
 from cell import effects as fx
-from cell.diagnosis import jacobian, screen
-from cell.diagnosis.candidates import single_candidates
-from cell.diagnosis.fit import fit_candidate, subset
+from cell.diagnosis import jacobian
 from cell.diagnosis.replay import predict, prepare
 from cell.sim.campaigns import Design, make_campaign
 
@@ -82,33 +81,3 @@ def test_lag_jacobian_matches_finite_differences(data):
 def test_two_comms_stages_are_refused(data):
     with pytest.raises(ValueError, match="at most one comms effect"):
         jacobian.evaluate(jacobian.rows_of(data), [EVERYTHING[-1]], lags_ms=[1.0, 2.0])
-
-
-def test_screening_is_one_gauss_newton_step_of_the_full_fit():
-    # a small offset: the linearised fit is nearly the full one, in value and score
-    truth = fx.make_effect("joint_offset", ("j2",), {"j2_offset_deg": 0.05})
-    d = prepare(make_campaign([truth], 5, Design(n_points=120, n_moves=2)))
-    fd, hd = subset(d, "fit"), subset(d, "holdout")
-    cands, _ = single_candidates(d)
-    B = screen.basis(fd, hd, cands)
-    c = (("joint_offset", ("j2",)),)
-    sc = screen.screen(B, c)
-    full = fit_candidate(c, fd, hd, B.n_total)
-    assert sc.x[0] == pytest.approx(full.params["j2_offset_deg"], rel=1e-3)
-    assert sc.bic == pytest.approx(full.bic, abs=2.0)
-    ranked = sorted(screen.screen_all(B, cands).values(), key=lambda s: s.bic)
-    assert ranked[0].candidate == c
-
-
-def test_finite_difference_fits_agree_with_analytic_ones():
-    truth = fx.make_effect("cyclic_error", ("j1",), {"j1_cyclic_amp_deg": 0.04,
-                                                     "j1_cyclic_phase_deg": 70.0,
-                                                     "j1_cyclic_period_deg": 120.0})
-    d = prepare(make_campaign([truth], 6, Design(n_points=120, n_moves=0)))
-    fd, hd = subset(d, "fit"), subset(d, "holdout")
-    c = (("cyclic_error", ("j1",)),)
-    a = fit_candidate(c, fd, hd, 2 * fd.n_points, orders={"j1": 3})
-    b = fit_candidate(c, fd, hd, 2 * fd.n_points, orders={"j1": 3}, jac="2-point")
-    for n in a.params:
-        assert a.params[n] == pytest.approx(b.params[n], rel=1e-4, abs=1e-6)
-    assert a.params["j1_cyclic_amp_deg"] == pytest.approx(0.04, rel=0.05)

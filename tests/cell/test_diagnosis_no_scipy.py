@@ -1,4 +1,4 @@
-"""The planar diagnosis of a campaign loads no scipy (its import was most of the start-up
+"""The diagnosis of a planar campaign loads no scipy (its import was most of the start-up
 CPU of ``cellctl diagnose``): fits by :mod:`cell.numerics.lsq`, neighbours and eigen-decompositions
 by numpy. Asserted on the modules loaded, never on time."""
 import subprocess
@@ -9,18 +9,18 @@ from cell.measurements import write_campaign
 from cell.sim.campaigns import Design, make_campaign
 
 
-def test_planar_diagnosis_imports_no_scipy(tmp_path):
+def test_the_diagnosis_of_a_planar_campaign_imports_no_scipy(tmp_path):
     truth = [fx.make_effect("backlash", ("j2",), {"j2_backlash_deg": 0.04})]
     d = write_campaign(make_campaign(truth, 7, Design(n_points=120)), tmp_path / "c")
     code = ("import sys\nfrom cell.measurements import read_campaign\n"
-            "from cell.diagnosis import diagnose\n"
-            f"r = diagnose(read_campaign({str(d)!r})).report\n"
+            "from cell.diagnosis.answer import diagnose_campaign\n"
+            f"r = diagnose_campaign(read_campaign({str(d)!r})).report\n"
             "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split(" ", 1)[1].strip() == "[]", out.stdout
 
 
-def test_the_chain_diagnosis_of_a_chain_campaign_loads_no_planar_search(tmp_path):
+def test_the_diagnosis_of_a_chain_campaign_loads_no_planar_replay(tmp_path):
     # the v1 figures of a planar campaign read as a chain need the planar replay; a chain
     # campaign's diagnosis must not pay for importing it (start-up is most of its CPU)
     from cell.truth.chain_campaign import make
@@ -29,7 +29,7 @@ def test_the_chain_diagnosis_of_a_chain_campaign_loads_no_planar_search(tmp_path
             "from cell.diagnosis.answer import diagnose_campaign\n"
             f"r = diagnose_campaign(read_campaign({str(d)!r})).report\n"
             "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy') or m in "
-            "('cell.diagnosis.report', 'cell.diagnosis.screen', 'cell.diagnosis.replay', "
+            "('cell.diagnosis.figures', 'cell.diagnosis.replay', "
             "'cell.diagnosis.delay', 'cell.diagnosis.chain.planar')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.rsplit(" ", 1)[1].strip() == "[]", out.stdout

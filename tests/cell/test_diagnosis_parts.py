@@ -1,12 +1,11 @@
-"""The diagnosis's parts on small hand-made data: where-analysis, candidates, a single fit,
-the path-noise estimate, the campaign preparation."""
+"""The diagnosis's parts on small hand-made data: where-analysis, what a campaign cannot
+identify, a fit from its start, the path-noise estimate, the campaign preparation."""
 import numpy as np
 import pytest
 
 from cell import effects as fx
 from cell.diagnosis import where
-from cell.diagnosis.candidates import merge, single_candidates
-from cell.diagnosis.fit import fit_candidate, label, subset
+from cell.diagnosis.answer import diagnose_campaign
 from cell.diagnosis.replay import first_step_dirs, path_noise_mm, prepare, residuals
 from cell.sim.campaigns import Design, make_campaign
 
@@ -45,50 +44,36 @@ def test_where_names_what_a_residual_varies_with(data):
     assert w.per_joint_rms_deg["j1"] is not None
 
 
-def test_candidates_follow_the_data():
+def test_what_the_data_cannot_identify_is_named_with_its_reason():
     c = make_campaign([], 32, Design(n_points=60, n_moves=0, rise_c=0.0))
     c.points["j2_dir"][:] = 1.0                                     # j2 always from below
-    cands, skipped = single_candidates(prepare(c))
-    labels = {label(x) for x in cands}
-    assert "backlash[j1]" in labels and "backlash[j2]" not in labels
-    assert "both directions" in skipped["backlash[j2]"]
-    assert "thermal_drift" in skipped and "comm_delay" in skipped
-    assert {"camera_scale", "camera_rotation", "gear_ratio[j1]"} <= labels
+    ni = diagnose_campaign(c).report["not_identifiable"]
+    assert "j1_backlash_deg" not in ni and "j2_backlash_deg" in ni, ni
+    assert "comm_delay_sigma_ms" in ni and "paths.csv" in ni["comm_delay_sigma_ms"]
+    assert not {"camera_scale_rel", "camera_rotation_deg", "j1_gear_ratio_rel"} & set(ni)
 
 
-def test_merge_of_two_singles():
-    a, b = (("backlash", ("j1",)),), (("backlash", ("j2",)),)
-    assert merge(a, b) == (("backlash", ("j1", "j2")),)
-    assert merge(a, a) is None
-    assert merge((("camera_scale", ()),), (("joint_offset", ("j2",)),)) == \
-        (("joint_offset", ("j2",)), ("camera_scale", ()))
-    assert merge((("camera_scale", ()),), (("camera_scale", ()),)) is None
-
-
-def test_fit_from_the_guess_recovers_an_anti_phase_cyclic_error():
-    # truth in anti-phase with the guess (phase 0): the linear start must avoid the amp=0 bound
+def test_an_anti_phase_cyclic_error_is_recovered():
+    # truth in anti-phase with a zero-phase guess: the fit must not stall on the amplitude
     truth = fx.make_effect("cyclic_error", ("j1",), {"j1_cyclic_amp_deg": 0.05,
                                                      "j1_cyclic_phase_deg": 180.0})
-    d = prepare(make_campaign([truth], 33, Design(n_points=120, n_moves=0)))
-    fd, hd = subset(d, "fit"), subset(d, "holdout")
-    r = fit_candidate(((("cyclic_error", ("j1",))),), fd, hd, 2 * fd.n_points)
-    assert r.identifiable and r.success
-    assert r.params["j1_cyclic_amp_deg"] == pytest.approx(0.05, rel=0.02)
-    assert r.params["j1_cyclic_phase_deg"] == pytest.approx(180.0, abs=2.0)
-    lo, hi = r.ci95["j1_cyclic_amp_deg"]
-    assert lo < 0.05 * 1.01 and hi > 0.05 * 0.99
-    assert r.holdout.rms < 0.02
+    rep = diagnose_campaign(make_campaign([truth], 33, Design(n_points=120, n_moves=0))).report
+    cause = rep["cause"]
+    assert (cause["effect"], cause["joints"]) == ("cyclic_error", ["j1"]), cause
+    assert cause["params"]["j1_cyclic_amp_deg"] == pytest.approx(0.05, rel=0.05)
+    assert cause["params"]["j1_cyclic_phase_deg"] == pytest.approx(180.0, abs=3.0)
+    lo, hi = cause["ci95"]["j1_cyclic_amp_deg"]
+    assert lo < 0.05 < hi
+    assert rep["holdout"]["rms_after_mm"] < 0.02
 
 
-def test_degenerate_pair_is_not_identifiable():
-    # without a camera centre offset from the base, camera rotation IS a j1 offset
+def test_a_camera_turn_about_the_base_is_a_j1_offset():
+    # with the camera centred on the base, turning the camera IS turning j1: not both
     truth = fx.make_effect("joint_offset", ("j1",), {"j1_offset_deg": 0.1})
     c = make_campaign([truth], 34, Design(n_points=80, n_moves=0, camera_center_mm=(0.0, 0.0)))
-    d = prepare(c)
-    fd, hd = subset(d, "fit"), subset(d, "holdout")
-    r = fit_candidate(((("joint_offset", ("j1",))), ("camera_rotation", ())), fd, hd,
-                      2 * fd.n_points)
-    assert not r.identifiable and ("correlation" in r.reason or "condition" in r.reason)
+    rep = diagnose_campaign(c).report
+    assert "camera_rotation" not in rep["cause"]["label"], rep["cause"]
+    assert rep["cause"]["effect"] == "joint_offset" and rep["cause"]["joints"] == ["j1"]
 
 
 def test_first_step_dirs():

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from cell import effects as fx
-from cell.diagnosis import diagnose, jacobian
+from cell.diagnosis import jacobian
+from cell.diagnosis.answer import diagnose_campaign
 from cell.diagnosis.replay import prepare
 from cell.measurements import read_campaign
 from cell.sim.campaigns import Design, make_campaign
@@ -85,7 +86,7 @@ def test_the_diagnosis_recovers_it_from_the_independent_truth(tmp_path):
     part = parts.Part("motor_cyclic_error", 2, {"cycles": 50, "cos_deg": 0.02, "sin_deg": -0.025})
     d = truth_campaign.write_campaign(tmp_path / "c", [part], 11,
                                       truth_campaign.Design(n_points=150))
-    rep = diagnose(read_campaign(d)).report
+    rep = diagnose_campaign(read_campaign(d)).report
     cause = rep["cause"]
     assert (cause["effect"], cause["joints"]) == ("motor_cyclic_error", ["j2"]), cause
     want = parts.answer(part).params

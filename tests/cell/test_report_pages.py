@@ -90,7 +90,7 @@ def test_page_answers_on_the_first_screen_without_sideways_overflow(pages, kind,
                 assert max(g["cause"], g["shrink"], g["action"]) <= g["innerH"], g
                 shot = tmp_path / f"{kind}.png"
                 assert driver.save_screenshot(str(shot)) and shot.stat().st_size > 20_000
-        assert g["images"] == 3 + (kind == "planar") and g["broken"] == 0
+        assert g["images"] == 3 + (kind == "planar") and g["broken"] == 0   # planar: its moves
         assert 3 <= g["rankingRows"] <= page.TABLE_ROWS + 1 and g["visiblePre"] == 0
         assert "HOLDOUT rms" in g["shrinkText"] and "FIT rms" in g["shrinkText"]
     # the first screen shows the report's own holdout figures (report.json beside the page)

@@ -12,7 +12,9 @@ registration; residual = measured − predicted point, mm, in the measurement fr
   from the side (x–z), before and after, one arrow scale and one colour scale (|residual|
   3-D, colour bar) for all four panels;
 - ``joints.png``: each pose's rms error before against each joint's reading, to see
-  what the gap follows.
+  what the gap follows;
+- ``paths.png`` (a planar campaign with measured moves): the residual along one holdout
+  move before and after, and the per-station lags against σ·k (the report's ``delay``).
 """
 from __future__ import annotations
 
@@ -62,6 +64,8 @@ def write_chain_html(cd: ChainDiagnosis, out_dir) -> Path:
     r = {(k, w): residuals(d, f) for k, d in (("fit", s.fit_d), ("hold", s.hold_d))
          for w, f in (("before", f0), ("after", f1))}
     figs = [_poses(plt, s, r, after, out), _vectors(plt, s, r, after, out), _joints(plt, s, r, out)]
+    if cd.reading is not None and cd.reading.d.moves:
+        figs.append(_moves(plt, cd.reading, rep.get("delay"), out))
     (out / "report.json").write_text(json.dumps(rep, indent=2), encoding="utf-8")
     fit = page.FitRms(rep["registration"]["rms_mm"], rep["noise"]["fit_rms_mm"],
                       f"{rep['split']['fit_poses']} poses, {rep['split']['fit_rows']} points")
@@ -162,3 +166,32 @@ def _joints(plt, s, r, out: Path) -> page.Figure:
                        "Each pose's error after registration alone against each joint's reading "
                        "(revolute in deg, prismatic in mm), and against its temperature when "
                        "the campaign records one.")
+
+
+def _moves(plt, pr, delay: dict | None, out: Path) -> page.Figure:
+    d = pr.d
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4), dpi=90)
+    m = next((mv for mv in d.moves if not mv.fit), d.moves[0])
+    k = sum(len(mm.t) for mm in d.moves[:d.moves.index(m)])
+    sl = slice(k, k + len(m.t))
+    for name, r in (("before", pr.nominal), ("after", pr.named)):
+        axes[0].plot(m.t * 1e3, np.hypot(*pr.rows.paths(r)[sl].T), label=name)
+    axes[0].set_xlabel("time in move, ms")
+    axes[0].set_ylabel("|residual|, mm")
+    axes[0].set_title(f"move {m.move} ({'fit' if m.fit else 'holdout'})", loc="left", fontsize=10)
+    axes[0].legend()
+    if delay:
+        names = sorted(delay["lags_ms"])
+        lam = np.array([delay["lags_ms"][j] for j in names])
+        ci = np.array([delay["ci95_ms"][j] for j in names])
+        axes[1].bar(names, lam, yerr=[lam - ci[:, 0], ci[:, 1] - lam], capsize=6, alpha=0.7,
+                    label="fitted lag (95 %)")
+        axes[1].plot(names, [delay["sigma_ms"] * delay["station_position"][j] for j in names],
+                     "ko--", label="σ·k")
+        axes[1].set_ylabel("lag, ms")
+        axes[1].legend()
+        axes[1].set_title("per-station lag vs station position", loc="left", fontsize=10)
+    png = page.save_figure(plt, fig, out / "paths.png").name
+    return page.Figure(png, "Moves",
+                       "The residual along one held-out move before and after the named cause; "
+                       "the lag fitted per station against σ times its bus position.")

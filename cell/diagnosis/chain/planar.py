@@ -1,9 +1,9 @@
 """The v1 (SCARA) report's figures in the chain diagnosis of a planar campaign read as a
-chain (:func:`cell.measurements.chain.planar_as_chain`), so that either engine's report
-on a planar campaign carries the same keys with the same meaning (``cell/measurements.md``,
+chain (:func:`cell.measurements.chain.planar_as_chain`), so that the report of a planar
+campaign carries the v1 report's keys with their v1 meaning (``cell/measurements.md``,
 "Format version 1.3").
 
-Every figure is computed from the chain engine's own fits: the registration-only fit
+Every figure is computed from the chain diagnosis's own fits: the registration-only fit
 (the nominal model: a planar reading's registration has no parameters) and the named
 cause, evaluated on every pose, whose residuals are split back into the campaign's
 points and path samples by :class:`~cell.measurements.chain.PlanarRows`. The planar
@@ -25,20 +25,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cell.diagnosis import delay as delay_mod
-from cell.diagnosis import robust as planar_robust
 from cell.diagnosis import where as where_mod
 from cell.diagnosis.chain import fit as F
 from cell.diagnosis.chain import rank
 from cell.diagnosis.chain.robust import Outliers
-from cell.diagnosis.fit import TableStats, combined, subset
+from cell.diagnosis.figures import (TableStats, combined, point_estimates, remainder_where,
+                                    spread as fit_spread, subset, table_stats)
 from cell.diagnosis.replay import DiagData, path_noise_mm, prepare
-from cell.diagnosis.report import point_estimates, remainder_where, table_stats
 from cell.measurements import CampaignFormatError
 from cell.measurements.chain import ChainCampaign, PlanarRows
 
 COMMS = "comm_delay"     # the chain effect whose parameters are the lags, not a static part
-#: a chain harmonic's sine coefficient: joint, stem (``cyclic{n}`` or ``motor_cyclic``), n
-HARMONIC = re.compile(r"^(j\d+)_(cyclic(\d+)|motor_cyclic)_sin_deg$")
+#: a chain harmonic's coefficient: joint, stem (``cyclic{n}`` or ``motor_cyclic``), n, part
+HARMONIC = re.compile(r"^(j\d+)_(cyclic(\d+)|motor_cyclic)_(sin|cos)_deg$")
 
 
 @dataclass
@@ -80,7 +79,7 @@ def reading(cc: ChainCampaign, d_all: F.Data, fit_mask: np.ndarray, keep: np.nda
     if rows is None or len(cc.markers) != 1 or d_all.dims != 2:
         return None
     try:
-        d = prepare(rows.campaign)
+        d = rows.arrays if rows.arrays is not None else prepare(rows.campaign)
     except CampaignFormatError:
         return None
     fit_rows = np.concatenate([d.points.fit if d.points is not None else np.zeros(0, bool),
@@ -142,7 +141,7 @@ def station_lags(r: Reading, d_all: F.Data, dec: rank.Decision) -> dict | None:
 def noise(r: Reading, noise_mm: float | None) -> dict:
     """``noise``'s v1 figures: the paths' σ (model-free), the named cause's fit rms per
     table (rows not set aside), and every point noise estimate of the named cause's
-    remainder on the points (:func:`cell.diagnosis.report.point_estimates`)."""
+    remainder on the points (:func:`cell.diagnosis.figures.point_estimates`)."""
     sigma_q = path_noise_mm(r.d)
     fp, fq = r.tables(r.named, r.fit & r.keep)
     _, est = point_estimates(r.d, r.rows.points(r.named), r.rows.points(r.keep), noise_mm, sigma_q)
@@ -184,9 +183,9 @@ def split_source(r: Reading) -> dict:
 
 
 def spread(r: Reading) -> dict:
-    """``spread``: the places the fit rows cover (:func:`cell.diagnosis.robust.spread`)."""
+    """``spread``: the places the fit rows cover (:func:`cell.diagnosis.figures.spread`)."""
     return {k: (_r(v, 3) if isinstance(v, float) else v)
-            for k, v in planar_robust.spread(subset(r.d, "fit")).items()}
+            for k, v in fit_spread(subset(r.d, "fit")).items()}
 
 
 def _box(s: float, c: float, s_ci, c_ci) -> tuple[list, list]:
@@ -204,6 +203,20 @@ def _box(s: float, c: float, s_ci, c_ci) -> tuple[list, list]:
     return amp, [_r(phi + min(d), 9), _r(phi + max(d), 9)]
 
 
+LINK = re.compile(r"^(j\d+)_a_mm$")
+
+
+def v1_params(params: dict, ci95: dict) -> tuple[dict, dict]:
+    """The v1 names of a planar reading's parameters, to add beside the chain's: a link's
+    DH ``jK_a_mm`` (the length change of link K, the planar reading's a) as
+    ``jK_link_delta_mm``, and a cyclic error's by :func:`harmonic_params`."""
+    out, ci = harmonic_params(params, ci95)
+    for name, v in params.items():
+        if (m := LINK.match(name)) and name in ci95:
+            out[f"{m[1]}_link_delta_mm"], ci[f"{m[1]}_link_delta_mm"] = v, list(ci95[name])
+    return out, ci
+
+
 def harmonic_params(params: dict, ci95: dict) -> tuple[dict, dict]:
     """The v1 names of a chain's harmonic parameters, to add beside them: a joint's
     ``jK_cyclic{n}_sin_deg`` / ``_cos_deg`` (one order n only: v1 has one per joint) as
@@ -211,20 +224,23 @@ def harmonic_params(params: dict, ci95: dict) -> tuple[dict, dict]:
     and ``jK_cyclic_period_deg`` (their intervals the one order: the chain does not report
     a likelihood set of orders), and ``jK_motor_cyclic_sin_deg`` / ``_cos_deg`` as
     ``jK_motor_cyclic_amp_deg``, ``jK_motor_cyclic_phase_deg``; amplitude and phase
-    intervals by :func:`_box`."""
+    intervals by :func:`_box`. A coefficient the chain's selection left out (fixed at 0)
+    counts as 0 with the interval [0, 0]."""
     out, ci = {}, {}
-    found = [(m, n) for n in params if (m := HARMONIC.match(n))]
-    orders = Counter(m[1] for m, _ in found if m[3])
-    for m, name in found:
-        j, stem, order = m[1], m[2], m[3]
-        cos = f"{j}_{stem}_cos_deg"
-        s, c = params[name], params.get(cos)
-        if (order and orders[j] > 1) or s is None or c is None or name not in ci95 or cos not in ci95:
+    found = {(m[1], m[2], m[3]): None for n in params if (m := HARMONIC.match(n))}
+    orders = Counter(j for j, _, order in found if order)
+    for j, stem, order in found:
+        sin, cos = f"{j}_{stem}_sin_deg", f"{j}_{stem}_cos_deg"
+        if (order and orders[j] > 1) or any(n in params and n not in ci95 for n in (sin, cos)):
+            continue
+        s, c = params.get(sin, 0.0), params.get(cos, 0.0)
+        if s is None or c is None:
             continue
         base = "cyclic" if order else "motor_cyclic"
         out[f"{j}_{base}_amp_deg"] = _r(math.hypot(s, c), 9)
         out[f"{j}_{base}_phase_deg"] = _r(math.degrees(math.atan2(c, s)) % 360.0, 9)
-        ci[f"{j}_{base}_amp_deg"], ci[f"{j}_{base}_phase_deg"] = _box(s, c, ci95[name], ci95[cos])
+        ci[f"{j}_{base}_amp_deg"], ci[f"{j}_{base}_phase_deg"] = _box(
+            s, c, ci95.get(sin, [0.0, 0.0]), ci95.get(cos, [0.0, 0.0]))
         if order:
             n = int(order)
             out[f"{j}_cyclic_order"], ci[f"{j}_cyclic_order"] = n, [n, n]

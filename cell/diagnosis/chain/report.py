@@ -13,7 +13,7 @@ function of the readings, so they should agree.
 
 A planar campaign read as a chain (``cc.planar``) also gets the v1 report's figures with
 their v1 meaning (:mod:`cell.diagnosis.chain.planar`, ``cell/measurements.md`` "Format
-version 1.3"): the same report keys whichever engine diagnoses it.
+version 1.3"): a consumer of the v1 report reads it as before.
 """
 from __future__ import annotations
 
@@ -82,7 +82,8 @@ def _params(c: rank.Candidate) -> tuple[dict, dict]:
 
 
 def _components(c: rank.Candidate) -> list[dict]:
-    """Per effect of a candidate: its parameters' rms displacement of the points, mm."""
+    """Per effect of a candidate: its joints, its parameters and their rms displacement of
+    the points, mm."""
     f = c.fit
     nr = f.J.shape[1] - len(f.params)
     out = []
@@ -91,6 +92,7 @@ def _components(c: rank.Candidate) -> list[dict]:
         disp = (f.J[:, idx] @ f.values[[i - nr for i in idx]]).reshape(-1, c.fit.resid.shape[1])
         joints = {f"j{p.joint + 1}" for p in f.params if p.effect == e and p.on_joint}
         out.append({"effect": e, "joints": sorted(joints, key=lambda s: int(s[1:])),
+                    "params": {p.name: _r(v, 9) for p, v in zip(f.params, f.values) if p.effect == e},
                     "rms_mm": _r(F.rms3(disp))})
     return sorted(out, key=lambda x: -(x["rms_mm"] or 0))
 
@@ -110,11 +112,14 @@ def _entry(c: rank.Candidate) -> dict:
 
 @dataclass
 class ChainDiagnosis:
-    """The report and what it was computed from (the HTML page's plots need the fits)."""
+    """The report and what it was computed from (the HTML page's plots need the fits);
+    ``reading`` the planar campaign's rows beside them (:class:`.planar.Reading`) when the
+    campaign is a planar one read as a chain, else None."""
 
     report: dict
     search: rank.Search
     decision: rank.Decision
+    reading: object = None
 
 
 def diagnose_chain(cc: ChainCampaign, noise_mm: float | None = None) -> dict:
@@ -143,6 +148,10 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     # (two degrees of freedom) must not make a gap look systematic
     noise_hi = None if noise_mm is None else upper95(noise_mm, noise_dof)
     dec = rank.decide(s, noise_hi, noise_mm)
+    if noise_src.startswith("residual") and not dec.unexplained:
+        dec.notes.append("the noise was estimated from the remainder itself (no revisited poses, "
+                         "no --noise-mm): a gap that is not smooth over the poses cannot be told "
+                         "from noise; give --noise-mm or measure some poses twice")
     dec.warnings += outl.warnings
     if outl.n:
         cut = f"{outl.cut_mm:.3f} mm" if len(outl.scales) < 2 else " (static poses), ".join(
@@ -266,7 +275,7 @@ def diagnose_chain_full(cc: ChainCampaign, noise_mm: float | None = None) -> Cha
     }
     if pr is not None:
         _planar_fields(rep, pr, gap_v1, wh, d_all, dec, outl, given)
-    return ChainDiagnosis(rep, s, dec)
+    return ChainDiagnosis(rep, s, dec, pr)
 
 
 def _planar_fields(rep: dict, pr, gap_v1: dict, wh, d_all: F.Data,
@@ -280,7 +289,7 @@ def _planar_fields(rep: dict, pr, gap_v1: dict, wh, d_all: F.Data,
     parameters by their v1 names."""
     rep["chain"]["planar"] = True
     from cell.diagnosis.chain import planar
-    from cell.diagnosis.report import where_figures
+    from cell.diagnosis.figures import where_figures
     rep["gap"] = gap_v1 | {"where": rep["gap"]["where"] | where_figures(wh)}
     rep["holdout"] |= planar.holdout_tables(pr)
     rep["delay"] = planar.station_lags(pr, d_all, dec)
@@ -290,7 +299,10 @@ def _planar_fields(rep: dict, pr, gap_v1: dict, wh, d_all: F.Data,
     rep["spread"] = planar.spread(pr)
     rep["split"]["source"] = planar.split_source(pr)
     rep["remainder"] |= planar.remainder(pr, dec)
-    for x in [rep["cause"]] + rep["ranking"]:      # a cyclic error's v1 parameters beside its own
-        add, ci = planar.harmonic_params(x["params"], x["ci95"])
+    for x in [rep["cause"]] + rep["ranking"]:      # the v1 parameter names beside the chain's
+        for comp in x.get("components", []):
+            comp["params"] |= planar.v1_params(comp["params"], {
+                k: x["ci95"][k] for k in comp["params"] if k in x["ci95"]})[0]
+        add, ci = planar.v1_params(x["params"], x["ci95"])
         x["params"] |= add
         x["ci95"] |= ci

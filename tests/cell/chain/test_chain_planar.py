@@ -121,11 +121,11 @@ def test_a_joint_zero_that_steps_mid_campaign_is_not_a_constant_offset(tmp_path,
 @pytest.mark.parametrize("trial, truth", [(101, "backlash[j2]"), (43, "thermal_drift + camera_scale")])
 def test_an_untestable_truth_is_among_the_rivals_on_the_joints_and_beside_the_effect_it_hides_behind(trial, truth):
     # trials of the planar validation, seed 0, read as chains (cellctl diagnose validate
-    # --engine chain): 101, a backlash of j2 without direction columns, named a gear ratio of
+    # ): 101, a backlash of j2 without direction columns, named a gear ratio of
     # j2 beside a rival on j1 (the untestable backlash came as "on j1, j2"); 43, a thermal
     # growth without temperatures beside a camera scale, named link lengths and the scale
     # (the thermal growth came alone). Both were ambiguous answers without the truth
-    t = validate.run_trial(trial, 0, engine="chain")
+    t = validate.run_trial(trial, 0)
     assert (t.truth_label, t.verdict) == (truth, "ambiguous"), t.answer_label
 
 
@@ -134,11 +134,11 @@ def test_an_untestable_truth_is_among_the_rivals_on_the_joints_and_beside_the_ef
     (178, "thermal_drift + camera_rotation"),       # had named link lengths + the rotation
 ])
 def test_a_two_effect_truth_is_named_right_by_the_chain_engine(trial, truth):
-    # trials of the planar validation with a second effect (seed 0, --combos --engine chain):
+    # trials of the planar validation with a second effect (seed 0, --combos):
     # 94 needs the places trim of a pair (the test over poses kept a j2 offset the moves'
     # samples carried), 178 the best pair fitted with link lengths swapped for the thermal
     # growth that can stand in for them (no pair tried held it)
-    t = validate.run_trial(trial, 0, combos=True, engine="chain")
+    t = validate.run_trial(trial, 0, combos=True)
     assert (t.truth_label, t.verdict) == (truth, "right"), t.answer_label
 
 
