@@ -1,13 +1,13 @@
 """The effect vocabulary shared by the plant (which makes the truth), the sim-to-real
-diagnosis (which fits it) and the chain diagnosis. Pure, vectorised numerics; no I/O.
+diagnosis (which fits it) and the calibrations. Pure, vectorised numerics; no I/O.
 
 **One definition per effect**: each effect is one module of this package
 (``cell/effects/<name>.py``) holding one :class:`Effect` that carries its parameters and
 units, its forward function and analytic derivative, its subsystem and ``depends_on``,
-what a campaign must vary to identify it (``needs``), what stands in for it when it cannot
-be tested (``mimics``), the recommended action (``remedy``), whether and how it applies to
-a serial chain (``chain``) and, if it needs one, its linear parametrisation for the
-screening (``linear``); :mod:`cell.effects.base` documents each field.
+what stands in for it when it cannot be tested (``mimics``), the recommended action
+(``remedy``), and how it applies to a serial chain (``chain``: its term, the derivative the
+diagnosis fits with, and what makes it identifiable); :mod:`cell.effects.base` documents
+each field.
 :mod:`cell.effects.vocabulary` lists them: :data:`REGISTRY` all, :data:`EFFECTS` the
 planar vocabulary, :data:`CHAIN_EFFECTS` the chain's. ``docs/adding-an-effect.md`` is the
 recipe for a new one.
@@ -38,10 +38,8 @@ dimensionless. Per-joint parameters are named ``<joint>_<stem>`` (``j2_backlash_
 """
 from __future__ import annotations
 
-from cell.effects.base import (PLANAR_JOINTS, STAGES, SUBSYSTEMS, AngleSpan, BothDirections,
-                               CameraCentre, ChainPoses, Effect, Layout, Linear, MovingCommands,
-                               OnChain,
-                               ParamSpec, PhaseCoverage, Remedy, Requirement, Stage, TempSpread)
+from cell.effects.base import (PLANAR_JOINTS, STAGES, SUBSYSTEMS, ChainPoses, Effect, OnChain,
+                               ParamSpec, Remedy, Stage)
 from cell.effects.vocabulary import CHAIN_EFFECTS, EFFECTS, REGISTRY
 from cell.effects.instances import (EffectInstance, make_effect, reference_temp_c, split_vector,
                                    stack_vectors)
@@ -52,9 +50,7 @@ from cell.effects.comm_delay import comm_delay  # noqa: E402  (the function, not
 from cell.errors import ConfigError  # noqa: F401  (kept: callers catch fx.ConfigError)
 
 __all__ = ["PLANAR_JOINTS", "Stage", "STAGES", "SUBSYSTEMS", "STATION_NAMES", "DEFAULT_STATIONS",
-           "ParamSpec", "Effect", "Layout", "Requirement", "TempSpread", "BothDirections",
-           "AngleSpan", "PhaseCoverage", "CameraCentre", "MovingCommands", "Remedy", "OnChain",
-           "ChainPoses", "Linear", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",
+           "ParamSpec", "Effect", "Remedy", "OnChain", "ChainPoses", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",
            "stack_vectors", "split_vector", "reference_temp_c", "true_joints", "true_links", "planar_fk",
            "camera_view", "simulate_points", "simulate_path", "station_order",
            "path_directions", "comm_delay"]

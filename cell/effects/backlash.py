@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, PLANAR_JOINTS, BothDirections, Effect, OnChain,
+from cell.effects.base import (CALIBRATE_JOINT, PLANAR_JOINTS, Effect, OnChain,
                                ParamSpec, Remedy, grid)
 
 
@@ -34,7 +34,6 @@ EFFECT = Effect(
     "backlash", "transmission", "joint", PLANAR_JOINTS, True, (WIDTH,),
     "direction", "lost motion: the joint depends on the approach direction", backlash, d_backlash,
     mimics=("joint_offset", "gear_ratio", "cyclic_error"),
-    needs=(BothDirections(),),
     remedy=CALIBRATE_JOINT,
     chain=OnChain("all", "backlash_{unit}",
                   remedy=Remedy("calibrate_joint", "Compensate the lost motion, or service the "

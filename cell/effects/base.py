@@ -1,22 +1,21 @@
 """What one effect definition is made of: :class:`Effect` and the small declarative pieces
-it carries (:class:`ParamSpec`, the identifiability requirements, :class:`Remedy`,
-:class:`OnChain`, :class:`Linear`). Pure; no I/O.
+it carries (:class:`ParamSpec`, :class:`Remedy`, :class:`OnChain`). Pure; no I/O.
 
 An effect is defined once, in its own module of this package (``cell/effects/<name>.py``),
 and listed in :mod:`cell.effects.vocabulary`. Everything else reads the definition: the
-plant and the replay call ``fn``; the fitter's Jacobian (:mod:`cell.diagnosis.jacobian`)
-calls ``deriv``; the candidate check (:mod:`cell.diagnosis.candidates`) asks each of
-``needs`` whether a campaign can identify it; the screening (:mod:`cell.diagnosis.screen`)
-reads ``linear``; the recommended action (:mod:`cell.diagnosis.action`) is ``remedy``; the
-chain fitter (:mod:`cell.diagnosis.chain.fit`) takes its vocabulary, subsystems and ``depends_on``
-from the effects with ``chain``. See ``docs/adding-an-effect.md``.
+plant and the planar replay call ``fn``; the joint calibration and the station lags' fit
+(:mod:`cell.diagnosis.jacobian`) call ``deriv``; the recommended action
+(:mod:`cell.diagnosis.action`) is ``remedy``; the diagnosis (:mod:`cell.diagnosis.chain.fit`)
+takes its vocabulary, subsystems, ``depends_on``, derivatives (``OnChain.term``) and what
+makes each effect identifiable (``OnChain.unseen``, ``OnChain.coverage``) from ``chain``.
+See ``docs/adding-an-effect.md``.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -61,101 +60,17 @@ class ParamSpec:
 
 
 # ------------------------------------------------------------------ identifiability
-@dataclass(frozen=True)
-class Layout:
-    """What the fit rows of a campaign vary, as the requirements read it (the diagnosis
-    builds it from its data): ``angles`` (n,2) deg the commanded joint angles of the fit
-    points and fit path samples; ``directions`` per joint the signs of last motion seen
-    (−1, +1); ``temp`` (n_points,) °C of the fit points or None without a temp_c column;
-    ``has_center`` the model gives the camera centre; ``moving`` the fit rows hold moves
-    whose commands change; ``groups`` (n,) int the place of each row of ``angles`` (poses
-    closer than the places' linkage are one place, the poses alone at theirs one group
-    together, :func:`cell.diagnosis.places.stations`; each move is one), None: one place."""
-
-    angles: np.ndarray
-    directions: tuple[frozenset, frozenset]
-    temp: np.ndarray | None
-    has_center: bool
-    moving: bool
-    groups: np.ndarray | None = None
-
-
-class Requirement:
-    """One thing a campaign must vary for an effect to be identifiable. ``why(layout,
-    jidx, joints, params)`` is '' when it holds, else the reason (one short phrase, for the
-    report's ``not_identifiable``). ``jidx`` / ``joints`` the candidate's joints (0-based /
-    names, empty for effects on no joint); ``params`` the effect's constants by stem."""
-
-    def why(self, layout: Layout, jidx: Sequence[int], joints: Sequence[str],
-            params: Mapping[str, float]) -> str:  # pragma: no cover - interface
-        raise NotImplementedError
-
-
-@dataclass(frozen=True)
-class TempSpread(Requirement):
-    """A temp_c column whose spread (standard deviation over the fit points) is at least
-    ``min_k``; ``otherwise`` says what the effect then looks like."""
-
-    min_k: float
-    otherwise: str
-
-    def why(self, layout, jidx, joints, params):
-        if layout.temp is None:
-            return "no temp_c column"
-        sd = float(np.std(layout.temp))
-        return "" if sd >= self.min_k else \
-            f"temperature spread {sd:.3f} K < {self.min_k} K: {self.otherwise}"
-
-
-@dataclass(frozen=True)
-class BothDirections(Requirement):
-    """The joint was measured after motions in both directions (points' jK_dir, or moves
-    running both ways)."""
-
-    def why(self, layout, jidx, joints, params):
-        return "" if layout.directions[jidx[0]] == {-1.0, 1.0} else \
-            f"{joints[0]} was never measured after motions in both directions"
-
-
-@dataclass(frozen=True)
-class AngleSpan(Requirement):
-    """The joint's commanded angle spans at least ``min_deg`` over the fit rows (a scale or
-    slow periodic error over a tiny span is an offset)."""
-
-    min_deg: float
-
-    def why(self, layout, jidx, joints, params):
-        span = float(np.ptp(layout.angles[:, jidx[0]])) if len(layout.angles) else 0.0
-        return "" if span >= self.min_deg else \
-            f"{joints[0]} spans {span:.1f}° < {self.min_deg}°"
-
-
-@dataclass(frozen=True)
-class PhaseCoverage(Requirement):
-    """The joint's fit rows sample a short known period densely **within each place**:
-    with the phase ψ = 2π·θ_cmd·``per_rev``/360° (``per_rev`` the stem of the constant
-    giving the periods per joint revolution), the pooled within-place covariance of
-    (sin ψ, cos ψ) (each place's mean taken off, :attr:`Layout.groups`) has its smaller
-    eigenvalue at least ``min_share`` × ½ (½ is what evenly spread phases give). Then
-    sin ψ and cos ψ are told from each other, from a constant (an offset) and from any
-    error that differs only from place to place. It fails for a joint that stays put, for
-    angles that all sit at the same phase or at two opposite ones (a fixed step of a whole
-    or half period, as a stepped sweep can be), and at stations whose jitter spans much
-    less than one period."""
-
-    per_rev: str
-    min_share: float = 0.5
-
-    def why(self, layout, jidx, joints, params):
-        a = layout.angles[:, jidx[0]] if len(layout.angles) else np.zeros(0)
-        return phase_coverage(a, float(params[self.per_rev]), layout.groups, joints[0],
-                              self.min_share)
-
-
 def phase_coverage(angles: np.ndarray, per_rev: float, groups: np.ndarray | None, joint: str,
                    min_share: float = 0.5) -> str:
     """'' when ``angles`` (deg) sample a period of 360°/``per_rev`` densely within each of
-    their ``groups`` (places; None: one place), else why not (:class:`PhaseCoverage`)."""
+    their ``groups`` (places; None: one place), else why not. With the phase ψ =
+    2π·θ·``per_rev``/360°, the pooled within-place covariance of (sin ψ, cos ψ) (each
+    place's mean taken off) must have its smaller eigenvalue at least ``min_share`` × ½ (½
+    is what evenly spread phases give): then sin ψ and cos ψ are told from each other, from
+    a constant (an offset) and from any error that differs only from place to place. It
+    fails for a joint that stays put, for angles that all sit at one phase or at two
+    opposite ones (a fixed step of a whole or half period, as a stepped sweep can be), and
+    at stations whose jitter spans much less than one period."""
     a = np.asarray(angles, float)
     if len(a) < 3:
         return f"{joint} has {len(a)} fit rows: a period of {360.0 / per_rev:.3g}° needs 3"
@@ -170,22 +85,6 @@ def phase_coverage(angles: np.ndarray, per_rev: float, groups: np.ndarray | None
     return "" if lam >= 0.5 * min_share else \
         (f"{joint}'s angles sample the {360.0 / per_rev:.3g}° period too sparsely "
          f"(phase spread {lam / 0.5:.2f} < {min_share})")
-
-
-@dataclass(frozen=True)
-class CameraCentre(Requirement):
-    """model.yaml gives the camera centre (the camera maps act about it)."""
-
-    def why(self, layout, jidx, joints, params):
-        return "" if layout.has_center else "model.yaml gives no camera centre"
-
-
-@dataclass(frozen=True)
-class MovingCommands(Requirement):
-    """The fit rows hold measured moves (paths.csv) whose commands change."""
-
-    def why(self, layout, jidx, joints, params):
-        return "" if layout.moving else "no measured moves (paths.csv) in the fit rows"
 
 
 # ------------------------------------------------------------------ what to do
@@ -338,29 +237,6 @@ def constant_term(poses: ChainPoses, k: int) -> np.ndarray:
     return np.ones(len(poses.q))
 
 
-# ------------------------------------------------------------------ screening
-@dataclass(frozen=True)
-class Linear:
-    """How the screening linearises the effect, when not simply by its own (first) fitted
-    parameter at zero size.
-
-    ``probes``: per joint, one response column per probe; each probe is a zero-sized
-    instance with these parameters or constants (by stem), whose first fitted parameter's
-    derivative is the column. ``orders`` lets the screening try each harmonic order k and
-    keep the best; ``at_order(k)`` gives the constants (by stem) of order k.
-    ``to_params(coefs (ncol,), k or None) -> {stem: value}`` maps the fitted coefficients
-    back to the effect's parameters (constants included). ``path_nuisance``: the stem of a
-    reference temperature constant; the effect's response on the path samples (which carry
-    no temperature) gets a column of its own, a nuisance β = (first parameter)·(T_path −
-    reference), from which the path temperature follows."""
-
-    probes: tuple[Mapping[str, float], ...] = ()
-    to_params: Callable[[np.ndarray, int | None], dict] | None = None
-    orders: tuple[int, ...] = ()
-    at_order: Callable[[int], dict] | None = None
-    path_nuisance: str | None = None
-
-
 # ------------------------------------------------------------------ the definition
 @dataclass(frozen=True)
 class Effect:
@@ -383,13 +259,13 @@ class Effect:
     :meth:`param_names` order; ``jidx`` the 0-based joint indices. An effect with
     ``fn=None`` is not planar (``chain`` only).
 
-    ``needs``: the :class:`Requirement` s a campaign must meet for the effect to be fitted.
     ``mimics``: the effects whose fit stands in for this one when the campaign lacks what
     identifies it (thermal drift without a temperature column looks like longer links;
     backlash without directions like any error of its joint). Such an effect cannot be
     tested, but it stays a rival of a cause that names one of them on its joints.
     ``remedy`` the recommended action; ``chain`` how it applies to a serial chain (None: it
-    does not); ``linear`` its screening parametrisation (None: its own parameters).
+    does not), which also says what makes it identifiable (:class:`OnChain`: ``unseen``,
+    ``coverage``).
     """
 
     name: str
@@ -403,10 +279,8 @@ class Effect:
     fn: Callable[..., np.ndarray] | None = field(default=None, repr=False)
     deriv: Callable | None = field(default=None, repr=False)
     mimics: tuple[str, ...] = ()
-    needs: tuple[Requirement, ...] = ()
     remedy: Remedy | None = None
     chain: OnChain | None = None
-    linear: Linear | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "stage", Stage(self.stage))   # an unknown stage fails here, by name
@@ -436,16 +310,6 @@ class Effect:
     def constants(self) -> dict[str, float]:
         """The known constants by stem, at their default."""
         return {p.stem: float(p.default) for p in self.params if not p.fitted}
-
-    def unidentifiable(self, layout: Layout, joints: Sequence[str] = ()) -> str:
-        """'' if a campaign of ``layout`` can identify the effect on ``joints``, else the
-        first unmet requirement's reason."""
-        jidx = [PLANAR_JOINTS.index(j) for j in joints]
-        for req in self.needs:
-            why = req.why(layout, jidx, list(joints), self.constants())
-            if why:
-                return why
-        return ""
 
     def zero(self, joints: Sequence[str] = ()):
         """A zero-sized instance (fitted parameters 0, constants at their default): no effect."""

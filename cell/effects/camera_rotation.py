@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from cell.effects.base import CameraCentre, Effect, OnChain, ParamSpec, planar_map
+from cell.effects.base import Effect, OnChain, ParamSpec, planar_map
 from cell.effects.camera_scale import CHECK_CAMERA, NO_CENTRE
 
 
@@ -39,6 +39,6 @@ TURN = ParamSpec("camera_rotation_deg", "deg", "rotation about the camera centre
 EFFECT = Effect(
     "camera_rotation", "vision", "vision", (), False, (TURN,),
     "position", "camera rotated about its centre", camera_rotation, d_camera_rotation,
-    needs=(CameraCentre(),), remedy=CHECK_CAMERA,
+    remedy=CHECK_CAMERA,
     chain=OnChain("sensor", "camera_rotation_deg", "deg", sensor_map=chain_rotation,
                   unseen=NO_CENTRE, remedy=CHECK_CAMERA, bounds=TURN.bounds))

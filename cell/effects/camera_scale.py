@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import CameraCentre, Effect, OnChain, ParamSpec, Remedy, planar_map
+from cell.effects.base import Effect, OnChain, ParamSpec, Remedy, planar_map
 
 NO_CENTRE = "model.yaml gives no sensor_center_mm"
 CHECK_CAMERA = Remedy("camera", "Check the camera calibration ({what}).",
@@ -34,6 +34,6 @@ SCALE = ParamSpec("camera_scale_rel", "1", "scale about the camera centre", (-0.
 EFFECT = Effect(
     "camera_scale", "vision", "vision", (), False, (SCALE,),
     "position", "camera scale error about its centre", camera_scale, d_camera_scale,
-    needs=(CameraCentre(),), remedy=CHECK_CAMERA,
+    remedy=CHECK_CAMERA,
     chain=OnChain("sensor", "camera_scale_rel", "1", sensor_map=chain_scale, unseen=NO_CENTRE,
                   bounds=SCALE.bounds))

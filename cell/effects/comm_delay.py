@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import ChainPoses, Effect, MovingCommands, OnChain, ParamSpec, Remedy
+from cell.effects.base import ChainPoses, Effect, OnChain, ParamSpec, Remedy
 
 
 def comm_delay(x, order, time_s, cmd_deg):
@@ -70,7 +70,6 @@ EFFECT = Effect(
     "comm_delay", "comms", "comms", (), False,
     (SIGMA,),
     "speed", "joints receive their commands one after another", comm_delay, d_comm_delay,
-    needs=(MovingCommands(),),
     remedy=Remedy("comms", "Check the joint stations' delays on the bus and the recipe's "
                   "motion.sync (corrected or sync), then run a line to compare.",
                   ("cellctl recipe show NAME",)),

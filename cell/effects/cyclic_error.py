@@ -7,9 +7,8 @@ import math
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, AngleSpan, ChainPoses, Effect,
-                               Linear, OnChain, ParamSpec, Remedy, grid)
-from cell.effects.gear_ratio import MIN_ANGLE_SPAN_DEG
+from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, ChainPoses, Effect,
+                               OnChain, ParamSpec, Remedy, grid)
 
 DEG = math.pi / 180.0
 ORDERS = (1, 2, 3, 4)   # cycles per joint revolution the screening tries
@@ -42,14 +41,6 @@ def d_cyclic_error(x, jidx, a, dirs):
     return cols, dda
 
 
-def _from_linear(coef, order):
-    """c·sin(kθ) + s·cos(kθ) = a·sin(kθ + φ): a = √(c² + s²), φ = atan2(s, c)."""
-    cs, cc = coef
-    return {"cyclic_amp_deg": math.hypot(cs, cc),
-            "cyclic_phase_deg": math.degrees(math.atan2(cc, cs)) % 360.0,
-            "cyclic_period_deg": 360.0 / order}
-
-
 def _harmonic(order: int, cosine: bool):
     """The chain term of one coefficient: Δq_k per degree of it, sin or cos of order·q_k
     (q_k the joint's model value, deg)."""
@@ -74,11 +65,7 @@ EFFECT = Effect(
                (360.0, 360.0), False, fitted=False, default=360.0)),
     "angle", "periodic transmission error of the drive", cyclic_error, d_cyclic_error,
     mimics=("joint_offset",),     # on a joint that never moves: a constant angle error
-    needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
     remedy=CALIBRATE_JOINT,
-    # amplitude 0, phase 0 / 90°: ∂/∂a is sin(kθ), then cos(kθ); the period per order k
-    linear=Linear(({"cyclic_phase_deg": 0.0}, {"cyclic_phase_deg": 90.0}), _from_linear,
-                  ORDERS, lambda k: {"cyclic_period_deg": 360.0 / k}),
     chain=OnChain("revolute", unit="deg", parts=CHAIN_PARTS, choice=2,
                   remedy=Remedy("calibrate_joint", "Compensate the transmission ripple over the "
                                 "joint's angle, or service the drive: {what}{on}."),

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_CHAIN, CALIBRATE_JOINT, PLANAR_JOINTS, AngleSpan,
-                               Effect, OnChain, ParamSpec, grid)
-
-MIN_ANGLE_SPAN_DEG = 20.0
+from cell.effects.base import (CALIBRATE_CHAIN, CALIBRATE_JOINT, PLANAR_JOINTS, Effect, OnChain,
+                               ParamSpec, grid)
 
 
 def gear_ratio(x, jidx, cmd_deg, dirs):
@@ -36,7 +34,6 @@ EFFECT = Effect(
     "gear_ratio", "transmission", "joint", PLANAR_JOINTS, True, (RATIO,),
     "angle", "joint angle scaled by a wrong gear ratio", gear_ratio, d_gear_ratio,
     mimics=("joint_offset",),     # on a joint that never moves: a constant angle error
-    needs=(AngleSpan(MIN_ANGLE_SPAN_DEG),),
     remedy=CALIBRATE_JOINT,
     chain=OnChain("all", "gear_ratio_rel", "1", remedy=CALIBRATE_CHAIN,
                   term=lambda poses, k: poses.q[:, k],     # Δq_k = ε·q_k

@@ -139,11 +139,10 @@ def split_vector(effects: Sequence[EffectInstance], x) -> list[EffectInstance]:
 
 
 def reference_temp_c(effects: Sequence[EffectInstance], default: float = 20.0) -> float:
-    """The reference temperature (°C) of the first effect among ``effects`` that has one
-    (its :attr:`Linear.path_nuisance` constant), else ``default``: the temperature at which
-    no effect of temperature acts (rows without a temperature are taken there)."""
+    """The reference temperature (°C) of the first effect among ``effects`` that states one
+    (a ``thermal_ref_temp_c`` constant: thermal drift), else ``default``: the temperature at
+    which no effect of temperature acts (rows without a temperature are taken there)."""
     for e in effects:
-        lin = e.spec.linear
-        if lin is not None and lin.path_nuisance:
-            return float(e.params[lin.path_nuisance])
+        if "thermal_ref_temp_c" in e.params:
+            return float(e.params["thermal_ref_temp_c"])
     return default

@@ -7,7 +7,7 @@ A ripple of the motor's own gear stage (pinion eccentricity, a worn tooth) turns
 motor revolution, i.e. N times per joint revolution: at N = 50 its period at the joint is
 7.2°. Its amplitude at the joint is the motor-side error divided by N, so it is small, but
 its period is short: a campaign identifies it only when the joint's angles sample that
-period densely (:class:`~cell.effects.base.PhaseCoverage`). Seed 004's stepped sweep
+period densely (:func:`~cell.effects.base.phase_coverage`). Seed 004's stepped sweep
 shows why that must be checked: a fixed step of a whole (or half) period photographs the
 same phase (or two opposite ones) at every stop, and the ripple becomes a constant.
 
@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, ChainPoses, Effect, Linear,
-                               OnChain, ParamSpec, PhaseCoverage, Remedy, grid, phase_coverage)
+from cell.effects.base import (CALIBRATE_JOINT, INF, PLANAR_JOINTS, ChainPoses, Effect,
+                               OnChain, ParamSpec, Remedy, grid, phase_coverage)
 
 MOTOR_GEAR_RATIO = 50.0     # motor turns per joint turn, when the cell's model does not say
 
@@ -50,13 +50,6 @@ def d_motor_cyclic_error(x, jidx, a, dirs):
         cols += [ca, cp]
         dda[:, j] = amp * np.cos(arg) * n * math.pi / 180.0
     return cols, dda
-
-
-def _from_linear(coef, order):
-    """c·sin(ψ) + s·cos(ψ) = a·sin(ψ + φ): a = √(c² + s²), φ = atan2(s, c)."""
-    cs, cc = coef
-    return {"motor_cyclic_amp_deg": math.hypot(cs, cc),
-            "motor_cyclic_phase_deg": math.degrees(math.atan2(cc, cs)) % 360.0}
 
 
 def _motor_harmonic(cosine: bool):
@@ -89,11 +82,7 @@ EFFECT = Effect(
                default=MOTOR_GEAR_RATIO)),
     "angle", "periodic error of the motor-side gear, N periods per joint turn",
     motor_cyclic_error, d_motor_cyclic_error,
-    needs=(PhaseCoverage("motor_gear_ratio", 0.5),),
     remedy=CALIBRATE_JOINT,
-    # amplitude 0, phase 0 / 90°: ∂/∂a is sin(Nθ), then cos(Nθ)
-    linear=Linear(({"motor_cyclic_phase_deg": 0.0}, {"motor_cyclic_phase_deg": 90.0}),
-                  _from_linear),
     chain=OnChain("geared", unit="deg", parts=CHAIN_PARTS, coverage=_chain_coverage,
                   remedy=Remedy("calibrate_joint", "Compensate the motor-side ripple over the "
                                 "joint's angle, or service the motor's gear stage: {what}{on}."),

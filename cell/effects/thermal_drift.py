@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cell.effects.base import ChainPoses, Effect, Linear, OnChain, ParamSpec, Remedy, TempSpread
+from cell.effects.base import ChainPoses, Effect, OnChain, ParamSpec, Remedy
 
 MIN_TEMP_SPREAD_C = 0.2
 REF_TEMP_C = 20.0          # T_ref: the temperature the nominal lengths hold at (ISO 1)
@@ -56,11 +56,9 @@ EFFECT = Effect(
                (-50.0, 100.0), (REF_TEMP_C, REF_TEMP_C), False, fitted=False, default=REF_TEMP_C)),
     "temperature", "both links grow with temperature", thermal_drift, d_thermal_drift,
     mimics=("link_length",),
-    needs=(TempSpread(MIN_TEMP_SPREAD_C, "thermal growth cannot be told from link_length"),),
     remedy=Remedy("thermal", "Calibrate the kinematics at working temperature, and keep the "
                   "cell's temperature steady: the links grow with it.",
                   ("cellctl calibrate kinematics",)),
-    linear=Linear(path_nuisance="thermal_ref_temp_c"),
     chain=OnChain("arm", "thermal_expansion_per_k", "1/K", term=chain_growth,
                   remedy=Remedy("thermal", "Measure and calibrate the arm at working temperature "
                                 "(after a warm-up), and keep its temperature steady: every "

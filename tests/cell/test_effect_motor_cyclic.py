@@ -15,6 +15,7 @@ from cell import effects as fx
 from cell.diagnosis import jacobian
 from cell.diagnosis.answer import diagnose_campaign
 from cell.diagnosis.replay import prepare
+from cell.effects.base import phase_coverage
 from cell.measurements import read_campaign
 from cell.sim.campaigns import Design, make_campaign
 from cell.truth import campaign as truth_campaign
@@ -61,22 +62,21 @@ def test_derivative_matches_finite_differences():
     assert np.abs(fdl - Jl[:, :, -2]).max() < 1e-5 * max(np.abs(fdl).max(), 1e-9)
 
 
-def layout(angles_j1):
-    a = np.column_stack([angles_j1, np.linspace(20, 140, len(angles_j1))])
-    return fx.Layout(a, (frozenset({1.0}), frozenset({1.0})), None, False, False)
+def coverage(angles_j1) -> str:
+    """What the chain diagnosis's rule (``OnChain.coverage``: :func:`phase_coverage` at the
+    joint's motor gear ratio) says of j1 at these angles, all at one place."""
+    return phase_coverage(np.asarray(angles_j1, float), EFF.params[2].default, None, "j1")
 
 
 def test_identifiable_only_when_the_angles_sample_the_short_period():
     rng = np.random.default_rng(0)
-    assert EFF.unidentifiable(layout(rng.uniform(-90, 90, 60)), ["j1"]) == ""
+    assert coverage(rng.uniform(-90, 90, 60)) == ""
     # a stepped sweep (seed 004) with a whole or a half period as step: one or two phases
     for step in (7.2, 3.6, 36.0):
-        why = EFF.unidentifiable(layout(np.arange(60) * step), ["j1"])
-        assert "sample the 7.2° period too sparsely" in why, step
-    assert EFF.unidentifiable(layout(np.full(60, 10.0)), ["j1"]).startswith("j1's angles")
-    assert EFF.unidentifiable(layout(np.arange(60) * 2.5), ["j1"]) == ""     # 2.5° steps: dense
-    assert EFF.unidentifiable(layout(np.array([1.0, 2.0])), ["j1"]) == \
-        "j1 has 2 fit rows: a period of 7.2° needs 3"
+        assert "sample the 7.2° period too sparsely" in coverage(np.arange(60) * step), step
+    assert coverage(np.full(60, 10.0)).startswith("j1's angles")
+    assert coverage(np.arange(60) * 2.5) == ""                  # 2.5° steps: dense
+    assert coverage([1.0, 2.0]) == "j1 has 2 fit rows: a period of 7.2° needs 3"
     assert EFF.mimics == () and EFF.remedy.kind == "calibrate_joint"
     assert EFF.chain.joints == "geared" and EFF.chain.coverage is not None   # chains: N stated
 

@@ -315,23 +315,6 @@ def test_the_chain_vocabulary_comes_from_the_registry():
                                     "comm_delay": "speed"}
 
 
-def test_requirements_say_what_the_layout_lacks():
-    angles = np.column_stack([np.linspace(0, 10, 20), np.linspace(0, 90, 20)])
-    lay = fx.Layout(angles, (frozenset({1.0}), frozenset({-1.0, 1.0})), None, False, False)
-    E = fx.EFFECTS
-    assert E["gear_ratio"].unidentifiable(lay, ["j1"]) == "j1 spans 10.0° < 20.0°"
-    assert E["cyclic_error"].unidentifiable(lay, ["j2"]) == ""
-    assert E["backlash"].unidentifiable(lay, ["j1"]) == \
-        "j1 was never measured after motions in both directions"
-    assert E["backlash"].unidentifiable(lay, ["j2"]) == ""
-    assert E["thermal_drift"].unidentifiable(lay) == "no temp_c column"
-    assert E["camera_scale"].unidentifiable(lay) == "model.yaml gives no camera centre"
-    assert E["comm_delay"].unidentifiable(lay) == "no measured moves (paths.csv) in the fit rows"
-    steady = fx.Layout(angles, lay.directions, np.full(20, 21.0), True, True)
-    assert E["thermal_drift"].unidentifiable(steady).startswith("temperature spread 0.000 K < 0.2 K")
-    assert E["camera_rotation"].unidentifiable(steady) == E["comm_delay"].unidentifiable(steady) == ""
-
-
 def test_a_chain_effect_on_a_joint_must_say_how_it_moves_the_joint():
     import pytest
     term = fx.REGISTRY["gear_ratio"].chain.term
