@@ -28,12 +28,13 @@ Margins: the counts of right answers may fall by 7 (planar) / 5 (chain) trials a
 truth named or among the rivals by 5, so the decision logic can move a few answers between
 ``right`` and ``ambiguous``; the ``wrong`` counts may not grow at all (0 everywhere).
 Coverage must lie in the two-sided 99 % band of a binomial with p = 0.95 over
-the intervals checked. These bounds fail for the sign flips tried (first_step_dirs in
-cell/diagnosis/replay.py: planar right 54, unexplained 20; the joint_offset term of
-cell/effects/joint_offset.py: right 56, unexplained 25; the sign of the chain's joint effects
-in cell/kinematics/evaluate.py forward(): right 14, unexplained 43; the twist in
-cell/kinematics/evaluate.py: right 11, unexplained 53, wrong 3; both measured again with
-motor_cyclic_error in the chain vocabulary).
+the intervals checked. These bounds fail for the sign flips tried, each measured with the
+planar run above (120 trials, seed 1, 200 poses) where it applies: the moves' approach
+direction (``first_step`` in cell/measurements/campaign.py, the format's convention the
+planar reading gives each move's samples): right 50, unexplained 35; the sign of the joint
+effects in the one robot model (cell/kinematics/evaluate.py forward(), ``qm + dq``): planar
+right 25, unexplained 79, wrong 2, chain right 14, unexplained 43; the twist in
+cell/kinematics/evaluate.py: chain right 11, unexplained 53, wrong 3.
 """
 import math
 
