@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import html
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +33,9 @@ FORMAT = "cell-diagnosis/1"
 #: chain diagnosis of a planar campaign, and in every chain ranking entry
 FORMAT_VERSION = "1.3"
 CARD_PARAMS = 3
+#: the v1 names a planar campaign's report gives beside the fitted parameters
+#: (cell/measurements.md, "Format version 1.3"): JSON only, never listed twice on a page
+V1_ALIAS = re.compile(r"_link_delta_mm$|_cyclic_(amp|phase)_deg$|_cyclic_order$|_cyclic_period_deg$")
 #: ranking rows shown (the rest are in report.json)
 TABLE_ROWS = 15
 
@@ -170,12 +174,12 @@ def _cause_card(rep: dict) -> str:
     if rivals:
         sub_line += (" — or, as the campaign sees it, "
                      + " or ".join(esc(r.get("label", "?")) for r in rivals))
-    rows = []
-    for n in list(c.get("params", {}))[:CARD_PARAMS]:
+    rows, names = [], fitted(rep)
+    for n in names[:CARD_PARAMS]:
         v, ci = c["params"][n], c.get("ci95", {}).get(n)
         iv = f" <span class='small'>[{num(ci[0])} … {num(ci[1])}]</span>" if ci else ""
         rows.append(f"<li><code>{esc(n)}</code> = {num(v)}{iv}</li>")
-    more = len(c.get("params", {})) - CARD_PARAMS
+    more = len(names) - CARD_PARAMS
     extra = f"<p class='small'>+{more} more parameters in the table below</p>" if more > 0 else ""
     plist = (f"<p class='small'>estimate [95 % interval]</p><ul>{''.join(rows)}</ul>{extra}"
              if rows else "")
@@ -282,14 +286,23 @@ def ranking_table(rep: dict, chain: bool, chosen_label: str | None = None) -> st
             f"<tbody>{''.join(rows)}</tbody></table></div>{tail}")
 
 
+def fitted(rep: dict) -> list[str]:
+    """The names of the cause's fitted parameters: ``cause.params`` without the v1 names a
+    planar campaign's report repeats them under (:data:`V1_ALIAS`)."""
+    names = list(rep["cause"].get("params", {}))
+    if (rep.get("chain") or {}).get("planar"):
+        names = [n for n in names if not V1_ALIAS.search(n)]
+    return names
+
+
 def params_table(rep: dict) -> str:
     c = rep["cause"]
     if not c.get("params"):
         return ""
-    rows = "".join(f"<tr><td><code>{esc(n)}</code></td><td class='n'>{num(v, 6)}</td>"
+    rows = "".join(f"<tr><td><code>{esc(n)}</code></td><td class='n'>{num(c['params'][n], 6)}</td>"
                    f"<td class='n'>{num((c['ci95'].get(n) or [None])[0], 6)}</td>"
                    f"<td class='n'>{num((c['ci95'].get(n) or [None, None])[1], 6)}</td></tr>"
-                   for n, v in c["params"].items())
+                   for n in fitted(rep))
     return ("<h2>Parameters of the cause</h2><div class='scroll'><table id='params'><thead><tr>"
             "<th>parameter (unit in its name)</th><th class='n'>estimate</th>"
             "<th class='n'>95 % low</th><th class='n'>95 % high</th></tr></thead>"
@@ -317,13 +330,15 @@ def render(rep: dict, figures: list[Figure], fit: FitRms, text: str, chain: bool
         f'<figure><img src="{esc(f.file)}" alt="{esc(f.title)}"><figcaption>'
         f"<b>{esc(f.title)}.</b> "
         f"{esc(f.caption)}</figcaption></figure>" for f in figures)
-    kind = "chain" if chain else "planar"
+    kind = "planar" if not chain or (rep.get("chain") or {}).get("planar") else "chain"
+    what = "planar campaign, read as a two-joint chain" if chain and kind == "planar" \
+        else f"{kind} campaign"
     return (
         "<!doctype html><html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width,initial-scale=1'>"
         f"<title>cellctl diagnose: {esc(rep['cause']['effect'])}</title><style>{CSS}</style></head>"
         f"<body data-kind='{kind}'><h1>Sim-to-real diagnosis</h1>"
-        f"<p class='src' title='{esc(rep.get('source') or '')}'>{kind} campaign · format "
+        f"<p class='src' title='{esc(rep.get('source') or '')}'>{esc(what)} · format "
         f"{esc(rep.get('format'))} · {esc(rep.get('source') or '')}</p>"
         f"<div class='answer'>{_cause_card(rep)}{_shrink_card(rep, fit)}{_action_card(rep)}</div>"
         f"<p class='where' id='where'>{esc(rep['gap']['where']['summary'])}</p>"

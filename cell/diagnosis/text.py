@@ -11,7 +11,7 @@ noise; UNEXPLAINED and notes; the per-station lags; what the campaign cannot ide
 """
 from __future__ import annotations
 
-from cell.diagnosis.page import describe_cause, pose_words
+from cell.diagnosis.page import describe_cause, fitted, pose_words
 
 
 
@@ -97,8 +97,8 @@ def _cause(rep: dict) -> list[str]:
     else:
         bic = f", ΔBIC vs nominal {_n(t['delta_bic'], '.1f')}" if "delta_bic" in t else ""
         out = [f"cause: {describe_cause(c)} ({c['subsystem']}), p = {_n(t['p_value'], '.3g')}{bic}"]
-        for n, v in c["params"].items():
-            lo, hi = c["ci95"][n]
+        for n in fitted(rep):
+            v, (lo, hi) = c["params"][n], c["ci95"][n]
             out.append(f"  {n} = {_n(v, '.6g')}  (95 % interval {_n(lo, '.6g')} … {_n(hi, '.6g')})")
         for j, o in c.get("cyclic_orders", {}).items():
             out.append(f"  {j}: {o['order']} cycle(s) per revolution (orders in the 95 % "
