@@ -6,8 +6,8 @@ exactly as the comm_delay stage does, with the joint's own lag in place of σ·k
 static part of the diagnosed cause stays in the model (only
 when the cause explains the gap; otherwise the nominal model is used), and
 :func:`cell.numerics.lsq.least_squares` fits (λ_1, λ_2) on the fit moves (exact Jacobian,
-:mod:`.jacobian`; path samples flagged as outliers left out). Intervals come from the Jacobian as in
-:mod:`.fit`.
+:mod:`.jacobian`; path samples flagged as outliers left out). 95 % intervals: ±1.96·SE from
+the Jacobian at the solution.
 
 Seed 002's pattern is λ_j = σ·k_j with k_j the joint's 1-based position in the CAN station
 order (model.yaml ``stations``). The check fits σ through the origin (weighted by the lags'

@@ -8,8 +8,8 @@ A :class:`Trial` holds the hidden truth (its main effect, or ``none``, or a kind
 the vocabulary), what the report answered, its verdict, and the interval coverage of the
 true parameters (counted on the trials judged ``right`` only: a wrong or ambiguous answer
 has no true parameters to cover). :func:`summarise` gives the scores as a dict (JSON-ready,
-the same keys for both families; ``subsystem_accuracy`` and ``depends_on_agreement`` only
-where the family's trials say which subsystem and dependence the truth has), and
+the same keys for planar and chain campaigns; ``subsystem_accuracy`` and
+``depends_on_agreement`` only where the trials say which subsystem and dependence the truth has), and
 :func:`markdown` the four tables the README shows: verdicts, summary, per truth, confusion.
 """
 from __future__ import annotations

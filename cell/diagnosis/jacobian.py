@@ -1,10 +1,10 @@
-"""The replay of :mod:`.replay` with its exact Jacobian: what the fitter and the linear
-screening evaluate. Pure numerics.
+"""The replay of :mod:`.replay` with its exact Jacobian: what the per-station lags' fit of a
+planar campaign evaluates (:mod:`.delay`, a v1 figure of its report). Pure numerics.
 
 :func:`evaluate` gives the simulated measurements of a campaign's rows (points, then path
 samples) under a list of vocabulary effects and, on request, their derivatives with respect
 to the fitted parameters, in :func:`cell.effects.stack_vectors` order, plus the path
-temperature nuisance last when asked for (see :mod:`.fit`). Values come from the
+temperature nuisance last when asked for. Values come from the
 vocabulary's own functions (:mod:`cell.effects`), so they are those of
 :func:`.replay.predict`; the derivatives are the chain rule through the composition order
 of :mod:`cell.effects`:

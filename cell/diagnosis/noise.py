@@ -1,8 +1,9 @@
 """The noise of a static point measurement (repeatability and camera together), from the
 data when nobody gives it. Pure numerics.
 
-The unexplained test (:mod:`.rank`) compares what the chosen model leaves on the holdout
-points with the point noise σ (per axis). Sources, in the order they are tried:
+The point noise σ (per axis) of a planar campaign's report (``noise.estimates``, the v1
+figures), and the pieces the diagnosis's own noise (:mod:`.chain.noise`) is made of.
+Sources, in the order they are tried:
 
 * ``given``: ``--noise-mm``.
 * ``repeats``: poses revisited with the same commanded joints (and, with direction
@@ -23,11 +24,10 @@ points with the point noise σ (per axis). Sources, in the order they are tried:
   without direction columns, repeatability) counts as noise here: this source can only say
   "the remainder is at least this systematic".
 * ``paths``: the path samples' noise (second differences along each move, :mod:`.replay`)
-  when the points cannot give one; it lacks the repeatability, so the test allows 5× it
-  instead of 3× (see :mod:`.rank`).
+  when the points cannot give one; it lacks the repeatability.
 
 Every estimate also carries a 95 % upper bound, σ·√(dof/χ²_dof(0.05)) (effective dof of
-the median-based estimators: 37 % of the values), which the test uses, so a noise estimated
+the median-based estimators: 37 % of the values), which the decision uses, so a noise estimated
 from few values does not make a gap look systematic.
 """
 from __future__ import annotations
@@ -95,7 +95,7 @@ def pooled(groups: np.ndarray, values: np.ndarray) -> tuple[float | None, int]:
     measured again), pooled over the groups: √(Σ_groups Σ ‖x − x̄‖² / Σ d·(n − 1)), groups
     taken in the order of their labels ``groups`` (N,) (a label < 0: the row is in none).
     Groups of one row add nothing. Returns (σ, degrees of freedom), (None, 0) without any
-    group of two. The planar and the chain diagnosis take their revisit noise from here."""
+    group of two. Every campaign's revisit noise comes from here."""
     values = np.asarray(values, dtype=float)
     ss, dof = 0.0, 0
     for g in distinct(groups[groups >= 0]):

@@ -15,7 +15,7 @@ Conventions the format leaves open (documented here, used everywhere):
   the direction of its own first commanded motion (unidirectional approach, the usual
   practice before a measured move), so ``dirs0`` is the sign of its first non-zero step.
 * paths.csv holds no temperature: moves are replayed at the reference temperature unless
-  the fitted model carries a path temperature (``path_temp_c``, see :mod:`.fit`).
+  the model carries a path temperature (``path_temp_c``).
 * Camera effects need ``camera.center_mm`` in model.yaml; without it there is no camera
   centre to rotate or scale about, and camera candidates are not tried.
 

@@ -30,7 +30,7 @@ named cause and its rivals), ``ambiguous_missing``, ``unexplained``, ``wrong``; 
 matches only with every true effect on its joints (a cyclic error also with its number of
 cycles per revolution). **Coverage**: share of the true fitted parameters inside the 95 %
 intervals, over the trials judged ``right`` (cyclic phase compared modulo 360°).
-The trial, the scores and the tables are the one harness of both families,
+The trial, the scores and the tables are the one harness of planar and chain campaigns,
 :mod:`cell.diagnosis.harness`; this module draws the planar truths and campaigns.
 """
 from __future__ import annotations

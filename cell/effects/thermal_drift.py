@@ -32,8 +32,8 @@ def chain_growth(poses: ChainPoses, k: int) -> np.ndarray:
 def move_growth(poses: ChainPoses, k: int) -> np.ndarray:
     """The nuisance of a campaign whose measured moves record no temperature while its
     static poses do: 1 on the moves' samples, so that its parameter β = α·(T_moves − T_ref)
-    is the arm's relative growth while it made them (the planar diagnosis's path
-    temperature, as one number). 0 everywhere without a temperature column."""
+    is the arm's relative growth while it made them (the v1 path temperature, as one
+    number). 0 everywhere without a temperature column."""
     if poses.temp_c is None:
         return np.zeros(len(poses.q))
     return np.isnan(np.asarray(poses.temp_c, float)).astype(float)

@@ -12,7 +12,8 @@ REGISTRY: dict[str, Effect] = {m.EFFECT.name: m.EFFECT for m in (
     joint_offset, link_length, gear_ratio, backlash, cyclic_error, thermal_drift,
     camera_scale, camera_rotation, comm_delay, gravity_compliance, motor_cyclic_error,
 )}
-#: the planar (SCARA) vocabulary: what the plant simulates and the planar diagnosis fits
+#: the planar (SCARA) vocabulary: what the plant simulates (each also a chain effect, as the
+#: diagnosis fits every campaign)
 EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.planar}
 #: the chain vocabulary (:mod:`cell.diagnosis.chain.fit`), in registry order
 CHAIN_EFFECTS: dict[str, Effect] = {n: e for n, e in REGISTRY.items() if e.chain is not None}

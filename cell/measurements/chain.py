@@ -374,7 +374,7 @@ class PlanarRows:
     """Which pose of a planar campaign read as a chain (:func:`planar_as_chain`) is which
     row of it: pose ``i < n_points`` is row ``i`` of points.csv; pose ``n_points + k`` is the
     ``k``-th path sample with the moves in the order of their first row in paths.csv and
-    each move's samples in file order, which is the order of the planar diagnosis's
+    each move's samples in file order, which is the order of the planar arrays'
     ``DiagData.path_cat`` (:func:`cell.diagnosis.replay.prepare`). Each pose has one
     measured point (the tool centre), so point and pose indices are the same. ``campaign``
     is the v1 campaign itself (:class:`~cell.measurements.Campaign`); ``arrays`` its checked

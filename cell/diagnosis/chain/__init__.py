@@ -1,9 +1,11 @@
-"""The sim-to-real diagnosis of any serial arm measured in 3-D (``cell/measurements.md``,
-Extension v1.1): the chain front-end of :mod:`cell.diagnosis`. It shares with the planar one
-the tie rule (:mod:`cell.diagnosis.tie`), the places (:mod:`cell.diagnosis.places`), the report
-format and its words (:mod:`cell.diagnosis.page`) and the validation harness
-(:mod:`cell.diagnosis.harness`); the robot is :mod:`cell.kinematics`, the campaign
-:mod:`cell.measurements.chain`, the calibration that follows :mod:`cell.calibration.chain`.
+"""The sim-to-real diagnosis of every campaign: any serial arm measured in 3-D
+(``cell/measurements.md``, Extension v1.1), and a planar (v1) campaign read as the two-joint
+chain it is (:func:`cell.diagnosis.answer.as_chain`). It uses the tie rule
+(:mod:`cell.diagnosis.tie`), the places (:mod:`cell.diagnosis.places`), the leave-out
+yardstick (:mod:`cell.diagnosis.leaveout`), the report format and its words
+(:mod:`cell.diagnosis.page`) and the validation harness (:mod:`cell.diagnosis.harness`); the
+robot is :mod:`cell.kinematics`, the campaign :mod:`cell.measurements.chain`, the calibration
+that follows :mod:`cell.calibration.chain`.
 
 * :mod:`.fit`       registration (sensor frame, markers) and parameter fits, robust errors
 * :mod:`.rank`      screening, candidate fits and the none / cause / unexplained decision

@@ -41,8 +41,8 @@ def repeat_noise_mm(cc: ChainCampaign, keep: np.ndarray | None = None
                     ) -> tuple[float | None, int, int]:
     """σ per axis from poses revisited with identical readings (and ``jK_dir``, and
     ``temp_c`` in one bin of :data:`TEMP_BIN_C`), each marker's points a
-    group of their own (:func:`cell.diagnosis.noise.pooled`, as the planar diagnosis pools
-    its revisits); the number of revisited poses' groups and the degrees of freedom;
+    group of their own (:func:`cell.diagnosis.noise.pooled`, as v1 pools a planar
+    campaign's revisits); the number of revisited poses' groups and the degrees of freedom;
     (None, 0, 0) without repeats. ``keep`` (M,) marks the points to use (default all:
     outliers set aside are not)."""
     visits = cc.readings if cc.dirs is None else np.column_stack([cc.readings, cc.dirs])
@@ -84,8 +84,8 @@ def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray
 
 def remainder_noise_mm(coords: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,
                        r: np.ndarray) -> tuple[float | None, int, str]:
-    """σ per axis from the remainder ``r`` (M, dims) of a fit, as the planar diagnosis takes
-    it when nothing better is at hand (:func:`cell.diagnosis.noise.residual`), per marker:
+    """σ per axis from the remainder ``r`` (M, dims) of a fit, as v1 takes a point's noise
+    when nothing better is at hand (:func:`cell.diagnosis.noise.residual`), per marker:
     each point against the leave-one-out plane through its :data:`NEIGHBOURS` nearest
     points in joint space (``coords`` (M, J), the joints' model values), scaled by
     √(1 + ΣW²); and the differences of consecutive poses in sample order, scaled by √2. A

@@ -467,7 +467,7 @@ def lacking(s: Search) -> list[str]:
 
 
 def choose(s: Search) -> tie.Choice:
-    """The rule of both families (:func:`cell.diagnosis.tie.choose`) over the ranking:
+    """The naming rule (:func:`cell.diagnosis.tie.choose`) over the ranking:
     tied with the best over left-out folds, and of the tied candidates that predict
     left-out poses better than registration alone (one-sided Wilcoxon over poses at
     :data:`ALPHA`) the simplest named."""
@@ -479,8 +479,8 @@ def choose(s: Search) -> tie.Choice:
 
 def unsupported(s: Search, chosen: Candidate) -> list[tuple[str, float]]:
     """The parameters of ``chosen`` that left-out places do not need: (name, p) where the
-    linearised model without the parameter is tied with it over places by the rule of
-    both families (:func:`cell.diagnosis.tie.tied`): the campaign
+    linearised model without the parameter is tied with it over places by the tie rule
+    (:func:`cell.diagnosis.tie.tied`): the campaign
     cannot tell whether the parameter is part of the cause. Empty when the poses do not
     sit at places, or at fewer than :data:`MIN_FOLDS` (screening has already asked the
     same over poses)."""

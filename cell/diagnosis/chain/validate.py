@@ -58,7 +58,7 @@ and without ``unexplained`` is a confident wrong cause.
 
 The trial, the scores (verdict counts, confident wrong answers, accuracy, confusion
 matrix, holdout shrink, coverage of the true parameters by the 95 % intervals, CPU seconds)
-and the tables are the one harness of both families, :mod:`cell.diagnosis.harness`; this
+and the tables are the one harness of planar and chain campaigns, :mod:`cell.diagnosis.harness`; this
 module draws the chain truths and campaigns.
 """
 from __future__ import annotations
