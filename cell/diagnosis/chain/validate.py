@@ -82,7 +82,7 @@ from cell.truth.chain_campaign import MARKERS, UR5, make
 
 # the chain vocabulary (cell.diagnosis.chain.fit.EFFECTS) but the sensor's own maps and the
 # drives' bus: the campaigns drawn here give no sensor_center_mm and no measured moves (a
-# planar campaign read as a chain one does: bench/bench_planar_as_chain.py)
+# planar campaign read as a chain one does: cell/diagnosis/validate.py)
 VOCABULARY = ("none",) + tuple(n for n, e in fx.CHAIN_EFFECTS.items()
                                if e.chain.joints not in ("sensor", "bus"))
 OUTSIDE = ("lens", "reach_sag", "bump", "couple", "cyclic", "plane_bump")

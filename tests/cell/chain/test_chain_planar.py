@@ -104,8 +104,8 @@ def test_a_planar_campaign_is_diagnosed_by_the_chain_engine(tmp_path):
 
 @pytest.mark.parametrize("trial", [0, 13])
 def test_a_joint_zero_that_steps_mid_campaign_is_not_a_constant_offset(tmp_path, trial):
-    # trials 0 and 13 of the planar validation's outside seed 2 (bench/bench_planar_as_chain.py
-    # --seed 2 --outside 1): the offset of a joint steps mid-campaign. Through the chain
+    # trials 0 and 13 of the planar validation's outside seed 2 (`cellctl diagnose validate
+    # --seed 2 --out-of-vocabulary 1`): the offset of a joint steps mid-campaign. Through the chain
     # engine both were named joint_offset with confidence high: a base-frame campaign had no
     # frame whose drift was checked; now the joints' zeros are
     tseed = 2 * 100_003 + trial
@@ -169,7 +169,7 @@ def test_a_planar_campaigns_camera_map_is_named_by_the_chain_engine(tmp_path, pa
 
 
 def test_a_planar_campaigns_comm_delay_is_named_from_its_moves(tmp_path):
-    # trial 57's layout of bench/bench_planar_as_chain.py (seed 1), 4 measured moves: a comm
+    # trial 57's layout of the planar validation's seed 1, 4 measured moves: a comm
     # delay of 2 ms per frame shows only while the joints move. Before the chain engine read
     # the moves it saw nothing and had answered none with confidence high
     tseed = 1 * 100_003 + 57
