@@ -103,8 +103,9 @@ N_POSES = 5           # separating poses proposed
 
 def separating(q: np.ndarray, diffs: np.ndarray, labels, noise_mm: float | None,
                spacing: float, where) -> list[dict]:
-    """The separating poses of a named cause and its rivals (``labels``), by one rule: of the configurations ``q`` (rows, in units where ``spacing`` is the least
-    distance between two proposals), the up to :data:`N_POSES` where the smallest of the
+    """The separating poses of a named cause and its rivals (``labels``): of the
+    configurations ``q`` (rows, in units where ``spacing`` is the least distance between two
+    proposals), the up to :data:`N_POSES` where the smallest of the
     expected differences ``diffs`` (rows × rivals, mm) is largest (:func:`spaced_best`).
     Each entry is ``where(i)`` (the configuration, in the family's words), the difference
     per rival (``difference_mm``) and, with a noise σ per axis, that difference over it

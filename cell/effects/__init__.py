@@ -50,7 +50,8 @@ from cell.effects.comm_delay import comm_delay  # noqa: E402  (the function, not
 from cell.errors import ConfigError  # noqa: F401  (kept: callers catch fx.ConfigError)
 
 __all__ = ["PLANAR_JOINTS", "Stage", "STAGES", "SUBSYSTEMS", "STATION_NAMES", "DEFAULT_STATIONS",
-           "ParamSpec", "Effect", "Remedy", "OnChain", "ChainPoses", "REGISTRY", "EFFECTS", "CHAIN_EFFECTS", "EffectInstance", "make_effect",
+           "ParamSpec", "Effect", "Remedy", "OnChain", "ChainPoses", "REGISTRY", "EFFECTS",
+           "CHAIN_EFFECTS", "EffectInstance", "make_effect",
            "stack_vectors", "split_vector", "reference_temp_c", "true_joints", "true_links", "planar_fk",
            "camera_view", "simulate_points", "simulate_path", "station_order",
            "path_directions", "comm_delay"]

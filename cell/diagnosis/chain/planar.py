@@ -12,8 +12,8 @@ helpers that work on any residual do the rest, on the planar campaign's own arra
 the per-station lags (:mod:`cell.diagnosis.delay`, on the path samples less the named
 cause's static part), the point noise estimates (:mod:`cell.diagnosis.noise`), the spread
 of the fit rows. What cannot mean the same (the BIC-based test, the counts of the planar
-search this diagnosis replaced, its unexplained test's ratios) is left out; ``cell/measurements.md`` lists
-it. Pure numerics.
+search this diagnosis replaced, its unexplained test's ratios) is left out;
+``cell/measurements.md`` lists it. Pure numerics.
 """
 from __future__ import annotations
 

@@ -396,8 +396,7 @@ def _components(c: Candidate) -> set:
 
 def untestable_rivals(s: Search, shown: list[Candidate]) -> list[dict]:
     """Effects the campaign cannot test that a candidate of ``shown`` (the named cause and
-    its rivals) can stand in for (:attr:`cell.effects.Effect.mimics`,
-    on a shared joint):
+    its rivals) can stand in for (:attr:`cell.effects.Effect.mimics`, on a shared joint):
     rivals no prediction can rule out until the missing variable is measured. Untestable
     is a parameter dropped because the campaign lacks its column (its effect's
     :attr:`~cell.effects.OnChain.unseen`), because the column hardly varies

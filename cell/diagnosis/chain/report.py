@@ -36,7 +36,6 @@ from cell.measurements.chain import ChainCampaign
 NO_EFFECT = "has no effect on the measured points"   #: fit.identifiability's reason
 
 
-
 def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
     """(P,) True for fit poses, and where the split came from."""
     if cc.split is not None:
