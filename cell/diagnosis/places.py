@@ -107,8 +107,8 @@ def separating(q: np.ndarray, diffs: np.ndarray, labels, noise_mm: float | None,
     configurations ``q`` (rows, in units where ``spacing`` is the least distance between two
     proposals), the up to :data:`N_POSES` where the smallest of the
     expected differences ``diffs`` (rows × rivals, mm) is largest (:func:`spaced_best`).
-    Each entry is ``where(i)`` (the configuration, named as the campaign names joints), the difference
-    per rival (``difference_mm``) and, with a noise σ per axis, that difference over it
+    Each entry is ``where(i)`` (the configuration, named as the campaign names joints), the
+    difference per rival (``difference_mm``) and, with a noise σ per axis, that difference over it
     (``difference_over_noise``)."""
     out = []
     for i in spaced_best(q, diffs.min(axis=1), N_POSES, spacing):
