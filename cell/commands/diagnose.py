@@ -163,6 +163,7 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
     try:
         c = cycles_to_campaign(log.cycles(status=CycleStatus.DONE), g.l1_mm, g.l2_mm,
                                command_unit_deg=g.unit[0],
+                               joint_limits_deg=[list(map(float, g.limits[k])) for k in (0, 1)],
                                camera_center_mm=tuple(camera_center) if camera_center else None)
     except ValueError as exc:
         raise ConfigError(f"{p}: {exc}") from None

@@ -119,7 +119,8 @@ def run_export(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.out}: {blocker} is not a folder; nothing written")
     cycles = open_log_readonly(args.db).cycles(status=CycleStatus.DONE)
     try:
-        campaign = cycles_to_campaign(cycles, robot.g.l1_mm, robot.g.l2_mm, command_unit_deg=robot.g.unit[0])
+        campaign = cycles_to_campaign(cycles, robot.g.l1_mm, robot.g.l2_mm, command_unit_deg=robot.g.unit[0],
+                                      joint_limits_deg=[list(map(float, robot.g.limits[k])) for k in (0, 1)])
     except ValueError as exc:
         raise ConfigError(f"{args.db}: {exc}") from None
     try:

@@ -23,8 +23,11 @@ MOVES_PER_CYCLE = 100
 def cycles_to_campaign(cycles: list[CycleRecord], l1_mm: float, l2_mm: float,
                        command_unit_deg: float | None = None,
                        camera_center_mm: tuple[float, float] | None = None,
-                       stations: list[str] | None = None) -> Campaign:
+                       stations: list[str] | None = None,
+                       joint_limits_deg: list[list[float]] | None = None) -> Campaign:
     """Build a campaign (points only) from logged cycles; cycles without a trace add nothing.
+    ``joint_limits_deg`` ([[lo, hi], [lo, hi]] of j1, j2: the robot's) lets the diagnosis
+    propose poses to measure next anywhere the arm can go, not only where the parts were.
 
     Raises ValueError if no cycle holds a measured move.
     """
@@ -59,5 +62,5 @@ def cycles_to_campaign(cycles: list[CycleRecord], l1_mm: float, l2_mm: float,
     points = {k: np.array(v, dtype=np.int64 if k == "sample" else float) for k, v in cols.items()}
     model = ModelSpec(format=FORMAT, l1_mm=l1_mm, l2_mm=l2_mm, command_unit_deg=command_unit_deg,
                       camera=CameraSpec(center_mm=camera_center_mm) if camera_center_mm else None,
-                      stations=stations)
+                      stations=stations, joint_limits_deg=joint_limits_deg)
     return Campaign(model=model, points=points, source="cycle log")

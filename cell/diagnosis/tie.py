@@ -35,7 +35,8 @@ MARGIN = 0.05         # a candidate predicting worse by less than this share is 
 def p_worse(errors, best_errors) -> float:
     """One-sided p that ``errors`` (per fold) lie above ``best_errors`` (paired); 1.0 when
     a difference is not finite (nothing can be concluded)."""
-    diff = np.asarray(errors, dtype=float) - np.asarray(best_errors, dtype=float)
+    with np.errstate(invalid="ignore"):          # inf − inf (a fold that cannot be left out)
+        diff = np.asarray(errors, dtype=float) - np.asarray(best_errors, dtype=float)
     if not np.all(np.isfinite(diff)):
         return 1.0
     return wilcoxon_greater(diff)

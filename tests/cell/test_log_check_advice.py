@@ -34,3 +34,30 @@ def test_diagnose_on_a_log_too_short_names_the_log_not_a_csv_it_never_had(tmp_pa
     assert out.returncode == 2
     assert f"{db}: its done cycles give" in out.stderr and "log more cycles" in out.stderr
     assert "points.csv" not in out.stderr
+
+
+def test_diagnose_on_a_log_proposes_poses_anywhere_the_arm_can_go(tmp_path):
+    # the cell's parts sit at one place: the poses that would separate the rivals must come
+    # from the robot's joint limits (its preset), not from the few degrees the parts span,
+    # and the command warns about nothing on stderr (no inf − inf of a fold left out)
+    import json
+    from cell.robots import PRESETS
+    db = tmp_path / "cell.sqlite"
+    run = subprocess.run([sys.executable, "-m", "cell.cli", "run", "--sim", "--cycles", "20", "--seed", "7",
+                          "--db", str(db)], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = subprocess.run([sys.executable, "-m", "cell.cli", "diagnose", str(db), "--json"], cwd=REPO,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stderr == "", out.stderr[-2000:]
+    cause = json.loads(out.stdout)["cause"]
+    poses = [p["readings"] for p in cause["separating_poses"]]
+    assert cause["confidence"] == "ambiguous" and len(poses) >= 3, cause["label"]
+    log = CycleLog(db, readonly=True)
+    logged = [q for c in log.cycles(status="done") for s in c.trace if s.get("moved")
+              for q in [s["joints_deg"]]]
+    log.close()
+    span = [max(abs(p[f"j{k + 1}"] - q[k]) for p in poses for q in logged) for k in (0, 1)]
+    assert min(span) > 30.0, span                        # well beyond the parts' place
+    limits = PRESETS["seed000"].limits
+    for p in poses:
+        assert all(limits[k][0] <= p[f"j{k + 1}"] <= limits[k][1] for k in (0, 1)), p

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cell.diagnosis import tie
 from cell.diagnosis.chain import fit as F
-from cell.numerics.stats import wilcoxon_greater
 
 MIN_POSES = 12
 N_DRIFT = 6
@@ -74,7 +74,7 @@ def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
         return out
     base = named.fit
     total, per = with_drift(d, base)
-    p = wilcoxon_greater(base.cv_fold - per)
+    p = tie.p_worse(base.cv_fold, per)
     if p < alpha:
         what, moves, plus = (("the sensor frame", "moves", "a frame") if d.sensor
                              else ("the joints' zeros", "move", "the joints' zeros"))
@@ -91,7 +91,7 @@ def check(d: F.Data, named, smaller: list, alpha: float, ratio: float) -> Drift:
                             "a joint zero that moves during the campaign is not a constant effect")
     for c in smaller:
         t, pc = with_drift(d, c.fit)
-        if wilcoxon_greater(pc - base.cv_fold) >= alpha and t <= ratio * base.cv_rms:
+        if tie.p_worse(pc, base.cv_fold) >= alpha and t <= ratio * base.cv_rms:
             out.rivals.append({"label": f"{c.label} + {moving} drifting with sample order",
                                "effects": list(c.effects) + [tag], "joints": c.joints,
                                "cv_rms_mm": round(float(t), 6), "testable": False, "why": why})

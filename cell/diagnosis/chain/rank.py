@@ -48,7 +48,6 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.leaveout import Folds
 from cell.diagnosis.places import separating
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
-from cell.numerics.stats import wilcoxon_greater
 
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
@@ -140,7 +139,7 @@ def screen(d: F.Data, f0: F.Fit, pool: list[F.Param], start: list[F.Param] = (),
         drops = list(zip(folds.loo_each([design.cols([c for c in chosen if c is not p]) for p in out]),
                          out))
         (score, per), p = min(drops, key=lambda t: t[0][0])
-        if wilcoxon_greater(per - best_fold) < STEP_ALPHA:
+        if tie.p_worse(per, best_fold) < STEP_ALPHA:
             break
         chosen.remove(p)
         best_fold = per

@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from cell.diagnosis import tie
 from cell.diagnosis.chain import fit as F
 from cell.effects.cyclic_error import ORDERS as VOCABULARY_ORDERS
-from cell.numerics.stats import wilcoxon_greater
 
 ORDERS = tuple(range(max(VOCABULARY_ORDERS) + 1, 2 * max(VOCABULARY_ORDERS) + 1))   # 5 … 8
 MIN_SPAN_DEG = 30.0
@@ -63,7 +63,7 @@ def check(d: F.Data, named, alpha: float) -> str:
     best = None
     for k in joints:
         total, per = with_ripple(d, base, k, columns[:, k])
-        p = wilcoxon_greater(base.cv_fold - per)
+        p = tie.p_worse(base.cv_fold, per)
         if best is None or p < best[0]:
             best = (p, k, total)
     p, k, total = best
