@@ -147,8 +147,9 @@ def _nearest(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
     """(nq, m) rows of ``data`` (n,d) nearest each row of ``query`` (nq,d), nearest first,
     Euclidean; equal distances in a fixed order (by position in ``data`` in d > 1, in
     ``data`` sorted in d = 1). Exact: one dimension searches a window of 2m sorted values
-    around each query (O(n·m)), more dimensions compare every pair, a block of queries at
-    a time (O(nq·n), for the few hundred to few thousand rows of a campaign)."""
+    around each query (O(n·m)); two dimensions, beyond a few hundred rows, the grid cells
+    within a bound of each query's m-th distance (:func:`_nearest_grid`); more dimensions
+    compare every pair (:func:`_nearest_dense`)."""
     n = len(data)
     if data.shape[1] == 1 and n > 2 * m:
         order = np.argsort(data[:, 0], kind="stable")
@@ -158,6 +159,21 @@ def _nearest(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
         win = start[:, None] + np.arange(2 * m)
         pick = np.argsort(np.abs(v[win] - q[:, None]), axis=1, kind="stable")[:, :m]
         return order[np.take_along_axis(win, pick, axis=1)]
+    if data.shape[1] == 2 and n > 2 * m and n * len(query) > GRID_PAIRS \
+            and np.isfinite(data).all() and np.isfinite(query).all():
+        found = _nearest_grid(data, query, m)
+        if found is not None:
+            return found
+    return _nearest_dense(data, query, m)
+
+
+GRID_PAIRS = 60_000     # fewer query × data pairs: comparing every pair is as quick
+
+
+def _nearest_dense(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
+    """:func:`_nearest` by comparing every pair, a block of queries at a time (O(nq·n)):
+    the m smallest squared distances and any tied with them, then a stable sort."""
+    n = len(data)
     out = np.empty((len(query), m), dtype=np.intp)
     step = max(1, 2 ** 20 // max(n, 1))
     for b in range(0, len(query), step):
@@ -167,6 +183,79 @@ def _nearest(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
             d2 = np.where(d2 <= kth, d2, np.inf)       # the m nearest, and any tied with them
         out[b:b + step] = np.argsort(d2, axis=1, kind="stable")[:, :m]
     return out
+
+
+def _sq_dist(query: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Squared 2-D distances of matching rows (any broadcast shape), rounded as
+    :func:`_nearest_dense` rounds them (a sum of two squares is one rounding)."""
+    return (query[..., 0] - data[..., 0]) ** 2 + (query[..., 1] - data[..., 1]) ** 2
+
+
+def _morton(p: np.ndarray, lo: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """Z-order key of 2-D points ``p`` quantised to 16 bits per axis over ``lo`` + ``span``."""
+    c = np.clip(((p - lo) / span * 65535).astype(np.int64), 0, 65535)
+    key = np.zeros(len(p), np.int64)
+    for bit in range(16):
+        key |= ((c[:, 0] >> bit) & 1) << (2 * bit) | ((c[:, 1] >> bit) & 1) << (2 * bit + 1)
+    return key
+
+
+def _nearest_grid(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray | None:
+    """:func:`_nearest` in two dimensions, the same rows in the same order as
+    :func:`_nearest_dense`: an upper bound ``u`` of each query's m-th squared distance
+    (the m-th smallest among its 2m neighbours in x, in y and in Z order: any m rows bound
+    it), then every row in the grid cells that the square of half-side √u (widened by
+    10⁻⁹) touches, of which those within ``u`` are sorted by (distance, position) as the
+    dense search sorts them. None should a query be left with fewer than m rows (it
+    cannot: the rows behind its bound are among them)."""
+    n, nq = len(data), len(query)
+    w = min(n, 2 * m)
+    lo, span = data.min(axis=0), np.ptp(data, axis=0)
+    span = np.where(span > 0, span, 1.0)
+    bound = np.full(nq, np.inf)
+    for kd, kq in ((data[:, 0], query[:, 0]), (data[:, 1], query[:, 1]),
+                   (_morton(data, lo, span), _morton(query, lo, span))):
+        order = np.argsort(kd, kind="stable")
+        start = np.clip(np.searchsorted(kd[order], kq) - m, 0, n - w)
+        d2 = _sq_dist(query[:, None, :], data[order[start[:, None] + np.arange(w)]])
+        bound = np.minimum(bound, np.partition(d2, m - 1, axis=1)[:, m - 1])
+    half = np.sqrt(bound) * (1 + 1e-9) + 1e-300
+    # cells of side h: about two bounds wide, coarser while the queries span many columns
+    h = max(2.0 * float(np.median(half)), float(span.max()) / 2 ** 20)
+    top = np.floor(span / h).astype(np.int64)
+    while True:
+        c_lo = np.maximum(np.floor((query - half[:, None] - lo) / h), 0).astype(np.int64)
+        c_hi = np.minimum(np.floor((query + half[:, None] - lo) / h), top).astype(np.int64)
+        n_col = np.where(c_hi[:, 1] >= c_lo[:, 1], np.maximum(c_hi[:, 0] - c_lo[:, 0] + 1, 0), 0)
+        if n_col.sum() <= 4 * nq:
+            break
+        h *= 2.0
+        top = np.floor(span / h).astype(np.int64)
+    ny = int(top[1]) + 1
+    cell = np.minimum(np.floor((data - lo) / h).astype(np.int64), top)
+    key = cell[:, 0] * ny + cell[:, 1]
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    # each query's columns, then in each column the rows of its cells (one index range)
+    qc = np.repeat(np.arange(nq), n_col)
+    col = c_lo[qc, 0] + _ramp(n_col)
+    a = np.searchsorted(key, col * ny + c_lo[qc, 1], side="left")
+    b = np.searchsorted(key, col * ny + c_hi[qc, 1], side="right")
+    qid = np.repeat(qc, b - a)
+    idx = order[np.repeat(a, b - a) + _ramp(b - a)]
+    d2 = _sq_dist(query[qid], data[idx])
+    near = d2 <= bound[qid]
+    qid, idx, d2 = qid[near], idx[near], d2[near]
+    counts = np.bincount(qid, minlength=nq)
+    if counts.min() < m:
+        return None
+    first = np.cumsum(counts) - counts
+    return idx[np.lexsort((idx, d2, qid))][first[:, None] + np.arange(m)]
+
+
+def _ramp(counts: np.ndarray) -> np.ndarray:
+    """0, 1, …, c − 1 for each c of ``counts``, concatenated."""
+    return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def neighbours(coords: np.ndarray, k: int, use: np.ndarray | None = None) -> np.ndarray:

@@ -32,3 +32,20 @@ def test_the_row_itself_is_left_out_even_among_duplicates():
     for i, row in enumerate(nb):
         assert i not in row and len(set(row)) == 3
     assert set(nb[0]) == {1, 2, 3}
+
+
+@pytest.mark.parametrize("layout", ["lattice", "clusters", "line", "outlier"])
+def test_the_grid_search_finds_the_rows_and_order_of_comparing_every_pair(layout):
+    # ties broken by position as the pairwise search breaks them: on a lattice of few
+    # values most distances tie, and duplicates are distance 0
+    from cell.diagnosis.noise import _nearest_dense, _nearest_grid
+    rng = np.random.default_rng(5)
+    coords = {"lattice": rng.integers(0, 6, (700, 2)).astype(float),
+              "clusters": np.repeat(rng.normal(size=(40, 2)) * 30, 20, axis=0)
+              + rng.normal(size=(800, 2)) * 0.01,
+              "line": np.c_[np.zeros(400), np.arange(400.0)],
+              "outlier": np.r_[rng.normal(size=(400, 2)), [[1e6, -1e6]]]}[layout]
+    for m in (5, 9, 17):
+        for query in (coords, coords[::3] + 0.37):
+            np.testing.assert_array_equal(_nearest_grid(coords, query, m),
+                                          _nearest_dense(coords, query, m))
