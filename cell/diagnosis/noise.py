@@ -221,7 +221,7 @@ def _nearest_grid(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray | N
         bound = np.minimum(bound, np.partition(d2, m - 1, axis=1)[:, m - 1])
     half = np.sqrt(bound) * (1 + 1e-9) + 1e-300
     # cells of side h: about two bounds wide, coarser while the queries span many columns
-    h = max(2.0 * float(np.median(half)), float(span.max()) / 2 ** 20)
+    h = max(2.0 * float(median(half)), float(span.max()) / 2 ** 20)
     top = np.floor(span / h).astype(np.int64)
     while True:
         c_lo = np.maximum(np.floor((query - half[:, None] - lo) / h), 0).astype(np.int64)

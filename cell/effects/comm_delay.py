@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from cell.effects.base import ChainPoses, Effect, OnChain, ParamSpec, Remedy
+from cell.numerics.stats import distinct
 
 
 def comm_delay(x, order, time_s, cmd_deg):
@@ -50,7 +51,7 @@ def chain_shift(poses: ChainPoses, k: int, sigma_ms: float) -> tuple[np.ndarray,
         return np.zeros(n), np.zeros(n)
     lag = float(sigma_ms) * float(b) * 1e-3
     out, dv = np.zeros(n), np.zeros(n)
-    for m in np.unique(poses.move[poses.move >= 0]):
+    for m in distinct(poses.move[poses.move >= 0]):
         idx = np.flatnonzero(poses.move == m)
         t, q = poses.move_t[idx], poses.q[idx, k]
         ts = t - lag
