@@ -117,25 +117,59 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
     error (G,), (JᵀJ)⁻¹ of the column-scaled design, the scales). All folds at once
     (padded blocks); a singular ``I − H_gg`` gives inf. A fold of more rows R than columns
     n (a measured move's samples) is taken out of the normal equations instead, the same
-    residual at an n × n solve: e_g = r_g + J_g (A − J_gᵀJ_g)⁻¹ J_gᵀ r_g."""
+    residual at an n × n solve: e_g = r_g + J_g (A − J_gᵀJ_g)⁻¹ J_gᵀ r_g. Folds of very
+    unequal size (a move's hundreds of samples beside places of a few poses) are padded
+    in two batches, the small folds and the large (:func:`_size_classes`), not all to the
+    largest."""
     Js, scale = scaled(J)
     A = Js.T @ Js
     Ainv = np.linalg.pinv(A, rcond=1e-12)
-    Jg, rg, pad = blocks(Js, r, group, n_groups, dims)          # (G, R, n), (G, R)
+    counts = np.bincount(group, minlength=n_groups)
+    ss = np.zeros(n_groups)
+    normal = dims * (int(counts.max()) if len(counts) else 0) > Js.shape[1]
     try:
-        if rg.shape[1] > Js.shape[1]:
-            Gg = Jg.transpose(0, 2, 1) @ Jg
-            c = np.einsum("grn,gr->gn", Jg, rg)
-            loo = rg + np.einsum("grn,gn->gr", Jg, np.linalg.solve(A - Gg, c[..., None])[..., 0])
-        else:
-            H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
-            I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
-            loo = solve_small(I - H, rg)
+        for folds in _size_classes(counts, dims):
+            if folds is None:
+                Jg, rg, _ = blocks(Js, r, group, n_groups, dims)      # (G, R, n), (G, R)
+            else:
+                Jg, rg = _blocks_of(Js, r, group, folds, dims)
+            if normal:
+                Gg = Jg.transpose(0, 2, 1) @ Jg
+                c = np.einsum("grn,gr->gn", Jg, rg)
+                loo = rg + np.einsum("grn,gn->gr", Jg, np.linalg.solve(A - Gg, c[..., None])[..., 0])
+            else:
+                H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
+                I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
+                loo = solve_small(I - H, rg)
+            ss[slice(None) if folds is None else folds] = np.sum(loo * loo, axis=1)
     except np.linalg.LinAlgError:
         return math.inf, np.full(n_groups, math.inf), Ainv, scale
-    ss = np.sum(loo * loo, axis=1)
-    total = float(math.sqrt(np.sum(loo * loo) / max(_sizes(pad, dims, "point").sum(), 1)))
-    return total, ss / np.maximum(_sizes(pad, dims, per), 1), Ainv, scale
+    size = counts.astype(float) if per == "point" else counts * float(dims)
+    total = float(math.sqrt(np.sum(ss) / max(float(counts.sum()), 1)))
+    return total, ss / np.maximum(size, 1), Ainv, scale
+
+
+def _size_classes(counts: np.ndarray, dims: int) -> list:
+    """The batches :func:`at_solution` pads its folds in: ``[None]`` (every fold at once)
+    unless padding all to the largest would more than :data:`GRAM_PADDING`-fold the rows;
+    then the folds of at most that many times the mean size, and the rest (index arrays)."""
+    total = int(counts.sum())
+    if not total or int(counts.max()) * len(counts) <= GRAM_PADDING * total:
+        return [None]
+    large = counts > GRAM_PADDING * total / len(counts)
+    return [f for f in (np.flatnonzero(~large), np.flatnonzero(large)) if len(f)]
+
+
+def _blocks_of(Js: np.ndarray, r: np.ndarray, group: np.ndarray, folds: np.ndarray, dims: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`blocks` of the folds ``folds`` (indices) alone, in that order, padding
+    zero-filled: (Jg (F, R, n), rg (F, R))."""
+    local = -np.ones(int(group.max()) + 1, dtype=np.int64)
+    local[folds] = np.arange(len(folds))
+    pts = np.flatnonzero(local[group] >= 0)
+    rows = (pts[:, None] * dims + np.arange(dims)).ravel()
+    Jg, rg, _ = blocks(Js[rows], r[rows], local[group[pts]], len(folds), dims)
+    return Jg, rg
 
 
 class Folds:
