@@ -120,12 +120,36 @@ def rot(axis: np.ndarray, deg) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     x, y, z = axis
     C = 1.0 - c
+    if a.ndim and _unit_axis(axis) and np.isfinite(a).all():
+        return _rot_unit(axis, a.shape, c, s, C)
     R = np.empty(a.shape + (4, 4))
     R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = c + x * x * C, x * y * C - z * s, x * z * C + y * s
     R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = y * x * C + z * s, c + y * y * C, y * z * C - x * s
     R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = z * x * C - y * s, z * y * C + x * s, c + z * z * C
     R[..., :3, 3] = 0.0
     R[..., 3, :3] = 0.0
+    R[..., 3, 3] = 1.0
+    return R
+
+
+def _unit_axis(axis) -> bool:
+    """``axis`` is x, y or z: one component 1, the others +0."""
+    u = [float(v) for v in axis]
+    return sorted(u) == [0.0, 0.0, 1.0] and all(v == 1.0 or math.copysign(1.0, v) > 0 for v in u)
+
+
+def _rot_unit(axis, shape, c, s, C) -> np.ndarray:
+    """:func:`rot` about x, y or z at finite angles, entry for entry the same values (their
+    signs included): the general formula's terms with a zero factor are +0, so an entry is
+    c, c + C, s + 0, 0 − s or +0."""
+    k = [float(v) for v in axis].index(1.0)
+    i, j = (k + 1) % 3, (k + 2) % 3                   # the plane turned, right-handed
+    R = np.zeros(shape + (4, 4))
+    R[..., i, i] = c
+    R[..., j, j] = c
+    R[..., k, k] = c + C
+    R[..., j, i] = s + 0.0                              # u_j·u_i·C + u_k·s
+    R[..., i, j] = 0.0 - s                              # u_i·u_j·C − u_k·s
     R[..., 3, 3] = 1.0
     return R
 

@@ -26,44 +26,66 @@ def forward(chain: Chain, readings: np.ndarray, geo: dict[int, float] | None = N
 
     ``geo`` maps op index → added value (geometric errors); ``dq`` (P, J) adds to the
     joints' model values (joint effects). With ``keep`` the second result maps each R/T op
-    index to the (P, 4, 4) frame it starts in (for :func:`twist`)."""
+    index to the (P, 4, 4) frame it starts in (for :func:`twist`).
+
+    The product is taken op by op from the base, as ``T @ op`` with the same rounding: a
+    fixed transform multiplies all poses' frames as one (4P × 4) matrix (:func:`_times`).
+    """
     P = readings.shape[0]
     qm = chain.model_values(readings)
     if dq is not None:
         qm = qm + dq
-    T = np.broadcast_to(np.eye(4), (P, 4, 4)).copy()
+    T = None                                   # the identity, until the first op
     starts: dict[int, np.ndarray] = {}
     for i, op in enumerate(chain.ops):
         if op.kind == "F":
-            T = T @ op.matrix
+            T = _times(T, op.matrix, P)
             continue
         if keep:
-            starts[i] = T
+            starts[i] = T if T is not None else np.broadcast_to(np.eye(4), (P, 4, 4)).copy()
         g = geo.get(i) if geo else None
         if op.joint is None:                   # one transform for every pose
-            T = T @ (op.nominal_matrix if g is None else op.at(op.nominal + g))
+            T = _times(T, op.nominal_matrix if g is None else op.at(op.nominal + g), P)
             continue
         v = np.full(P, op.nominal + (g or 0.0)) + qm[:, op.joint]
-        T = T @ (rot(op.axis, v) if op.kind == "R" else trans(op.axis, v))
-    return T, starts
+        J = rot(op.axis, v) if op.kind == "R" else trans(op.axis, v)
+        T = J + 0.0 if T is None else T @ J      # + 0.0: a −0 entry reads +0, as I · J gives it
+    return (T if T is not None else np.broadcast_to(np.eye(4), (P, 4, 4)).copy()), starts
 
 
-def points(tips: np.ndarray, obs_pose: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """(M, 3) base-frame points: ``local`` (M, 3) tip-frame points on the poses ``obs_pose``."""
-    T = tips[obs_pose]
+def _times(T: np.ndarray | None, M: np.ndarray, P: int) -> np.ndarray:
+    """(P, 4, 4) frames ``T`` (None: the identity) times one 4 × 4 ``M``: the values of
+    ``T @ M`` (one BLAS product of the same kernel instead of one per pose)."""
+    if T is None:
+        return np.broadcast_to(M + 0.0, (P, 4, 4)).copy()     # + 0.0: as I · M gives −0
+    return (T.reshape(-1, 4) @ M).reshape(T.shape)
+
+
+def points(tips: np.ndarray, obs_pose: np.ndarray | None, local: np.ndarray) -> np.ndarray:
+    """(M, 3) base-frame points: ``local`` (M, 3) tip-frame points on the poses ``obs_pose``
+    (None: one point on each pose, in order)."""
+    T = tips if obs_pose is None else tips[obs_pose]
     return np.einsum("mij,mj->mi", T[:, :3, :3], local) + T[:, :3, 3]
 
 
 def twist(chain: Chain, starts: dict[int, np.ndarray], op_index: int, x: np.ndarray,
-          obs_pose: np.ndarray) -> np.ndarray:
-    """(M, 3) derivative of the base-frame points ``x`` (M, 3) on poses ``obs_pose`` with
-    respect to a unit (1 deg / 1 mm) change of op ``op_index``'s value."""
+          obs_pose: np.ndarray | None) -> np.ndarray:
+    """(M, 3) derivative of the base-frame points ``x`` (M, 3) on poses ``obs_pose`` (None:
+    one point on each pose, in order) with respect to a unit (1 deg / 1 mm) change of op
+    ``op_index``'s value."""
     op = chain.ops[op_index]
-    F = starts[op_index][obs_pose]
-    w = F[:, :3, :3] @ op.axis
+    F = starts[op_index] if obs_pose is None else starts[op_index][obs_pose]
+    w = _along(F, op.axis)
     if op.kind == "T":
         return w
-    return np.cross(w, x - F[:, :3, 3]) * D2R
+    v = x - F[:, :3, 3]
+    return np.stack([w[:, 1] * v[:, 2] - w[:, 2] * v[:, 1], w[:, 2] * v[:, 0] - w[:, 0] * v[:, 2],
+                     w[:, 0] * v[:, 1] - w[:, 1] * v[:, 0]], axis=1) * D2R
+
+
+def _along(F: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(M, 3) ``F[:, :3, :3] @ axis``, its values, as one matrix-vector product."""
+    return (F[:, :3, :3].reshape(-1, 3) @ axis).reshape(len(F), 3)
 
 
 def joint_axes(chain: Chain, starts: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

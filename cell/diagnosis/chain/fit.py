@@ -199,6 +199,8 @@ class Data:
     frames: tuple[np.ndarray, dict[int, np.ndarray]] | None = field(default=None, repr=False,
                                                                      compare=False)
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
+    _poses: fx.ChainPoses | None = field(default=None, init=False, repr=False, compare=False)
+    _rows_are_poses: bool | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.dirs is None:
@@ -287,6 +289,20 @@ class Data:
     @property
     def n_poses(self) -> int:
         return len(self.readings)
+
+    def point_poses(self) -> np.ndarray | None:
+        """``obs_pose``, or None when it is 0, 1, …, P − 1 (one point per pose, in pose
+        order: a per-pose array is already per point)."""
+        if self._rows_are_poses is None:
+            self._rows_are_poses = len(self.obs_pose) == self.n_poses and bool(
+                np.array_equal(self.obs_pose, np.arange(self.n_poses)))
+        return None if self._rows_are_poses else self.obs_pose
+
+    def per_point(self, a: np.ndarray) -> np.ndarray:
+        """Per-pose ``a`` (P, …) for every measured point (M, …): ``a[obs_pose]``, or ``a``
+        itself when the points are the poses (:meth:`point_poses`)."""
+        rows = self.point_poses()
+        return a if rows is None else a[rows]
 
     @property
     def dims(self) -> int:
@@ -394,22 +410,26 @@ def _moves_apart(readings: np.ndarray, move: np.ndarray | None, group) -> np.nda
 
 
 def _poses(d: Data) -> fx.ChainPoses:
-    levers = _LaterLevers(d) if d.levers is None else d.levers
-    return fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c,
-                         tuple(j.motor_ratio for j in d.chain.joints), d.rate,
-                         tuple(j.bus_position for j in d.chain.joints), d.move, d.move_t)
+    """What the effects' joint terms read of ``d``'s poses, built once per :class:`Data`."""
+    if d._poses is None:
+        levers = _LaterLevers(d) if d.levers is None else d.levers
+        d._poses = fx.ChainPoses(d.chain.model_values(d.readings), levers, d.dirs, d.temp_c,
+                                 tuple(j.motor_ratio for j in d.chain.joints), d.rate,
+                                 tuple(j.bus_position for j in d.chain.joints), d.move, d.move_t)
+    return d._poses
 
 
-def joint_deltas(d: Data, params: list[Param], values: np.ndarray
+def joint_deltas(d: Data, params: list[Param], values: np.ndarray, shifts: dict | None = None
                  ) -> tuple[dict[int, float], np.ndarray, np.ndarray | None]:
     """The geometric op offsets, the (P, J) joint-value additions and the (P,) relative
     growth of the whole arm (None: none) of ``values``: each parameter's effect definition
-    says which (:attr:`cell.effects.OnChain.term`)."""
+    says which (:attr:`cell.effects.OnChain.term`). ``shifts`` (if given) receives, by the
+    parameter's position, the exact shifts and derivatives of :meth:`Param.joint_shift`."""
     geo: dict[int, float] = {}
     dq = np.zeros_like(d.readings)
     grow = None
     poses = _poses(d)
-    for p, v in zip(params, values):
+    for i, (p, v) in enumerate(zip(params, values)):
         term = p.term
         if p.sensor:
             continue
@@ -418,7 +438,10 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray
         elif p.arm:
             grow = (0.0 if grow is None else grow) + v * term(poses, -1)
         elif p.bus:
-            dq += p.joint_shift(poses, v)[0]
+            shift = p.joint_shift(poses, v)
+            if shifts is not None:
+                shifts[i] = shift
+            dq += shift[0]
         else:
             dq[:, p.joint] += v * term(poses, p.joint)
     return geo, dq, grow
@@ -436,14 +459,16 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     the registration-only fit ask for the same columns many times."""
     zero = not np.any(values)
     grow = None
+    shifts: dict[int, tuple] = {}
     if zero:
         tips, starts = d.nominal_frames()
     else:
-        geo, dq, grow = joint_deltas(d, params, values)
+        geo, dq, grow = joint_deltas(d, params, values, shifts)
         tips, starts = kin.forward(d.chain, d.readings, geo, dq, keep=jac)
     local = reg.markers[d.obs_marker]
-    xb = kin.points(tips, d.obs_pose, local)
-    scale = None if grow is None else (1.0 + grow)[d.obs_pose][:, None]     # (M, 1)
+    rows = d.point_poses()
+    xb = kin.points(tips, rows, local)
+    scale = None if grow is None else d.per_point(1.0 + grow)[:, None]     # (M, 1)
     y = (xb if scale is None else xb * scale) @ reg.R.T + reg.t
     M, dM = sensor_maps(params, values)
     if zero or d.centre is None:            # the identity, or nothing to map about
@@ -467,7 +492,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
     blocks = list(blocks) if M is None else [np.einsum("ij,mjk->mik", M, b) for b in blocks]
     twists: dict[int, np.ndarray] = {}        # one op's twist serves all its parameters
     poses = None
-    for p, value in zip(params, values):
+    for i, (p, value) in enumerate(zip(params, values)):
         g = kept.get(p)
         if g is None:
             term = p.term
@@ -477,24 +502,25 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                 g = np.zeros_like(y) if d.centre is None else (y - d.centre) @ dM[p.name].T
             else:
                 if p.arm:                      # ∂(s·x)/∂v = term · x
-                    g = (xb * term(poses, -1)[d.obs_pose][:, None]) @ reg.R.T
+                    g = (xb * d.per_point(term(poses, -1))[:, None]) @ reg.R.T
                 elif p.bus:                    # every joint's twist times its term
-                    tj = (p.joint_shift(poses, value)[1] if value else p.joint_terms(poses))[d.obs_pose]
+                    tj = d.per_point((shifts[i] if i in shifts else p.joint_shift(poses, value))[1]
+                                     if value else p.joint_terms(poses))
                     g = np.zeros_like(xb)
                     for k in range(d.chain.n_joints):
                         op = d.chain.joint_op[k]
                         if np.any(tj[:, k]):
                             if op not in twists:
-                                twists[op] = kin.twist(d.chain, starts, op, xb, d.obs_pose) @ reg.R.T
+                                twists[op] = kin.twist(d.chain, starts, op, xb, rows) @ reg.R.T
                             g = g + twists[op] * tj[:, k][:, None]
                     if scale is not None:
                         g = g * scale
                 else:
                     g = twists.get(p.op)
                     if g is None:
-                        g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, d.obs_pose) @ reg.R.T
+                        g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, rows) @ reg.R.T
                     if term is not None:
-                        g = g * term(poses, p.joint)[d.obs_pose][:, None]
+                        g = g * d.per_point(term(poses, p.joint))[:, None]
                     if scale is not None:      # the grown arm moves (1 + growth) as far
                         g = g * scale
                 if M is not None:              # and the sensor reads it through its maps
