@@ -172,6 +172,12 @@ def _blocks_of(Js: np.ndarray, r: np.ndarray, group: np.ndarray, folds: np.ndarr
     return Jg, rg
 
 
+def _frozen(res: tuple[float, np.ndarray]) -> tuple[float, np.ndarray]:
+    """A leave-out answer whose per-fold array can no longer be changed (it is kept)."""
+    res[1].flags.writeable = False
+    return res
+
+
 class Folds:
     """Leave-one-fold-out of the linear least-squares fits of ``r`` on column subsets of
     one design ``Js``, folds ``group`` per point (``n_groups``; ``dims`` scalar rows per
@@ -216,6 +222,7 @@ class Folds:
         self.ridge = ridge
         self.base = base
         self.points = None
+        self._known: dict[tuple, tuple[float, np.ndarray]] = {}    # column subset → its loo
         if not (base and self._eliminate(base)):
             self.base = 0               # nothing eliminated: the fold-out system as it is
             self.M, self.z = self.Gt - self.G, self.bt - self.b
@@ -274,11 +281,19 @@ class Folds:
 
     def loo(self, cols) -> tuple[float, np.ndarray]:
         """(rms of the held-out point errors, per-fold error (F,)) of the fit on columns
-        ``cols`` (indices; empty: the residual as it is)."""
+        ``cols`` (indices; empty: the residual as it is). A subset asked about again is
+        answered from the first answer (screening asks the same subsets many times); its
+        per-fold array is read-only."""
         cols = np.asarray(cols, dtype=np.int64)
-        nb = self.base
         if self.points is not None and len(cols):
             return self._one_point_each(cols[None])[0]
+        key = ("loo",) + tuple(int(c) for c in cols)
+        if key not in self._known:
+            self._known[key] = _frozen(self._loo(cols))
+        return self._known[key]
+
+    def _loo(self, cols: np.ndarray) -> tuple[float, np.ndarray]:
+        nb = self.base
         if len(cols) >= nb and np.array_equal(cols[:nb], np.arange(nb)):
             S = cols[nb:] - nb
             if not len(S):
@@ -309,8 +324,18 @@ class Folds:
         """:meth:`loo` of each row of ``S`` (t, k) when every fold is one point and nothing
         is eliminated: the fit on every fold, then each point's held-out residual
         ``(I − H_gg)⁻¹ e_g`` (``H_gg`` its ``dims`` × ``dims`` block of the hat matrix),
-        exact for any ``r``: one k × k solve per subset instead of one per fold, all subsets
-        in one batch (a singular one alone fails, its errors inf)."""
+        exact for any ``r``: one k × k solve per subset instead of one per fold, the subsets
+        not asked about before in one batch (a singular one alone fails, its errors inf).
+        Each subset's answer is computed on its own slices of the batch, so it is the same
+        whichever batch it comes in, and kept (read-only) for the next time."""
+        keys = [tuple(int(c) for c in row) for row in S]
+        new = [i for i, key in enumerate(keys) if key not in self._known]
+        if new:
+            for i, res in zip(new, self._points_loo(S[new])):
+                self._known[keys[i]] = _frozen(res)
+        return [self._known[key] for key in keys]
+
+    def _points_loo(self, S: np.ndarray) -> list[tuple[float, np.ndarray]]:
         Jp, rp, fold_of = self.points
         try:
             Ainv = np.linalg.inv(self.Gt[S[:, :, None], S[:, None, :]])   # (t, k, k)
@@ -322,7 +347,7 @@ class Folds:
         except np.linalg.LinAlgError:                                     # tell which: one at a time
             if len(S) == 1:
                 return [(math.inf, np.full(self.n_folds, math.inf))]
-            return [self._one_point_each(c[None])[0] for c in S]
+            return [self._points_loo(c[None])[0] for c in S]
         ss = np.empty((len(S), self.n_folds))
         ss[:, fold_of] = np.sum(out * out, axis=2)
         return [self._from_ss(q) for q in ss]
@@ -337,13 +362,13 @@ class Folds:
         if self.points is not None and S.shape[1]:
             return self._one_point_each(S)
         if S.shape[1] <= nb or not (S[:, :nb] == np.arange(nb)).all():
-            return [self.loo(c) for c in subsets]
+            return [self._loo(np.asarray(c, dtype=np.int64)) for c in subsets]
         S = S[:, nb:] - nb                                            # (t, k)
         try:
             beta = np.linalg.solve(self._ridged(self.M[:, S[:, :, None], S[:, None, :]]),
                                    self.z[:, S, None])[..., 0]         # (F, t, k)
         except np.linalg.LinAlgError:                                 # tell which: one at a time
-            return [self.loo(c) for c in subsets]
+            return [self._loo(np.asarray(c, dtype=np.int64)) for c in subsets]
         if self.gram:
             ss = np.maximum(self.uu[None] - 2 * np.einsum("ftk,ftk->tf", beta, self.Wu[:, S])
                             + np.einsum("ftk,ftkl,ftl->tf", beta,
