@@ -36,18 +36,51 @@ COMMAND_MODULES = (
     "cell.commands.historian",
     "cell.commands.fleet",
 )
+#: each command name → the module of :data:`COMMAND_MODULES` that registers it
+#: (``tests/cell/test_cli_startup.py`` holds the two together)
+COMMAND_OF = {
+    "compensate": "cell.commands.compensate", "plan": "cell.commands.plan",
+    "recipe": "cell.commands.recipe", "report": "cell.commands.report",
+    "export": "cell.commands.report", "registers": "cell.commands.registers",
+    "run": "cell.commands.run", "serve": "cell.commands.run", "diagnose": "cell.commands.diagnose",
+    "calibrate-camera": "cell.commands.calibrate", "calibrate": "cell.commands.robotcal",
+    "log": "cell.commands.logcheck", "audit": "cell.commands.audit", "plc": "cell.commands.plc",
+    "hmi": "cell.commands.hmi", "historian": "cell.commands.historian",
+    "fleet": "cell.commands.fleet",
+}
+_VALUED = ("--log-format", "--log-level")     # the top-level options that take a value
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``cellctl`` parser: every command's, or (``command``, a name of
+    :data:`COMMAND_OF`) only the module's that registers that command, the same parser for
+    it without importing the fourteen others."""
     parser = argparse.ArgumentParser(prog="cellctl", description=__doc__.splitlines()[0].replace("``", "").rstrip(".") + ".")
     parser.add_argument("--version", action="version", version=f"cellctl {__version__}")
     parser.add_argument("--log-format", choices=("console", "json"), default="console",
                         help="structlog output on stderr (default console)")
     parser.add_argument("--log-level", default="WARNING", help="logging level (default WARNING)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    for name in (COMMAND_MODULES if command not in COMMAND_OF else (COMMAND_OF[command],)):
         importlib.import_module(name).register(sub)
     return parser
+
+
+def command_named(argv: list[str]) -> str | None:
+    """The command ``argv`` runs when it is plainly one of :data:`COMMAND_OF` (after
+    top-level options written in full), else None (help, version, an abbreviated option,
+    an unknown command: the whole parser answers)."""
+    it = iter(argv)
+    for tok in it:
+        if tok in _VALUED:
+            next(it, None)
+        elif tok.startswith(tuple(f"{o}=" for o in _VALUED)):
+            continue
+        elif tok.startswith("-"):
+            return None
+        else:
+            return tok if tok in COMMAND_OF else None
+    return None
 
 
 class _LogSetUp:
@@ -87,7 +120,7 @@ def configure_logging(fmt: str, level: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(command_named(sys.argv[1:] if argv is None else argv))
     args = parser.parse_args(argv)
     configure_logging(args.log_format, args.log_level)
     try:

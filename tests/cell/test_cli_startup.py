@@ -61,3 +61,33 @@ def test_a_bad_preset_is_refused_by_the_parser_with_the_known_names(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "seed999" in err and "seed000" in err and "seed002" in err
+
+
+def test_each_command_is_registered_by_the_module_the_cli_names_for_it():
+    # main builds only that module's parser for a plainly named command (start-up CPU of
+    # every cellctl run); the table must name every command and the module that adds it
+    import argparse
+    import importlib
+
+    from cell.cli import COMMAND_MODULES, COMMAND_OF
+    found = {}
+    for name in COMMAND_MODULES:
+        sub = argparse.ArgumentParser().add_subparsers()
+        importlib.import_module(name).register(sub)
+        found.update({command: name for command in sub.choices})
+    assert found == COMMAND_OF
+
+
+@pytest.mark.parametrize("argv, command", [
+    (["diagnose", "d"], "diagnose"), (["--log-format", "json", "diagnose", "d"], "diagnose"),
+    (["--log-level=INFO", "plan", "line"], "plan"), (["--help"], None), (["--version"], None),
+    (["--log-f", "json", "diagnose", "d"], None), (["nonsense"], None), ([], None)])
+def test_the_command_is_read_from_plain_arguments_only(argv, command):
+    from cell.cli import command_named
+    assert command_named(argv) == command
+
+
+def test_a_command_parsed_alone_parses_as_with_every_command():
+    from cell.cli import build_parser
+    argv = ["--log-level", "INFO", "diagnose", "some/dir", "--json"]
+    assert vars(build_parser("diagnose").parse_args(argv)) == vars(build_parser().parse_args(argv))
