@@ -201,6 +201,8 @@ class Data:
     _blocks: list | None = field(default=None, init=False, repr=False, compare=False)
     _poses: fx.ChainPoses | None = field(default=None, init=False, repr=False, compare=False)
     _rows_are_poses: bool | None = field(default=None, init=False, repr=False, compare=False)
+    _stations: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _terms: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.dirs is None:
@@ -392,8 +394,11 @@ def _places(readings: np.ndarray, move: np.ndarray | None) -> np.ndarray:
 
 def _stations(d: Data) -> np.ndarray:
     """The group of every pose for a requirement within each place: the static poses'
-    (:func:`cell.diagnosis.places.stations`), then each measured move one group."""
-    return _moves_apart(d.readings, d.move, stations)
+    (:func:`cell.diagnosis.places.stations`), then each measured move one group; found
+    once per :class:`Data`."""
+    if d._stations is None:
+        d._stations = _moves_apart(d.readings, d.move, stations)
+    return d._stations
 
 
 def _moves_apart(readings: np.ndarray, move: np.ndarray | None, group) -> np.ndarray:
@@ -419,6 +424,16 @@ def _poses(d: Data) -> fx.ChainPoses:
     return d._poses
 
 
+def _term(d: Data, p: Param, k: int) -> np.ndarray:
+    """``p.term`` on ``d``'s poses at joint ``k`` (−1: of the whole arm), computed once per
+    :class:`Data` (callers do not change it)."""
+    key = (p.effect, p.part, k)
+    v = d._terms.get(key)
+    if v is None:
+        v = d._terms[key] = p.term(_poses(d), k)
+    return v
+
+
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray, shifts: dict | None = None
                  ) -> tuple[dict[int, float], np.ndarray, np.ndarray | None]:
     """The geometric op offsets, the (P, J) joint-value additions and the (P,) relative
@@ -436,14 +451,14 @@ def joint_deltas(d: Data, params: list[Param], values: np.ndarray, shifts: dict 
         if term is None:
             geo[p.op] = geo.get(p.op, 0.0) + v
         elif p.arm:
-            grow = (0.0 if grow is None else grow) + v * term(poses, -1)
+            grow = (0.0 if grow is None else grow) + v * _term(d, p, -1)
         elif p.bus:
             shift = p.joint_shift(poses, v)
             if shifts is not None:
                 shifts[i] = shift
             dq += shift[0]
         else:
-            dq[:, p.joint] += v * term(poses, p.joint)
+            dq[:, p.joint] += v * _term(d, p, p.joint)
     return geo, dq, grow
 
 
@@ -502,7 +517,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                 g = np.zeros_like(y) if d.centre is None else (y - d.centre) @ dM[p.name].T
             else:
                 if p.arm:                      # ∂(s·x)/∂v = term · x
-                    g = (xb * d.per_point(term(poses, -1))[:, None]) @ reg.R.T
+                    g = (xb * d.per_point(_term(d, p, -1))[:, None]) @ reg.R.T
                 elif p.bus:                    # every joint's twist times its term
                     tj = d.per_point((shifts[i] if i in shifts else p.joint_shift(poses, value))[1]
                                      if value else p.joint_terms(poses))
@@ -520,7 +535,7 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                     if g is None:
                         g = twists[p.op] = kin.twist(d.chain, starts, p.op, xb, rows) @ reg.R.T
                     if term is not None:
-                        g = g * d.per_point(term(poses, p.joint))[:, None]
+                        g = g * d.per_point(_term(d, p, p.joint))[:, None]
                     if scale is not None:      # the grown arm moves (1 + growth) as far
                         g = g * scale
                 if M is not None:              # and the sensor reads it through its maps
@@ -799,7 +814,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
                 lacking.add(p.name)
                 allp.remove(p)
                 continue
-        v = p.joint_terms(poses) if p.bus else p.term(poses, p.joint)
+        v = p.joint_terms(poses) if p.bus else _term(d, p, p.joint)
         if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
             rounding.add(p.name)
         elif use.min_spread > 0 and not p.nuisance and np.any(v) and float(np.ptp(
