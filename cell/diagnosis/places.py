@@ -56,24 +56,25 @@ def regions(centres: np.ndarray, k: int) -> np.ndarray:
                      axis=0)
 
 
-def stations(q: np.ndarray) -> np.ndarray:
+def stations(q: np.ndarray, linked: np.ndarray | None = None) -> np.ndarray:
     """The group of every pose for a requirement that looks within each place (a short
     period sampled densely, :func:`cell.effects.phase_coverage`): its place
     (:func:`places`), except that the poses alone at their place form one group together.
     Those are spread, each with a phase of its own; as places of one they would leave
-    nothing to vary within a place."""
-    p = places(q)
+    nothing to vary within a place. ``linked``: :func:`places` of ``q`` when already found."""
+    p = places(q) if linked is None else linked
     alone = np.bincount(p)[p] == 1
     return np.where(alone, -1, p)
 
 
-def folds(q: np.ndarray, max_folds: int | None = None) -> tuple[np.ndarray, int, bool]:
+def folds(q: np.ndarray, max_folds: int | None = None, linked: np.ndarray | None = None
+          ) -> tuple[np.ndarray, int, bool]:
     """(fold of every pose, number of places, True when the poses sit at stations): see the
-    module docstring."""
+    module docstring. ``linked``: :func:`places` of ``q`` when already found."""
     q = np.asarray(q, float)
     if not len(q):
         return np.zeros(0, int), 0, False
-    p = places(q)
+    p = places(q) if linked is None else linked
     n_places = int(p.max()) + 1
     share = np.bincount(p).max() / len(q)
     stations = share <= MAX_SHARE and n_places >= 3 or n_places < 3 and len(q) > n_places

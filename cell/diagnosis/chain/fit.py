@@ -31,7 +31,7 @@ import numpy as np
 from cell import effects as fx
 from cell.diagnosis import leaveout
 from cell.diagnosis.leaveout import scaled
-from cell.diagnosis.places import folds as place_folds, stations
+from cell.diagnosis.places import folds as place_folds, places as linked_places, stations
 import cell.kinematics as kin
 from cell.kinematics import identifiable
 from cell.kinematics.chain import Chain
@@ -202,13 +202,12 @@ class Data:
     _poses: fx.ChainPoses | None = field(default=None, init=False, repr=False, compare=False)
     _rows_are_poses: bool | None = field(default=None, init=False, repr=False, compare=False)
     _stations: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _linked: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
     _terms: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.dirs is None:
             self.dirs = np.zeros_like(self.readings)
-        if self.place is None:
-            self.place = _places(self.readings, self.move)
 
     def zero_blocks(self, reg: "Registration") -> dict:
         """The Jacobian blocks :func:`model` has computed at zero parameters for
@@ -316,6 +315,9 @@ class Data:
         poses' places when they sit at stations (a station revisited: leaving out one
         visit would leave its twins in), else every pose on its own
         (:func:`cell.diagnosis.places.folds`); each measured move is a fold of its own."""
+        if self.place is None:          # found when first asked: most Data never are; the
+            self.place = _moves_apart(  # static poses' places, then each move one fold
+                self.readings, self.move, lambda q: place_folds(q, linked=_linked(self))[0])
         n = int(self.place.max()) + 1 if len(self.place) else 0
         return self.place[self.obs_pose], n
 
@@ -386,19 +388,22 @@ class _LaterLevers:
         return self.d.levers[key]
 
 
-def _places(readings: np.ndarray, move: np.ndarray | None) -> np.ndarray:
-    """The fold of every pose: the static poses' places (:func:`cell.diagnosis.places.folds`),
-    then each measured move one fold."""
-    return _moves_apart(readings, move, lambda q: place_folds(q)[0])
-
-
 def _stations(d: Data) -> np.ndarray:
     """The group of every pose for a requirement within each place: the static poses'
     (:func:`cell.diagnosis.places.stations`), then each measured move one group; found
     once per :class:`Data`."""
     if d._stations is None:
-        d._stations = _moves_apart(d.readings, d.move, stations)
+        d._stations = _moves_apart(d.readings, d.move, lambda q: stations(q, _linked(d)))
     return d._stations
+
+
+def _linked(d: Data) -> np.ndarray:
+    """:func:`cell.diagnosis.places.places` of ``d``'s static poses, found once for its folds
+    and its stations."""
+    if d._linked is None:
+        static = d.readings if d.move is None or not np.any(d.move >= 0) else d.readings[d.move < 0]
+        d._linked = linked_places(static)
+    return d._linked
 
 
 def _moves_apart(readings: np.ndarray, move: np.ndarray | None, group) -> np.ndarray:
