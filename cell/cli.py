@@ -6,7 +6,9 @@ imported when the parser is built, so they import only the standard library and
 :mod:`cell.errors` at module level: numpy, pydantic, structlog, OpenCV, pymodbus, scipy …
 are imported inside the functions that run a command. ``cellctl --help`` and every
 ``cellctl COMMAND --help`` then cost little more than Python itself
-(``tests/cell/test_cli_startup.py`` holds them to that).
+(``tests/cell/test_cli_startup.py`` holds them to that). A run that plainly names its
+command (``cellctl diagnose DIR``) imports only that command's module
+(:data:`COMMAND_OF`, :func:`command_named`).
 """
 from __future__ import annotations
 

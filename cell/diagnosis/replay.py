@@ -34,7 +34,7 @@ import numpy as np
 from cell import effects as fx
 from cell.kinematics import PlanarArm
 from cell.measurements import Campaign, CampaignFormatError
-from cell.measurements.campaign import SPLIT_SEED, drawn_fit, first_step
+from cell.measurements.campaign import SplitRng, drawn_fit, first_step
 from cell.numerics.stats import median
 
 
@@ -139,7 +139,7 @@ def prepare(c: Campaign, lines: dict[str, Sequence[int]] | None = None) -> DiagD
     """
     lines = lines or {}
     src = Path(c.source or ".")
-    rng = np.random.default_rng(SPLIT_SEED)
+    rng = SplitRng()
     geom = _geometry(c)
     center = np.array(c.model.camera.center_mm, float) if c.model.camera else None
     try:

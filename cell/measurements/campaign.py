@@ -557,6 +557,20 @@ def first_step(cmd: np.ndarray) -> np.ndarray:
     return out
 
 
+class SplitRng:
+    """``numpy.random.default_rng(SPLIT_SEED)``, made on the first draw: a campaign whose
+    tables carry a ``split`` column never draws, and never imports ``numpy.random``
+    (about 6 ms of every start). Draws as the generator itself, in the same order."""
+
+    def __init__(self):
+        self._rng = None
+
+    def __getattr__(self, name):
+        if self._rng is None:
+            self._rng = np.random.default_rng(SPLIT_SEED)
+        return getattr(self._rng, name)
+
+
 def drawn_fit(n_units: int, rng: np.random.Generator) -> np.ndarray:
     """(n_units,) True for fit: the v1 diagnosis's split of a table without a ``split``
     column, :data:`HOLDOUT_SHARE` of the units (points, or whole moves) held out at random

@@ -25,8 +25,9 @@ import numpy as np
 import yaml
 
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
-from cell.measurements.campaign import (FORMAT, SPLIT_SEED, CampaignFormatError, _read_table,
-                                        _yaml_line, check_places, drawn_fit, first_step, yaml_loc)
+from cell.measurements.campaign import (FORMAT, SPLIT_SEED, CampaignFormatError, SplitRng,
+                                        _read_table, _yaml_line, check_places, drawn_fit,
+                                        first_step, yaml_loc)
 from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
 from cell.measurements.checked import plain
 from cell.measurements.folder import staged_dir
@@ -430,7 +431,7 @@ def planar_as_chain(c, directory: Path | str = ".") -> ChainCampaign:
         "sample": np.zeros(0, np.int64), "split": np.zeros(0, "<U7"),
         **{k: np.zeros(0) for k in ("j1_deg", "j2_deg", "x_mm", "y_mm")}}
     n = len(p["sample"])
-    rng = np.random.default_rng(SPLIT_SEED)
+    rng = SplitRng()
     fit = p["split"] == "fit" if "split" in p else drawn_fit(n, rng)
     readings = [np.column_stack([p["j1_deg"], p["j2_deg"]]).astype(float)]
     xy = [np.column_stack([p["x_mm"], p["y_mm"]]).astype(float)]
