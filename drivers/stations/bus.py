@@ -8,7 +8,8 @@ lazily by python-can. :func:`connect_network` hooks a canopen ``Network`` to eit
 driver never asks which one it got.
 
 :func:`frame_bits` counts a frame's bits on the wire exactly (stuff bits included): the
-simulated wire uses it for slot times, the driver for the wire part of seed 002's delay.
+simulated wire uses it for slot times, the driver for the wire part of seed 002's delay;
+:class:`FrameLayout` counts the frames that differ only in their last bytes.
 """
 from __future__ import annotations
 
@@ -92,7 +93,12 @@ def _stuff_bits(value: int, nbits: int) -> int:
     every 5 equal bits; a stuff bit counts towards the run that follows it when that run
     has its value. The leading ``nbits % 8`` bits go one at a time, the rest a byte at a
     time through a table of the stuffing's states."""
-    state = stuffed = 0
+    return _stuff_run(0, value, nbits)[1]
+
+
+def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
+    """:func:`_stuff_bits` from the stuffing's ``state`` on: (state after, stuff bits)."""
+    stuffed = 0
     lead = nbits % 8
     for i in range(lead):
         state, d = _STUFF_BIT[state][(value >> (nbits - 1 - i)) & 1]
@@ -101,7 +107,7 @@ def _stuff_bits(value: int, nbits: int) -> int:
     for byte in (value & ((1 << rest) - 1)).to_bytes(rest // 8, "big"):
         state, d = _STUFF_BYTE[state][byte]
         stuffed += d
-    return stuffed
+    return state, stuffed
 
 
 def frame_bits(msg: can.Message) -> int:
@@ -126,6 +132,8 @@ def data_frame_bits(arbitration_id: int, data: bytes) -> int:
 
 @functools.lru_cache(maxsize=8192)
 def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int, data: bytes) -> int:
+    if not (extended or remote):
+        return _layout(arbitration_id, dlc).bits(data)
     rtr = 1 if remote else 0
     if extended:      # SOF, base id 11, SRR, IDE, id extension 18, RTR, r1, r0
         aid = arbitration_id & 0x1FFFFFFF
@@ -136,6 +144,53 @@ def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int
     n += 4 + 8 * len(data)
     value, n = value << 15 | _crc15(value, n), n + 15
     return n + _stuff_bits(value, n) + _FIXED_TAIL_BITS
+
+
+class FrameLayout:
+    """:func:`data_frame_bits` of the standard data frames with one identifier, one length
+    and the same leading data bytes, for any trailing bytes: the CRC register and the
+    stuffing's state after the fixed part are computed once, so a frame costs only its own
+    trailing bytes and its CRC (a set-point's velocity tried against its own frame length,
+    :meth:`~drivers.stations.streaming.StreamingMixin.corrected_velocities`).
+
+    :param arbitration_id: 11-bit identifier.
+    :param head: the leading data bytes every frame shares.
+    :param dlc: data bytes per frame, head included (0..8).
+    :raises ValueError: ``head`` longer than ``dlc``, or ``dlc`` beyond 8.
+    """
+
+    __slots__ = ("_crc", "_state", "_stuffed", "_tail", "_fixed")
+
+    def __init__(self, arbitration_id: int, head: bytes, dlc: int):
+        if not 0 <= len(head) <= dlc <= 8:
+            raise ValueError(f"FrameLayout: {len(head)} head bytes in a frame of {dlc} (at most 8)")
+        value = (((arbitration_id & 0x7FF) << 3) << 4 | dlc) << 8 * len(head) | int.from_bytes(head, "big")
+        nbits = 1 + 11 + 3 + 4 + 8 * len(head)       # SOF, id, RTR, IDE, r0, DLC, head
+        self._crc = _crc15(value, nbits)
+        self._state, self._stuffed = _stuff_run(0, value, nbits)
+        self._tail = dlc - len(head)
+        self._fixed = nbits + 8 * self._tail + 15 + _FIXED_TAIL_BITS
+
+    def bits(self, tail: bytes) -> int:
+        """Bits on the wire of the frame ending in ``tail`` (``dlc - len(head)`` bytes), as
+        :func:`data_frame_bits` counts them. :raises ValueError: a tail of another length."""
+        if len(tail) != self._tail:
+            raise ValueError(f"FrameLayout: a tail of {len(tail)} bytes, the layout has {self._tail}")
+        crc, state, stuffed = self._crc, self._state, self._stuffed
+        crc_table, stuff_byte = _CRC15_TABLE, _STUFF_BYTE
+        for byte in tail:
+            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ byte) & 0xFF]
+            state, d = stuff_byte[state][byte]
+            stuffed += d
+        for i in range(14, 7, -1):                    # the CRC's first 7 bits, then its last byte
+            state, d = _STUFF_BIT[state][(crc >> i) & 1]
+            stuffed += d
+        return self._fixed + stuffed + stuff_byte[state][crc & 0xFF][1]
+
+
+@functools.lru_cache(maxsize=4096)
+def _layout(arbitration_id: int, dlc: int) -> FrameLayout:
+    return FrameLayout(arbitration_id, b"", dlc)
 
 
 def frame_time_s(msg: can.Message, bitrate: int) -> float:

@@ -20,9 +20,10 @@ import numpy as np
 from cell.errors import CellError
 from cell.log import get_logger
 from drivers.stations import cia402
-from drivers.stations.bus import data_frame_bits, frame_time_s
+from drivers.stations.bus import FrameLayout, data_frame_bits, frame_time_s
 
 _SETPOINT = struct.Struct("<iI")                     # the driver's set-point frame layout
+_TARGET, _VELOCITY = struct.Struct("<i"), struct.Struct("<I")   # its two fields apart
 
 log = get_logger("stations.driver")
 
@@ -172,8 +173,13 @@ class StreamingMixin:
             top = min(s.cfg.max_velocity * s.cpu, 2 ** 32 - 1)
             lat = float(self._latency[j])                 # plain floats: round() is slow on numpy's
 
+            layout, known = FrameLayout(cob, _TARGET.pack(target), _SETPOINT.size), {}
+
             def bits_of(v_inc: int) -> int:
-                return data_frame_bits(cob, _SETPOINT.pack(target, v_inc))
+                b = known.get(v_inc)
+                if b is None:
+                    b = known[v_inc] = layout.bits(_VELOCITY.pack(v_inc))
+                return b
 
             def frame_end(v_inc: int) -> float:
                 return t + bits_of(v_inc) / rate

@@ -9,7 +9,7 @@ import pytest
 
 from cell.errors import CellError, ConfigError
 from drivers.stations import cia402
-from drivers.stations.bus import data_frame_bits, frame_bits, frame_time_s, open_bus
+from drivers.stations.bus import FrameLayout, data_frame_bits, frame_bits, frame_time_s, open_bus
 from drivers.stations.cia402 import Command, DriveStateMachine, IllegalTransition, Internal, State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
 from drivers.stations.driver import EDS_PATH, JointStations
@@ -142,6 +142,20 @@ def test_frame_bits_match_the_standard_bit_by_bit():
     remote = can.Message(arbitration_id=0x181, is_remote_frame=True, dlc=6, is_extended_id=False)
     assert frame_bits(remote) == _reference_bits(0x181, b"", remote=True, dlc=6)
     assert frame_bits(can.Message(is_error_frame=True)) == 17
+
+
+def test_frame_layout_counts_as_the_standard_for_any_tail():
+    rng = np.random.default_rng(2024)
+    for _ in range(300):
+        aid, dlc = int(rng.integers(0, 0x800)), int(rng.integers(0, 9))
+        data = rng.integers(0, 256, dlc, dtype=np.uint8).tobytes()
+        head = int(rng.integers(0, dlc + 1))
+        layout = FrameLayout(aid, data[:head], dlc)
+        assert layout.bits(data[head:]) == _reference_bits(aid, data), (hex(aid), data.hex(), head)
+    with pytest.raises(ValueError, match="tail of 3 bytes"):
+        FrameLayout(0x201, b"\x00" * 4, 8).bits(b"\x00" * 3)
+    with pytest.raises(ValueError, match="at most 8"):
+        FrameLayout(0x201, b"", 9)
 
 
 def test_bus_factory_errors():
