@@ -26,6 +26,7 @@ projected centres in pixels.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import asdict, dataclass
 from typing import Callable, Iterable, NamedTuple
 
@@ -137,6 +138,8 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
 
     The full model is evaluated once per pixel (plus a one-pixel border) and interpolated
     bilinearly to the samples: the map is so smooth that this is exact to ~1e-5 px here.
+    Sample j of every pixel lies between the same two neighbours relative to its pixel, so
+    each of the ss places is one weighted sum of two shifted slices, per axis.
     """
     u0, v0, u1, v1 = box
     us, vs = np.arange(u0 - 1, u1 + 2), np.arange(v0 - 1, v1 + 2)
@@ -149,10 +152,22 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
         i = np.floor(s).astype(int)
         return i, (s - i)
 
+    def rows(a, i, f):
+        """``a`` (rows, cols, 2) at the rows ``i`` + (0, 1) weighted (1 - f, f), ss per pixel."""
+        n = len(i) // ss
+        out = np.empty((n * ss, *a.shape[1:]))
+        for j in range(ss):
+            ij, w = i[j::ss], f[j::ss, None, None]
+            if ij[-1] - ij[0] == n - 1:          # every pixel's sample j: consecutive rows
+                lo, hi = a[ij[0]:ij[0] + n], a[ij[0] + 1:ij[0] + 1 + n]
+            else:
+                lo, hi = a[ij], a[ij + 1]
+            out[j::ss] = lo * (1 - w) + hi * w
+        return out
+
     iu, fu = index(u0, u1)
     iv, fv = index(v0, v1)
-    g = grid[:, iu] * (1 - fu)[None, :, None] + grid[:, iu + 1] * fu[None, :, None]
-    return g[iv] * (1 - fv)[:, None, None] + g[iv + 1] * fv[:, None, None]
+    return rows(rows(grid.transpose(1, 0, 2), iu, fu).transpose(1, 0, 2), iv, fv)
 
 
 def _pool(cov: np.ndarray, ss: int) -> np.ndarray:
@@ -176,7 +191,9 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
     # px per mm along the radial direction (local Jacobian at the centre)
     jac = model.jacobian((x, y))
     n = np.stack([dx, dy], axis=-1) / np.maximum(rho, 1e-12)[..., None]
-    scale = np.linalg.norm(n @ jac.T, axis=-1)
+    m = n @ jac.T
+    m *= m
+    scale = np.sqrt(m[..., 0] + m[..., 1])           # np.linalg.norm(n @ jac.T, axis=-1)
     return box, _pool(_ramp((r - rho) * scale, ss), ss)
 
 
@@ -233,11 +250,17 @@ def _merge_boxes(boxes: list) -> list:
     return boxes
 
 
-def render_radiance(model: CameraModel, items: Iterable, optics: Optics) -> np.ndarray:
-    """Noise-free scene radiance (H, W) float64 after the PSF, before lighting and noise."""
+def render_radiance(model: CameraModel, items: Iterable, optics: Optics,
+                    out: np.ndarray | None = None) -> np.ndarray:
+    """Noise-free scene radiance (H, W) float64 after the PSF, before lighting and noise;
+    into ``out`` (a float64 (H, W) array, overwritten and returned) if given, else a new array."""
     items = check_scene(items)
     w, h = model.size
-    img = np.full((h, w), float(optics.background))
+    if out is None:
+        img = np.full((h, w), float(optics.background))
+    else:
+        img = out
+        img.fill(float(optics.background))
     ss, margin = optics.supersample, 4.0 * optics.blur_sigma_px + 3.0
     boxes = []
 
@@ -269,26 +292,39 @@ def render_radiance(model: CameraModel, items: Iterable, optics: Optics) -> np.n
     return img
 
 
-def render_float(model: CameraModel, items: Iterable, optics: Optics) -> np.ndarray:
-    """Noise-free expected grey levels (H, W) float64: radiance with lighting, unclipped."""
-    img = render_radiance(model, items, optics)
+def render_float(model: CameraModel, items: Iterable, optics: Optics,
+                 out: np.ndarray | None = None) -> np.ndarray:
+    """Noise-free expected grey levels (H, W) float64: radiance with lighting, unclipped
+    (into ``out`` as :func:`render_radiance`)."""
+    img = render_radiance(model, items, optics, out)
     gx, gy = optics.gradient
     if optics.gain != 1.0 or gx or gy:
         h, w = img.shape
         du = np.linspace(-1.0, 1.0, w)[None, :]
         dv = np.linspace(-1.0, 1.0, h)[:, None]
         img *= optics.gain * (1.0 + gx * du + gy * dv)
-    return img + optics.offset
+    img += optics.offset
+    return img
 
 
 def render(model: CameraModel, items: Iterable, optics: Optics,
-           rng: np.random.Generator | None = None) -> np.ndarray:
-    """The 8-bit image the sensor delivers: :func:`render_float` + noise, rounded, clipped."""
-    img = render_float(model, items, optics)
+           rng: np.random.Generator | None = None,
+           scratch: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The 8-bit image the sensor delivers: :func:`render_float` + noise, rounded, clipped.
+
+    :param scratch: (float64 (H, W), float32 (H, W)) arrays to work in, for a camera that
+        renders frame after frame: fresh frame-sized arrays cost page faults every frame.
+        The same image and the same draws from ``rng`` either way.
+    """
+    img = render_float(model, items, optics, None if scratch is None else scratch[0])
     if optics.noise_sigma > 0:
         rng = rng if rng is not None else np.random.default_rng(0)
-        img += rng.standard_normal(img.shape, dtype=np.float32) * optics.noise_sigma
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        noise = rng.standard_normal(img.shape, dtype=np.float32, out=None if scratch is None else scratch[1])
+        noise *= optics.noise_sigma                     # in float32, as the draw
+        img += noise
+    np.rint(img, out=img)
+    np.clip(img, 0, 255, out=img)
+    return img.astype(np.uint8)
 
 
 class SimCamera(CameraBase):
@@ -324,6 +360,8 @@ class SimCamera(CameraBase):
         self.scene = scene if scene is not None else (lambda: [])
         self._seed = seed
         self._rng = np.random.default_rng(seed)
+        self._scratch: tuple[np.ndarray, np.ndarray] | None = None   # render's work arrays
+        self._render_lock = threading.Lock()
         self._released = None                    # a clock event while hung (fault injection)
 
     def hang(self) -> None:
@@ -353,7 +391,11 @@ class SimCamera(CameraBase):
         if self.frame_time_s:
             self._clock.sleep(self.frame_time_s)
         items = check_scene(self.scene())
-        img = render(self.model, items, self.optics, self._rng)
+        w, h = self.model.size
+        with self._render_lock:                  # one frame at a time in the work arrays
+            if self._scratch is None or self._scratch[0].shape != (h, w):
+                self._scratch = (np.empty((h, w)), np.empty((h, w), dtype=np.float32))
+            img = render(self.model, items, self.optics, self._rng, self._scratch)
         fids = [f for f in items if isinstance(f, Fiducial)]
         px = self.model.project([(f.x_mm, f.y_mm) for f in fids]).tolist() if fids else []
         return img, {"source": "sim", "fiducials": [f._asdict() for f in fids],
