@@ -157,6 +157,8 @@ class SimStation:
         self._powered = True
         self.node = canopen.LocalNode(self.cfg.node_id, canopen.import_od(str(EDS_PATH), self.cfg.node_id))
         self._values: dict[tuple[int, int], int] = {}
+        self._defaults: dict[tuple[int, int], int] = {}   # the EDS's, as _value first reads them
+        self._cpu: float | None = None                    # _counts_per_unit until the next write
         self.machine = DriveStateMachine()
         self._target = self._pos
         self._speed = 0.0
@@ -272,19 +274,26 @@ class SimStation:
 
     # ------------------------------------------------------------------ object dictionary
     def _value(self, index: int, sub: int = 0) -> int:
-        v = self._values.get((index, sub))
+        """The object's value as written (SDO or PDO), else its EDS default (0 if none)."""
+        key = (index, sub)
+        v = self._values.get(key)
         if v is not None:
             return v
-        obj = self.node.object_dictionary[index]
-        obj = obj[sub] if not isinstance(obj, canopen.objectdictionary.ODVariable) else obj
-        return obj.default if obj.default is not None else 0
+        v = self._defaults.get(key)
+        if v is None:
+            obj = self.node.object_dictionary[index]
+            obj = obj[sub] if not isinstance(obj, canopen.objectdictionary.ODVariable) else obj
+            v = self._defaults[key] = obj.default if obj.default is not None else 0
+        return v
 
     def _counts_per_unit(self) -> float:
         if self.node is None:
             return 1.0
-        enc = self._value(0x608F, 1) / max(self._value(0x608F, 2), 1)
-        gear = self._value(0x6091, 1) / max(self._value(0x6091, 2), 1)
-        return enc * gear / 360.0
+        if self._cpu is None:
+            enc = self._value(0x608F, 1) / max(self._value(0x608F, 2), 1)
+            gear = self._value(0x6091, 1) / max(self._value(0x6091, 2), 1)
+            self._cpu = enc * gear / 360.0
+        return self._cpu
 
     def _statusword(self) -> int:
         st = self.machine.state
@@ -314,6 +323,7 @@ class SimStation:
         value = od.decode_raw(data)
         with self._lock:
             self._values[(index, subindex)] = value
+            self._cpu = None
             if index == 0x6040:
                 self._controlword(value)
             elif index == 0x1016 and subindex == 1:
