@@ -230,8 +230,9 @@ class StreamingMixin:
                 if left <= 0:
                     continue
                 c_b = need / left
-                for k in range(33):
-                    hit = next((c for c in sorted({round(c_b) - k, round(c_b) + k})
+                r = round(c_b)
+                for k in range(33):                  # r, then r - k before r + k
+                    hit = next((c for c in ((r,) if k == 0 else (r - k, r + k))
                                 if c >= 1 and bits_of(c) == b), None)
                     if hit is not None:
                         if best is None or abs(hit - c_b) < best[0]:
