@@ -139,7 +139,7 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
     The full model is evaluated once per pixel (plus a one-pixel border) and interpolated
     bilinearly to the samples: the map is so smooth that this is exact to ~1e-5 px here.
     Sample j of every pixel lies between the same two neighbours relative to its pixel, so
-    each of the ss places is one weighted sum of two shifted slices, per axis.
+    each of the ss places is one weighted sum of two shifted slices, per axis and coordinate.
     """
     u0, v0, u1, v1 = box
     us, vs = np.arange(u0 - 1, u1 + 2), np.arange(v0 - 1, v1 + 2)
@@ -152,22 +152,31 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
         i = np.floor(s).astype(int)
         return i, (s - i)
 
-    def rows(a, i, f):
-        """``a`` (rows, cols, 2) at the rows ``i`` + (0, 1) weighted (1 - f, f), ss per pixel."""
-        n = len(i) // ss
-        out = np.empty((n * ss, *a.shape[1:]))
+    def pairs(i, n):
+        """Per sample place j: the slices (or, if not consecutive, indices) of the lower
+        and the upper neighbours of every pixel's sample j."""
+        out = []
         for j in range(ss):
-            ij, w = i[j::ss], f[j::ss, None, None]
-            if ij[-1] - ij[0] == n - 1:          # every pixel's sample j: consecutive rows
-                lo, hi = a[ij[0]:ij[0] + n], a[ij[0] + 1:ij[0] + 1 + n]
-            else:
-                lo, hi = a[ij], a[ij + 1]
-            out[j::ss] = lo * (1 - w) + hi * w
+            ij = i[j::ss]
+            out.append((slice(ij[0], ij[0] + n), slice(ij[0] + 1, ij[0] + 1 + n)) if ij[-1] - ij[0] == n - 1
+                       else (ij, ij + 1))
         return out
 
     iu, fu = index(u0, u1)
     iv, fv = index(v0, v1)
-    return rows(rows(grid.transpose(1, 0, 2), iu, fu).transpose(1, 0, 2), iv, fv)
+    nu, nv = u1 - u0 + 1, v1 - v0 + 1
+    cols_at, rows_at = pairs(iu, nu), pairs(iv, nv)
+    out = np.empty((nv * ss, nu * ss, 2))
+    g = np.empty((nv + 2, nu * ss))
+    for c in (0, 1):                             # each coordinate a contiguous plane
+        plane = np.ascontiguousarray(grid[..., c])
+        for j, (lo, hi) in enumerate(cols_at):
+            w = fu[j::ss][None, :]
+            g[:, j::ss] = plane[:, lo] * (1 - w) + plane[:, hi] * w
+        for j, (lo, hi) in enumerate(rows_at):
+            w = fv[j::ss][:, None]
+            out[j::ss, :, c] = g[lo] * (1 - w) + g[hi] * w
+    return out
 
 
 def _pool(cov: np.ndarray, ss: int) -> np.ndarray:
