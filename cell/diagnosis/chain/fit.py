@@ -42,6 +42,7 @@ from cell.numerics.stats import t_quantile
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
 TERM_EPS = 1e-9           # a joint term below this on every pose (deg, m, K, 1) is zero: the
                           # gravity lever of a joint whose axis runs through the tool point
+NO_EFFECT = "has no effect on the measured points"   # not_identifiable: a parameter without a column
 KEPT_REGISTRATIONS = 2    # Data.zero_blocks keeps the Jacobian blocks of this many
 # the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
 EFFECTS = tuple(fx.CHAIN_EFFECTS)
@@ -843,7 +844,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
             continue
         if i not in unit:
             unseen = fx.CHAIN_EFFECTS[p.effect].chain.unseen
-            dropped[p.name] = unseen or "has no effect on the measured points"
+            dropped[p.name] = unseen or NO_EFFECT
             if unseen:
                 lacking.add(p.name)
         elif i not in span.kept:

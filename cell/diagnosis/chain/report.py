@@ -33,8 +33,6 @@ from cell.measurements import CampaignFormatError
 from cell.measurements.campaign import HOLDOUT_SHARE, SPLIT_SEED
 from cell.measurements.chain import ChainCampaign
 
-NO_EFFECT = "has no effect on the measured points"   #: fit.identifiability's reason
-
 
 def split_poses(cc: ChainCampaign) -> tuple[np.ndarray, str]:
     """(P,) True for fit poses, and where the split came from."""
@@ -292,7 +290,7 @@ def _planar_fields(rep: dict, pr, gap_v1: dict, wh, d_all: F.Data,
     # the reading's own structure (d, α, a compliance with no lever in the plane): the same
     # for every planar campaign, so nothing a campaign could change
     rep["not_identifiable"] = {n: why for n, why in rep["not_identifiable"].items()
-                               if why != NO_EFFECT}
+                               if why != F.NO_EFFECT}
     from cell.diagnosis.chain import planar
     from cell.diagnosis.figures import where_figures
     rep["gap"] = gap_v1 | {"where": rep["gap"]["where"] | where_figures(wh)}
