@@ -248,38 +248,25 @@ def _action_card(rep: dict) -> str:
             f'{"<ul>" + cmds + "</ul>" if cmds else ""}{cav}{why}</section>')
 
 
-def ranking_table(rep: dict, chain: bool, chosen_label: str | None = None) -> str:
-    """The ranking as a table; the row of the candidate labelled ``chosen_label`` (the
-    named cause) is marked."""
+def ranking_table(rep: dict, chosen_label: str | None = None) -> str:
+    """The ranking as a table, registration alone first; the row of the candidate labelled
+    ``chosen_label`` (the named cause) is marked."""
     chosen = next((i for i, r in enumerate(rep["ranking"]) if r["label"] == chosen_label), None)
-    if chain:
-        h, reg = rep["holdout"], rep["registration"]
-        head = ("<tr><th class='n'>rank</th><th>candidate</th><th>joints</th><th class='n'>k</th>"
-                "<th class='n'>leave-one-pose-out rms mm</th><th class='n'>FIT rms mm</th>"
-                "<th class='n'>HOLDOUT rms mm</th><th class='n'>condition</th></tr>")
-        rows = [f"<tr><td class='n'>–</td><td>registration only</td><td></td><td class='n'>0</td>"
-                f"<td class='n'>{num(rep['noise'].get('registration_cv_rms_mm'))}</td>"
-                f"<td class='n'>{num(reg['rms_mm'])}</td><td class='n'>{num(h['rms_before_mm'])}</td>"
-                f"<td class='n'>{num(reg.get('condition'), 1)}</td></tr>"]
-        for i, r in enumerate(rep["ranking"]):
-            rows.append(f"<tr{' class=chosen' if i == chosen else ''}><td class='n'>{i + 1}</td>"
-                        f"<td>{esc(r['label'])}</td><td>{esc(', '.join(r['joints']))}</td>"
-                        f"<td class='n'>{r['k']}</td><td class='n'>{num(r['cv_rms_mm'])}</td>"
-                        f"<td class='n'>{num(r['fit_rms_mm'])}</td>"
-                        f"<td class='n'>{num(r['holdout_rms_mm'])}</td>"
-                        f"<td class='n'>{num(r['condition'], 1)}</td></tr>")
-    else:
-        head = ("<tr><th class='n'>rank</th><th>candidate</th><th class='n'>k</th>"
-                "<th class='n'>BIC (fit rows)</th><th class='n'>HOLDOUT rms mm</th>"
-                "<th>fit</th><th>identifiable</th></tr>")
-        rows = []
-        for i, r in enumerate(rep["ranking"][:TABLE_ROWS]):
-            ident = "yes" if r["identifiable"] else "no: " + r.get("reason", "")
-            rows.append(f"<tr{' class=chosen' if i == chosen else ''}><td class='n'>{i + 1}</td>"
-                        f"<td>{esc(r['label'])}</td><td class='n'>{r['k']}</td>"
-                        f"<td class='n'>{num(r['score'], 1)}</td>"
-                        f"<td class='n'>{num(r['holdout_rms_mm'])}</td><td>{esc(r.get('fit', ''))}</td>"
-                        f"<td>{esc(ident)}</td></tr>")
+    h, reg = rep["holdout"], rep["registration"]
+    head = ("<tr><th class='n'>rank</th><th>candidate</th><th>joints</th><th class='n'>k</th>"
+            "<th class='n'>leave-one-pose-out rms mm</th><th class='n'>FIT rms mm</th>"
+            "<th class='n'>HOLDOUT rms mm</th><th class='n'>condition</th></tr>")
+    rows = [f"<tr><td class='n'>–</td><td>registration only</td><td></td><td class='n'>0</td>"
+            f"<td class='n'>{num(rep['noise'].get('registration_cv_rms_mm'))}</td>"
+            f"<td class='n'>{num(reg['rms_mm'])}</td><td class='n'>{num(h['rms_before_mm'])}</td>"
+            f"<td class='n'>{num(reg.get('condition'), 1)}</td></tr>"]
+    for i, r in enumerate(rep["ranking"]):
+        rows.append(f"<tr{' class=chosen' if i == chosen else ''}><td class='n'>{i + 1}</td>"
+                    f"<td>{esc(r['label'])}</td><td>{esc(', '.join(r['joints']))}</td>"
+                    f"<td class='n'>{r['k']}</td><td class='n'>{num(r['cv_rms_mm'])}</td>"
+                    f"<td class='n'>{num(r['fit_rms_mm'])}</td>"
+                    f"<td class='n'>{num(r['holdout_rms_mm'])}</td>"
+                    f"<td class='n'>{num(r['condition'], 1)}</td></tr>")
     more = len(rep["ranking"]) - TABLE_ROWS
     tail = (f"<p class='small'>{more} more candidates in report.json.</p>" if more > 0 else "")
     return (f"<div class='scroll'><table id='ranking'><thead>{head}</thead>"
@@ -322,7 +309,7 @@ def _notes(rep: dict) -> str:
     return out
 
 
-def render(rep: dict, figures: list[Figure], fit: FitRms, text: str, chain: bool,
+def render(rep: dict, figures: list[Figure], fit: FitRms, text: str,
            chosen_label: str | None = None) -> str:
     """The whole page (see the module doc). ``text``: the full text report (folded);
     ``chosen_label``: the ranking label of the named cause (its row is marked)."""
@@ -330,9 +317,8 @@ def render(rep: dict, figures: list[Figure], fit: FitRms, text: str, chain: bool
         f'<figure><img src="{esc(f.file)}" alt="{esc(f.title)}"><figcaption>'
         f"<b>{esc(f.title)}.</b> "
         f"{esc(f.caption)}</figcaption></figure>" for f in figures)
-    kind = "planar" if not chain or (rep.get("chain") or {}).get("planar") else "chain"
-    what = "planar campaign, read as a two-joint chain" if chain and kind == "planar" \
-        else f"{kind} campaign"
+    kind = "planar" if (rep.get("chain") or {}).get("planar") else "chain"
+    what = "planar campaign, read as a two-joint chain" if kind == "planar" else "chain campaign"
     return (
         "<!doctype html><html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width,initial-scale=1'>"
@@ -344,7 +330,7 @@ def render(rep: dict, figures: list[Figure], fit: FitRms, text: str, chain: bool
         f"<p class='where' id='where'>{esc(rep['gap']['where']['summary'])}</p>"
         f"{_separating(rep['cause'])}"
         f"<h2>Evidence</h2>{fig_html}"
-        f"<h2>Ranking of the candidates</h2>{ranking_table(rep, chain, chosen_label)}"
+        f"<h2>Ranking of the candidates</h2>{ranking_table(rep, chosen_label)}"
         f"<p class='small'>FIT columns: rows the model was fitted on; HOLDOUT: rows it never saw. "
         f"The highlighted row is the named cause.</p>"
         f"{params_table(rep)}{_notes(rep)}"

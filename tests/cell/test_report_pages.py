@@ -128,12 +128,13 @@ def test_every_report_text_is_escaped():
                      "params": {"<pp>": 1.0}, "ci95": {"<pp>": [0.5, 1.5]},
                      "test": {"p_value": 0.001, "alpha": 0.01}, "confidence": "high"},
            "holdout": {"n": 3, "rms_before_mm": 1.0, "rms_after_mm": 0.5, "shrink": 0.5},
-           "ranking": [{"label": "<b>x</b>", "k": 1, "score": 1.0, "holdout_rms_mm": 0.5,
-                        "identifiable": False, "reason": "<i>y</i>"}],
+           "registration": {"rms_mm": 1.0, "condition": 2.0},
+           "ranking": [{"label": "<b>x</b>", "joints": ["<i>y</i>"], "k": 1, "cv_rms_mm": 0.6,
+                        "fit_rms_mm": 0.5, "holdout_rms_mm": 0.5, "condition": 2.0}],
            "remainder": {"reasons": [], "notes": ["<u>n</u>"]}, "not_identifiable": {"<k>": "<v>"},
            "noise": {"sigma_mm": None}}
     text = page.render(rep, [page.Figure("a.png", "<t>", "<c>")], page.FitRms(1.0, 0.5, "3 rows"),
-                       "<pre-text>", chain=False)
+                       "<pre-text>")
     for raw in ("<script>", "<j1>", "<pp>", "<b>x", "<i>y", "<u>n", "<k>", "<v>", "<t>", "<c>",
                 "<pre-text>", "a < b"):
         assert raw not in text

@@ -70,7 +70,7 @@ def write_chain_html(cd: ChainDiagnosis, out_dir) -> Path:
     fit = page.FitRms(rep["registration"]["rms_mm"], rep["noise"]["fit_rms_mm"],
                       f"{rep['split']['fit_poses']} poses, {rep['split']['fit_rows']} points")
     index = out / "index.html"
-    index.write_text(page.render(rep, figs, fit, render(rep), chain=True,
+    index.write_text(page.render(rep, figs, fit, render(rep),
                                  chosen_label=dec.chosen.label if dec.chosen else None),
                      encoding="utf-8")
     return index
