@@ -209,3 +209,19 @@ def test_the_text_shows_the_planar_sections(both):
     _, p, c = both
     heads = re.compile(r"^(gap: rms|effect sizes|per joint|comm lags:|holdout \(|noise:)", re.M)
     assert set(heads.findall(render(p))) <= set(heads.findall(render(c)))
+
+
+def test_the_page_knows_every_v1_name_the_report_adds():
+    # the page lists each fitted parameter once: every v1 name chain/planar.py adds beside a
+    # chain parameter must be one page.V1_ALIAS recognises, and no chain parameter is
+    from cell.diagnosis import page
+    from cell.diagnosis.chain.planar import v1_params
+    chain = {"j1_a_mm": 0.2, "j2_cyclic3_sin_deg": 0.01, "j2_cyclic3_cos_deg": -0.02,
+             "j1_motor_cyclic_sin_deg": 0.003, "j1_offset_deg": 0.05}
+    added, _ = v1_params(chain, {n: [v - 0.001, v + 0.001] for n, v in chain.items()})
+    assert {"j1_link_delta_mm", "j2_cyclic_amp_deg", "j2_cyclic_phase_deg", "j2_cyclic_order",
+            "j2_cyclic_period_deg", "j1_motor_cyclic_amp_deg", "j1_motor_cyclic_phase_deg"} == set(added)
+    assert all(page.V1_ALIAS.search(n) for n in added)
+    assert not any(page.V1_ALIAS.search(n) for n in chain)
+    rep = {"chain": {"planar": True}, "cause": {"params": chain | added}}
+    assert page.fitted(rep) == list(chain)
