@@ -101,13 +101,16 @@ class _Resume:
     why: str
 
 
-@dataclass(eq=False)
 class Timer:
     """A scheduled callback; :meth:`cancel` stops it if it has not run yet."""
 
-    fn: Callable[..., Any]
-    args: tuple
-    cancelled: bool = False
+    __slots__ = ("fn", "args", "cancelled")
+
+    def __init__(self, fn: Callable[..., Any], args: tuple, cancelled: bool = False):
+        self.fn, self.args, self.cancelled = fn, args, cancelled
+
+    def __repr__(self) -> str:
+        return f"Timer(fn={self.fn!r}, args={self.args!r}, cancelled={self.cancelled!r})"
 
     def cancel(self) -> None:
         self.cancelled = True
@@ -166,11 +169,16 @@ class VirtualClock:
         """
         t = float(t)
         with self._mu:
-            if not math.isfinite(t) or t < self._now - 1e-9:
+            now = self._now
+            if not t >= now - 1e-9 or t == math.inf:      # NaN and -inf fail the comparison
                 raise ClockError(f"VirtualClock: cannot schedule at t = {t!r} s, the clock is at "
-                                 f"{self._now!r} s and never goes back")
+                                 f"{now!r} s and never goes back")
             timer = Timer(fn, args)
-            self._push(max(t, self._now), timer)
+            heapq.heappush(self._agenda, (t if t > now else now, next(self._seq), timer))
+            if self._thread is None:
+                self._ensure_thread()
+            if self._waiting and self._waiting != "holder":   # as _push
+                self._cv.notify()
             return timer
 
     def call_later(self, delay: float, fn: Callable[..., Any], *args: Any) -> Timer:
@@ -356,22 +364,40 @@ class VirtualClock:
         the baton marked as the scheduler's, so the clock's thread keeps out), until one
         hands the baton on. True if it came back to ``me`` (no wait needed)."""
         self._holder = _SCHEDULER
+        agenda, pop, run, mu = self._agenda, heapq.heappop, self._context.run, self._mu
         while not self._closed:
-            if not self._agenda:
+            if not agenda:
                 self._stuck()                            # every participant waits: nothing can come
                 return False
-            t, _, entry = heapq.heappop(self._agenda)
-            if self._stale(entry):
+            t, _, entry = pop(agenda)
+            if type(entry) is Timer:                    # a callback, as _run_entry runs it
+                if entry.cancelled:
+                    continue
+                if t > self._now:
+                    self._now = t
+                mu.release()
+                try:
+                    run(entry.fn, *entry.args)
+                except Exception:                        # noqa: BLE001 -- keep the world turning
+                    log.exception("sim_callback_failed",
+                                  callback=getattr(entry.fn, "__qualname__", repr(entry.fn)))
+                finally:
+                    mu.acquire()
+                    self.callbacks_run += 1
+                if self._holder is not _SCHEDULER:      # a callback never takes the baton; kept as a guard
+                    return False
                 continue
-            self._now = max(self._now, t)
-            if isinstance(entry, _Resume) and entry.actor is me:
+            if entry.token != entry.actor.token:         # a stale wake-up
+                continue
+            if t > self._now:
+                self._now = t
+            if entry.actor is me:
                 me.woke_by = entry.why
                 me.token += 1
                 self._holder = me
                 return True
-            self._run_entry(entry)
-            if self._holder is not _SCHEDULER:          # handed on
-                return False
+            self._run_entry(entry)                       # hands the baton on
+            return False
         self._holder = None
         return False
 
