@@ -34,10 +34,11 @@ Goals (the issue): controller <= 25 ms CPU per part, simulated devices <= 50 ms 
    * every clock callback, wrapped where it is scheduled (``VirtualClock.call_at``, which
      ``call_later`` uses), one row per ``__qualname__``: simulated devices
      (``VirtualWire._deliver``, ``SimStation._on_timer``, the stations' heartbeats, the
-     simulated PLC's scan ``SimPlc._tick``) -- except a
-     ``ClockCyclicTask._tick`` on the controller's bus: its heartbeat (``net.send_periodic``).
-     The controller schedules nothing else on the clock (``call_at``/``call_later`` appear only
-     in ``cell/sim``; its tasks are threads);
+     simulated PLC's scan ``SimPlc._tick``) -- except two that are the controller's: a
+     ``ClockCyclicTask._tick`` on the controller's bus, its heartbeat (``net.send_periodic``), and
+     ``HeartbeatWatchdog._tick``, the stations' watchdog checks (a task on a clock without
+     ``call_at``). The controller schedules nothing else on the clock (its other tasks are
+     threads);
    * ``VirtualCanBus._receive`` of the controller's bus (the one ``drivers.stations.driver.
      open_bus`` returns to ``JointStations.start``; that instance only): it hands each frame
      at once to the controller's canopen ``Network`` (TPDO, EMCY, SDO client) and
@@ -139,6 +140,7 @@ def install_wrappers() -> None:
     import drivers.stations.driver as driver
     from cell.sim.clock import VirtualClock
     from drivers.camera.sim import SimCamera
+    from drivers.stations.faults import HeartbeatWatchdog
     from drivers.stations.sim_bus import ClockCyclicTask
     ctl_buses = weakref.WeakSet()
     open_bus = driver.open_bus
@@ -156,6 +158,8 @@ def install_wrappers() -> None:
         owner = getattr(fn, "__self__", None)
         if isinstance(owner, ClockCyclicTask) and owner.bus in ctl_buses:
             label, side = "clock callback `ClockCyclicTask._tick`, the controller's bus (heartbeat)", CTL
+        elif isinstance(owner, HeartbeatWatchdog):
+            label, side = "clock callback `HeartbeatWatchdog._tick` (the controller's watchdog checks)", CTL
         else:
             label, side = f"clock callback `{getattr(fn, '__qualname__', repr(fn))}`", SIM
             if isinstance(owner, ClockCyclicTask):

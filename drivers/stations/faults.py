@@ -204,12 +204,16 @@ class BusMonitor(can.Listener):
 
 
 class HeartbeatWatchdog:
-    """Task that latches :attr:`FaultCode.HEARTBEAT_LOST` when a station's heartbeat is
-    overdue and :attr:`FaultCode.BUS_OFF` when the bus reports an error state.
+    """Checks every ``period_s`` that latch :attr:`FaultCode.HEARTBEAT_LOST` when a station's
+    heartbeat is overdue and :attr:`FaultCode.BUS_OFF` when the bus reports an error state.
 
     Time comes from the injected clock (the bus delivers heartbeats on that clock's time).
     A station counts as silent when no heartbeat came for ``timeout_s``; it is found at the
-    next check, so within ``timeout_s + period_s``.
+    next check, so within ``timeout_s + period_s``. On a clock that runs timed callbacks
+    (``call_at``: the simulated clock) each check is one, run by whichever thread runs the
+    clock's agenda, as the simulated drives' timers are: no thread switch of its own. On
+    another clock (the wall clock) the checks run in a task, ``stations-watchdog``. Either
+    way they happen at the same clock times, in the same order.
 
     :param stations: node_id → joint name of the watched stations.
     :param timeout_s: silence allowed, seconds (> 0).
@@ -233,6 +237,8 @@ class HeartbeatWatchdog:
         self._bus_off_reported = False
         self._stop = self.clock.event()
         self._task = None
+        self._timer = None                  # the next check's clock callback (call_at clocks)
+        self._tick_lock = threading.Lock()  # a stop from outside the clock waits for a check
         #: called after every check (the driver re-sends a quick stop that did not arrive)
         self.on_check: Callable[[], None] | None = None
 
@@ -253,22 +259,45 @@ class HeartbeatWatchdog:
             self._last[n] = now
         self._reported.clear()
         self._bus_off_reported = False
-        if self._task is None:
+        call_at = getattr(self.clock, "call_at", None)
+        if call_at is not None:
+            with self._tick_lock:
+                if self._timer is None:        # where a task would start: its first wait begins then
+                    self._timer = call_at(now, self._tick, False)
+        elif self._task is None:
             self._stop.clear()
             self._task = self.clock.spawn(self._run, "stations-watchdog")
 
     def stop(self) -> None:
+        with self._tick_lock:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
         self._stop.set()
         if self._task is not None:
             self._task.join(timeout=2.0)
             self._task = None
 
     def _run(self) -> None:
+        """The checks as a task (a clock without ``call_at``)."""
         while not self._stop.wait(self.period_s):
-            try:
-                self.check()
-            except Exception as exc:  # the watchdog must survive anything
-                log.error("watchdog_error", error=repr(exc))
+            self._check_safely()
+
+    def _tick(self, check: bool = True) -> None:
+        """A check as a clock callback; the next one at the time the task's wait would end
+        (``now + period_s``)."""
+        with self._tick_lock:
+            if self._timer is None:            # stopped meanwhile
+                return
+            if check:
+                self._check_safely()
+            self._timer = self.clock.call_at(self.clock.now() + self.period_s, self._tick)
+
+    def _check_safely(self) -> None:
+        try:
+            self.check()
+        except Exception as exc:  # the watchdog must survive anything
+            log.error("watchdog_error", error=repr(exc))
 
     def check(self) -> None:
         """One check: latch a fault for each newly silent station and for bus-off."""

@@ -3,6 +3,8 @@ latch, heartbeat watchdog (on the simulated clock). Real frames (python-can Mess
 buses; no mocks. The wire itself is tested in test_canbus.py."""
 from __future__ import annotations
 
+import threading
+
 import can
 import numpy as np
 import pytest
@@ -316,6 +318,49 @@ def test_watchdog_reports_a_station_once_and_again_after_it_came_back(vclock):
     finally:
         wd.stop()
     assert t_beat > 0 and wd._task is None
+
+
+class _TaskClock:
+    """The simulated clock without timed callbacks: what a wall clock offers a watchdog."""
+
+    def __init__(self, clock):
+        self._clock = clock
+
+    def __getattr__(self, name):
+        if name in ("call_at", "call_later"):
+            raise AttributeError(name)
+        return getattr(self._clock, name)
+
+
+class _CheckTimes(HeartbeatWatchdog):
+    def check(self) -> None:
+        self.times.append((self.clock.now(), threading.current_thread().name))
+        super().check()
+
+
+def test_watchdog_checks_at_the_same_times_as_a_callback_and_as_a_task():
+    """On the simulated clock the checks are clock callbacks (no thread of their own); on
+    a clock without call_at, a task. Same clock times either way, re-armed or not."""
+    from cell.sim.clock import VirtualClock
+    runs = {}
+    for mode in ("callback", "task"):
+        vclock = VirtualClock(start=1.2345)
+        clock = vclock if mode == "callback" else _TaskClock(vclock)
+        wd = _CheckTimes(FaultLatch(), {1: "j1"}, timeout_s=1.0, period_s=0.003, clock=clock)
+        wd.times = []
+        with vclock.attach("test"):
+            wd.arm()
+            try:
+                vclock.sleep(0.0101)
+                wd.arm()                              # re-armed while running: the period goes on
+                vclock.sleep(0.0101)
+            finally:
+                wd.stop()
+            vclock.sleep(0.01)                        # stopped: no more checks
+        vclock.close()
+        runs[mode] = ([t for t, _ in wd.times], {name for _, name in wd.times})
+    assert runs["callback"][0] == runs["task"][0] and len(runs["task"][0]) == 6
+    assert runs["task"][1] == {"stations-watchdog"} and "stations-watchdog" not in runs["callback"][1]
 
 
 def test_watchdog_sees_bus_off(vclock):
