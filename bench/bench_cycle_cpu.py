@@ -34,11 +34,11 @@ Goals (the issue): controller <= 25 ms CPU per part, simulated devices <= 50 ms 
    * every clock callback, wrapped where it is scheduled (``VirtualClock.call_at``, which
      ``call_later`` uses), one row per ``__qualname__``: simulated devices
      (``VirtualWire._deliver``, ``SimStation._on_timer``, the stations' heartbeats, the
-     simulated PLC's scan ``SimPlc._tick``) -- except two that are the controller's: a
-     ``ClockCyclicTask._tick`` on the controller's bus, its heartbeat (``net.send_periodic``), and
-     ``HeartbeatWatchdog._tick``, the stations' watchdog checks (a task on a clock without
-     ``call_at``). The controller schedules nothing else on the clock (its other tasks are
-     threads);
+     simulated PLC's scan ``SimPlc._tick``) -- except three that are the controller's: a
+     ``ClockCyclicTask._tick`` on the controller's bus, its heartbeat (``net.send_periodic``),
+     ``HeartbeatWatchdog._tick``, the stations' watchdog checks, and ``CellController._tick``,
+     its scan (each a task on a clock without ``call_at``). The controller schedules nothing
+     else on the clock (its other tasks are threads);
    * ``VirtualCanBus._receive`` of the controller's bus (the one ``drivers.stations.driver.
      open_bus`` returns to ``JointStations.start``; that instance only): it hands each frame
      at once to the controller's canopen ``Network`` (TPDO, EMCY, SDO client) and
@@ -140,6 +140,7 @@ def install_wrappers() -> None:
     import drivers.stations.driver as driver
     from cell.sim.clock import VirtualClock
     from drivers.camera.sim import SimCamera
+    from cell.controller import CellController
     from drivers.stations.faults import HeartbeatWatchdog
     from drivers.stations.sim_bus import ClockCyclicTask
     ctl_buses = weakref.WeakSet()
@@ -160,6 +161,8 @@ def install_wrappers() -> None:
             label, side = "clock callback `ClockCyclicTask._tick`, the controller's bus (heartbeat)", CTL
         elif isinstance(owner, HeartbeatWatchdog):
             label, side = "clock callback `HeartbeatWatchdog._tick` (the controller's watchdog checks)", CTL
+        elif isinstance(owner, CellController):
+            label, side = "clock callback `CellController._tick` (the controller's scan)", CTL
         else:
             label, side = f"clock callback `{getattr(fn, '__qualname__', repr(fn))}`", SIM
             if isinstance(owner, ClockCyclicTask):

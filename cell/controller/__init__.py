@@ -2,7 +2,9 @@
 PLC and carry out what the core asked for.
 
 One task ("cell-scan") runs :meth:`CellController.scan` every ``scan_s`` of the injected
-clock; a part's cycle (:class:`~cell.cycle.runner.CycleRunner`) or a calibration runs as a job of
+clock (on a clock that runs timed callbacks, ``call_at``: the simulated clock, each scan is
+one, run by whichever thread runs the clock's agenda, at the same clock times and in the
+same order as the task's, without a thread switch of its own); a part's cycle (:class:`~cell.cycle.runner.CycleRunner`) or a calibration runs as a job of
 a second, long-lived task (the "cell-cycle" :class:`~cell.worker.Worker`), so the scan keeps
 serving the PLC, the heartbeat watchdog and abort while joints move. (Long-lived on
 purpose: OpenCV keeps about 0.9 kB of thread-local state for every thread that calls it,
@@ -27,6 +29,8 @@ stop is sent from the scan itself (a few CAN frames).
 """
 from __future__ import annotations
 
+import contextvars
+import threading
 from collections import deque
 from typing import TYPE_CHECKING, Callable
 
@@ -122,6 +126,10 @@ class CellController:
         self._recipes_in = RecipesIn()
         self._stop = self.clock.event()
         self._task = None
+        self._timer = None                        # the next scan's clock callback (call_at clocks)
+        self._next_t = 0.0
+        self._tick_lock = threading.Lock()        # a stop from outside the clock waits for a scan
+        self._scan_context = contextvars.Context()   # the scan's log context, as a task's own
         self.log_worker = Worker(self.clock, "cell-log")        #: recipes and log updates
         self.drives_worker = Worker(self.clock, "cell-drives")  #: re-enabling drives
         self.cycle_worker = Worker(self.clock, "cell-cycle")    #: cycles and calibrations
@@ -177,7 +185,12 @@ class CellController:
         self.log_worker.start()
         self.drives_worker.start()
         self.cycle_worker.start()
-        self._task = self.clock.spawn(self._run, "cell-scan")
+        call_at = getattr(self.clock, "call_at", None)
+        if call_at is not None:                   # where the task would start: its first scan
+            self._next_t = self.clock.now()
+            self._timer = call_at(self._next_t, self._tick)
+        else:
+            self._task = self.clock.spawn(self._run, "cell-scan")
         log.info("controller_started", recipes=sorted(self.recipes.active))
 
     def detach_plc(self) -> None:
@@ -189,6 +202,10 @@ class CellController:
         """Stop the scan loop; a running cycle is cancelled and the joints quick-stopped."""
         self.detach_plc()
         self._apply(self.core.shutdown())
+        with self._tick_lock:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
         self._stop.set()
         if self._task is not None:
             self._task.join(timeout=5)
@@ -199,16 +216,39 @@ class CellController:
                 log.error("worker_did_not_stop", worker=w.name)
 
     def _run(self) -> None:
+        """The scan as a task (a clock without ``call_at``)."""
         next_t = self.clock.now()
         while not self._stop.is_set():
-            try:
-                self.scan()
-            except Exception as exc:             # noqa: BLE001 -- the loop must not die silently
-                log.exception("scan_failed", error=repr(exc))
-            next_t += self.settings.scan_s
-            if next_t < self.clock.now():        # overran: keep the period, skip the lost scans
-                next_t = self.clock.now()
+            self._scan_safely()
+            next_t = self._next(next_t)
             self._stop.wait(next_t - self.clock.now())
+
+    def _tick(self) -> None:
+        """Scans as a clock callback, until the next one is due later: then it is scheduled
+        where the task's wait would end (``now + (next - now)``, to the last bit). A wait
+        of zero or less does not wait, so such a scan follows at once, as in the task."""
+        with self._tick_lock:
+            while self._timer is not None:       # None: stopped meanwhile
+                self._scan_context.run(self._scan_safely)
+                self._next_t = self._next(self._next_t)
+                now = self.clock.now()
+                wait = self._next_t - now
+                if wait > 0:
+                    self._timer = self.clock.call_at(now + wait, self._tick)
+                    return
+
+    def _next(self, next_t: float) -> float:
+        """The next scan's time after the one due at ``next_t``."""
+        next_t += self.settings.scan_s
+        if next_t < self.clock.now():            # overran: keep the period, skip the lost scans
+            next_t = self.clock.now()
+        return next_t
+
+    def _scan_safely(self) -> None:
+        try:
+            self.scan()
+        except Exception as exc:                 # noqa: BLE001 -- the loop must not die silently
+            log.exception("scan_failed", error=repr(exc))
 
     # ------------------------------------------------------------------ one scan
     def scan(self) -> None:

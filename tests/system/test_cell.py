@@ -315,3 +315,21 @@ def test_an_edit_the_robot_cannot_reach_is_refused_before_it_runs(harness):
                 and a["target"] == str(path)][-1]
     assert "part.nominal_xy_mm" in rejected["result"] and "out of reach" in rejected["result"]
     assert h.cell.recipes.active["fast-a"].hash == good and h.cycle()["done"] == 1
+
+
+def test_on_the_simulated_clock_the_scan_and_the_watchdog_are_clock_callbacks(harness):
+    """No thread of their own (each wake-up of one cost a hand-off of the clock's baton);
+    the scan still runs every scan_s of clock time, serves the PLC and stops with the cell."""
+    import threading
+    names = {t.name for t in threading.enumerate()}
+    assert "cell-scan" not in names and "stations-watchdog" not in names
+    c = harness.controller
+    period = c.settings.scan_s
+    n0 = c.scans
+    harness.sleep(50 * period)
+    assert c.scans - n0 in (49, 50, 51)               # the sleep's ends may fall on a scan
+    assert harness.cycle()["done"] == 1
+    harness.cell.stop()
+    n1 = c.scans
+    harness.sleep(10 * period)
+    assert c.scans == n1                              # stopped: no scan comes any more
