@@ -38,6 +38,7 @@ from cell.errors import ConfigError
 from cell.vision.calibration import ChessBoard, CircleGridBoard
 from cell.vision.camera_model import CameraModel, VisionError
 from drivers.camera.base import CameraBase, CameraError
+from drivers.camera.sim_noise import NoiseAhead
 
 
 class Fiducial(NamedTuple):
@@ -317,19 +318,22 @@ def render_float(model: CameraModel, items: Iterable, optics: Optics,
 
 
 def render(model: CameraModel, items: Iterable, optics: Optics,
-           rng: np.random.Generator | None = None,
-           scratch: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+           rng: np.random.Generator | None = None, *,
+           out: np.ndarray | None = None, noise: np.ndarray | None = None) -> np.ndarray:
     """The 8-bit image the sensor delivers: :func:`render_float` + noise, rounded, clipped.
 
-    :param scratch: (float64 (H, W), float32 (H, W)) arrays to work in, for a camera that
-        renders frame after frame: fresh frame-sized arrays cost page faults every frame.
-        The same image and the same draws from ``rng`` either way.
+    :param rng: draws the noise, ``noise_sigma * N(0, 1)`` in float32 (default: seeded 0).
+    :param out: a float64 (H, W) array to work in, for a camera that renders frame after
+        frame (fresh frame-sized arrays cost page faults every frame); the same image.
+    :param noise: the noise already drawn, float32 (H, W), as ``rng`` would draw it
+        (:class:`~drivers.camera.sim_noise.NoiseAhead`); ``rng`` is then not used.
     """
-    img = render_float(model, items, optics, None if scratch is None else scratch[0])
+    img = render_float(model, items, optics, out)
     if optics.noise_sigma > 0:
-        rng = rng if rng is not None else np.random.default_rng(0)
-        noise = rng.standard_normal(img.shape, dtype=np.float32, out=None if scratch is None else scratch[1])
-        noise *= optics.noise_sigma                     # in float32, as the draw
+        if noise is None:
+            rng = rng if rng is not None else np.random.default_rng(0)
+            noise = rng.standard_normal(img.shape, dtype=np.float32)
+            noise *= optics.noise_sigma                 # in float32, as the draw
         img += noise
     np.rint(img, out=img)
     np.clip(img, 0, 255, out=img)
@@ -340,7 +344,8 @@ class SimCamera(CameraBase):
     """Simulated camera: each ``grab`` renders ``scene()`` through ``model``.
 
     ``model`` and ``optics`` may be given as dicts (config). ``seed`` seeds the noise, so
-    a run is repeatable frame by frame. ``frame_time_s`` is the exposure and read-out of one
+    a run is repeatable frame by frame; the next frame's noise is drawn while the cell works
+    on this one (:class:`~drivers.camera.sim_noise.NoiseAhead`, the same frames). ``frame_time_s`` is the exposure and read-out of one
     frame in clock seconds: ``grab`` waits that long on the clock, then renders the scene
     as it is at the end of the exposure. The frame metadata holds the truth (sim only):
     ``fiducials`` (the scene's fiducials) and ``fiducials_px`` (their projected centres).
@@ -368,8 +373,8 @@ class SimCamera(CameraBase):
             raise ConfigError(f"sim camera: scene must be a callable, got {type(scene).__name__}")
         self.scene = scene if scene is not None else (lambda: [])
         self._seed = seed
-        self._rng = np.random.default_rng(seed)
-        self._scratch: tuple[np.ndarray, np.ndarray] | None = None   # render's work arrays
+        self._noise = NoiseAhead(np.random.default_rng(seed))
+        self._work: np.ndarray | None = None     # render's float64 work image
         self._render_lock = threading.Lock()
         self._released = None                    # a clock event while hung (fault injection)
 
@@ -389,10 +394,11 @@ class SimCamera(CameraBase):
         return f"sim camera ({w}x{h})"
 
     def _open(self) -> None:
-        self._rng = np.random.default_rng(self._seed)
+        self._noise.close()
+        self._noise = NoiseAhead(np.random.default_rng(self._seed))
 
     def _close(self) -> None:
-        pass
+        self._noise.close()
 
     def _grab(self):
         if self._released is not None:
@@ -402,9 +408,11 @@ class SimCamera(CameraBase):
         items = check_scene(self.scene())
         w, h = self.model.size
         with self._render_lock:                  # one frame at a time in the work arrays
-            if self._scratch is None or self._scratch[0].shape != (h, w):
-                self._scratch = (np.empty((h, w)), np.empty((h, w), dtype=np.float32))
-            img = render(self.model, items, self.optics, self._rng, self._scratch)
+            if self._work is None or self._work.shape != (h, w):
+                self._work = np.empty((h, w))
+            sigma = self.optics.noise_sigma
+            noise = self._noise.take((h, w), sigma) if sigma > 0 else None
+            img = render(self.model, items, self.optics, out=self._work, noise=noise)
         fids = [f for f in items if isinstance(f, Fiducial)]
         px = self.model.project([(f.x_mm, f.y_mm) for f in fids]).tolist() if fids else []
         return img, {"source": "sim", "fiducials": [f._asdict() for f in fids],

@@ -1,6 +1,8 @@
 """The simulated camera renders the truth faithfully: positions, areas, boards, optics, noise."""
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
 from drivers.camera.sim import Fiducial, Optics, SimCamera, render, render_float, render_radiance
+from drivers.camera.sim_noise import NoiseAhead
 
 NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
 TILTED = CameraModel(Intrinsics(900.0, 900.0, 66.0, 61.0, 128, 128),
@@ -174,12 +177,49 @@ def test_samples_are_the_bilinear_map_of_every_sample_bit_for_bit():
         assert np.array_equal(_samples(model, box, ss), want), ss
 
 
-def test_render_in_scratch_arrays_is_the_same_frame():
+def test_render_in_a_work_array_with_noise_drawn_ahead_is_the_same_frame():
     scene = [Fiducial(0.3, -0.2, 3.0, "tool"), Fiducial(4.0, 2.5, 1.5, "part")]
     w, h = NADIR.size
-    scratch = (np.empty((h, w)), np.empty((h, w), dtype=np.float32))
+    work = np.empty((h, w))
     for optics in (Optics(), Optics(gain=1.2, offset=4.5, gradient=(0.1, -0.05), noise_sigma=3.0),
                    Optics(noise_sigma=0.0)):
-        a, b = np.random.default_rng(5), np.random.default_rng(5)
-        for _ in range(2):
-            assert np.array_equal(render(NADIR, scene, optics, a), render(NADIR, scene, optics, b, scratch))
+        a, ahead = np.random.default_rng(5), NoiseAhead(np.random.default_rng(5))
+        for _ in range(3):
+            noise = ahead.take((h, w), optics.noise_sigma) if optics.noise_sigma > 0 else None
+            assert np.array_equal(render(NADIR, scene, optics, a),
+                                  render(NADIR, scene, optics, out=work, noise=noise))
+        ahead.close()
+
+
+def test_noise_drawn_ahead_is_each_draw_in_order_even_when_the_frame_changes():
+    """Frame k is the k-th draw, as drawing each when needed: also when a frame's size or
+    sigma differs from the one drawn ahead (the generator is rewound), and after close."""
+    def direct(rng, shape, sigma):
+        n = rng.standard_normal(shape, dtype=np.float32)
+        n *= sigma
+        return n
+    asks = [((4, 6), 2.0), ((4, 6), 2.0), ((5, 3), 2.0), ((5, 3), 0.5), ((5, 3), 0.5), ((4, 6), 2.0)]
+    ref, ahead = np.random.default_rng(11), NoiseAhead(np.random.default_rng(11))
+    names = set()
+    for shape, sigma in asks:
+        got = ahead.take(shape, sigma).copy()
+        names |= {t.name for t in threading.enumerate()}
+        assert np.array_equal(got, direct(ref, shape, sigma)), (shape, sigma)
+    assert "sim-camera-noise" in names
+    ahead.close()
+    assert np.array_equal(ahead.take((4, 6), 2.0), direct(ref, (4, 6), 2.0))   # the one drawn ahead
+    assert np.array_equal(ahead.take((4, 6), 2.0), direct(ref, (4, 6), 2.0))   # drawn in this thread
+    ahead.close()
+
+
+def test_sim_camera_frames_do_not_depend_on_the_noise_drawn_ahead():
+    """Two cameras with one seed give the same frames; so does one reopened (it starts its
+    noise again from the seed, as before drawing ahead)."""
+    scene = [Fiducial(0.3, -0.2, 3.0, "tool")]
+    a, b = SimCamera(NADIR, lambda: scene, seed=3), SimCamera(NADIR, lambda: scene, seed=3)
+    a.open(), b.open()
+    first = [a.grab().image.copy() for _ in range(3)]
+    assert all(np.array_equal(f, b.grab().image) for f in first)
+    a.close(), a.open()
+    assert np.array_equal(first[0], a.grab().image)
+    a.close(), b.close()
