@@ -31,7 +31,6 @@ import csv
 import functools
 import math
 from dataclasses import dataclass, field
-from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -241,6 +240,7 @@ def _parse_cell(kind: str, text: str, path: Path, line: int, column: str) -> obj
         big = math.isinf(v) and "inf" not in t.lower()
         raise bad(f"not a finite number: {text!r}" + (" (too large for a float)" if big else ""))
     if kind == "int":
+        from decimal import Decimal       # only on the cell-by-cell path: ~1 ms to import
         d = Decimal(t)                    # exact: a float rounds ids past 2**53
         if d != d.to_integral_value():
             raise bad(f"not a whole number: {text!r}")

@@ -93,3 +93,26 @@ def test_ranks_average_ties_as_scipy_does():
     for n in (0, 1, 7, 50, 300):
         a = np.round(rng.normal(size=n), 1)            # many ties
         assert np.array_equal(_ranks(a), stats.rankdata(a)), n
+
+
+def test_normal_cdf_and_ppf_are_normaldists_to_the_bit_without_importing_statistics():
+    import math
+    import subprocess
+    import sys
+    from statistics import NormalDist
+
+    from cell.numerics.stats import normal_cdf, normal_ppf
+    rng = np.random.default_rng(11)
+    xs = [0.0, -0.0, 1e-300, -40.0, 40.0, math.inf, -math.inf] + list(rng.normal(0, 4, 2000))
+    for x in xs:
+        assert normal_cdf(x) == NormalDist().cdf(x)
+    ps = [1e-300, 1e-12, 0.02425, 0.5, 0.97575, 1 - 1e-16] + list(rng.uniform(0, 1, 2000)) \
+        + list(10.0 ** -rng.uniform(0, 300, 500))
+    for p in ps:
+        assert normal_ppf(p) == NormalDist().inv_cdf(p)
+    for p in (0.0, 1.0, -0.5, 2.0):
+        with pytest.raises(ValueError):
+            normal_ppf(p)
+    code = "import sys; import cell.numerics.stats; print('statistics' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
