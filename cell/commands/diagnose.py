@@ -140,10 +140,12 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
 
     Raises CampaignFormatError (campaign problems, file/line/column) or ConfigError (a cycle
     log without measured moves, an unknown robot preset)."""
-    from cell.measurements import CampaignFormatError, read_campaign
+    from cell.measurements import Campaign, CampaignFormatError, read_campaign
     p = Path(target)
     if p.is_dir():
         c = read_campaign(p, model)
+        if isinstance(c, Campaign):           # a planar campaign: the lines its reader found
+            return c, dict(c.lines)
         return c, {"points": data_lines(p / "points.csv"), "paths": data_lines(p / "paths.csv")}
     if model:
         raise ConfigError(f"--model {model}: only with a campaign directory")

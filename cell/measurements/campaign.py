@@ -211,13 +211,16 @@ class ModelSpec(PlainFirst, plain=_plain, pydantic=lambda: pydantic_models()[0])
 @dataclass
 class Campaign:
     """A validated campaign. ``points`` / ``paths`` map column name -> numpy array (``split``
-    is an array of "fit"/"holdout" strings); a table absent from the campaign is None."""
+    is an array of "fit"/"holdout" strings); a table absent from the campaign is None.
+    ``lines`` (a campaign read from files) maps ``points`` / ``paths`` to the 1-based file
+    line of each of its rows (None: the table is absent), what error messages cite."""
 
     model: ModelSpec
     points: dict[str, np.ndarray] | None = None
     paths: dict[str, np.ndarray] | None = None
     source: str = ""
     extra: dict = field(default_factory=dict)
+    lines: dict[str, list[int] | None] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def station_order(self) -> list[str]:
@@ -509,7 +512,8 @@ def read_campaign(directory: Path | str, model_path: Path | str | None = None):
     if not np.ptp(np.concatenate([np.column_stack(q) for *_, q, _ in tables]), axis=0).any():
         f, t, ln, ids, q, cols = tables[0]   # every table at the same one place: say so on the first
         check_places(f, np.column_stack(q), t[ids].tolist(), ln, cols, ids)
-    return Campaign(model=model, points=points, paths=paths, source=str(d))
+    return Campaign(model=model, points=points, paths=paths, source=str(d),
+                    lines={"points": lines, "paths": path_lines})
 
 
 def _write_table(path: Path, table: dict[str, np.ndarray], columns: dict) -> None:

@@ -81,6 +81,20 @@ def test_time_going_backwards_in_a_move(campaign_dir, tmp_path, capsys):
     assert "paths.csv, line 10, column 'time_s'" in out.err and "does not increase" in out.err
 
 
+def test_load_takes_the_readers_row_lines_blank_lines_skipped(campaign_dir, tmp_path):
+    # the lines error messages cite: the reader's, equal to a second reading of the CSV
+    d = copy(campaign_dir, tmp_path)
+    for name in ("points.csv", "paths.csv"):
+        rows = (d / name).read_text().splitlines()
+        (d / name).write_text("\n".join(rows[:3] + ["", " , "] + rows[3:8] + [""] + rows[8:]) + "\n")
+    c, lines = cmd.load(str(d))
+    for table in ("points", "paths"):
+        assert lines[table] == cmd.data_lines(d / f"{table}.csv")
+        assert lines[table][:4] == [2, 3, 6, 7] and len(lines[table]) == len(getattr(c, table)["x_mm"])
+    (d / "paths.csv").unlink()
+    assert cmd.load(str(d))[1]["paths"] is None
+
+
 def test_move_split_across_fit_and_holdout(campaign_dir, tmp_path, capsys):
     d = copy(campaign_dir, tmp_path)
     lines = (d / "paths.csv").read_text().splitlines()
