@@ -34,11 +34,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from cell.errors import CampaignFormatError
 from cell.measurements.checked import PlainFirst, plain
 from cell.measurements.folder import staged_dir
+from cell.measurements import plainyaml
 
 FORMAT = "cell-measurements/1"
 INT64 = (-2 ** 63, 2 ** 63 - 1)   # the range of an int column (sample, move, marker)
@@ -356,15 +356,17 @@ def _columns_at_once(rows: list[list[str]], width: int, used: list[tuple[int, st
 
 
 def _safe_load(path: Path):
-    """``yaml.safe_load`` of ``path``. A scalar YAML cannot make into a value, where
-    PyYAML raises a bare ValueError (an integer of more digits than Python converts,
+    """``yaml.safe_load`` of ``path`` (a plainly written file without importing PyYAML,
+    :func:`cell.measurements.plainyaml.safe_load`). A scalar YAML cannot make into a value,
+    where PyYAML raises a bare ValueError (an integer of more digits than Python converts,
     ``sys.get_int_max_str_digits``; a date such as 2021-13-01; ``!!float abc``), raises
     CampaignFormatError naming its line and key. Raises yaml.YAMLError and
     UnicodeDecodeError as ``yaml.safe_load`` and ``read_text`` do."""
     text = path.read_text(encoding="utf-8")
     try:
-        return yaml.safe_load(text)
+        return plainyaml.safe_load(text)
     except ValueError as exc:
+        import yaml
         why = str(exc).split(";")[0]      # without Python's advice to the programmer
         loc, node = _unmade_scalar(yaml.compose(text))
         raise CampaignFormatError(path, f"cannot be read: {why}",
@@ -375,6 +377,7 @@ def _safe_load(path: Path):
 def _unmade_scalar(node, loc=()) -> tuple[tuple, yaml.Node | None]:
     """(key path, node) of the first scalar under ``node`` (keys included) that PyYAML's
     safe constructor raises ValueError on, or ((), None)."""
+    import yaml
     if isinstance(node, yaml.ScalarNode):
         make = yaml.constructor.SafeConstructor()
         try:
@@ -394,7 +397,7 @@ def _unmade_scalar(node, loc=()) -> tuple[tuple, yaml.Node | None]:
 def _load_model(path: Path) -> ModelSpec:
     try:
         raw = _safe_load(path)
-    except yaml.YAMLError as exc:
+    except plainyaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise CampaignFormatError(path, f"not valid YAML: {getattr(exc, 'problem', exc)}",
                                   line=mark.line + 1 if mark else None) from None
@@ -430,6 +433,8 @@ def yaml_loc(loc) -> tuple:
 
 def _yaml_line(path: Path, loc) -> int | None:
     """1-based line of the deepest key or list item along ``loc`` in a YAML mapping, if found."""
+    import yaml
+
     from cell.yamlio import node_line
     try:
         node = yaml.compose(path.read_text(encoding="utf-8"))
@@ -468,7 +473,7 @@ def _chain_kind(path: Path) -> bool:
     """True if ``model.yaml`` describes a serial chain (Extension v1.1: dh or urdf)."""
     try:
         raw = _safe_load(path)
-    except (yaml.YAMLError, UnicodeDecodeError):
+    except (plainyaml.YAMLError, UnicodeDecodeError):
         return False  # _load_model reports it with its line
     return isinstance(raw, dict) and raw.get("kinematics") in CHAIN_KINEMATICS
 
@@ -534,6 +539,7 @@ def _write_table(path: Path, table: dict[str, np.ndarray], columns: dict) -> Non
 def write_campaign(campaign: Campaign, directory: Path | str, force: bool = False) -> Path:
     """Write ``campaign`` to ``directory`` (see :func:`staged_dir`: a new, empty or earlier
     written folder is replaced atomically; any other folder only with ``force``)."""
+    import yaml
     d = Path(directory)
     with staged_dir(d, force) as tmp:
         model = campaign.model.model_dump(exclude_none=True, mode="json")

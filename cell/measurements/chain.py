@@ -22,13 +22,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from cell.kinematics.chain import Chain, dh_chain, urdf_chain
 from cell.measurements.campaign import (FORMAT, SPLIT_SEED, CampaignFormatError, SplitRng,
                                         _read_table, _yaml_line, check_places, drawn_fit,
                                         first_step, yaml_loc)
 from cell.measurements.chain_spec import ChainSpec, DHRow, _plain_spec, pydantic_models
+from cell.measurements import plainyaml
 from cell.measurements.checked import plain
 from cell.measurements.folder import staged_dir
 
@@ -106,8 +106,8 @@ class ChainCampaign:
 
 def load_spec(path: Path) -> ChainSpec:
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
+        raw = plainyaml.safe_load(path.read_text(encoding="utf-8"))
+    except plainyaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise CampaignFormatError(path, f"not valid YAML: {getattr(exc, 'problem', exc)}",
                                   line=mark.line + 1 if mark else None) from None
@@ -340,6 +340,7 @@ def write_chain_campaign(c: ChainCampaign, directory: Path | str, spec: ChainSpe
     """Write ``c`` (with ``spec`` as its model, and extra ``files`` name → text such as a
     URDF) to ``directory`` (:func:`cell.measurements.folder.staged_dir`: a folder holding files it
     did not write is refused unless ``force``)."""
+    import yaml
     d = Path(directory)
     with staged_dir(d, force) as tmp:
         model = (spec or c.spec).model_dump(mode="json", by_alias=True, exclude_defaults=False)
