@@ -10,7 +10,8 @@ campaign as the chain campaign it is and diagnoses it, as any chain campaign
 * :mod:`.tie`        when the left-out folds cannot tell a candidate from the best; naming
 * :mod:`.places`     poses at one station, folds, separating poses spaced apart
 * :mod:`.noise`      noise estimates: revisited poses, local planes, the 95 % upper bound
-* :mod:`.page`       the report format's version, the words for a cause, the HTML layout
+* :mod:`.words`      the report format's name and version, the words for a cause
+* :mod:`.page`       the HTML layout
 * :mod:`.action`     the recommended action of a report
 * :mod:`.text`       the report as text (:func:`render_text`)
 * :mod:`.harness`    the validation harness: judged trials, scores, tables
@@ -35,7 +36,7 @@ def __getattr__(name: str):
         from cell.diagnosis.text import render
         return render
     if name == "FORMAT":
-        from cell.diagnosis.page import FORMAT
+        from cell.diagnosis.words import FORMAT
         return FORMAT
     if name == "diagnose_campaign":
         from cell.diagnosis.answer import diagnose_campaign

@@ -23,14 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cell.diagnosis.action import recommend
+from cell.diagnosis.words import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause  # noqa: F401
 
 #: parameters shown in the answer card; the rest are in the parameters table below
-FORMAT = "cell-diagnosis/1"
-#: additive revisions of the report format (cell/measurements.md), planar and chain alike:
-#: 1.0 the v1 report, 1.1 chains, 1.2 the out-of-sample choice (cause.label, selection,
-#: rivals, separating_poses, and confidence "ambiguous"), 1.3 the v1 report's keys in the
-#: chain diagnosis of a planar campaign, and in every chain ranking entry
-FORMAT_VERSION = "1.3"
 CARD_PARAMS = 3
 #: the v1 names a planar campaign's report gives beside the fitted parameters
 #: (cell/measurements.md, "Format version 1.3"): JSON only, never listed twice on a page
@@ -128,24 +123,6 @@ def num(v, nd: int = 4) -> str:
     if isinstance(v, (int,)) and not isinstance(v, bool):
         return str(v)
     return f"{v:.{nd}f}" if abs(v) >= 10 ** -nd or v == 0 else f"{v:.3g}"
-
-
-#: what the gap depends on (``gap.where.depends_on``), in the words of the summaries
-DEPENDS_TEXT = {"constant": "is constant in joint space", "angle": "varies with the joint angle",
-                "direction": "depends on the approach direction", "time": "drifts with time",
-                "temperature": "follows the temperature", "position": "varies over the workspace",
-                "speed": "follows the joint speeds along the moves"}
-
-
-def describe_cause(c: dict) -> str:
-    """The named cause in words, every fitted component: ``backlash on j2``,
-    ``joint_offset on j1 + link_length on j1`` (text, page and action say the same)."""
-    comps = c.get("components") or []
-    if not comps:
-        on = f" on {', '.join(c.get('joints', []))}" if c.get("joints") else ""
-        return f"{c.get('effect', 'none')}{on}"
-    return " + ".join(f"{x['effect']}" + (f" on {', '.join(x['joints'])}" if x.get("joints") else "")
-                      for x in comps)
 
 
 def _cause_card(rep: dict) -> str:

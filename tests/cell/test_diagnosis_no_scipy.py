@@ -2,8 +2,9 @@
 CPU of ``cellctl diagnose``): fits by :mod:`cell.numerics.lsq`, neighbours and eigen-decompositions
 by numpy; nor ``numpy.ma`` (about 10 ms), which ``numpy.median`` and a plain ``numpy.unique``
 import (:func:`cell.numerics.stats.median`, :func:`cell.numerics.stats.distinct`), nor
-``numpy.random`` when the campaign's tables carry their split. Asserted on the modules
-loaded, never on time."""
+``numpy.random`` when the campaign's tables carry their split; nor PyYAML (a plainly written
+model.yaml), :mod:`statistics` or the HTML page, for either kind of campaign. Asserted on
+the modules loaded, never on time."""
 import subprocess
 import sys
 
@@ -19,7 +20,7 @@ def test_the_diagnosis_of_a_planar_campaign_imports_no_scipy(tmp_path):
             "from cell.diagnosis.answer import diagnose_campaign\n"
             f"r = diagnose_campaign(read_campaign({str(d)!r})).report\n"
             "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy') "
-            "or m in ('numpy.ma', 'numpy.random')))")
+            "or m in ('numpy.ma', 'numpy.random', 'yaml', 'statistics', 'cell.diagnosis.page')))")
     assert "split" in (d / "points.csv").read_text().splitlines()[0]
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     # numpy.ma: what numpy.median and a plain numpy.unique load on their first call;
@@ -36,7 +37,8 @@ def test_the_diagnosis_of_a_chain_campaign_loads_no_planar_replay(tmp_path):
             "from cell.diagnosis.answer import diagnose_campaign\n"
             f"r = diagnose_campaign(read_campaign({str(d)!r})).report\n"
             "print(r['cause']['label'], sorted(m for m in sys.modules if m.startswith('scipy') or m in "
-            "('numpy.ma', 'cell.diagnosis.figures', 'cell.diagnosis.replay', "
+            "('numpy.ma', 'yaml', 'statistics', 'cell.diagnosis.page', "
+            "'cell.diagnosis.figures', 'cell.diagnosis.replay', "
             "'cell.diagnosis.delay', 'cell.diagnosis.chain.planar')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.rsplit(" ", 1)[1].strip() == "[]", out.stdout

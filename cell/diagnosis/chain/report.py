@@ -28,7 +28,7 @@ from cell.diagnosis.chain import robust
 from cell.diagnosis import tie
 from cell.diagnosis.chain.noise import estimate
 from cell.diagnosis.noise import upper95
-from cell.diagnosis.page import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
+from cell.diagnosis.words import DEPENDS_TEXT, FORMAT, FORMAT_VERSION, describe_cause
 from cell.measurements import CampaignFormatError
 from cell.measurements.campaign import HOLDOUT_SHARE, SPLIT_SEED
 from cell.measurements.chain import ChainCampaign
