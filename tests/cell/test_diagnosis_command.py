@@ -95,6 +95,22 @@ def test_load_takes_the_readers_row_lines_blank_lines_skipped(campaign_dir, tmp_
     assert cmd.load(str(d))[1]["paths"] is None
 
 
+def test_the_collector_is_as_it_was_after_a_diagnosis(campaign_dir, capsys):
+    # the cyclic collector is paused for one diagnosis and left as the caller had it
+    import gc
+    assert gc.isenabled()
+    assert cellctl(["diagnose", str(campaign_dir), "--json"]) == 0
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        assert cellctl(["diagnose", str(campaign_dir), "--json"]) == 0
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    first, second = capsys.readouterr().out.split("\n}\n", 1)
+    assert first + "\n}\n" == second
+
+
 def test_move_split_across_fit_and_holdout(campaign_dir, tmp_path, capsys):
     d = copy(campaign_dir, tmp_path)
     lines = (d / "paths.csv").read_text().splitlines()
