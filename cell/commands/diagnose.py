@@ -35,7 +35,6 @@ Bad input exits with status 2 and a message naming file, line and column
 from __future__ import annotations
 
 import argparse
-import csv
 import gc
 import json
 import math
@@ -139,19 +138,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------ input
-def data_lines(path: Path) -> list[int] | None:
-    """1-based file line of every data row of a CSV the campaign reader accepted (the same
-    rule: blank rows skipped, header on line 1). None if the file is absent."""
-    if not path.is_file():
-        return None
-    rows = csv.reader(path.read_text(encoding="utf-8-sig").splitlines())
-    return [i for i, row in enumerate(rows, start=1) if i > 1 and row and any(c.strip() for c in row)]
-
-
 def load(target: str, robot: str = "seed000", camera_center=None, model: str | None = None
          ) -> tuple[Campaign, dict]:
-    """(campaign, {table: row lines}) from a campaign directory or an SQLite cycle log;
-    ``model`` replaces a chain campaign's model.yaml.
+    """(campaign, {table: row lines}) from a campaign directory or an SQLite cycle log (row
+    lines of a planar campaign's files only); ``model`` replaces a chain campaign's model.yaml.
 
     Raises CampaignFormatError (campaign problems, file/line/column) or ConfigError (a cycle
     log without measured moves, an unknown robot preset)."""
@@ -159,9 +149,9 @@ def load(target: str, robot: str = "seed000", camera_center=None, model: str | N
     p = Path(target)
     if p.is_dir():
         c = read_campaign(p, model)
-        if isinstance(c, Campaign):           # a planar campaign: the lines its reader found
-            return c, dict(c.lines)
-        return c, {"points": data_lines(p / "points.csv"), "paths": data_lines(p / "paths.csv")}
+        # a planar campaign's row lines as its reader found them, for the errors the planar
+        # checks name; a chain campaign's reader has checked what names a line
+        return c, dict(c.lines) if isinstance(c, Campaign) else {}
     if model:
         raise ConfigError(f"--model {model}: only with a campaign directory")
     if not p.exists():
