@@ -683,10 +683,10 @@ def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=
     errors and the leave-one-pose-out error. It stops when a step changes the cost by at
     most ``tol`` of it, down or up (up only by rounding: the minimum is reached), or after
     ``max_iter`` steps."""
-    reg = reg0 or initial_registration(d)
-    reg = Registration(reg.R.copy(), reg.t.copy(), reg.markers.copy())
+    start = reg0 or initial_registration(d)
+    reg = Registration(start.R.copy(), start.t.copy(), start.markers.copy())
     v = np.zeros(len(params)) if values0 is None else np.asarray(values0, float).copy()
-    y, J = model(d, reg, params, v, jac=True)
+    y, J = model(d, start, params, v, jac=True)   # the start itself: its zero blocks are kept
     r = (d.xyz - y).ravel()
     cost, lam = float(r @ r), 1e-9
     for _ in range(max_iter):
