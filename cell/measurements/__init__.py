@@ -7,6 +7,7 @@ written, for the planar cell (v1) and any serial chain (Extension v1.1).
 * :mod:`.chain_spec`  a chain's model.yaml as data
 * :mod:`.folder`      a campaign folder written atomically, never deleting what it did not write
 * :mod:`.checked`     model files checked without pydantic when plainly valid, with it otherwise
+* :mod:`.plainyaml`   model.yaml read without PyYAML when plainly written, with it otherwise
 
 The names most callers need are importable from here.
 """
