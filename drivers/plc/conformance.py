@@ -59,6 +59,7 @@ MAX_UNREAD = 64 * 1024  # answer bytes a client has left unread before it is clo
 #: allocation per read, shrunk to what came); ours go into one buffer per server
 READ_CHUNK = 16 * 1024
 HANDSHAKE_TIMEOUT_S = 5.0   # TLS: a client must finish its handshake within this
+MAX_EARLY = MAX_PENDING * (MBAP_LEN + MAX_PDU)   # TLS: request bytes kept across the handshake's end
 ILLEGAL_FUNCTION, ILLEGAL_DATA_ADDRESS, ILLEGAL_DATA_VALUE, SERVER_DEVICE_FAILURE = 1, 2, 3, 4
 
 
@@ -208,7 +209,9 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
     give the heap back (RSS grew every storm round; found by bench/bench_link_storm.py).
     On a TLS listener the guard sees the TCP connection *before* its handshake (allow-list,
     cap and shedding apply to half-open connections too) and TLS is started on it with
-    our own handshake time-out (:meth:`_start_tls`).
+    our own handshake time-out (:meth:`_start_tls`). asyncio hands on what came in the same
+    read as the client's last handshake message before :meth:`_start_tls` resumes: it is
+    kept and answered once the role is taken (a client sending at once under load).
     """
 
     def __init__(self, owner, trace_packet, trace_pdu, trace_connect):
@@ -224,6 +227,7 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
         self._worker: asyncio.Task | None = None
         self._handshake: asyncio.Task | None = None
+        self._early = bytearray()  # TLS: what arrived between the handshake's end and _start_tls's
         self.guard: ConnectionGuard | None = getattr(owner, "guard", None)
         self.peer: Peer | None = None
 
@@ -281,6 +285,10 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         self._take_role(server.roles)
         if self.peer is None:
             self.close()
+            return
+        early, self._early = bytes(self._early), bytearray()
+        if early:
+            self.callback_data(early)
 
     def _take_role(self, roles: dict[str, frozenset[str]]) -> None:
         """Modbus/TCP Security: the peer's role from its (already verified) certificate;
@@ -305,8 +313,14 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
                     rights=sorted(self.peer.rights))
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        if self._stream.broken is not None or (self.guard is not None and self.peer is None) \
-                or self._handshake is not None:
+        if self._handshake is not None:
+            # TLS: requests the client sent right behind its last handshake message reach us
+            # from asyncio's TLS layer before _start_tls resumes; kept (bounded) until it has
+            # taken the role, then answered
+            if len(self._early) + len(data) <= MAX_EARLY:
+                self._early += data
+            return len(data)
+        if self._stream.broken is not None or (self.guard is not None and self.peer is None):
             return len(data)   # closing (or refused at connect): ignore whatever still arrives
         for frame in self._stream.feed(data):
             self._queue.put_nowait(frame)

@@ -157,6 +157,36 @@ def test_unknown_and_missing_client_certificates_fail_the_handshake(link, pki):
     assert link.read("recipe_select") == 0 and link.owner is None
 
 
+def test_a_request_sent_with_the_last_handshake_message_is_answered(link, pki):
+    """A client may send its first request right behind its Finished; on a loaded server
+    both come in one read, and asyncio hands the request on before the handshake's task
+    resumes. It is answered once the role is taken, not dropped (the client would wait for
+    its time-out). The client here sends both in one segment, as load makes them arrive."""
+    ctx = client_context(pki["ca"], pki["operator"])
+    incoming, outgoing = ssl.MemoryBIO(), ssl.MemoryBIO()
+    tls = ctx.wrap_bio(incoming, outgoing)
+    with socket.create_connection(("127.0.0.1", link.tls_port), timeout=10) as raw:
+        while True:
+            try:
+                tls.do_handshake()
+                break
+            except ssl.SSLWantReadError:
+                raw.sendall(outgoing.read())
+                incoming.write(raw.recv(65536))
+        tls.write(bytes.fromhex("000100000006010300000001"))         # FC3: map_version
+        raw.sendall(outgoing.read())                                  # Finished + request at once
+        answer = b""
+        while len(answer) < 11:
+            data = raw.recv(65536)
+            assert data, "closed without an answer"
+            incoming.write(data)
+            try:
+                answer += tls.read(64)
+            except ssl.SSLWantReadError:
+                pass
+    assert answer == bytes.fromhex("000100000005010302") + PLC_MAP.version.to_bytes(2, "big")
+
+
 def test_role_extension_is_read_from_der(pki):
     from cryptography import x509
     from cryptography.hazmat.primitives.serialization import Encoding
