@@ -197,10 +197,12 @@ def exception_adu(frame: Frame, code: int) -> bytes:
 class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
     """pymodbus connection handler with the spec pre-decoder in front (see module doc).
 
-    Frames are queued and answered strictly in arrival order by one worker task; valid
-    register requests go to the server's ``registers`` answerer if it has one, the others
-    are decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so the
-    datastore and its action see exactly what a bare pymodbus server would.
+    Frames are answered strictly in arrival order by one worker task; valid register
+    requests go to the server's ``registers`` answerer if it has one, the others are
+    decoded and executed by pymodbus (``DecodePDU`` + ``handle_request``), so the datastore
+    and its action see exactly what a bare pymodbus server would. A register request that
+    arrives alone while the worker has nothing is answered at once in the read callback
+    (:meth:`_answered_at_once`): the same answer, without the queue and the worker's wake-up.
 
     Memory: it is an ``asyncio.BufferedProtocol``, so the transport reads into the
     server's one :data:`READ_CHUNK` buffer (:meth:`get_buffer`) instead of allocating
@@ -226,6 +228,7 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         self._stream = MbapStream()
         self._queue: asyncio.Queue[Frame | None] = asyncio.Queue()
         self._worker: asyncio.Task | None = None
+        self._busy = False        # the worker holds a frame (from taking it to its answer)
         self._handshake: asyncio.Task | None = None
         self._early = bytearray()  # TLS: what arrived between the handshake's end and _start_tls's
         self.guard: ConnectionGuard | None = getattr(owner, "guard", None)
@@ -322,13 +325,16 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
             return len(data)
         if self._stream.broken is not None or (self.guard is not None and self.peer is None):
             return len(data)   # closing (or refused at connect): ignore whatever still arrives
-        for frame in self._stream.feed(data):
-            self._queue.put_nowait(frame)
+        frames = self._stream.feed(data)
+        for frame in frames:
+            code = check_request(frame.pdu)
             if self.peer is not None:
-                if check_request(frame.pdu) is None:
+                if code is None:
                     self.peer.asked += 1      # a well-formed request: shed such a client last
                 else:
                     self.peer.malformed += 1  # a fuzzer's: shed before a client that asks well
+            if len(frames) > 1 or not self._answered_at_once(frame, code):
+                self._queue.put_nowait(frame)
         if self.peer is not None:
             self.guard.activity(self.peer, self._stream.pending)
         if self._queue.qsize() > MAX_PENDING and self._stream.broken is None:
@@ -364,9 +370,31 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
             self._worker = None
         super().callback_disconnected(exc)
 
+    def _answered_at_once(self, frame: Frame, code: int | None) -> bool:
+        """Answer ``frame`` now, in the read callback, if it is a well-formed register
+        request that came alone, nothing of this connection waits before it (queue empty,
+        worker idle) and its client reads its answers; True if answered. The PLC's usual
+        request is such a one, and this saves it the queue and a wake-up of the worker (an
+        event-loop turn). Anything else is left to the worker, in arrival order, so the
+        answers, their order and the pending and unread limits are the worker's."""
+        if (code is not None or self._busy or not self._queue.empty() or self.server.registers is None
+                or frame.pdu[0] not in REGISTER_FCS or self._gone()
+                or self.transport.get_write_buffer_size() > MAX_UNREAD):
+            return False
+        try:
+            answer = adu(frame, self.server.registers(frame.pdu, self.peer))
+        except Exception as exc:  # as in the worker: one bad request never ends the connection
+            _warn("modbus_request_failed", self.guard, error=repr(exc), tid=frame.tid,
+                  client=str(self.peer or ""))
+            answer = exception_adu(frame, SERVER_DEVICE_FAILURE)
+        self._send_raw(answer)
+        return True
+
     async def _serve(self) -> None:
         while True:
+            self._busy = False
             frame = await self._queue.get()
+            self._busy = True
             if frame is None or self._gone():
                 self.close()
                 return

@@ -158,6 +158,24 @@ def test_many_pipelined_requests_beyond_pymodbus_buffer_are_all_answered(link):
     assert [int.from_bytes(a[:2], "big") for a in answers] == list(range(1, 41))
 
 
+def test_requests_in_separate_segments_keep_their_order_behind_a_bit_function(link):
+    """A register request that arrives alone is answered at once in the read callback,
+    unless something of its connection waits before it: here a coil write (FC5, answered by
+    pymodbus in the worker) sent just before it in its own segment. Whenever the second
+    segment comes in, the answers come in request order and the read sees the write."""
+    on, off = struct.pack(">BHH", 5, CMD_COIL, 0xFF00), struct.pack(">BHH", 5, CMD_COIL, 0x0000)
+    with socket.create_connection(("127.0.0.1", link.port), timeout=5) as s:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        s.sendall(mbap(1, struct.pack(">BHH", 6, 1, 1)))            # heartbeat: the owner
+        assert recv_adu(s) == mbap(1, struct.pack(">BHH", 6, 1, 1))
+        for tid in range(2, 202, 2):
+            coil = on if tid % 4 else off
+            s.sendall(mbap(tid, coil))
+            s.sendall(fc3(tid + 1, PLC_MAP["command_word"].address, 1))
+            assert recv_adu(s) == mbap(tid, coil)
+            assert recv_adu(s) == mbap(tid + 1, struct.pack(">BBH", 3, 2, 1 if tid % 4 else 0))
+
+
 def test_request_split_across_segments_is_answered_once(link):
     frame = fc3(11, 0, 3)
     with socket.create_connection(("127.0.0.1", link.port), timeout=5) as s:
