@@ -336,6 +336,7 @@ class RegisterMap:
             self._by_name[reg.name] = reg
         # name -> (address, words): what an image view decodes a register from
         self._at = {r.name: (r.address, r.words) for r in self._by_name.values()}
+        self._plans: dict[tuple[int, int], tuple[tuple[Register, int], ...]] = {}   # see _write_plan
 
     # -- look-ups
     def __iter__(self) -> Iterator[Register]:
@@ -434,10 +435,30 @@ class RegisterMap:
 
         Raises :class:`IllegalDataAddress` (unknown/reserved address, RO register, half of a
         u32) or :class:`IllegalDataValue` (out of range); nothing is decided piecemeal, so the
-        caller applies all values or none.
+        caller applies all values or none. Which registers a write of ``len(words)`` words at
+        ``address`` covers is decided once (:meth:`_write_plan`); each write then decodes
+        and range-checks only its values.
         """
+        plan = self._write_plan(address, len(words))
         out: dict[str, int] = {}
-        end = address + len(words)
+        for reg, at in plan:
+            out[reg.name] = (words[at] << 16) | words[at + 1] if reg.words == 2 else words[at]
+        for reg, _ in plan:
+            value = out[reg.name]
+            if not reg.in_range(value):
+                raise IllegalDataValue(f"PLC write to {reg.name}: value {value} outside {reg.range_text()}")
+        return out
+
+    def _write_plan(self, address: int, count: int) -> tuple[tuple[Register, int], ...]:
+        """The registers a PLC write of ``count`` words at ``address`` sets, each with the
+        index of its first word in the write, in address order; cached per (address, count)
+        (at most ``size``² entries). Raises :class:`IllegalDataAddress` as
+        :meth:`decode_plc_write` says (not cached: a refusal is rare and logged anyway)."""
+        plan = self._plans.get((address, count))
+        if plan is not None:
+            return plan
+        regs: list[tuple[Register, int]] = []
+        end = address + count
         for a in range(address, end):
             hit = self.at(a)
             if hit is None:
@@ -448,14 +469,10 @@ class RegisterMap:
             if reg.address < address or reg.address + reg.words > end:
                 raise IllegalDataAddress(f"PLC write to {reg.name} at {a}: a 32-bit register must be "
                                          f"written whole (addresses {reg.address}..{reg.address + 1})")
-            if reg.name not in out:
-                out[reg.name] = self.from_words(reg.name, words[reg.address - address:
-                                                               reg.address - address + reg.words])
-        for name, value in out.items():
-            if not self[name].in_range(value):
-                raise IllegalDataValue(f"PLC write to {name}: value {value} outside "
-                                       f"{self[name].range_text()}")
-        return out
+            if not regs or regs[-1][0] is not reg:
+                regs.append((reg, reg.address - address))
+        plan = self._plans[(address, count)] = tuple(regs)
+        return plan
 
     def decode_plc_bit_write(self, bit_address: int, bits: Sequence[bool],
                              current: Mapping[str, int]) -> dict[str, int]:

@@ -498,14 +498,23 @@ class PlcLink:
                    for g in (self.guard, self.tls_guard))
 
     def _apply_plc_write(self, new: dict[str, int], events: list[PlcWrite], peer: Peer | None = None) -> None:
-        """Apply map-validated PLC values to the image (lock held); collect their events."""
+        """Apply map-validated PLC values to the image (lock held), changing only the words
+        of registers whose value changed; collect an event per register written (changed
+        or not: a PLC writing the same value again is still a write)."""
         now = self._clock.now()
         who = str(peer) if peer is not None else ""
+        image = self._image
         for name, value in new.items():
-            previous = self._read_unlocked(name)
-            self._put(name, value)
-            if name == "plc_heartbeat" and value != previous:
-                self._hb_change = now
+            reg = self.map[name]
+            a = reg.address
+            previous = (image[a] << 16) | image[a + 1] if reg.words == 2 else image[a]
+            if value != previous:
+                if reg.words == 2:
+                    image[a], image[a + 1] = (value >> 16) & 0xFFFF, value & 0xFFFF
+                else:
+                    image[a] = value
+                if name == "plc_heartbeat":
+                    self._hb_change = now
             if name not in self._quiet:
                 events.append(PlcWrite(now, name, value, previous, who))
 

@@ -182,6 +182,20 @@ def test_plc_write_decoding_refuses_with_the_modbus_code(address, words, exc, me
     assert info.value.modbus_code == (2 if exc is IllegalDataAddress else 3)
 
 
+def test_plc_write_decoding_checks_every_value_of_a_write_it_has_planned():
+    """Which registers a write covers is worked out once per (address, count); the values of
+    each write are still decoded and checked."""
+    assert PLC_MAP.decode_plc_write(20, [5]) == {"recipe_select": 5}
+    with pytest.raises(IllegalDataValue, match="recipe_select: value 1000"):
+        PLC_MAP.decode_plc_write(20, [1000])
+    assert PLC_MAP.decode_plc_write(20, [999]) == {"recipe_select": 999}
+    assert PLC_MAP.decode_plc_write(24, [0, 7]) == {"part_id": 7}
+    assert PLC_MAP.decode_plc_write(24, [1, 0]) == {"part_id": 0x10000}
+    for _ in range(2):
+        with pytest.raises(IllegalDataAddress, match="part_id at 25"):
+            PLC_MAP.decode_plc_write(25, [1])
+
+
 def test_plc_write_decoding_accepts_whole_writes():
     assert PLC_MAP.decode_plc_write(24, [0x0001, 0x0002]) == {"part_id": 0x00010002}
     assert PLC_MAP.decode_plc_write(20, [999]) == {"recipe_select": 999}

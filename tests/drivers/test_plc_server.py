@@ -85,6 +85,25 @@ def test_plc_writes_land_in_the_image_and_as_events(link, plc):
     assert link.drain_writes() == [] and link.next_write(timeout=0.0) is None
 
 
+def test_a_value_written_again_is_an_event_and_leaves_the_image_and_heartbeat_time(link, plc):
+    """Only registers whose value changed are written into the image, but every register a
+    PLC writes is an event (the same value again included), and the heartbeat's change time
+    moves only when its value does."""
+    clock = link._clock
+    assert not plc.write_register(1, 7).isError()
+    assert link.last_heartbeat_change == 100.0
+    clock.advance(0.5)
+    assert not plc.write_register(1, 7).isError()                   # the same heartbeat
+    assert link.last_heartbeat_change == 100.0
+    for _ in range(2):
+        assert not plc.write_registers(24, [0x0001, 0x0002]).isError()
+    assert link.read("part_id") == 0x10002 and link.read("plc_heartbeat") == 7
+    assert [(e.name, e.value, e.previous) for e in link.drain_writes()] == [
+        ("part_id", 0x10002, 0), ("part_id", 0x10002, 0x10002)]
+    rr = plc.write_registers(24, [0, 9, 5])                         # part_id_echo is read-only
+    assert rr.isError() and rr.exception_code == 2 and link.read("part_id") == 0x10002
+
+
 def test_coil_write_sets_a_command_bit_with_previous_value(link, plc):
     assert not plc.write_register(1, 1).isError()      # owner
     assert not plc.write_coil(16 * 11 + 3, True).isError()      # acknowledge
