@@ -146,12 +146,43 @@ def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int
     return n + _stuff_bits(value, n) + _FIXED_TAIL_BITS
 
 
+def _stuff_crc7_table() -> list[list[tuple[int, int]]]:
+    """Per stuffing state: the (next state, stuff bits) of each 7-bit value (MSB first), the
+    first 7 bits of a CRC-15 (its last 8 go through the byte table)."""
+    table = []
+    for st0 in range(9):
+        row = []
+        for value in range(128):
+            st, n = st0, 0
+            for k in range(6, -1, -1):
+                st, d = _STUFF_BIT[st][(value >> k) & 1]
+                n += d
+            row.append((st, n))
+        table.append(row)
+    return table
+
+
+_STUFF_CRC7 = _stuff_crc7_table()
+
+
+@functools.lru_cache(maxsize=4096)
+def _frame_start(arbitration_id: int, dlc: int) -> tuple[int, int, int]:
+    """(CRC register, stuffing state, stuff bits so far) after a standard data frame's SOF,
+    identifier, RTR, IDE, r0 and DLC: where every frame with that identifier and length
+    goes on from."""
+    value, nbits = ((arbitration_id & 0x7FF) << 3) << 4 | dlc, 1 + 11 + 3 + 4
+    return (_crc15(value, nbits), *_stuff_run(0, value, nbits))
+
+
 class FrameLayout:
     """:func:`data_frame_bits` of the standard data frames with one identifier, one length
     and the same leading data bytes, for any trailing bytes: the CRC register and the
-    stuffing's state after the fixed part are computed once, so a frame costs only its own
-    trailing bytes and its CRC (a set-point's velocity tried against its own frame length,
-    :meth:`~drivers.stations.streaming.StreamingMixin.corrected_velocities`).
+    stuffing's state after the fixed part are computed once (from the identifier's and
+    length's, cached, on through the head's bytes), so a frame costs only its own trailing
+    bytes and its CRC (a set-point's velocity tried against its own frame length,
+    :meth:`~drivers.stations.streaming.StreamingMixin.corrected_velocities`). CRC and
+    stuffing are bit-serial state machines: carried on a byte (or 7 bits) at a time by
+    table, they count exactly what :func:`data_frame_bits` counts.
 
     :param arbitration_id: 11-bit identifier.
     :param head: the leading data bytes every frame shares.
@@ -164,12 +195,15 @@ class FrameLayout:
     def __init__(self, arbitration_id: int, head: bytes, dlc: int):
         if not 0 <= len(head) <= dlc <= 8:
             raise ValueError(f"FrameLayout: {len(head)} head bytes in a frame of {dlc} (at most 8)")
-        value = (((arbitration_id & 0x7FF) << 3) << 4 | dlc) << 8 * len(head) | int.from_bytes(head, "big")
-        nbits = 1 + 11 + 3 + 4 + 8 * len(head)       # SOF, id, RTR, IDE, r0, DLC, head
-        self._crc = _crc15(value, nbits)
-        self._state, self._stuffed = _stuff_run(0, value, nbits)
+        crc, state, stuffed = _frame_start(arbitration_id & 0x7FF, dlc)
+        crc_table, stuff_byte = _CRC15_TABLE, _STUFF_BYTE
+        for byte in head:
+            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ byte) & 0xFF]
+            state, d = stuff_byte[state][byte]
+            stuffed += d
+        self._crc, self._state, self._stuffed = crc, state, stuffed
         self._tail = dlc - len(head)
-        self._fixed = nbits + 8 * self._tail + 15 + _FIXED_TAIL_BITS
+        self._fixed = 1 + 11 + 3 + 4 + 8 * dlc + 15 + _FIXED_TAIL_BITS   # SOF..DLC, data, CRC, tail
 
     def bits(self, tail: bytes) -> int:
         """Bits on the wire of the frame ending in ``tail`` (``dlc - len(head)`` bytes), as
@@ -182,10 +216,8 @@ class FrameLayout:
             crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ byte) & 0xFF]
             state, d = stuff_byte[state][byte]
             stuffed += d
-        for i in range(14, 7, -1):                    # the CRC's first 7 bits, then its last byte
-            state, d = _STUFF_BIT[state][(crc >> i) & 1]
-            stuffed += d
-        return self._fixed + stuffed + stuff_byte[state][crc & 0xFF][1]
+        state, d = _STUFF_CRC7[state][crc >> 8]       # the CRC's first 7 bits, then its last byte
+        return self._fixed + stuffed + d + stuff_byte[state][crc & 0xFF][1]
 
 
 @functools.lru_cache(maxsize=4096)

@@ -64,6 +64,7 @@ class _Station:
 
     def __init__(self, cfg: StationConfig, node: canopen.RemoteNode):
         self.cfg, self.node = cfg, node
+        self.index, self.node_id = cfg.joint_index, cfg.node_id   # per command: looked up once
         self.cpu = cfg.counts_per_unit
         self.pos_inc: int | None = None
         self.statusword = 0

@@ -7,6 +7,7 @@ from ``driver.py`` to keep modules small; the methods use the driver's command h
 """
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 import struct
@@ -26,6 +27,20 @@ _SETPOINT = struct.Struct("<iI")                     # the driver's set-point fr
 _TARGET, _VELOCITY = struct.Struct("<i"), struct.Struct("<I")   # its two fields apart
 
 log = get_logger("stations.driver")
+
+
+@functools.lru_cache(maxsize=4096)
+def _setpoint_layout(cob_id: int, target_inc: int) -> FrameLayout:
+    return FrameLayout(cob_id, _TARGET.pack(target_inc), _SETPOINT.size)
+
+
+@functools.lru_cache(maxsize=16384)
+def _setpoint_bits(cob_id: int, target_inc: int, velocity_inc: int) -> int:
+    """Bits on the wire of the set-point frame ``cob_id`` carrying ``target_inc`` and
+    ``velocity_inc``. Cached: a joint that stands still, or comes back to a target, sends
+    the same frames again (about half of a cycle's set-points), and the correction tries
+    a few velocities per frame."""
+    return _setpoint_layout(cob_id, target_inc).bits(_VELOCITY.pack(velocity_inc))
 
 
 class StationCommandError(CellError, ValueError):
@@ -161,42 +176,35 @@ class StreamingMixin:
             the station's ``max_velocity``.
         """
         T = float(segment_s)
-        q = np.asarray(targets_deg, dtype=float)
-        d = np.asarray(deltas_deg, dtype=float)
-        vel, lam = np.zeros(4), np.zeros(4)
+        # plain floats throughout: round() and indexing are slow on numpy's scalars
+        q = np.asarray(targets_deg, dtype=float).tolist()
+        d = np.asarray(deltas_deg, dtype=float).tolist()
+        hint = None if hint_s is None else np.asarray(hint_s, dtype=float).tolist()
+        vel, lam = [0.0] * 4, [0.0] * 4
         rate = float(self.cfg.bitrate)
+        latency = self._latency.tolist()
         t = 0.0
         for s in self._stations:
-            j, cob = s.cfg.joint_index, 0x200 + s.cfg.node_id
-            target = round(float(q[j]) * s.cpu)
-            need = abs(float(d[j])) * s.cpu               # increments to travel
-            top = min(s.cfg.max_velocity * s.cpu, 2 ** 32 - 1)
-            lat = float(self._latency[j])                 # plain floats: round() is slow on numpy's
+            j, cpu = s.index, s.cpu
+            need = abs(d[j]) * cpu                        # increments to travel
+            top = min(s.cfg.max_velocity * cpu, 2 ** 32 - 1)
+            lat = latency[j]
 
-            layout, known = FrameLayout(cob, _TARGET.pack(target), _SETPOINT.size), {}
-
-            def bits_of(v_inc: int) -> int:
-                b = known.get(v_inc)
-                if b is None:
-                    b = known[v_inc] = layout.bits(_VELOCITY.pack(v_inc))
-                return b
-
-            def frame_end(v_inc: int) -> float:
-                return t + bits_of(v_inc) / rate
+            bits_of = functools.partial(_setpoint_bits, 0x200 + s.node_id, round(q[j] * cpu))
 
             def wanted(v_inc: int) -> float:
-                left = T - frame_end(v_inc) - lat
+                left = T - (t + bits_of(v_inc) / rate) - lat
                 if left <= 0:
                     raise StationCommandError(
                         f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
-                        f"λ = {(frame_end(v_inc) + lat) * 1e3:.6g} ms")
+                        f"λ = {(t + bits_of(v_inc) / rate + lat) * 1e3:.6g} ms")
                 if need / left > top:
                     raise StationCommandError(
                         f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
                         f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
                 return need / left
-            if hint_s is not None and T > float(hint_s[j]):
-                v_inc = max(1, round(need / (T - float(hint_s[j]))))
+            if hint is not None and T > hint[j]:
+                v_inc = max(1, round(need / (T - hint[j])))
             else:
                 v_inc = max(1, round(wanted(max(1, round(need / T)))))
             seen = [v_inc]
@@ -208,11 +216,11 @@ class StreamingMixin:
                 seen.append(v_inc)
             else:                                        # a flip-flop between frame lengths
                 v_inc = self._closest_consistent(seen, need, T - t - lat, rate, bits_of)
-            end = frame_end(v_inc)
-            vel[j] = math.copysign(v_inc / s.cpu, d[j]) if d[j] else v_inc / s.cpu
+            end = t + bits_of(v_inc) / rate
+            vel[j] = math.copysign(v_inc / cpu, d[j]) if d[j] else v_inc / cpu
             lam[j] = end + lat
             t = end
-        return vel, lam
+        return np.array(vel), np.array(lam)
 
     @staticmethod
     def _closest_consistent(seen: list[int], need: float, budget: float, rate: float, bits_of) -> int:
@@ -231,13 +239,17 @@ class StreamingMixin:
                     continue
                 c_b = need / left
                 r = round(c_b)
-                for k in range(33):                  # r, then r - k before r + k
-                    hit = next((c for c in ((r,) if k == 0 else (r - k, r + k))
-                                if c >= 1 and bits_of(c) == b), None)
-                    if hit is not None:
-                        if best is None or abs(hit - c_b) < best[0]:
-                            best = (abs(hit - c_b), hit)
-                        break
+                hit = r if r >= 1 and bits_of(r) == b else None
+                for k in range(1, 33) if hit is None else ():   # r, then r - k before r + k
+                    if r - k >= 1 and bits_of(r - k) == b:
+                        hit = r - k
+                    elif r + k >= 1 and bits_of(r + k) == b:
+                        hit = r + k
+                    else:
+                        continue
+                    break
+                if hit is not None and (best is None or abs(hit - c_b) < best[0]):
+                    best = (abs(hit - c_b), hit)
             if best is not None:
                 return best[1]
         return min(seen, key=lambda c: abs(c - need / max(budget - bits_of(c) / rate, 1e-12)))

@@ -160,6 +160,16 @@ def test_frame_layout_counts_as_the_standard_for_any_tail():
         FrameLayout(0x201, b"", 9)
 
 
+def test_set_point_frame_bits_are_the_frames_own_cached_or_not():
+    from drivers.stations.streaming import _SETPOINT, _setpoint_bits
+    rng = np.random.default_rng(7)
+    for _ in range(2):                                    # the second round from the cache
+        for cob, target, vel in zip(rng.integers(0x201, 0x205, 200), rng.integers(-2 ** 31, 2 ** 31, 200),
+                                    rng.integers(0, 2 ** 32, 200)):
+            frame = _SETPOINT.pack(int(target), int(vel))
+            assert _setpoint_bits(int(cob), int(target), int(vel)) == data_frame_bits(int(cob), frame)
+
+
 def test_bus_factory_errors():
     with pytest.raises(ConfigError, match="'nosuchcan' is not a known CAN interface"):
         open_bus("nosuchcan", "x")
