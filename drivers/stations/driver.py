@@ -307,14 +307,16 @@ class JointStations(BringUpMixin, StreamingMixin):
 
     def _burst(self, targets: np.ndarray, vels: np.ndarray, base: int, action: str) -> float:
         """Send one set-point per station in bus order; returns the first frame's timestamp."""
+        q = np.asarray(targets, dtype=float).tolist()     # plain floats: numpy's scalars are slow
+        v = np.asarray(vels, dtype=float).tolist()
         with self._cmd_lock:
             self.latch.check(action)
             t_first = None
             for s in self._stations:
-                j = s.cfg.joint_index
-                t = self._send(base + s.cfg.node_id, self._setpoint_frame(s, targets[j], vels[j]), action)
+                j = s.index
+                t = self._send(base + s.node_id, self._setpoint_frame(s, q[j], v[j]), action)
                 t_first = t if t_first is None else t_first
-                s.target = float(targets[j])
+                s.target = q[j]
             return t_first
 
     def move_to(self, targets_deg: Sequence[float], speed: float) -> float:

@@ -99,24 +99,12 @@ class StreamingMixin:
         segs = list(segments)
         if not segs:
             raise StationCommandError("stream: no segments given")
-        prev = -math.inf
-        checked = []
-        for i, seg in enumerate(segs):
-            try:
-                q = self._check_targets(seg.target_deg, f"stream segment {i}")
-                v = np.asarray(seg.velocity_deg_s, dtype=float)
-                start = float(seg.start_s)
-            except AttributeError as exc:
-                raise StationCommandError(f"stream segment {i}: not a Segment ({exc})") from None
-            if v.shape != (4,) or not np.all(np.isfinite(v)):
-                raise StationCommandError(f"stream segment {i}: velocity_deg_s must be 4 finite values, got {v!r}")
-            if not (math.isfinite(start) and start > prev):
-                raise StationCommandError(f"stream segment {i}: start_s = {start!r} must be finite and after {prev}")
-            prev = start
-            checked.append((start, q, v))
+        checked = self._checked_at_once(segs) or self._checked(segs)
         if lead_s is None:  # sync: the first set-points must be in before SYNC 1
-            slowest = float(np.max(self.burst_delays(checked[0][1], checked[0][2], 0x400)))
-            lead = max(self.cfg.sync_lead_s, slowest + 0.005) if mode == "sync" else 0.0
+            lead = 0.0
+            if mode == "sync":
+                slowest = float(np.max(self.burst_delays(checked[0][1], checked[0][2], 0x400)))
+                lead = max(self.cfg.sync_lead_s, slowest + 0.005)
         else:
             lead = float(lead_s) if isinstance(lead_s, (int, float)) and not isinstance(lead_s, bool) else math.nan
             if not (math.isfinite(lead) and 0 <= lead <= 10):
@@ -137,6 +125,51 @@ class StreamingMixin:
                 if k + 1 < len(checked):
                     self._burst(checked[k + 1][1], checked[k + 1][2], 0x400, "stream")
         return StreamReport(mode, t0_bus, sent)
+
+    def _checked_at_once(self, segs: list) -> list[tuple[float, np.ndarray, np.ndarray]] | None:
+        """(start, targets, velocities) of every segment when all of them pass
+        :meth:`stream`'s checks, tested on the stacked arrays; None when one does not (or is
+        not a Segment), for :meth:`_checked` to name the first fault."""
+        try:
+            q = np.array([seg.target_deg for seg in segs], dtype=float)
+            v = np.array([seg.velocity_deg_s for seg in segs], dtype=float)
+            starts = [float(seg.start_s) for seg in segs]
+        except (AttributeError, TypeError, ValueError):
+            return None
+        n = len(segs)
+        if q.shape != (n, 4) or v.shape != (n, 4) or not (np.isfinite(q).all() and np.isfinite(v).all()):
+            return None
+        lo, hi = np.full(4, -math.inf), np.full(4, math.inf)
+        for s in self._stations:
+            lo[s.index], hi[s.index] = s.cfg.joint_limits
+        if not ((q >= lo).all() and (q <= hi).all()):
+            return None
+        prev = -math.inf
+        for start in starts:
+            if not (math.isfinite(start) and start > prev):
+                return None
+            prev = start
+        return list(zip(starts, q, v))
+
+    def _checked(self, segs: list) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """:meth:`_checked_at_once`'s result, segment by segment: raises
+        :class:`StationCommandError` naming the first segment that fails a check."""
+        prev = -math.inf
+        checked = []
+        for i, seg in enumerate(segs):
+            try:
+                q = self._check_targets(seg.target_deg, f"stream segment {i}")
+                v = np.asarray(seg.velocity_deg_s, dtype=float)
+                start = float(seg.start_s)
+            except AttributeError as exc:
+                raise StationCommandError(f"stream segment {i}: not a Segment ({exc})") from None
+            if v.shape != (4,) or not np.all(np.isfinite(v)):
+                raise StationCommandError(f"stream segment {i}: velocity_deg_s must be 4 finite values, got {v!r}")
+            if not (math.isfinite(start) and start > prev):
+                raise StationCommandError(f"stream segment {i}: start_s = {start!r} must be finite and after {prev}")
+            prev = start
+            checked.append((start, q, v))
+        return checked
 
     def burst_delays(self, targets_deg, velocities_deg_s, base: int = 0x200) -> np.ndarray:
         """Seed 002's delay λ (4,) per joint, s, for one burst of exactly these set-points:
