@@ -248,9 +248,10 @@ class PlcLink:
     # ------------------------------------------------------------------ controller side
     def read(self, name: str) -> int:
         """Current value of register ``name``. Raises PlcMapError for an unknown name."""
-        self.map[name]
+        reg = self.map[name]
+        a = reg.address
         with self._lock:
-            return self._read_unlocked(name)
+            return (self._image[a] << 16) | self._image[a + 1] if reg.words == 2 else self._image[a]
 
     def read_bits(self, name: str) -> dict[str, bool]:
         """Named bits of bit-field register ``name``."""
@@ -520,4 +521,5 @@ class PlcLink:
 
     def _read_unlocked(self, name: str) -> int:
         reg = self.map[name]
-        return self.map.from_words(name, self._image[reg.address:reg.address + reg.words])
+        a = reg.address
+        return (self._image[a] << 16) | self._image[a + 1] if reg.words == 2 else self._image[a]
