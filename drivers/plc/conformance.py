@@ -240,8 +240,10 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
 
     def buffer_updated(self, nbytes: int) -> None:
         # copied out before anything else can read into the shared buffer: the loop is
-        # single-threaded and this call consumes it synchronously
-        self.data_received(bytes(self.server.read_view[:nbytes]))
+        # single-threaded and this call consumes it synchronously. Straight to our framer:
+        # pymodbus's data_received only buffers what callback_data leaves (it leaves nothing)
+        # and keeps a debug dump of every frame
+        self.callback_data(bytes(self.server.read_view[:nbytes]))
 
     def callback_connected(self) -> None:
         super().callback_connected()
@@ -437,8 +439,9 @@ class ConformantRequestHandler(ServerRequestHandler, asyncio.BufferedProtocol):
         return self.transport is None or self.transport.is_closing()
 
     def _send_raw(self, adu: bytes) -> None:
+        """Write an answer we built (pymodbus's send would only add its debug dump)."""
         if not self._gone():
-            self.send(adu)
+            self.transport.write(adu)
 
 
 def _drop_tracebacks(exc: BaseException | None) -> None:
