@@ -17,7 +17,7 @@ import importlib
 _WHERE = {
     **{n: "cell.motion.line" for n in (
         "LinePlan", "Segment", "SimulatedPath", "delay_corrected_velocities", "joint_delays",
-        "joint_positions_at", "max_line_deviation", "plan_line", "simulate_line", "station_delays",
+        "joint_positions_at", "line_joints", "max_line_deviation", "plan_line", "simulate_line", "station_delays",
         "tool_positions")},
     **{n: "cell.motion.timelaw" for n in (
         "JointTrajectory", "Peaks", "continuity_jumps", "knot_times", "plan_timelaw")},

@@ -41,7 +41,7 @@ from cell.kinematics import JOINT_NAMES, Elbow, Scara
 
 __all__ = [
     "TIME_LAWS", "LinePlan", "Segment", "SimulatedPath", "station_delays", "joint_delays",
-    "delay_corrected_velocities", "plan_line", "joint_positions_at", "simulate_line",
+    "delay_corrected_velocities", "line_joints", "plan_line", "joint_positions_at", "simulate_line",
     "max_line_deviation", "tool_positions",
 ]
 
@@ -242,6 +242,42 @@ def _endpoint_ik(robot: Scara, pose: np.ndarray, elbow: Elbow) -> np.ndarray:
     return q
 
 
+def line_joints(robot: Scara, start_pose, end_pose, n_points: int, segment_s: float,
+                elbow: Elbow = "right", *, time_law: str = "linear") -> tuple[np.ndarray, np.ndarray]:
+    """The way-points of :func:`plan_line`, without its segments: (poses (n+1, 4), joints
+    (n+1, 4)), checked and unwrapped as :func:`plan_line` says, raising what it raises for
+    these arguments (the mover builds its own segments from the joints)."""
+    p0 = _finite_array("start_pose", start_pose, (4,))
+    p1 = _finite_array("end_pose", end_pose, (4,))
+    n = _positive_int("n_points", n_points)
+    T = _finite_scalar("segment_s", segment_s)
+    if T <= 0:
+        raise TrajectoryError(f"segment_s = {segment_s!r} must be > 0")
+    if time_law not in TIME_LAWS:
+        raise TrajectoryError(f"time_law = {time_law!r}; choose one of {sorted(TIME_LAWS)}")
+    s = TIME_LAWS[time_law](np.linspace(0.0, 1.0, n + 1))[:, None]
+    poses = p0 + s * (p1 - p0)
+    poses[-1] = p1  # exact target, no rounding from the linspace
+    joints = np.empty_like(poses)
+    for k, pose in enumerate(poses):
+        try:
+            joints[k] = _endpoint_ik(robot, pose, elbow) if k in (0, n) else robot.ik(pose, elbow=elbow)
+        except CellError as exc:
+            raise TrajectoryError(
+                f"interpolation point {k} of {n} at pose ({', '.join(f'{v:.4f}' for v in pose)}) "
+                f"cannot be reached: {exc}") from exc
+    for j in (0, 3):  # revolute joints returned wrapped to [-180, 180)
+        joints[:, j] = np.unwrap(joints[:, j], period=360.0)
+    lo, hi = np.array(robot.g.limits, dtype=float).T
+    if not (np.isfinite(joints).all() and (joints >= lo).all() and (joints <= hi).all()):
+        for k, q in enumerate(joints):      # name the first point off its limits
+            try:
+                robot.check_limits(q)
+            except CellError as exc:
+                raise TrajectoryError(f"interpolation point {k} of {n}: {exc}") from exc
+    return poses, joints
+
+
 def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: float,
               delays_s=None, elbow: Elbow = "right", *,
               station_order=JOINT_NAMES, time_law: str = "linear") -> LinePlan:
@@ -263,8 +299,8 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
     :raises TrajectoryError: bad numbers, n < 1, T ≤ λ_i, or an interpolation point the
         robot cannot reach (message names the point and the kinematic reason).
     """
-    p0 = _finite_array("start_pose", start_pose, (4,))
-    p1 = _finite_array("end_pose", end_pose, (4,))
+    _finite_array("start_pose", start_pose, (4,))
+    _finite_array("end_pose", end_pose, (4,))
     n = _positive_int("n_points", n_points)
     T = _finite_scalar("segment_s", segment_s)
     if T <= 0:
@@ -274,26 +310,7 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
         raise TrajectoryError(f"time_law = {time_law!r}; choose one of {sorted(TIME_LAWS)}")
     lam = np.zeros(4) if delays_s is None else _finite_array("delays_s", delays_s, (4,))
     delay_corrected_velocities(np.zeros(4), T, lam)  # validate delays before any IK work
-
-    s = TIME_LAWS[time_law](np.linspace(0.0, 1.0, n + 1))[:, None]
-    poses = p0 + s * (p1 - p0)
-    poses[-1] = p1  # exact target, no rounding from the linspace
-    joints = np.empty_like(poses)
-    for k, pose in enumerate(poses):
-        try:
-            joints[k] = _endpoint_ik(robot, pose, elbow) if k in (0, n) else robot.ik(pose, elbow=elbow)
-        except CellError as exc:
-            raise TrajectoryError(
-                f"interpolation point {k} of {n} at pose ({', '.join(f'{v:.4f}' for v in pose)}) "
-                f"cannot be reached: {exc}") from exc
-    for j in (0, 3):  # revolute joints returned wrapped to [-180, 180)
-        joints[:, j] = np.unwrap(joints[:, j], period=360.0)
-    for k, q in enumerate(joints):
-        try:
-            robot.check_limits(q)
-        except CellError as exc:
-            raise TrajectoryError(f"interpolation point {k} of {n}: {exc}") from exc
-
+    poses, joints = line_joints(robot, start_pose, end_pose, n, T, elbow, time_law=time_law)
     vel = delay_corrected_velocities(np.diff(joints, axis=0), T, lam)
     segments = [Segment(index=k, start_s=(k - 1) * T, duration_s=T,
                         target_deg=_readonly(joints[k]), velocity_deg_s=_readonly(vel[k - 1]))

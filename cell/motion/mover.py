@@ -30,7 +30,7 @@ import numpy as np
 
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import JOINT_NAMES, Scara
-from cell.motion.line import TIME_LAW_PEAK, TIME_LAWS, Segment, plan_line
+from cell.motion.line import TIME_LAW_PEAK, TIME_LAWS, Segment, line_joints
 
 if TYPE_CHECKING:
     from drivers.stations.faults import FaultRecord
@@ -165,9 +165,8 @@ class Mover:
     # ------------------------------------------------------------------ planning parts
     def _waypoints(self, q0: np.ndarray, q1: np.ndarray, n: int, spec: MotionSpec) -> tuple[np.ndarray, str]:
         try:
-            plan = plan_line(self.robot, self.robot.fk(q0), self.robot.fk(q1), n, spec.segment_s,
-                             elbow=self.elbow, time_law=spec.time_law)
-            joints = np.array(plan.joints_deg)
+            joints = line_joints(self.robot, self.robot.fk(q0), self.robot.fk(q1), n, spec.segment_s,
+                                 elbow=self.elbow, time_law=spec.time_law)[1]
             for j in (0, 3):                      # same turn as the start (IK wraps to ±180°)
                 joints[:, j] += 360.0 * round((q0[j] - joints[0, j]) / 360.0)
             if np.max(np.abs(joints[0] - q0)) < 1e-6 and np.max(np.abs(joints[-1] - q1)) < 1e-6:

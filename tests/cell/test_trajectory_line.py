@@ -9,7 +9,7 @@ import pytest
 from cell import cli
 from cell.errors import CellError, TrajectoryError
 from cell.kinematics import Scara
-from cell.motion.line import (delay_corrected_velocities, joint_delays, joint_positions_at,
+from cell.motion.line import (delay_corrected_velocities, joint_delays, joint_positions_at, line_joints,
                                   max_line_deviation, plan_line, simulate_line, station_delays,
                                   tool_positions)
 
@@ -95,6 +95,26 @@ def test_plan_has_equal_cartesian_steps_converted_by_ik():
     np.testing.assert_allclose([s.start_s for s in plan.segments], np.arange(12) * T)
     np.testing.assert_allclose(plan.velocities_deg_s, np.diff(plan.joints_deg, axis=0) / T)
     np.testing.assert_allclose(plan.segments[-1].target_deg, ROBOT.ik(np.array(B)))
+
+
+def test_line_joints_are_the_plans_way_points():
+    for law in ("linear", "smooth"):
+        plan = plan_line(ROBOT, A, B, 12, T, time_law=law)
+        poses, joints = line_joints(ROBOT, A, B, 12, T, time_law=law)
+        assert np.array_equal(poses, plan.poses) and np.array_equal(joints, plan.joints_deg)
+        assert joints.flags.writeable                     # the caller's to adjust
+    with pytest.raises(TrajectoryError, match="segment_s"):
+        line_joints(ROBOT, A, B, 12, 0.0)
+
+
+def test_a_way_point_unwrapped_past_its_limit_is_named():
+    """θ4 comes back from the inverse kinematics wrapped to ±180°; unwrapped along the move
+    it may leave a narrower range, and the first point that does is named."""
+    g = ROBOT.g
+    narrow = Scara(g.model_copy(update={"limits": (*g.limits[:3], (-180.0, 180.0))}))
+    for plan in (plan_line, line_joints):
+        with pytest.raises(TrajectoryError, match=r"interpolation point 11 of 12: j4 = 187.5323 is outside"):
+            plan(narrow, (300.0, -60.0, -30.0, 100.0), (300.0, 60.0, -30.0, 250.0), 12, T)
 
 
 def test_plan_corrects_each_joint_with_its_own_station_delay():
