@@ -120,6 +120,10 @@ def frame_bits(msg: can.Message) -> int:
         raise ValueError("CAN FD frames are not modelled by the virtual wire")
     if msg.is_error_frame:
         return _ERROR_FRAME_BITS
+    if not (msg.is_remote_frame or msg.is_extended_id):
+        # the usual frame, counted at once: its data rarely repeats, a cache would only churn
+        data = msg.data if len(msg.data) <= 8 else msg.data[:8]
+        return _layout(msg.arbitration_id, len(data)).bits(data)
     dlc = min(len(msg.data), 8) if not msg.is_remote_frame else min(msg.dlc, 8)
     data = b"" if msg.is_remote_frame else bytes(msg.data[:dlc])
     return _data_frame_bits(msg.arbitration_id, bool(msg.is_extended_id), bool(msg.is_remote_frame), dlc, data)
