@@ -72,6 +72,7 @@ class MeasuringCamera:
         self.last_error: str | None = None           #: the last grab's failure (health job)
         self._worker = Worker(self.clock, "camera-grab")
         self._unfinished: Job | None = None          # a grab the cycle stopped waiting for
+        self._centre_scale: tuple[PlaneCalibration, float] | None = None   # see _centre_mm_per_px
 
     def grab(self, cancel=None) -> np.ndarray:
         """One 8-bit grey frame.
@@ -123,8 +124,7 @@ class MeasuringCamera:
         """(x_mm, y_mm) of the single fiducial of ``radius_mm`` in ``image``. With
         ``near_mm`` (x, y), first in the window ``within_mm`` (default :attr:`window_mm`)
         around it (see the module doc); CellFault names ``what`` and the search's failure."""
-        cal = self.calibration
-        r_px = radius_mm / cal.mm_per_px(cal.width / 2, cal.height / 2)
+        r_px = radius_mm / self._centre_mm_per_px()
         sizes = dict(min_radius_px=r_px * (1 - self.radius_tolerance),
                      max_radius_px=r_px * (1 + self.radius_tolerance))
         roi = None if near_mm is None else self._window(near_mm, radius_mm, within_mm)
@@ -155,13 +155,21 @@ class MeasuringCamera:
         reach_mm = (self.window_mm if within_mm is None else within_mm) \
             + radius_mm * (1 + self.radius_tolerance) + 0.5
         half = reach_mm / cal.mm_per_px(u, v) if 0 <= u < cal.width and 0 <= v < cal.height \
-            else reach_mm / cal.mm_per_px(cal.width / 2, cal.height / 2)
+            else reach_mm / self._centre_mm_per_px()
         u0, v0 = max(0, int(u - half)), max(0, int(v - half))
         u1, v1 = min(cal.width - 1, int(math.ceil(u + half))), min(cal.height - 1, int(math.ceil(v + half)))
-        r_px = radius_mm * (1 + self.radius_tolerance) / cal.mm_per_px(cal.width / 2, cal.height / 2)
+        r_px = radius_mm * (1 + self.radius_tolerance) / self._centre_mm_per_px()
         if u1 - u0 < 2 * r_px or v1 - v0 < 2 * r_px:
             return None
         return (u0, v0, u1, v1)
+
+    def _centre_mm_per_px(self) -> float:
+        """The calibration's scale at the frame centre (mm per px), which sizes every search;
+        worked out once per calibration (a frozen :class:`PlaneCalibration`), not per find."""
+        cal = self.calibration
+        if self._centre_scale is None or self._centre_scale[0] is not cal:
+            self._centre_scale = (cal, cal.mm_per_px(cal.width / 2, cal.height / 2))
+        return self._centre_scale[1]
 
     def tool(self, cancel=None, near_mm=None) -> np.ndarray:
         """Grab and locate the tool's fiducial (``cancel`` as for :meth:`grab`; ``near_mm``

@@ -68,3 +68,25 @@ def test_the_part_window_leaves_out_the_tool_beside_it(cal):
 def test_a_useless_expected_place_searches_the_frame(cal, near):
     cam = MeasuringCamera(Frames(frame()), cal, tool_radius_mm=3.0)
     assert np.hypot(*(cam.tool(near_mm=near) - TOOL)) < 0.01
+
+
+def test_search_sizes_follow_the_calibration_the_camera_holds(cal):
+    """The scale at the frame centre sizes every search; it is worked out once per
+    calibration, and a camera given another calibration sizes its searches by that one."""
+    import dataclasses
+    from cell.vision.calibration import PlaneFix
+    asked = []
+
+    def locate(image, calibration, **kw):
+        asked.append((calibration, kw["min_radius_px"], kw["max_radius_px"]))
+        return [PlaneFix(*TOOL, 0.0, 0.0, None)]
+    cam = MeasuringCamera(Frames(frame(), frame(), frame()), cal, tool_radius_mm=3.0, locate=locate)
+    cam.tool()
+    cam.tool()
+    coarser = dataclasses.replace(cal, homography=cal.homography * [[1, 1, 1], [1, 1, 1], [2, 2, 1]])
+    cam.calibration = coarser
+    cam.tool()
+    for calibration, lo, hi in asked:
+        r_px = 3.0 / calibration.mm_per_px(calibration.width / 2, calibration.height / 2)
+        assert (lo, hi) == (r_px * 0.7, r_px * 1.3)
+    assert [a[0] is coarser for a in asked] == [False, False, True] and asked[2][1] != asked[0][1]
