@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import enum
+import functools
 import io
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -85,6 +86,8 @@ class Register:
 
     ``lo``/``hi`` bound the raw integer (for a bit field ``hi`` is the mask of defined bits,
     and any undefined bit set is out of range). Engineering value = raw * ``scale`` ``unit``.
+    ``words`` and ``max_value`` follow from the fields and are worked out once (every PLC
+    request asks for them).
     """
 
     address: int
@@ -98,7 +101,7 @@ class Register:
     meaning: str = ""
     bits: tuple[Bit, ...] = ()
 
-    @property
+    @functools.cached_property
     def words(self) -> int:
         return 2 if self.type is RegType.U32 else 1
 
@@ -107,7 +110,7 @@ class Register:
         """1-based Modicon "4xxxx" reference of the first word."""
         return MODICON_BASE + self.address
 
-    @property
+    @functools.cached_property
     def max_value(self) -> int:
         if self.type is RegType.BITFIELD:
             return sum(1 << b.index for b in self.bits)

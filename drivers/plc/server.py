@@ -503,7 +503,7 @@ class PlcLink:
         of registers whose value changed; collect an event per register written (changed
         or not: a PLC writing the same value again is still a write)."""
         now = self._clock.now()
-        who = str(peer) if peer is not None else ""
+        who = None                    # the writer's name, made for its first event
         image = self._image
         for name, value in new.items():
             reg = self.map[name]
@@ -517,6 +517,8 @@ class PlcLink:
                 if name == "plc_heartbeat":
                     self._hb_change = now
             if name not in self._quiet:
+                if who is None:
+                    who = str(peer) if peer is not None else ""
                 events.append(PlcWrite(now, name, value, previous, who))
 
     def _read_unlocked(self, name: str) -> int:
