@@ -32,8 +32,14 @@ class NoiseAhead:
     ``rng`` to before that draw and draws anew, so even then nothing changes. Nothing else
     may draw from ``rng`` while this object owns it.
 
+    The thread ends after ``idle_s`` wall seconds without a frame to draw (the next
+    :meth:`take` starts another), so an object nobody closes does not keep its thread and
+    its two frame buffers for good.
+
     :param rng: the generator this object now owns.
     """
+
+    idle_s = 2.0
 
     def __init__(self, rng: np.random.Generator):
         self._rng = rng
@@ -92,7 +98,9 @@ class NoiseAhead:
         with self._cv:
             while True:
                 while self._job is None and not self._closed:
-                    self._cv.wait()
+                    if not self._cv.wait(self.idle_s) and self._job is None:
+                        self._thread = None             # idle: the next take starts another
+                        return
                 if self._closed:
                     return
                 shape, sigma, out = self._job

@@ -212,6 +212,24 @@ def test_noise_drawn_ahead_is_each_draw_in_order_even_when_the_frame_changes():
     ahead.close()
 
 
+def test_noise_thread_ends_when_idle_and_the_next_take_starts_another():
+    """An idle thread ends (an object nobody closes keeps no thread); the draws go on in
+    order across the restart."""
+    def direct(rng):
+        n = rng.standard_normal((3, 5), dtype=np.float32)
+        n *= 1.5
+        return n
+    ref, ahead = np.random.default_rng(4), NoiseAhead(np.random.default_rng(4))
+    ahead.idle_s = 0.0                       # end as soon as the frame ahead is drawn
+    for _ in range(3):
+        assert np.array_equal(ahead.take((3, 5), 1.5), direct(ref))
+        thread = ahead._thread
+        if thread is not None:
+            thread.join(timeout=60)
+        assert not thread or not thread.is_alive()
+    ahead.close()
+
+
 def test_sim_camera_frames_do_not_depend_on_the_noise_drawn_ahead():
     """Two cameras with one seed give the same frames; so does one reopened (it starts its
     noise again from the seed, as before drawing ahead)."""
