@@ -69,23 +69,24 @@ def _stuff_step(state: int, bit: int) -> tuple[int, int]:
     return 1 + 4 * bit, 0
 
 
-def _stuff_tables() -> tuple[list[list[tuple[int, int]]], list[list[tuple[int, int]]]]:
-    """Per state: the (next state, stuff bits) of one bit, and of each byte (MSB first)."""
-    bit_table = [[_stuff_step(st, b) for b in (0, 1)] for st in range(9)]
-    byte_table = []
+def _stuff_table(bit_table: list[list[tuple[int, int]]], width: int) -> list[list[tuple[int, int]]]:
+    """Per stuffing state: the (next state, stuff bits) of each ``width``-bit value, MSB
+    first, carried through ``bit_table``."""
+    table = []
     for st0 in range(9):
         row = []
-        for byte in range(256):
+        for value in range(1 << width):
             st, n = st0, 0
-            for k in range(7, -1, -1):
-                st, d = bit_table[st][(byte >> k) & 1]
+            for k in range(width - 1, -1, -1):
+                st, d = bit_table[st][(value >> k) & 1]
                 n += d
             row.append((st, n))
-        byte_table.append(row)
-    return bit_table, byte_table
+        table.append(row)
+    return table
 
 
-_STUFF_BIT, _STUFF_BYTE = _stuff_tables()
+_STUFF_BIT = [[_stuff_step(st, b) for b in (0, 1)] for st in range(9)]   # per state, of one bit
+_STUFF_BYTE = _stuff_table(_STUFF_BIT, 8)
 
 
 def _stuff_bits(value: int, nbits: int) -> int:
@@ -150,23 +151,7 @@ def _data_frame_bits(arbitration_id: int, extended: bool, remote: bool, dlc: int
     return n + _stuff_bits(value, n) + _FIXED_TAIL_BITS
 
 
-def _stuff_crc7_table() -> list[list[tuple[int, int]]]:
-    """Per stuffing state: the (next state, stuff bits) of each 7-bit value (MSB first), the
-    first 7 bits of a CRC-15 (its last 8 go through the byte table)."""
-    table = []
-    for st0 in range(9):
-        row = []
-        for value in range(128):
-            st, n = st0, 0
-            for k in range(6, -1, -1):
-                st, d = _STUFF_BIT[st][(value >> k) & 1]
-                n += d
-            row.append((st, n))
-        table.append(row)
-    return table
-
-
-_STUFF_CRC7 = _stuff_crc7_table()
+_STUFF_CRC7 = _stuff_table(_STUFF_BIT, 7)   # a CRC-15's first 7 bits (its last 8: the byte table)
 
 
 @functools.lru_cache(maxsize=4096)
