@@ -29,7 +29,6 @@ from typing import Sequence, Union
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from cell.errors import ConfigError
 from cell.vision.camera_model import Distortion, VisionError, distort, undistort
@@ -419,6 +418,7 @@ def _fit(px: np.ndarray, mm: np.ndarray, w: int, h: int, f: float, distortion: b
             xd, yd = distort(x[:, 0], x[:, 1], Distortion(*p[8:]))
             return (np.column_stack([xd, yd]) - norm).ravel() * f
 
+        from scipy.optimize import least_squares   # 0.1 s to import; the cell never fits distortion
         sol = least_squares(resid, np.concatenate([h0.ravel()[:8], np.zeros(4)]), method="lm",
                             x_scale="jac", xtol=1e-12, ftol=1e-12)
         if not sol.success or not np.all(np.isfinite(sol.x)):

@@ -91,3 +91,13 @@ def test_a_command_parsed_alone_parses_as_with_every_command():
     from cell.cli import build_parser
     argv = ["--log-level", "INFO", "diagnose", "some/dir", "--json"]
     assert vars(build_parser("diagnose").parse_args(argv)) == vars(build_parser().parse_args(argv))
+
+
+def test_the_cell_starts_without_scipy_optimize():
+    # the cell's own modules (what cellctl run and serve import) leave scipy.optimize, 0.1 s
+    # of start-up, to the camera calibration's distortion fit, the one caller that needs it
+    probe = "import sys, cell.app, cell.sim.assembly; print('scipy.optimize' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "False"
