@@ -13,6 +13,7 @@ command (``cellctl diagnose DIR``) imports only that command's module
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import importlib.util
 import os
@@ -139,5 +140,16 @@ def main(argv: list[str] | None = None) -> int:
         return 141
 
 
+def entry() -> int:
+    """``cellctl``'s process entry: :func:`main`, then ``gc.freeze()``. What the command made
+    is then left to reference counting when the interpreter exits: its last collections
+    would otherwise pass over every object the command made (about 0.16 s of CPU after
+    ``cellctl run --sim``) to free what exiting frees anyway. Callers in a process that goes
+    on (tests) call :func:`main`."""
+    code = main()
+    gc.freeze()
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

@@ -101,3 +101,20 @@ def test_the_cell_starts_without_scipy_optimize():
                          timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "False"
+
+
+def test_the_cellctl_process_leaves_what_it_made_to_reference_counting_at_exit():
+    # cellctl's entry (the console script and python -m cell.cli) freezes the heap after the
+    # command, so exiting does not pass the collector over it; main itself, which tests call
+    # in a process that goes on, does not
+    import tomllib
+    scripts = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["cellctl"] == "cell.cli:entry"
+    probe = ("import gc, io, contextlib, sys; import cell.cli as c; sys.argv = ['cellctl', 'registers', "
+             "'--format', 'csv']\nwith contextlib.redirect_stdout(io.StringIO()):\n    c.main(sys.argv[1:])\n"
+             "before = gc.get_freeze_count()\nwith contextlib.redirect_stdout(io.StringIO()):\n    code = c.entry()\n"
+             "print(code, before, gc.get_freeze_count() > 1000)")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["0", "0", "True"]
