@@ -42,12 +42,15 @@ transmission errors, not the station.
 """
 from __future__ import annotations
 
+import functools
+import struct
 import threading
 from collections import deque
 from typing import Callable
 
 import can
 import canopen
+from canopen.objectdictionary.datatypes import INTEGER_TYPES
 from pydantic import BaseModel, ConfigDict, Field
 
 from cell.log import get_logger
@@ -96,19 +99,40 @@ class _DriveNetwork(canopen.Network):
             raise
 
 
-def _byte_layout(pdo_map) -> list[tuple[int, int, int, object]] | None:
-    """(index, byte offset, bytes, OD variable) of each variable a PDO maps, or None if one
-    does not sit on whole bytes (then canopen's own per-variable path is taken). The same
-    bytes as canopen's ``set_data`` / ``get_data`` for whole-byte variables, without their
-    per-call formatting for a debug line: a drive sends or takes a PDO every few ms."""
-    out = []
+class _PdoCodec:
+    """A PDO's mapped objects as one ``struct.Struct``: ``pack(*values)`` gives, and
+    ``unpack_from(data)`` reads, the same bytes as canopen's ``encode_raw`` / ``decode_raw``
+    per variable, in one call (a drive sends or takes a PDO every few ms).
+
+    ``indices``: the mapped objects' indices in map order; ``struct``: little-endian, their
+    integer types one after the other. Built by :func:`_pdo_codec`.
+    """
+
+    __slots__ = ("indices", "struct")
+
+    def __init__(self, indices: tuple[int, ...], fmt: str):
+        self.indices = indices
+        self.struct = struct.Struct(fmt)
+
+
+def _pdo_codec(pdo_map) -> _PdoCodec | None:
+    """The codec of ``pdo_map``, or None when a mapped variable is not an integer type on
+    whole bytes, the variables leave a gap, or nothing is mapped (then canopen's own
+    per-variable path is taken)."""
+    fmt, indices, at = "<", [], 0
     for v in pdo_map.map:
         if not v.length:
             continue
-        if v.offset % 8 or v.length % 8 or len(v.od) != v.length:
+        st = v.od.STRUCT_TYPES.get(v.od.data_type)
+        if (v.od.data_type not in INTEGER_TYPES or not isinstance(st, struct.Struct)
+                or v.offset != at or v.length != 8 * st.size or len(v.od) != v.length):
             return None
-        out.append((v.index, v.offset // 8, v.length // 8, v.od))
-    return out
+        fmt += st.format.lstrip("<")
+        indices.append(v.index)
+        at += v.length
+    if not indices or at != pdo_map.length:
+        return None
+    return _PdoCodec(tuple(indices), fmt)
 
 
 class SimStation:
@@ -173,7 +197,8 @@ class SimStation:
         self._hb_last: float | None = None
         self._hb_timed_out = False
         self._dirty_tpdo = True
-        self._layouts: dict[int, list | None] = {}     # id(PDO map) -> _byte_layout, at NMT start
+        self._codecs: dict[int, _PdoCodec | None] = {}   # id(PDO map) -> its codec, at NMT start
+        self._rx_subs: list[tuple[int, Callable]] = []   # (COB-ID, handler) of the RPDOs taken
         self._last_tpdo = -1e9
         self._last_pub: float | None = None
         self._t = self.clock.now()
@@ -184,8 +209,6 @@ class SimStation:
             self._pos_set = True
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
-        for n in (1, 2, 3):
-            self.node.rpdo[n].add_callback(self._on_rpdo)
         channel, bitrate = self._bus_args
         net = _DriveNetwork(VirtualCanBus(channel=channel, bitrate=bitrate, clock=self.clock),
                             self._on_tx_failure)
@@ -337,8 +360,9 @@ class SimStation:
         if data[0] == 0x01:  # start: (re)read the PDO configuration the master wrote
             self.node.rpdo.read()
             self.node.tpdo.read()
-            maps = [self.node.rpdo[n] for n in (1, 2, 3)] + [self.node.tpdo[1]]
-            self._layouts = {id(m): _byte_layout(m) for m in maps}
+            rpdos = [self.node.rpdo[n] for n in (1, 2, 3)]
+            self._codecs = {id(m): _pdo_codec(m) for m in rpdos + [self.node.tpdo[1]]}
+            self._take_rpdos(rpdos)
             with self._lock:
                 self._dirty_tpdo = True
         with self._lock:
@@ -364,18 +388,41 @@ class SimStation:
     def _operational(self) -> bool:
         return self.node is not None and self.network is not None and self.node.nmt.state == "OPERATIONAL"
 
-    def _on_rpdo(self, pdo_map) -> None:
+    def _take_rpdos(self, rpdos: list) -> None:
+        """Receive the enabled RPDOs in :meth:`_on_rpdo` itself, in place of canopen's
+        ``PdoMap.on_message`` (which ``read`` subscribed): the device side is ours, and
+        canopen's receive bookkeeping (a condition notified per frame for threads that
+        wait for a PDO) has no reader in a drive."""
+        net = self.network
+        if net is None:
+            return
+        for cob_id, handler in self._rx_subs:
+            if handler in net.subscribers.get(cob_id, ()):
+                net.unsubscribe(cob_id, handler)
+        self._rx_subs = []
+        for m in rpdos:
+            if m.on_message in net.subscribers.get(m.cob_id, ()):
+                net.unsubscribe(m.cob_id, m.on_message)
+            if m.enabled:
+                handler = functools.partial(self._on_rpdo, m)
+                net.subscribe(m.cob_id, handler)
+                self._rx_subs.append((m.cob_id, handler))
+
+    def _on_rpdo(self, pdo_map, can_id: int, data: bytes, timestamp: float) -> None:
+        """One RPDO frame (a network subscriber, see :meth:`_take_rpdos`)."""
+        if can_id != pdo_map.cob_id:
+            return
+        pdo_map.data = data
         if not self._operational():
             return
-        if len(pdo_map.data) * 8 < pdo_map.length:
-            self._emcy(EMCY_PDO_LENGTH, f"{pdo_map.name}: {len(pdo_map.data)} bytes, mapped {pdo_map.length} bits")
+        if len(data) * 8 < pdo_map.length:
+            self._emcy(EMCY_PDO_LENGTH, f"{pdo_map.name}: {len(data)} bytes, mapped {pdo_map.length} bits")
             return
-        layout = self._layouts.get(id(pdo_map))
-        if layout is None:
+        codec = self._codecs.get(id(pdo_map))
+        if codec is None:
             vals = {v.index: v.od.decode_raw(v.get_data()) for v in pdo_map.map if v.length}
         else:
-            data = pdo_map.data
-            vals = {index: od.decode_raw(data[at:at + n]) for index, at, n, od in layout}
+            vals = dict(zip(codec.indices, codec.struct.unpack_from(data)))
         now = self.clock.now()
         with self._lock:
             if 0x6040 in vals:
@@ -545,16 +592,15 @@ class SimStation:
             return
         live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
                 0x606C: int(round(self._velocity()))}
-        layout = self._layouts.get(id(tx))
-        if layout is None:
+        codec = self._codecs.get(id(tx))
+        if codec is None:
             for var in tx.map:
                 if var.length:
                     var.set_data(var.od.encode_raw(live.get(var.index, 0)))
         else:
-            for index, at, n, od in layout:
-                tx.data[at:at + n] = od.encode_raw(live.get(index, 0))
+            tx.data[:] = codec.struct.pack(*[live.get(i, 0) for i in codec.indices])
         try:
-            tx.transmit()
+            self.network.send_message(tx.cob_id, tx.data)
         except can.CanError as exc:
             self.log.info("tpdo_not_sent", error=str(exc))
 
