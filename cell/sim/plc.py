@@ -266,7 +266,7 @@ class SimPlc:
         """
         errors_before = len(self.write_errors)
         bits = lambda img: self.map.bits("status_word", img["status_word"])  # noqa: E731
-        finished = lambda img: any(bits(img)[k] for k in ("done", "error", "aborted"))  # noqa: E731
+        finished = self._any_status("done", "error", "aborted")
 
         status_before = self.inputs()["recipe_status"]
 
@@ -293,7 +293,7 @@ class SimPlc:
                               f"{img['recipe_status']}")
         if finished(img):
             self._pulse_acknowledge(timeout_s)
-        self.wait_until(lambda i: bits(i)["ready"], timeout_s, "ready")   # PLCopen: execute only when ready
+        self.wait_until(self._any_status("ready"), timeout_s, "ready")   # PLCopen: execute only when ready
         self.set_command(execute=True)
         try:
             img = self.wait_until(finished, timeout_s, "done, error or aborted")
@@ -314,14 +314,14 @@ class SimPlc:
         Raises SimPlcError if a write is refused or a step times out (clock seconds)."""
         errors_before = len(self.write_errors)
         bits = lambda img: self.map.bits("status_word", img["status_word"])  # noqa: E731
-        finished = lambda img: any(bits(img)[k] for k in ("done", "error", "aborted"))  # noqa: E731
+        finished = self._any_status("done", "error", "aborted")
         self._set_output("calibration_select", select)
         self.wait_until(lambda i: i["calibration_select"] == select or self._refused_since(errors_before),
                         5.0, "calibration_select read-back")
         self._raise_refused(errors_before)
         if finished(self.inputs()):
             self._pulse_acknowledge(5.0)
-        self.wait_until(lambda i: bits(i)["ready"], 5.0, "ready")
+        self.wait_until(self._any_status("ready"), 5.0, "ready")
         self.set_command(calibrate=True)
         try:
             img = self.wait_until(finished, timeout_s, "calibration done, error or aborted")
@@ -338,9 +338,8 @@ class SimPlc:
         """Acknowledge clears done/aborted; an error (latched fault) needs :meth:`reset`."""
         self.set_command(acknowledge=True)
         try:
-            self.wait_until(lambda i: not any(self.map.bits("status_word", i["status_word"])[k]
-                                              for k in ("done", "aborted")),
-                            timeout_s, "done/aborted cleared by acknowledge")
+            pending = self._any_status("done", "aborted")
+            self.wait_until(lambda i: not pending(i), timeout_s, "done/aborted cleared by acknowledge")
         finally:
             self.set_command(acknowledge=False)
 
@@ -349,10 +348,16 @@ class SimPlc:
         the fault's cause is gone). Raises SimPlcError on timeout."""
         self.set_command(reset=True)
         try:
-            self.wait_until(lambda i: not self.map.bits("status_word", i["status_word"])["error"],
-                            timeout_s, "error cleared by reset")
+            error = self._any_status("error")
+            self.wait_until(lambda i: not error(i), timeout_s, "error cleared by reset")
         finally:
             self.set_command(reset=False)
+
+    def _any_status(self, *names: str) -> Callable[[Mapping[str, int]], bool]:
+        """A predicate on an input image: any of the named ``status_word`` bits is set (one
+        mask, where decoding every bit of the word took most of a scan's own time)."""
+        mask = self.map.mask("status_word", *names)
+        return lambda img: img["status_word"] & mask != 0
 
     def _refused_since(self, n: int) -> bool:
         return len(self.write_errors) > n

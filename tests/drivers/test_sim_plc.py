@@ -431,3 +431,14 @@ def test_fast_register_responses_decode_as_pymodbus_does():
             assert a.registers == b.registers == words and a.function_code == b.function_code
     with pytest.raises(ModbusIOException):
         _RegistersResponse().decode(bytes([8, 0, 1]))          # byte count beyond the packet
+
+
+@pytest.mark.parametrize("names", [("done", "error", "aborted"), ("done", "aborted"), ("ready",), ("error",)])
+def test_status_predicates_read_the_named_bits_as_the_bit_table_does(names):
+    """The handshake's waits test status_word with one mask: the same answer as the map's
+    named bits, for every word (a mask off by a bit would wait for the wrong state)."""
+    plc = SimPlc("127.0.0.1", 1, clock=VirtualClock())   # never started: no connection
+    pred = plc._any_status(*names)
+    for word in range(1 << 16):
+        named = PLC_MAP.bits("status_word", word)
+        assert pred({"status_word": word}) is any(named[k] for k in names), (names, hex(word))
