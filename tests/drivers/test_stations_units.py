@@ -37,6 +37,25 @@ def test_statusword_round_trip(state):
     assert cia402.decode_statusword(cia402.encode_statusword(state, cia402.SW_TARGET_REACHED)) is state
 
 
+# the drive's words as CiA 402-2 builds them: the state's bits (table 30), voltage enabled
+# (bit 4) in Ready to switch on, Switched on, Operation enabled and Quick stop active, remote
+# (bit 9) always, and any other bit the caller sets where the state's mask leaves room
+@pytest.mark.parametrize("state, word", [
+    (State.NOT_READY_TO_SWITCH_ON, 0x0200), (State.SWITCH_ON_DISABLED, 0x0240),
+    (State.READY_TO_SWITCH_ON, 0x0231), (State.SWITCHED_ON, 0x0233),
+    (State.OPERATION_ENABLED, 0x0237), (State.QUICK_STOP_ACTIVE, 0x0217),
+    (State.FAULT_REACTION_ACTIVE, 0x020F), (State.FAULT, 0x0208),
+])
+def test_statusword_encodes(state, word):
+    assert cia402.encode_statusword(state) == word
+    extra = cia402.SW_TARGET_REACHED | cia402.SW_SETPOINT_ACK | cia402.SW_FOLLOWING_ERROR
+    assert cia402.encode_statusword(state, extra) == word | extra
+    mask = state.value[0]
+    for bits in range(1 << 16):                    # the state's own bits never change
+        assert cia402.encode_statusword(state, bits) & mask == state.value[1]
+        assert cia402.encode_statusword(state, bits) == word | (bits & ~mask & 0xFFFF)
+
+
 @pytest.mark.parametrize("bad", [-1, 0x10000, 1.5, "0x27", True])
 def test_statusword_bad_input(bad):
     with pytest.raises(IllegalTransition, match="not a 16-bit"):
