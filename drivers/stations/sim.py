@@ -56,7 +56,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from cell.log import get_logger
 from cell.sim.clock import Timer, VirtualClock
 from drivers.stations import cia402
-from drivers.stations.bus import connect_network
 from drivers.stations.cia402 import Command, DriveStateMachine, Internal, State
 from drivers.stations.config import JOINT_NAMES
 from drivers.stations.driver import EDS_PATH
@@ -97,6 +96,25 @@ class _DriveNetwork(canopen.Network):
         except can.CanError as exc:
             self._on_tx_failure(exc)
             raise
+
+
+class _DriveListener(can.Listener):
+    """Hands each frame the drive's bus receives straight to its network's subscribers:
+    canopen's ``MessageListener`` and ``Network.notify`` in one step, without the node
+    scanner (which notes every sender for a node scan a drive never makes). Error and
+    remote frames are dropped, as canopen drops them."""
+
+    def __init__(self, net: canopen.Network):
+        self._subscribers = net.subscribers
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame:
+            return
+        callbacks = self._subscribers.get(msg.arbitration_id)
+        if callbacks:
+            can_id, data, timestamp = msg.arbitration_id, msg.data, msg.timestamp
+            for callback in callbacks:
+                callback(can_id, data, timestamp)
 
 
 class _PdoCodec:
@@ -216,11 +234,10 @@ class SimStation:
         sdo = self.node.sdo                 # requests pass the drop hook first (drop_sdo_requests)
         net.unsubscribe(sdo.rx_cobid, sdo.on_request)
         net.subscribe(sdo.rx_cobid, self._on_sdo_request)
-        connect_network(net)
+        net.bus.attach_listeners([_DriveListener(net)])
         net.subscribe(0, self._on_nmt)
         net.subscribe(0x80, self._on_sync)
-        # only what this drive subscribes to (canopen's own notify skips the rest as well,
-        # after noting the sender for a node scan this drive never makes)
+        # only what this drive subscribes to (its listener skips the rest as well)
         net.bus.wants = net.subscribers.__contains__
         self.network = net
         self.machine.apply(Internal.SELF_TEST_DONE)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import struct
 
+import can
 import canopen
 import pytest
 
@@ -61,3 +62,23 @@ def test_an_rpdo_is_taken_once_after_the_node_is_started_again(rig):  # noqa: F8
     t_end = _setpoint(rig, 1000, 100_000)
     rig.clock.sleep(0.005)
     assert st.applied == [(t_end, 1000, 100_000)] and st.applied_count == 1
+
+
+def test_the_drive_listener_hands_data_frames_to_the_subscribers_in_order():
+    from drivers.stations.sim import _DriveListener
+    net = canopen.Network()
+    got = []
+    net.subscribe(0x202, lambda *a: got.append(("first", *a)))
+    net.subscribe(0x202, lambda *a: got.append(("second", *a)))
+    listener = _DriveListener(net)
+    listener.on_message_received(can.Message(arbitration_id=0x202, data=b"\x01\x02", timestamp=1.5,
+                                             is_extended_id=False))
+    assert got == [("first", 0x202, bytearray(b"\x01\x02"), 1.5), ("second", 0x202, bytearray(b"\x01\x02"), 1.5)]
+    del got[:]
+    listener.on_message_received(can.Message(arbitration_id=0x202, is_remote_frame=True, is_extended_id=False))
+    listener.on_message_received(can.Message(arbitration_id=0x202, is_error_frame=True, is_extended_id=False))
+    listener.on_message_received(can.Message(arbitration_id=0x203, data=b"\x01", is_extended_id=False))
+    assert got == []                          # remote and error frames dropped, as canopen drops them
+    net.subscribe(0x203, lambda *a: got.append(a))   # subscribed later: seen from then on
+    listener.on_message_received(can.Message(arbitration_id=0x203, data=b"\x01", is_extended_id=False))
+    assert got == [(0x203, bytearray(b"\x01"), 0.0)]
