@@ -313,7 +313,8 @@ def render_float(model: CameraModel, items: Iterable, optics: Optics,
         du = np.linspace(-1.0, 1.0, w)[None, :]
         dv = np.linspace(-1.0, 1.0, h)[:, None]
         img *= optics.gain * (1.0 + gx * du + gy * dv)
-    img += optics.offset
+    if optics.offset:                                   # adding 0.0 changes no grey level
+        img += optics.offset
     return img
 
 

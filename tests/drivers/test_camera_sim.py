@@ -241,3 +241,22 @@ def test_sim_camera_frames_do_not_depend_on_the_noise_drawn_ahead():
     a.close(), a.open()
     assert np.array_equal(first[0], a.grab().image)
     a.close(), b.close()
+
+
+@pytest.mark.parametrize("optics", [
+    Optics(), Optics(noise_sigma=40.0, contrast=400.0, background=2.0),   # clipped at both ends
+    Optics(gain=1.2, offset=4.5, gradient=(0.1, -0.05), noise_sigma=3.0), Optics(noise_sigma=0.0),
+])
+def test_the_frame_is_the_rounded_then_clipped_grey_levels(optics):
+    """Each pixel is render_float + noise rounded half to even, then clipped to 0..255."""
+    scene = [Fiducial(0.3, -0.2, 3.0, "tool"), Fiducial(4.0, 2.5, 1.5, "part")]
+    want = render_float(NADIR, scene, optics)
+    if optics.noise_sigma > 0:
+        noise = np.random.default_rng(9).standard_normal(want.shape, dtype=np.float32)
+        noise *= optics.noise_sigma
+        want += noise
+    want = np.clip(np.rint(want), 0, 255).astype(np.uint8)
+    got = render(NADIR, scene, optics, np.random.default_rng(9))
+    assert got.dtype == np.uint8 and np.array_equal(got, want)
+    if optics.contrast == 400.0:
+        assert got.min() == 0 and got.max() == 255
