@@ -225,6 +225,7 @@ class SimStation:
             self._pos = self.cfg.initial_position * self.cfg.counts_per_unit
             self._target = self._pos
             self._pos_set = True
+        self._tpdo1 = self.node.tpdo[1]     # the one TPDO the drive sends (its map is read in place)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         channel, bitrate = self._bus_args
@@ -378,7 +379,7 @@ class SimStation:
             self.node.rpdo.read()
             self.node.tpdo.read()
             rpdos = [self.node.rpdo[n] for n in (1, 2, 3)]
-            self._codecs = {id(m): _pdo_codec(m) for m in rpdos + [self.node.tpdo[1]]}
+            self._codecs = {id(m): _pdo_codec(m) for m in rpdos + [self._tpdo1]}
             self._take_rpdos(rpdos)
             with self._lock:
                 self._dirty_tpdo = True
@@ -597,14 +598,16 @@ class SimStation:
                 self.machine.apply(Internal.REACTION_DONE)
                 self._dirty_tpdo = True
             self._publish(now)
-            event_s = self._value(0x1800, 5) / 1000.0 if self.node is not None else 0.0
-            if (self._dirty_tpdo or (event_s > 0 and now >= self._last_tpdo + event_s)) and self._operational():
+            # TPDOs, their event timer included, in Operational only (a send never changes that)
+            operational = self._operational()
+            event_s = self._value(0x1800, 5) / 1000.0 if operational else 0.0
+            if operational and (self._dirty_tpdo or (event_s > 0 and now >= self._last_tpdo + event_s)):
                 self._dirty_tpdo, self._last_tpdo = False, now
                 self._send_tpdo()
             self._schedule(now, event_s)
 
     def _send_tpdo(self) -> None:
-        tx = self.node.tpdo[1]
+        tx = self._tpdo1
         if not (tx.enabled and tx.map):
             return
         live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
@@ -622,12 +625,14 @@ class SimStation:
             self.log.info("tpdo_not_sent", error=str(exc))
 
     def _schedule(self, now: float, event_s: float) -> None:
+        """Wake at the next due event; ``event_s``: the TPDO event timer's period, 0 when it
+        does not run (off, or not Operational)."""
         if not self._powered:
             return
         due = []
         if self._setpoints:
             due.append(self._setpoints[0][0])
-        if event_s > 0 and self._operational():
+        if event_s > 0:
             due.append(self._last_tpdo + event_s)
         if self._hb_node is not None and self._hb_last is not None and not self._hb_timed_out:
             due.append(self._hb_last + self._hb_time_s)

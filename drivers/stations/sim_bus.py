@@ -67,7 +67,7 @@ class VirtualWire:
         self.free_at = end
         self.frames += 1
         self.bits += bits
-        stamped = copy(msg)
+        stamped = msg.__copy__()               # copy(msg), less the copy module's dispatch
         stamped.timestamp = end
         sender._pending += 1
         self.clock.call_at(end, self._deliver, stamped, sender)

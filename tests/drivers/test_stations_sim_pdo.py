@@ -82,3 +82,23 @@ def test_the_drive_listener_hands_data_frames_to_the_subscribers_in_order():
     net.subscribe(0x203, lambda *a: got.append(a))   # subscribed later: seen from then on
     listener.on_message_received(can.Message(arbitration_id=0x203, data=b"\x01", is_extended_id=False))
     assert got == [(0x203, bytearray(b"\x01"), 0.0)]
+
+
+@pytest.mark.parametrize("rig", [{"heartbeat": False}], indirect=True)
+def test_tpdos_and_their_event_timer_only_in_operational(rig):  # noqa: F811
+    clock, st = rig.clock, rig.st
+    clock.sleep(0.05)
+    assert len(rig.tpdos) >= 5                       # the 10 ms event timer runs
+    rig.node.nmt.state = "PRE-OPERATIONAL"
+    clock.sleep(0.001)
+    del rig.tpdos[:]
+    runs = clock.callbacks_run
+    clock.sleep(0.1)
+    assert rig.tpdos == [] and st._wake_at is None  # no TPDO, and no wake-up for one
+    assert clock.callbacks_run == runs
+    rig.node.nmt.state = "OPERATIONAL"
+    t_start = clock.now()
+    clock.sleep(0.0305)
+    stamps = [t for t, _ in rig.tpdos]
+    assert len(stamps) == 4 and t_start < stamps[0] < t_start + 0.001   # at once (NMT start), then every 10 ms
+    assert [round(b - a, 9) for a, b in zip(stamps, stamps[1:])] == [0.01, 0.01, 0.01]
