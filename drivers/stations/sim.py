@@ -43,14 +43,12 @@ transmission errors, not the station.
 from __future__ import annotations
 
 import functools
-import struct
 import threading
 from collections import deque
 from typing import Callable
 
 import can
 import canopen
-from canopen.objectdictionary.datatypes import INTEGER_TYPES
 from pydantic import BaseModel, ConfigDict, Field
 
 from cell.log import get_logger
@@ -60,6 +58,7 @@ from drivers.stations.cia402 import Command, DriveStateMachine, Internal, State
 from drivers.stations.config import JOINT_NAMES
 from drivers.stations.driver import EDS_PATH
 from drivers.stations.sim_bus import VirtualCanBus
+from drivers.stations.sim_canopen import DriveListener, DriveNetwork, PdoCodec, pdo_codec
 
 EMCY_LIMIT, EMCY_FOLLOWING, EMCY_HEARTBEAT, EMCY_PDO_LENGTH = 0x8612, 0x8611, 0x8130, 0x8210
 #: :attr:`SimStation.applied` keeps at least this many of the latest set-points (at most
@@ -81,76 +80,6 @@ class SimStationConfig(BaseModel):
     #: the twin's mechanics (encoder increments × gear / 360), used only to place the axis
     #: at ``initial_position`` at first power-up; afterwards the encoder count is the truth
     counts_per_unit: float = Field(default=10_000 / 360, gt=0)
-
-
-class _DriveNetwork(canopen.Network):
-    """The station's side of the bus: a send the wire refuses puts the node bus-off."""
-
-    def __init__(self, bus: can.BusABC, on_tx_failure: Callable[[Exception], None]):
-        super().__init__(bus)
-        self._on_tx_failure = on_tx_failure
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        try:
-            super().send_message(can_id, data, remote)
-        except can.CanError as exc:
-            self._on_tx_failure(exc)
-            raise
-
-
-class _DriveListener(can.Listener):
-    """Hands each frame the drive's bus receives straight to its network's subscribers:
-    canopen's ``MessageListener`` and ``Network.notify`` in one step, without the node
-    scanner (which notes every sender for a node scan a drive never makes). Error and
-    remote frames are dropped, as canopen drops them."""
-
-    def __init__(self, net: canopen.Network):
-        self._subscribers = net.subscribers
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_error_frame or msg.is_remote_frame:
-            return
-        callbacks = self._subscribers.get(msg.arbitration_id)
-        if callbacks:
-            can_id, data, timestamp = msg.arbitration_id, msg.data, msg.timestamp
-            for callback in callbacks:
-                callback(can_id, data, timestamp)
-
-
-class _PdoCodec:
-    """A PDO's mapped objects as one ``struct.Struct``: ``pack(*values)`` gives, and
-    ``unpack_from(data)`` reads, the same bytes as canopen's ``encode_raw`` / ``decode_raw``
-    per variable, in one call (a drive sends or takes a PDO every few ms).
-
-    ``indices``: the mapped objects' indices in map order; ``struct``: little-endian, their
-    integer types one after the other. Built by :func:`_pdo_codec`.
-    """
-
-    __slots__ = ("indices", "struct")
-
-    def __init__(self, indices: tuple[int, ...], fmt: str):
-        self.indices = indices
-        self.struct = struct.Struct(fmt)
-
-
-def _pdo_codec(pdo_map) -> _PdoCodec | None:
-    """The codec of ``pdo_map``, or None when a mapped variable is not an integer type on
-    whole bytes, the variables leave a gap, or nothing is mapped (then canopen's own
-    per-variable path is taken)."""
-    fmt, indices, at = "<", [], 0
-    for v in pdo_map.map:
-        if not v.length:
-            continue
-        st = v.od.STRUCT_TYPES.get(v.od.data_type)
-        if (v.od.data_type not in INTEGER_TYPES or not isinstance(st, struct.Struct)
-                or v.offset != at or v.length != 8 * st.size or len(v.od) != v.length):
-            return None
-        fmt += st.format.lstrip("<")
-        indices.append(v.index)
-        at += v.length
-    if not indices or at != pdo_map.length:
-        return None
-    return _PdoCodec(tuple(indices), fmt)
 
 
 class SimStation:
@@ -215,7 +144,7 @@ class SimStation:
         self._hb_last: float | None = None
         self._hb_timed_out = False
         self._dirty_tpdo = True
-        self._codecs: dict[int, _PdoCodec | None] = {}   # id(PDO map) -> its codec, at NMT start
+        self._codecs: dict[int, PdoCodec | None] = {}   # id(PDO map) -> its codec, at NMT start
         self._rx_subs: list[tuple[int, Callable]] = []   # (COB-ID, handler) of the RPDOs taken
         self._last_tpdo = -1e9
         self._last_pub: float | None = None
@@ -229,13 +158,13 @@ class SimStation:
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         channel, bitrate = self._bus_args
-        net = _DriveNetwork(VirtualCanBus(channel=channel, bitrate=bitrate, clock=self.clock),
+        net = DriveNetwork(VirtualCanBus(channel=channel, bitrate=bitrate, clock=self.clock),
                             self._on_tx_failure)
         net.add_node(self.node)
         sdo = self.node.sdo                 # requests pass the drop hook first (drop_sdo_requests)
         net.unsubscribe(sdo.rx_cobid, sdo.on_request)
         net.subscribe(sdo.rx_cobid, self._on_sdo_request)
-        net.bus.attach_listeners([_DriveListener(net)])
+        net.bus.attach_listeners([DriveListener(net)])
         net.subscribe(0, self._on_nmt)
         net.subscribe(0x80, self._on_sync)
         # only what this drive subscribes to (its listener skips the rest as well)
@@ -379,7 +308,7 @@ class SimStation:
             self.node.rpdo.read()
             self.node.tpdo.read()
             rpdos = [self.node.rpdo[n] for n in (1, 2, 3)]
-            self._codecs = {id(m): _pdo_codec(m) for m in rpdos + [self._tpdo1]}
+            self._codecs = {id(m): pdo_codec(m) for m in rpdos + [self._tpdo1]}
             self._take_rpdos(rpdos)
             with self._lock:
                 self._dirty_tpdo = True

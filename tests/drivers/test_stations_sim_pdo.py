@@ -10,7 +10,7 @@ import canopen
 import pytest
 
 from drivers.stations.driver import EDS_PATH
-from drivers.stations.sim import _pdo_codec
+from drivers.stations.sim_canopen import DriveListener, pdo_codec
 from tests.drivers.test_stations_sim import _setpoint, rig  # noqa: F401 -- the rig fixture
 
 
@@ -25,7 +25,7 @@ def node():
 @pytest.mark.parametrize("values", [(0, 0), (-2**31, 0xFFFF), (2**31 - 1, 0x1237), (-138889, 0x0627)])
 def test_tpdo_codec_packs_the_bytes_canopen_would(node, values):
     tx = node.tpdo[1]
-    codec = _pdo_codec(tx)
+    codec = pdo_codec(tx)
     assert codec is not None and codec.indices == (0x6064, 0x6041)
     live = dict(zip(codec.indices, values))
     for var in tx.map:                        # canopen's own path, variable by variable
@@ -36,7 +36,7 @@ def test_tpdo_codec_packs_the_bytes_canopen_would(node, values):
 
 def test_rpdo_codec_reads_what_canopen_reads(node):
     rx = node.rpdo[1]
-    codec = _pdo_codec(rx)
+    codec = pdo_codec(rx)
     data = struct.pack("<iI", -123456, 987654)
     rx.data = bytearray(data)
     want = {v.index: v.od.decode_raw(v.get_data()) for v in rx.map if v.length}
@@ -48,9 +48,9 @@ def test_a_map_off_whole_bytes_takes_canopens_path(node):
     tx.clear()
     tx.add_variable(0x6041, length=4)         # half a statusword: no struct for that
     tx.add_variable(0x6064)
-    assert _pdo_codec(tx) is None
+    assert pdo_codec(tx) is None
     tx.clear()
-    assert _pdo_codec(tx) is None             # nothing mapped
+    assert pdo_codec(tx) is None             # nothing mapped
 
 
 def test_an_rpdo_is_taken_once_after_the_node_is_started_again(rig):  # noqa: F811
@@ -65,12 +65,11 @@ def test_an_rpdo_is_taken_once_after_the_node_is_started_again(rig):  # noqa: F8
 
 
 def test_the_drive_listener_hands_data_frames_to_the_subscribers_in_order():
-    from drivers.stations.sim import _DriveListener
     net = canopen.Network()
     got = []
     net.subscribe(0x202, lambda *a: got.append(("first", *a)))
     net.subscribe(0x202, lambda *a: got.append(("second", *a)))
-    listener = _DriveListener(net)
+    listener = DriveListener(net)
     listener.on_message_received(can.Message(arbitration_id=0x202, data=b"\x01\x02", timestamp=1.5,
                                              is_extended_id=False))
     assert got == [("first", 0x202, bytearray(b"\x01\x02"), 1.5), ("second", 0x202, bytearray(b"\x01\x02"), 1.5)]
