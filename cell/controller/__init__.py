@@ -97,6 +97,12 @@ class OutputWriter:
         self._status = {**old_status, **down, **up}
         self._registers = {**old, **changed}
 
+    def write_heartbeat(self, value: int) -> None:
+        """A scan whose outputs are the last ones but for ``controller_heartbeat``."""
+        if self._registers.get("controller_heartbeat") != value:
+            self.plc.write_many({"controller_heartbeat": value})
+            self._registers = {**self._registers, "controller_heartbeat": value}
+
 
 class CellController:
     """Owns the core and the scan task; devices are injected."""
@@ -252,14 +258,42 @@ class CellController:
 
     # ------------------------------------------------------------------ one scan
     def scan(self) -> None:
-        """Read inputs, step the core, write outputs, act."""
+        """Read inputs, step the core, write outputs, act.
+
+        A scan with no news (no PLC write, no station fault, no cycle end, drive reset or
+        recipe refresh to take) that the core finds would change nothing but its heartbeat
+        (:meth:`ControllerCore.quiet_step`) writes only that, and publishes the status only
+        when the joints are due to be sampled or the link's owner changed: what else the
+        status shows is the core's, unchanged."""
         self.scans += 1
-        self._tag_owner()
-        out = self.core.step(self._read())
+        owner_changed = self._tag_owner()
+        writes = self.plc.drain_writes()
+        if not writes and not self._news():
+            now = self.clock.now()
+            hb = self.core.quiet_step(now, self.plc.last_heartbeat_change,
+                                      self.runner.progress if self._job is not None else None,
+                                      self.recalibration_due, self._plant_backlog())
+            if hb is not None:
+                self._outputs.write_heartbeat(hb)
+                self._audit_refusals()
+                if owner_changed or now - self._joints_at >= JOINTS_SAMPLE_S:
+                    self.publisher.status(now, self.status_snapshot())
+                return
+        out = self.core.step(self._read(writes))
         self._write(out.status, out.registers)
         self._apply(out.actions)
         self._audit_refusals()
         self.publisher.status(self.clock.now(), self.status_snapshot())
+
+    def _news(self) -> bool:
+        """Something for the core to take besides the PLC's writes: a station fault, or the
+        end of the running cycle, of the oldest drive reset or of a recipe refresh."""
+        return (self.motion.fault is not None or (self._job is not None and self._job.done)
+                or bool(self._resets and self._resets[0][1].done)
+                or (self._refresh is not None and self._refresh.done))
+
+    def _plant_backlog(self) -> int:
+        return (self.plant_backlog() or 0) if self.plant_backlog is not None else 0
 
     def status_snapshot(self) -> dict:
         """What a PLC or an operator looks at, as published on ``status`` (:mod:`cell.publish`):
@@ -288,13 +322,16 @@ class CellController:
                 self._joints = [round(float(v), JOINTS_DIGITS) for v in q]
         return self._joints
 
-    def _tag_owner(self) -> None:
-        """Every log line of the scan thread names the PLC client that owns the link."""
+    def _tag_owner(self) -> bool:
+        """Every log line of the scan thread names the PLC client that owns the link; True
+        if the owner changed."""
         owner = self.plc.owner
-        if owner != self._owner:
-            self._owner = owner
-            structlog.contextvars.bind_contextvars(plc_owner=owner)
-            log.info("plc_owner_changed", owner=owner)
+        if owner == self._owner:
+            return False
+        self._owner = owner
+        structlog.contextvars.bind_contextvars(plc_owner=owner)
+        log.info("plc_owner_changed", owner=owner)
+        return True
 
     def _audit_refusals(self) -> None:
         """Writes the link refused (not the owner, or a role without the right) go to the
@@ -307,7 +344,8 @@ class CellController:
             who = f"plc {r.client}" + (f" ({r.role})" if r.role else "")
             self._apply([Audit(who, "plc_write_refused", r.reason, f"{r.count} refused with exception 01")])
 
-    def _read(self) -> ScanInputs:
+    def _read(self, writes: list) -> ScanInputs:
+        """This scan's inputs, with the PLC's ``writes`` already drained."""
         ended = None
         if self._job is not None and self._job.done:
             ended = self._task_outcome()
@@ -321,7 +359,7 @@ class CellController:
             self._refresh = None
         recipes, self._recipes_in = self._recipes_in, RecipesIn(self._recipes_in.numbers)
         return ScanInputs(
-            now=self.clock.now(), writes=tuple(self.plc.drain_writes()),
+            now=self.clock.now(), writes=tuple(writes),
             last_heartbeat_change=self.plc.last_heartbeat_change,
             command_word=self.plc.read("command_word"), part_id=self.plc.read("part_id"),
             calibration_select=self.plc.read("calibration_select"),
@@ -329,7 +367,7 @@ class CellController:
             cycle_step=self.runner.progress if self._job is not None else None,
             cycle_ended=ended, drives_reset=reset, recipes=recipes,
             recalibration_due=self.recalibration_due,
-            plant_backlog=(self.plant_backlog() or 0) if self.plant_backlog is not None else 0)
+            plant_backlog=self._plant_backlog())
 
     def _station_fault(self) -> StationFaultIn | None:
         rec = self.motion.fault

@@ -214,6 +214,7 @@ class ControllerCore:
         self._link_ok = False
         self._heartbeat = 0
         self._cycle_running = False
+        self._recalibration_due = False          # as last written
         self._next_refresh = 0.0
         self._recipes = RecipesIn()
         self._now = 0.0
@@ -317,6 +318,34 @@ class ControllerCore:
             self._actions.append(RefreshRecipes())
         self.plant_backlog = min(max(int(inp.plant_backlog), 0), 0xFFFFFFFF)
         return self._outputs(inp.recalibration_due)
+
+    def quiet_step(self, now: float, last_heartbeat_change: float | None, cycle_step: State | None = None,
+                   recalibration_due: bool = False, plant_backlog: int = 0) -> int | None:
+        """:meth:`step` for a scan with no news, where it would change nothing but the
+        controller's heartbeat: then that is advanced and returned, and the scan's outputs are
+        the last ones with this heartbeat (no actions). Otherwise None and nothing changed:
+        call :meth:`step`.
+
+        No news is the caller's part: no PLC write, no station fault, no cycle end, drive
+        reset or recipe refresh to take, the same recipe numbers. The rest is checked here
+        with :meth:`step`'s own rules: the link's health (``now`` against
+        ``last_heartbeat_change``, s), the running cycle's step, a pending recipe selection,
+        the recipe refresh's time, ``recalibration_due`` and ``plant_backlog`` as last
+        written. Cheap: a few comparisons, no allocation.
+        """
+        s = self.settings
+        link_ok = last_heartbeat_change is not None and now - last_heartbeat_change <= s.plc_heartbeat_timeout_s
+        state = self.sm.state
+        if link_ok is not self._link_ok \
+                or self._pending_select is not None \
+                or bool(recalibration_due) is not bool(self._recalibration_due) \
+                or min(max(int(plant_backlog), 0), 0xFFFFFFFF) != self.plant_backlog \
+                or (cycle_step is not None and self._cycle_running and state in CYCLE_STEPS and state < cycle_step) \
+                or (not state.busy and not self._cycle_running and now >= self._next_refresh):
+            return None
+        self._now = now
+        self._heartbeat = (self._heartbeat + 1) & 0xFFFF
+        return self._heartbeat
 
     # ------------------------------------------------------------------ cycle
     def _follow(self, step: State) -> None:
@@ -515,6 +544,7 @@ class ControllerCore:
     # ------------------------------------------------------------------ outputs
     def _outputs(self, recalibration_due: bool) -> ScanOutputs:
         state = self.sm.state
+        self._recalibration_due = recalibration_due
         self._heartbeat = (self._heartbeat + 1) & 0xFFFF
         status = dict(
             ready=state is State.IDLE and self._link_ok and self._armed and self.fault_code == 0

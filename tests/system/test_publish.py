@@ -43,3 +43,28 @@ def test_settled_cycles_and_status_changes_are_published_as_the_log_and_plc_see_
             for s in states]
     assert all(a != b for a, b in zip(keys, keys[1:]))
     assert max(s["cycle_count"] for s in states) == 3
+
+
+def test_scans_with_no_news_stay_quiet_yet_the_moving_joints_are_published_every_sample(harness):
+    """Most scans of a cycle have no news and write only the heartbeat; the status still
+    carries the joints as they move, sampled every JOINTS_SAMPLE_S of those scans too."""
+    from cell.controller import JOINTS_SAMPLE_S
+    h = harness
+    ctl = h.controller
+    sub = h.cell.publisher.subscribe()
+    steps, scans0 = [], ctl.scans
+    real_step = ctl.core.step
+    ctl.core.step = lambda inp: steps.append(inp.now) or real_step(inp)
+    try:
+        h.cycle()
+    finally:
+        ctl.core.step = real_step
+    scans = ctl.scans - scans0
+    assert len(steps) < scans / 2, (len(steps), scans)          # the quiet step took the rest
+    status = [m for m in sub.drain() if m["topic"] == "status"]
+    sampled = [b["clock_s"] for a, b in zip(status, status[1:]) if a["joints"] != b["joints"]]
+    assert len(sampled) >= 5
+    # the joints change at the sampling period, as often as they can while moving
+    gaps = [round(b - a, 6) for a, b in zip(sampled, sampled[1:])]
+    assert min(gaps) >= JOINTS_SAMPLE_S - 1e-9
+    assert sum(g <= JOINTS_SAMPLE_S + 0.011 for g in gaps) >= len(gaps) // 2, gaps
