@@ -46,6 +46,7 @@ from drivers.stations import cia402
 from drivers.stations.bus import connect_network, open_bus
 from drivers.stations.cia402 import Command, State
 from drivers.stations.config import JOINT_NAMES, StationConfig, StationsConfig
+from drivers.stations.dispatch import FrameDispatch
 from drivers.stations.faults import (EMCY_TO_FAULT, BusMonitor, Expected, FaultCode, FaultLatch,
                                      FaultRecord, HeartbeatWatchdog, StationFaultError)
 from drivers.stations.bringup import BringUpMixin, StationStartupError, _remote_node  # noqa: F401
@@ -144,6 +145,8 @@ class JointStations(BringUpMixin, StreamingMixin):
                 f"{c.channel!r}: {exc}; check that the interface exists and is up{hint}") from None
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.05
+        dispatch = FrameDispatch(net.listeners[0])      # TPDOs straight to us, the rest to canopen
+        net.listeners[0] = dispatch
         od_path = str(EDS_PATH)
         for sc in c.stations:
             node = _remote_node(sc.node_id, od_path, self.clock)
@@ -154,7 +157,7 @@ class JointStations(BringUpMixin, StreamingMixin):
             self._stations.append(st)
             self._by_node[sc.node_id] = st
             node.tpdo.read(from_od=True)
-            node.tpdo[1].add_callback(self._tpdo_callback(st))
+            dispatch.handlers[0x180 + sc.node_id] = self._tpdo_handler(st)
             node.emcy.add_callback(self._emcy_callback(st))
         self.watchdog = HeartbeatWatchdog(
             self.latch, {s.cfg.node_id: s.joint for s in self._stations},
@@ -202,18 +205,20 @@ class JointStations(BringUpMixin, StreamingMixin):
             self.latch.latch(FaultRecord(FaultCode.STATION_RESET, what, st.joint, node_id))
 
     # ================================================================== callbacks (notifier thread)
-    def _tpdo_callback(self, s: _Station):
-        def on_tpdo(pdo_map) -> None:
-            if len(pdo_map.data) != 6:
+    def _tpdo_handler(self, s: _Station):
+        """The handler of ``s``'s TPDO1 (position, statusword), called by the network's
+        :class:`~drivers.stations.dispatch.FrameDispatch` with the frame's data and time."""
+        def on_tpdo(data: bytearray, timestamp: float) -> None:
+            if len(data) != 6:
                 return  # the bus monitor latches GARBAGE_FRAME for it
-            pos, sw = struct.unpack_from("<iH", pdo_map.data)
-            s.pos_inc, s.statusword, s.t_tpdo = pos, sw, pdo_map.timestamp
-            s.tpdo_data = bytes(pdo_map.data)
+            pos, sw = struct.unpack_from("<iH", data)
+            s.pos_inc, s.statusword, s.t_tpdo = pos, sw, timestamp
+            s.tpdo_data = bytes(data)
             s.tpdo_count += 1
             self._changed.set()
             rec = self._recording
             if rec is not None:
-                rec.append((pdo_map.timestamp, s.cfg.joint_index, pos / s.cpu))
+                rec.append((timestamp, s.cfg.joint_index, pos / s.cpu))
             try:
                 state = cia402.decode_statusword(sw)
             except cia402.IllegalTransition:
