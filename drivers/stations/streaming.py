@@ -47,6 +47,18 @@ class StationCommandError(CellError, ValueError):
     """A command with bad values (shape, not finite, beyond limits); nothing was sent."""
 
 
+def _refuse(s, T: float, delay: float, need: float, left: float):
+    """Raise why station ``s`` cannot take its corrected velocity: T not longer than its
+    delay λ (``delay``, s), or the ``need`` increments in ``left`` s above its max_velocity."""
+    if left <= 0:
+        raise StationCommandError(
+            f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
+            f"λ = {delay * 1e3:.6g} ms")
+    raise StationCommandError(
+        f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
+        f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
+
+
 @dataclass(frozen=True)
 class StreamReport:
     """What :meth:`JointStations.stream` sent. Times are bus timestamps (the base of
@@ -222,34 +234,34 @@ class StreamingMixin:
             need = abs(d[j]) * cpu                        # increments to travel
             top = min(s.cfg.max_velocity * cpu, 2 ** 32 - 1)
             lat = latency[j]
-
-            bits_of = functools.partial(_setpoint_bits, 0x200 + s.node_id, round(q[j] * cpu))
-
-            def wanted(v_inc: int) -> float:
-                left = T - (t + bits_of(v_inc) / rate) - lat
-                if left <= 0:
-                    raise StationCommandError(
-                        f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
-                        f"λ = {(t + bits_of(v_inc) / rate + lat) * 1e3:.6g} ms")
-                if need / left > top:
-                    raise StationCommandError(
-                        f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
-                        f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
-                return need / left
+            cob, target_inc = 0x200 + s.node_id, round(q[j] * cpu)
+            # the velocity a frame of b bits asks for: need / (T − (t + b/rate) − λ_station)
             if hint is not None and T > hint[j]:
                 v_inc = max(1, round(need / (T - hint[j])))
             else:
-                v_inc = max(1, round(wanted(max(1, round(need / T)))))
+                v_inc = max(1, round(need / T))
+                b = _setpoint_bits(cob, target_inc, v_inc)
+                left = T - (t + b / rate) - lat
+                if left <= 0 or need / left > top:
+                    _refuse(s, T, t + b / rate + lat, need, left)
+                v_inc = max(1, round(need / left))
+            b = _setpoint_bits(cob, target_inc, v_inc)
             seen = [v_inc]
             for _ in range(6):
-                nxt = max(1, round(wanted(v_inc)))
+                left = T - (t + b / rate) - lat
+                if left <= 0 or need / left > top:
+                    _refuse(s, T, t + b / rate + lat, need, left)
+                nxt = max(1, round(need / left))
                 if nxt == v_inc:
                     break
                 v_inc = nxt
+                b = _setpoint_bits(cob, target_inc, v_inc)
                 seen.append(v_inc)
             else:                                        # a flip-flop between frame lengths
-                v_inc = self._closest_consistent(seen, need, T - t - lat, rate, bits_of)
-            end = t + bits_of(v_inc) / rate
+                v_inc = self._closest_consistent(seen, need, T - t - lat, rate,
+                                                 functools.partial(_setpoint_bits, cob, target_inc))
+                b = _setpoint_bits(cob, target_inc, v_inc)
+            end = t + b / rate
             vel[j] = math.copysign(v_inc / cpu, d[j]) if d[j] else v_inc / cpu
             lam[j] = end + lat
             t = end
