@@ -127,6 +127,7 @@ class CellController:
         #: or a None answer: 0, no plant path or not read yet) for the plant_backlog register
         self.plant_backlog: Callable[[], int | None] | None = None
         self.scans = 0
+        self.quiet_scans = 0                      #: scans that wrote only the heartbeat (quiet_step)
         self._job: Job | None = None              # the running cycle or calibration
         self._cancel: CancelToken | None = None
         self._recipes_in = RecipesIn()
@@ -274,6 +275,7 @@ class CellController:
                                       self.runner.progress if self._job is not None else None,
                                       self.recalibration_due, self._plant_backlog())
             if hb is not None:
+                self.quiet_scans += 1
                 self._outputs.write_heartbeat(hb)
                 self._audit_refusals()
                 if owner_changed or now - self._joints_at >= JOINTS_SAMPLE_S:
