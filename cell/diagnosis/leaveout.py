@@ -24,6 +24,8 @@ import math
 
 import numpy as np
 
+from cell.numerics.sums import squares_last
+
 
 def scaled(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``J`` with unit-norm columns (zero columns left as they are) and the scales."""
@@ -141,7 +143,7 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
                 H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
                 I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
                 loo = solve_small(I - H, rg)
-            ss[slice(None) if folds is None else folds] = np.sum(loo * loo, axis=1)
+            ss[slice(None) if folds is None else folds] = squares_last(loo)
     except np.linalg.LinAlgError:
         return math.inf, np.full(n_groups, math.inf), Ainv, scale
     size = counts.astype(float) if per == "point" else counts * float(dims)
@@ -272,7 +274,7 @@ class Folds:
         return A + lam[..., None, None] * np.eye(A.shape[-1])
 
     def _result(self, e: np.ndarray) -> tuple[float, np.ndarray]:
-        return self._from_ss(np.sum(e * e, axis=-1))
+        return self._from_ss(squares_last(e))
 
     def _from_ss(self, ss: np.ndarray) -> tuple[float, np.ndarray]:
         ss = np.maximum(ss, 0.0)                  # a Gram form's rounding below zero
@@ -349,7 +351,7 @@ class Folds:
                 return [(math.inf, np.full(self.n_folds, math.inf))]
             return [self._points_loo(c[None])[0] for c in S]
         ss = np.empty((len(S), self.n_folds))
-        ss[:, fold_of] = np.sum(out * out, axis=2)
+        ss[:, fold_of] = squares_last(out)
         return [self._from_ss(q) for q in ss]
 
     def loo_each(self, subsets: list) -> list[tuple[float, np.ndarray]]:
@@ -375,7 +377,7 @@ class Folds:
                                         self.WW[:, S[:, :, None], S[:, None, :]], beta), 0.0)
         else:
             e = self.u[None] - np.einsum("frtk,ftk->tfr", self.W[:, :, S], beta)
-            ss = np.sum(e * e, axis=2)                                # (t, F)
+            ss = squares_last(e)                                # (t, F)
         per = ss / np.maximum(self.size, 1)
         total = np.sqrt(np.sum(ss, axis=1) / max(self.n_pts, 1))
         return [(float(t), q) for t, q in zip(total, per)]

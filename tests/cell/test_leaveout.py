@@ -144,3 +144,19 @@ def test_the_small_solver_agrees_with_lapack_and_refuses_an_exactly_singular_sys
                            rtol=1e-12, atol=1e-14)
     with pytest.raises(np.linalg.LinAlgError):
         leaveout.solve_small(np.array([[[1.0, 2.0], [2.0, 4.0]]]), np.ones((1, 2)))
+
+
+@pytest.mark.parametrize("shape", [(5000,), (20, 300), (1,), (0,), (3,)])
+def test_squares_over_a_short_last_axis_have_the_bits_of_numpys_sum(shape):
+    # the folds' sums of squares: every width up to 13, values over many magnitudes (so
+    # any other order of adding would round differently), contiguous, strided and
+    # Fortran-ordered, against the np.sum they replace
+    from cell.numerics.sums import squares_last
+    rng = np.random.default_rng(7)
+    for width in range(14):
+        x = rng.normal(size=shape + (width,)) * np.exp(rng.normal(size=shape + (width,)) * 5)
+        for y in (x, x[::2], np.asfortranarray(x)):
+            want = np.sum(y * y, axis=-1)
+            got = squares_last(y)
+            assert got.shape == want.shape and np.array_equal(got, want), (shape, width)
+    assert squares_last(np.array([3.0, 4.0])) == 25.0        # 1-D: one number, as np.sum

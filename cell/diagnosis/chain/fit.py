@@ -38,6 +38,7 @@ from cell.kinematics.chain import Chain
 from cell.kinematics.identifiable import STRUCTURAL_TOL
 from cell.measurements import CampaignFormatError
 from cell.numerics.stats import t_quantile
+from cell.numerics.sums import squares_last
 
 MAX_VIF = 100.0           # beyond: registration and the parameter are hard to tell apart
 TERM_EPS = 1e-9           # a joint term below this on every pose (deg, m, K, 1) is zero: the
@@ -674,7 +675,7 @@ def conditioning(J: np.ndarray) -> tuple[int, int, float]:
 
 def rms3(r: np.ndarray) -> float:
     """RMS of the 3-D point error (sqrt of the mean squared norm), mm."""
-    return float(math.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else math.nan
+    return float(math.sqrt(np.mean(squares_last(r)))) if len(r) else math.nan
 
 
 def fit(d: Data, params: list[Param], reg0: Registration | None = None, values0=None,
@@ -769,7 +770,7 @@ def predict_rms(d: Data, f: Fit, keep: np.ndarray | None = None) -> tuple[float,
     e = d.xyz - y
     if keep is not None:
         e = e[keep]
-    n = np.sqrt(np.sum(e * e, axis=1))
+    n = np.sqrt(squares_last(e))
     return rms3(e), float(n.max()) if len(n) else math.nan
 
 

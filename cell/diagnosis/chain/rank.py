@@ -48,6 +48,7 @@ from cell.diagnosis.chain import fit as F
 from cell.diagnosis.leaveout import Folds
 from cell.diagnosis.places import separating
 from cell.diagnosis.tie import ALPHA, RIVAL_RATIO
+from cell.numerics.sums import squares_last
 
 STEP_ALPHA = 0.05     # the same test for keeping one more parameter during screening
 MIN_SHRINK = 0.5      # below: the best candidate leaves most of the holdout gap
@@ -166,7 +167,7 @@ def one_alternative(design: Screen, pool: list[F.Param]) -> list[F.Param]:
 def _held(label, effects, f: F.Fit, hold_d: F.Data, keep, ident=None) -> Candidate:
     y, _ = F.model(hold_d, f.reg, f.params, f.values)
     e = hold_d.xyz - y
-    n = np.sqrt(np.sum(e * e, axis=1))
+    n = np.sqrt(squares_last(e))
     c = Candidate(label, effects, f, F.rms3(e), float(n.max()) if len(n) else math.nan, ident)
     if keep is not None:
         e, n = e[keep], n[keep]
