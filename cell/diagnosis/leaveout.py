@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from cell.numerics.stacks import times_shared
 from cell.numerics.sums import squares_last
 
 
@@ -140,7 +141,7 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
                 c = np.einsum("grn,gr->gn", Jg, rg)
                 loo = rg + np.einsum("grn,gn->gr", Jg, np.linalg.solve(A - Gg, c[..., None])[..., 0])
             else:
-                H = (Jg @ Ainv) @ Jg.transpose(0, 2, 1)
+                H = times_shared(Jg, Ainv) @ Jg.transpose(0, 2, 1)
                 I = np.broadcast_to(np.eye(rg.shape[1]), H.shape)
                 loo = solve_small(I - H, rg)
             ss[slice(None) if folds is None else folds] = squares_last(loo)
@@ -344,7 +345,8 @@ class Folds:
             Jc = Jp[:, :, S].transpose(2, 0, 1, 3)                        # (t, P, dims, k)
             beta = (Ainv @ self.bt[S][..., None])[..., 0]                 # (t, k)
             e = rp[None] - (Jc @ beta[:, None, :, None])[..., 0]          # (t, P, dims)
-            H = (Jc @ Ainv[:, None]) @ Jc.transpose(0, 1, 3, 2)           # (t, P, dims, dims)
+            JA = np.stack([times_shared(c, a) for c, a in zip(Jc, Ainv)])  # (t, P, dims, k)
+            H = JA @ Jc.transpose(0, 1, 3, 2)                             # (t, P, dims, dims)
             out = solve_small(np.eye(H.shape[-1]) - H, e)
         except np.linalg.LinAlgError:                                     # tell which: one at a time
             if len(S) == 1:

@@ -160,3 +160,19 @@ def test_squares_over_a_short_last_axis_have_the_bits_of_numpys_sum(shape):
             got = squares_last(y)
             assert got.shape == want.shape and np.array_equal(got, want), (shape, width)
     assert squares_last(np.array([3.0, 4.0])) == 25.0        # 1-D: one number, as np.sum
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 12])
+def test_a_stack_times_one_matrix_as_one_product_has_the_bits_of_the_stacked_product(m):
+    # the leave-out's (folds, rows, k) @ (k, k) products: one BLAS call for the stack
+    # must round as numpy's call per matrix does, for every k the screening uses,
+    # contiguous and strided (a column subset of a wider design)
+    from cell.numerics.stacks import times_shared
+    rng = np.random.default_rng(13)
+    for k in range(1, 16):
+        for stack in [(1,), (7,), (3, 300), (1094,)]:
+            A = rng.normal(size=stack + (m, k + 2)) * np.exp(rng.normal(size=stack + (m, k + 2)) * 3)
+            B = rng.normal(size=(k, k))
+            for a in (A[..., :k], np.ascontiguousarray(A[..., 1:k + 1])):
+                got = times_shared(a, B)
+                assert got.shape == a.shape[:-1] + (k,) and np.array_equal(got, a @ B), (k, stack)
