@@ -45,6 +45,7 @@ TERM_EPS = 1e-9           # a joint term below this on every pose (deg, m, K, 1)
                           # gravity lever of a joint whose axis runs through the tool point
 NO_EFFECT = "has no effect on the measured points"   # not_identifiable: a parameter without a column
 KEPT_REGISTRATIONS = 2    # Data.zero_blocks keeps the Jacobian blocks of this many
+NUISANCE_BASIS = "nuisance basis"   # Data.zero_blocks' key of the registration columns' basis
 # the chain vocabulary: the effects of cell.effects that apply to chains (Effect.chain)
 EFFECTS = tuple(fx.CHAIN_EFFECTS)
 SUBSYSTEM = {n: e.subsystem for n, e in fx.CHAIN_EFFECTS.items()}
@@ -213,9 +214,10 @@ class Data:
 
     def zero_blocks(self, reg: "Registration") -> dict:
         """The Jacobian blocks :func:`model` has computed at zero parameters for
-        registration ``reg`` (None: the registration's; a :class:`Param`: its column), kept
-        for the :data:`KEPT_REGISTRATIONS` registrations asked about last (a fit's start
-        between two screenings must not drop the registration-only fit's)."""
+        registration ``reg`` (None: the registration's; a :class:`Param`: its column; and
+        :data:`NUISANCE_BASIS`, :func:`identifiability`'s basis of the registration's
+        columns), kept for the :data:`KEPT_REGISTRATIONS` registrations asked about last (a
+        fit's start between two screenings must not drop the registration-only fit's)."""
         kept = self._blocks if self._blocks is not None else []
         for i, (r, blocks) in enumerate(kept):
             if r is reg:
@@ -834,8 +836,11 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
     for i, p in enumerate(allp):
         if p.name in rounding:
             J[:, nr + i] = 0.0
-    span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL,
-                               identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL))
+    kept = d.zero_blocks(reg)              # the registration's columns are the same for every
+    if NUISANCE_BASIS not in kept:         # pool: their basis is found once per registration
+        kept[NUISANCE_BASIS] = identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL)
+        kept[NUISANCE_BASIS].flags.writeable = False
+    span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL, kept[NUISANCE_BASIS])
     unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])
             for i in range(len(allp)) if np.isfinite(span.left[i])}
     warnings: dict[str, str] = {}

@@ -133,3 +133,23 @@ def test_tiago_registration_and_offsets_match_the_data_readme():
     # FIGAROH's arm_5 offset on this set: -49.8 mrad = -2.85 deg (point 1 only)
     lo, hi = f1.ci95[[p.name for p in idf.kept].index("j6_offset_deg")]
     assert lo < math.degrees(-0.0498) < hi
+
+
+def test_identifiability_keeps_the_registrations_basis_and_answers_as_without_it(tmp_path):
+    # the registration's columns are the same for every pool: their basis is found once
+    # per registration; each pool's answer is the one a Data that never kept it gives
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=8, sensor=True)
+    cc = read_campaign(d)
+    data = F.Data.of(cc)
+    f0 = F.fit(data, [])
+    voc = F.vocabulary(cc.chain)
+    pools = [[p for p in voc if p.effect == e] for e in ("joint_offset", "link_length", "gear_ratio")]
+    for pool in pools + pools[:1]:
+        got = F.identifiability(data, pool, f0.reg)
+        fresh = F.Data.of(cc)
+        want = F.identifiability(fresh, pool, f0.reg)
+        assert (got.kept, got.dropped, got.warnings, got.lacking) == \
+            (want.kept, want.dropped, want.warnings, want.lacking)
+        assert np.array_equal(data.zero_blocks(f0.reg)[F.NUISANCE_BASIS],
+                              fresh.zero_blocks(f0.reg)[F.NUISANCE_BASIS])
+    assert not data.zero_blocks(f0.reg)[F.NUISANCE_BASIS].flags.writeable
