@@ -114,7 +114,8 @@ def _fold_grams(Js: np.ndarray, r: np.ndarray, rows: np.ndarray, n_groups: int
 
 
 def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, dims: int = 3,
-                per: str = "point") -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+                per: str = "point", known: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Leave-one-fold-out of the least-squares fit with design ``J`` and residuals ``r``
     at its solution, folds ``group`` per point: (rms of the held-out point errors, per-fold
     error (G,), (JᵀJ)⁻¹ of the column-scaled design, the scales). All folds at once
@@ -123,10 +124,17 @@ def at_solution(J: np.ndarray, r: np.ndarray, group: np.ndarray, n_groups: int, 
     residual at an n × n solve: e_g = r_g + J_g (A − J_gᵀJ_g)⁻¹ J_gᵀ r_g. Folds of very
     unequal size (a move's hundreds of samples beside places of a few poses) are padded
     in two batches, the small folds and the large (:func:`_size_classes`), not all to the
-    largest."""
-    Js, scale = scaled(J)
+    largest. ``known``: the (JᵀJ)⁻¹ and scales an earlier call on the same ``J`` returned
+    (other folds): not found again."""
+    if known is None:
+        Js, scale = scaled(J)
+        Ainv = None
+    else:
+        Ainv, scale = known
+        Js = J / scale                                # as scaled(J) divides
     A = Js.T @ Js
-    Ainv = np.linalg.pinv(A, rcond=1e-12)
+    if Ainv is None:
+        Ainv = np.linalg.pinv(A, rcond=1e-12)
     counts = np.bincount(group, minlength=n_groups)
     ss = np.zeros(n_groups)
     normal = dims * (int(counts.max()) if len(counts) else 0) > Js.shape[1]

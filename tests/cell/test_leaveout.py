@@ -176,3 +176,18 @@ def test_a_stack_times_one_matrix_as_one_product_has_the_bits_of_the_stacked_pro
             for a in (A[..., :k], np.ascontiguousarray(A[..., 1:k + 1])):
                 got = times_shared(a, B)
                 assert got.shape == a.shape[:-1] + (k,) and np.array_equal(got, a @ B), (k, stack)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_at_solution_given_an_earlier_calls_inverse_answers_as_it_would_alone(dims):
+    # a fit's per-pose leave-out after its per-place one reuses that call's (J'J)^-1 and
+    # scales: the same bits as finding them again, a zero column among them
+    J, r, group, F = _problem(4, dims=dims)
+    J[:, 2] = 0.0
+    first = leaveout.at_solution(J, r, group, F, dims=dims)
+    poses = np.arange(len(group))
+    alone = leaveout.at_solution(J, r, poses, len(group), dims=dims)
+    given = leaveout.at_solution(J, r, poses, len(group), dims=dims, known=first[2:])
+    assert given[0] == alone[0]
+    for a, b in zip(given[1:], alone[1:]):
+        assert np.array_equal(a, b)

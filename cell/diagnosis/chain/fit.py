@@ -748,7 +748,8 @@ def _uncertainty(d: Data, f: Fit) -> None:
     f.cv_rms, f.cv_fold, Ainv, scale = leaveout.at_solution(f.J, r, *d.folds(), dims=d.dims)
     f.cv_pose = f.cv_fold
     if d.folds()[1] < d.n_poses:
-        _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses, dims=d.dims)
+        _, f.cv_pose, *_ = leaveout.at_solution(f.J, r, d.obs_pose, d.n_poses, dims=d.dims,
+                                                known=(Ainv, scale))
     Jg, rg, _ = leaveout.blocks(f.J / scale, r, d.obs_pose, d.n_poses, d.dims)
     S = (Jg.transpose(0, 2, 1) @ rg[..., None])[..., 0]
     G = d.n_poses
