@@ -512,8 +512,11 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                 Rt = Rt * scale[:, :, None]
             for m in range(d.n_markers):
                 cols.append(Rt * (d.obs_marker == m)[:, None, None])
-        blocks = kept[None] = [c.reshape(len(y), 3, -1) for c in cols]
-    blocks = list(blocks) if M is None else [np.einsum("ij,mjk->mik", M, b) for b in blocks]
+        full = [c.reshape(len(y), 3, -1) for c in cols]
+        if M is not None:                      # the sensor reads them through its maps
+            full = [np.einsum("ij,mjk->mik", M, b) for b in full]
+        blocks = kept[None] = [_seen_rows(d, b) for b in full]
+    blocks = list(blocks)
     twists: dict[int, np.ndarray] = {}        # one op's twist serves all its parameters
     poses = None
     for i, (p, value) in enumerate(zip(params, values)):
@@ -549,11 +552,9 @@ def model(d: Data, reg: Registration, params: list[Param], values: np.ndarray, j
                         g = g * scale
                 if M is not None:              # and the sensor reads it through its maps
                     g = g @ M.T
-            g = kept[p] = g[:, :, None]
+            g = kept[p] = _seen(d, g)[:, :, None]
         blocks.append(g)
-    J = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(y), 3, 0))
-    if d.dims < 3:
-        J = J[:, list(d.axes), :]
+    J = np.concatenate(blocks, axis=2) if blocks else np.zeros((len(y), d.dims, 0))
     return _seen(d, read), J.reshape(d.dims * len(y), -1)
 
 
@@ -579,6 +580,12 @@ def _product(mats: list[np.ndarray]) -> np.ndarray:
 def _seen(d: Data, y: np.ndarray) -> np.ndarray:
     """The components of (M, 3) points the sensor sees."""
     return y if d.dims == 3 else y[:, list(d.axes)]
+
+
+def _seen_rows(d: Data, b: np.ndarray) -> np.ndarray:
+    """The rows of (M, 3, k) Jacobian blocks the sensor sees: :func:`model` keeps its
+    blocks so, and joins them into its Jacobian as they are."""
+    return b if d.dims == 3 else b[:, list(d.axes), :]
 
 
 def joint_columns(d: Data, f: "Fit") -> np.ndarray:

@@ -153,3 +153,24 @@ def test_identifiability_keeps_the_registrations_basis_and_answers_as_without_it
         assert np.array_equal(data.zero_blocks(f0.reg)[F.NUISANCE_BASIS],
                               fresh.zero_blocks(f0.reg)[F.NUISANCE_BASIS])
     assert not data.zero_blocks(f0.reg)[F.NUISANCE_BASIS].flags.writeable
+
+
+def test_a_sensor_seeing_two_axes_gets_the_3d_jacobians_rows_from_kept_and_fresh_blocks(tmp_path):
+    # model keeps its blocks with only the rows the sensor sees: the Jacobian is the
+    # 3-D one's rows of those axes, bit for bit, at zero (blocks kept, asked twice) and
+    # at other values (blocks fresh), through a camera's maps about a centre
+    import dataclasses
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True,
+                      model_extra={"sensor_center_mm": [120.0, -80.0, 400.0]})
+    cc = read_campaign(d)
+    d3 = F.Data.of(cc)
+    params = F.vocabulary(cc.chain)
+    reg = F.initial_registration(d3)
+    for axes in [(0, 1), (0, 2), (1, 2)]:
+        d2 = dataclasses.replace(d3, xyz=d3.xyz[:, list(axes)], axes=axes)
+        for v in (np.zeros(len(params)), np.linspace(-0.01, 0.01, len(params))):
+            y3, J3 = F.model(d3, reg, params, v, jac=True)
+            want = J3.reshape(len(y3), 3, -1)[:, list(axes)].reshape(-1, J3.shape[1])
+            for _ in range(2):
+                y2, J2 = F.model(d2, reg, params, v, jac=True)
+                assert np.array_equal(J2, want) and np.array_equal(y2, y3[:, list(axes)])
