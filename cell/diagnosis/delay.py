@@ -54,11 +54,17 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
     meas = rows.meas[m].ravel()
     static = [e for e in static if e.spec.stage != fx.Stage.COMMS]
 
+    last: dict = {}        # the residual's lags and the Jacobian there: the solver asks for
+                           # the Jacobian where it has just taken an accepted step's residual
+
     def fun(x):
-        return meas - evaluate(rows, static, path_temp_c, lags_ms=x)[0][m].ravel()
+        y, last["J"] = evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)
+        last["x"] = np.array(x, float)
+        return meas - y[m].ravel()
 
     def jac(x):
-        J = evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)[1]
+        J = last["J"] if "x" in last and np.array_equal(last["x"], x) else \
+            evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)[1]
         return -J[m][:, :, -2:].reshape(-1, 2)
 
     res = least_squares(fun, np.array([0.5, 0.5]), jac, *LAG_BOUNDS_MS, max_nfev=200)

@@ -162,3 +162,25 @@ def test_paths_only_campaign():
     assert rep["cause"]["effect"] == "comm_delay" and rep["unexplained"] is False
     assert rep["gap"]["where"]["depends_on"] == "speed"
     assert rep["cause"]["params"]["comm_delay_sigma_ms"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_station_lags_reuse_the_residuals_jacobian_only_at_its_own_lags(monkeypatch):
+    # the lag fit keeps the Jacobian of the residual it has just taken: every Jacobian the
+    # solver receives must be the one a fresh evaluation gives at the lags it asks about
+    from cell.diagnosis import delay
+    truth = fx.make_effect("comm_delay", (), {"comm_delay_sigma_ms": 2.0})
+    c = make_campaign([truth], 13, Design(n_points=60, n_moves=4))
+    real, asked = delay.least_squares, []
+
+    def checked(fun, x0, jac, *a, **k):
+        def fresh_jac(x):
+            got = jac(x)
+            fun_x = fun(np.array(x, float))          # evaluates (and keeps) at x afresh
+            assert np.array_equal(got, jac(x)) and np.isfinite(fun_x).all()
+            asked.append(np.array(x, float))
+            return got
+        return real(fun, x0, fresh_jac, *a, **k)
+
+    monkeypatch.setattr(delay, "least_squares", checked)
+    rep = diagnose(c).report
+    assert len(asked) >= 2 and rep["delay"]["lags_ms"]["j1"] == pytest.approx(2.0, abs=0.05)
