@@ -443,6 +443,25 @@ def _term(d: Data, p: Param, k: int) -> np.ndarray:
     return v
 
 
+def _joint_term(d: Data, p: Param) -> np.ndarray:
+    """``p``'s term on ``d``'s poses as :func:`identifiability` judges it: on its joint
+    (:func:`_term`), or a bus parameter's on every joint (:meth:`Param.joint_terms`)."""
+    return p.joint_terms(_poses(d)) if p.bus else _term(d, p, p.joint)
+
+
+def _term_size(d: Data, p: Param) -> tuple[bool, float]:
+    """(whether :func:`_joint_term` is nonzero on some pose, its largest magnitude there;
+    0.0 when it is zero everywhere), found once per :class:`Data`: every pool holding the
+    parameter asks."""
+    key = ("size", p.effect, p.part, p.joint)
+    got = d._terms.get(key)
+    if got is None:
+        v = _joint_term(d, p)
+        nonzero = bool(np.any(v))
+        got = d._terms[key] = (nonzero, float(np.max(np.abs(v))) if nonzero else 0.0)
+    return got
+
+
 def joint_deltas(d: Data, params: list[Param], values: np.ndarray, shifts: dict | None = None
                  ) -> tuple[dict[int, float], np.ndarray, np.ndarray | None]:
     """The geometric op offsets, the (P, J) joint-value additions and the (P,) relative
@@ -831,11 +850,11 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
                 lacking.add(p.name)
                 allp.remove(p)
                 continue
-        v = p.joint_terms(poses) if p.bus else _term(d, p, p.joint)
-        if np.any(v) and float(np.max(np.abs(v))) < TERM_EPS:
+        nonzero, peak = _term_size(d, p)
+        if nonzero and peak < TERM_EPS:
             rounding.add(p.name)
-        elif use.min_spread > 0 and not p.nuisance and np.any(v) and float(np.ptp(
-                v if d.move is None else v[d.move < 0])) < use.min_spread:
+        elif use.min_spread > 0 and not p.nuisance and nonzero and float(np.ptp(
+                _joint_term(d, p)[slice(None) if d.move is None else d.move < 0])) < use.min_spread:
             dropped[p.name] = use.still
             lacking.add(p.name)
             allp.remove(p)

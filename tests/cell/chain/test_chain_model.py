@@ -174,3 +174,19 @@ def test_a_sensor_seeing_two_axes_gets_the_3d_jacobians_rows_from_kept_and_fresh
             for _ in range(2):
                 y2, J2 = F.model(d2, reg, params, v, jac=True)
                 assert np.array_equal(J2, want) and np.array_equal(y2, y3[:, list(axes)])
+
+
+def test_a_terms_size_is_found_once_and_is_the_terms_own(tmp_path):
+    # identifiability asks every pool for each parameter's term size: kept per Data, it
+    # must be the term's (nonzero anywhere, largest magnitude) for each parameter, bus,
+    # arm and joint ones alike, and a zero term has size 0
+    d = chainsim.make(tmp_path / "c", {"offset": {"j2": 0.1}}, poses=6, sensor=True, temps=True,
+                      model_extra={"motor_gear_ratio": {"j2": 50.0}})
+    cc = read_campaign(d)
+    data = F.Data.of(cc)
+    for p in F.vocabulary(cc.chain):
+        if p.term is None:
+            continue
+        v = p.joint_terms(F._poses(data)) if p.bus else p.term(F._poses(data), p.joint)
+        want = (bool(np.any(v)), float(np.max(np.abs(v))) if np.any(v) else 0.0)
+        assert F._term_size(data, p) == want and F._term_size(data, p) == want, p.name
