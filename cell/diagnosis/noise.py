@@ -191,6 +191,13 @@ def _sq_dist(query: np.ndarray, data: np.ndarray) -> np.ndarray:
     return (query[..., 0] - data[..., 0]) ** 2 + (query[..., 1] - data[..., 1]) ** 2
 
 
+def _sq_dist_at(query: np.ndarray, qi: np.ndarray, data: np.ndarray, di: np.ndarray) -> np.ndarray:
+    """:func:`_sq_dist` of the query rows ``qi`` and the data rows ``di`` (index arrays that
+    broadcast), the same values, gathering each coordinate alone rather than whole rows."""
+    q0, q1, d0, d1 = query[:, 0], query[:, 1], data[:, 0], data[:, 1]
+    return (q0[qi] - d0[di]) ** 2 + (q1[qi] - d1[di]) ** 2
+
+
 def _morton(p: np.ndarray, lo: np.ndarray, span: np.ndarray) -> np.ndarray:
     """Z-order key of 2-D points ``p`` quantised to 16 bits per axis over ``lo`` + ``span``."""
     c = np.clip(((p - lo) / span * 65535).astype(np.int64), 0, 65535)
@@ -217,7 +224,7 @@ def _nearest_grid(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray | N
                    (_morton(data, lo, span), _morton(query, lo, span))):
         order = np.argsort(kd, kind="stable")
         start = np.clip(np.searchsorted(kd[order], kq) - m, 0, n - w)
-        d2 = _sq_dist(query[:, None, :], data[order[start[:, None] + np.arange(w)]])
+        d2 = _sq_dist_at(query, np.arange(nq)[:, None], data, order[start[:, None] + np.arange(w)])
         bound = np.minimum(bound, np.partition(d2, m - 1, axis=1)[:, m - 1])
     half = np.sqrt(bound) * (1 + 1e-9) + 1e-300
     # cells of side h: about two bounds wide, coarser while the queries span many columns
@@ -243,7 +250,7 @@ def _nearest_grid(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray | N
     b = np.searchsorted(key, col * ny + c_hi[qc, 1], side="right")
     qid = np.repeat(qc, b - a)
     idx = order[np.repeat(a, b - a) + _ramp(b - a)]
-    d2 = _sq_dist(query[qid], data[idx])
+    d2 = _sq_dist_at(query, qid, data, idx)
     near = d2 <= bound[qid]
     qid, idx, d2 = qid[near], idx[near], d2[near]
     counts = np.bincount(qid, minlength=nq)

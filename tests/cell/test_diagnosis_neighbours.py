@@ -49,3 +49,16 @@ def test_the_grid_search_finds_the_rows_and_order_of_comparing_every_pair(layout
         for query in (coords, coords[::3] + 0.37):
             np.testing.assert_array_equal(_nearest_grid(coords, query, m),
                                           _nearest_dense(coords, query, m))
+
+
+def test_squared_distances_gathered_by_coordinate_are_those_of_the_gathered_rows():
+    # the grid search gathers each coordinate alone: the same bits as the rows' distances,
+    # for pairs of index arrays and for a column of queries against a block of rows
+    from cell.diagnosis.noise import _sq_dist, _sq_dist_at
+    rng = np.random.default_rng(5)
+    q, d = rng.normal(0, 90, (300, 2)), rng.normal(0, 90, (500, 2))
+    qi, di = rng.integers(0, 300, 4000), rng.integers(0, 500, 4000)
+    assert np.array_equal(_sq_dist_at(q, qi, d, di), _sq_dist(q[qi], d[di]))
+    block = rng.integers(0, 500, (300, 18))
+    assert np.array_equal(_sq_dist_at(q, np.arange(300)[:, None], d, block),
+                          _sq_dist(q[:, None, :], d[block]))
