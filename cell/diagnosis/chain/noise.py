@@ -66,17 +66,12 @@ def rigid_noise_mm(xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray
     ss, dof = 0.0, 0
     order = np.argsort(obs_pose, kind="stable")
     bounds = np.flatnonzero(np.diff(obs_pose[order])) + 1
-    for rows in np.split(order, bounds):
-        if len(rows) < 3:
-            continue
-        a = markers_tip[obs_marker[rows]]
-        b = xyz[rows]
-        a0, b0 = a - a.mean(0), b - b.mean(0)
-        u, _, vt = np.linalg.svd(a0.T @ b0)
-        s = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-        rot = (u @ s @ vt).T                          # b0 ≈ a0 @ rot.T
-        ss += float(np.sum((b0 - a0 @ rot.T) ** 2))
-        dof += 3 * len(rows) - 6
+    poses = np.split(order, bounds)
+    per = _rigid_squares(poses, xyz, obs_marker, markers_tip)
+    for i, rows in enumerate(poses):
+        if len(rows) >= 3:
+            ss += float(per[i])
+            dof += 3 * len(rows) - 6
     if free_markers:
         dof -= 3 * len(markers_tip) - 6
     return (math.sqrt(ss / dof), dof) if dof > 0 and ss > 0 else (None, 0)
@@ -141,6 +136,28 @@ class SensorNoise:
     dof: int
     source: str
     disagree: str | None = None
+
+
+def _rigid_squares(poses: list[np.ndarray], xyz: np.ndarray, obs_marker: np.ndarray,
+                   markers_tip: np.ndarray) -> np.ndarray:
+    """Per pose (its points' rows ``poses[i]``; fewer than 3 give 0) the sum of squares of
+    its points about the constellation moved rigidly onto them (Kabsch), the poses of one
+    marker count stacked: the same products, decompositions and sums, matrix by matrix, as
+    one pose at a time."""
+    out = np.zeros(len(poses))
+    sizes = np.array([len(rows) for rows in poses])
+    for k in np.unique(sizes[sizes >= 3]):
+        which = np.flatnonzero(sizes == k)
+        rows = np.stack([poses[i] for i in which])                  # (G, k)
+        a, b = markers_tip[obs_marker[rows]], xyz[rows]             # (G, k, 3)
+        a0, b0 = a - a.mean(1, keepdims=True), b - b.mean(1, keepdims=True)
+        u, _, vt = np.linalg.svd(a0.transpose(0, 2, 1) @ b0)
+        s = np.zeros((len(which), 3, 3))
+        s[:, 0, 0] = s[:, 1, 1] = 1.0
+        s[:, 2, 2] = np.sign(np.linalg.det(u @ vt))
+        fit = a0 @ (u @ s @ vt)                                     # b0 ≈ a0 · rot'
+        out[which] = np.sum(((b0 - fit) ** 2).reshape(len(which), -1), axis=1)
+    return out
 
 
 def estimate(cc: ChainCampaign, xyz: np.ndarray, obs_pose: np.ndarray, obs_marker: np.ndarray,

@@ -75,3 +75,44 @@ def test_a_noise_from_one_revisited_pose_is_judged_by_its_upper_bound(tmp_path):
     assert upper95(0.005, math.inf) == 0.005 and upper95(0.005, 0) == math.inf
     assert n["fit_rms_mm"] > NOISE_FACTOR * n["sigma_mm"] * math.sqrt(2)   # the old rule's doubt
     assert rep["cause"]["label"] == "joint_offset" and not rep["unexplained"], rep["remainder"]
+
+
+def _rigid_one_pose_at_a_time(xyz, obs_pose, obs_marker, markers_tip, free_markers):
+    # the pose-by-pose Kabsch the stacked one replaced, the reference for its bits
+    ss, dof = 0.0, 0
+    order = np.argsort(obs_pose, kind="stable")
+    for rows in np.split(order, np.flatnonzero(np.diff(obs_pose[order])) + 1):
+        if len(rows) < 3:
+            continue
+        a, b = markers_tip[obs_marker[rows]], xyz[rows]
+        a0, b0 = a - a.mean(0), b - b.mean(0)
+        u, _, vt = np.linalg.svd(a0.T @ b0)
+        s = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+        rot = (u @ s @ vt).T
+        ss += float(np.sum((b0 - a0 @ rot.T) ** 2))
+        dof += 3 * len(rows) - 6
+    if free_markers:
+        dof -= 3 * len(markers_tip) - 6
+    return (math.sqrt(ss / dof), dof) if dof > 0 and ss > 0 else (None, 0)
+
+
+@pytest.mark.parametrize("free", [False, True])
+def test_the_stacked_rigid_fit_gives_the_bits_of_one_pose_at_a_time(free):
+    # poses of 2 to 5 markers (a pose of 2 counts for nothing), shuffled rows, some
+    # poses turned by a reflection (QR's Q): the same sigma and dof, bit for bit
+    from cell.diagnosis.chain.noise import rigid_noise_mm
+    rng = np.random.default_rng(3)
+    tip = rng.normal(0, 40, (5, 3))
+    pose, marker, pts = [], [], []
+    for p in range(60):
+        ks = rng.choice(5, size=rng.integers(2, 6), replace=False)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        for k in ks:
+            pose.append(p)
+            marker.append(k)
+            pts.append(R @ tip[k] + [p, 2 * p, 500] + rng.normal(0, 0.05, 3))
+    order = rng.permutation(len(pose))
+    xyz, obs_pose, obs_marker = np.array(pts)[order], np.array(pose)[order], np.array(marker)[order]
+    got = rigid_noise_mm(xyz, obs_pose, obs_marker, tip, free)
+    assert got == _rigid_one_pose_at_a_time(xyz, obs_pose, obs_marker, tip, free)
+    assert got[0] is not None
