@@ -260,6 +260,21 @@ def _check_limits(path: Path, chain: Chain, readings: np.ndarray, lines: list[in
                                       line=lines[i], column=j.column)
 
 
+def _rows_agree(pose: np.ndarray, marker: np.ndarray, q: np.ndarray, readings: np.ndarray,
+                shared: list[np.ndarray], first_row: np.ndarray) -> bool:
+    """Whether every row passes the checks :func:`read_chain_campaign` makes row by row (no
+    marker twice on a pose; each row with its pose's joint readings and the ``shared``
+    columns of its pose's first row ``first_row``), all at once: the row-by-row loop then
+    runs only to name the first row that fails."""
+    if len(pose) == 0:
+        return True
+    m = marker - marker.min()
+    if len(np.unique(pose * (int(m.max()) + 1) + m)) < len(pose):
+        return False
+    return bool(np.all(q == readings[pose])) and all(
+        bool(np.all(c == c[first_row])) for c in shared)
+
+
 def read_chain_campaign(directory: Path | str, model_path: Path | str | None = None) -> ChainCampaign:
     """Read and validate a chain campaign. ``model_path`` replaces ``directory/model.yaml``
     (a calibrated model as the new nominal for the same points)."""
@@ -286,7 +301,9 @@ def read_chain_campaign(directory: Path | str, model_path: Path | str | None = N
     readings = q[first[order]]
     dir_cols = {k: t[f"j{k + 1}_dir"] for k in range(chain.n_joints) if f"j{k + 1}_dir" in t}
     seen: set[tuple[int, int]] = set()
-    for i, (p, m) in enumerate(zip(pose.tolist(), marker.tolist())):
+    shared = [c for c in (split, *dir_cols.values()) if c is not None]
+    agree = _rows_agree(pose, marker, q, readings, shared, first[order[pose]])
+    for i, (p, m) in enumerate([] if agree else zip(pose.tolist(), marker.tolist())):
         if (p, m) in seen:
             raise CampaignFormatError(pp, f"sample {int(ids[order[p]])} has marker {m} twice",
                                       line=lines[i], column="marker")

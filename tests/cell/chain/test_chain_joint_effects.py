@@ -91,3 +91,26 @@ def test_a_fit_that_wants_a_gear_ratio_beyond_its_hard_limit_leaves_it_out(tmp_p
     assert "gear_ratio" not in rep["cause"]["label"] or rep["unexplained"], rep["cause"]
     assert any(n.startswith("j2_gear_ratio_rel fitted to 0.09, beyond what its effect can "
                             "physically be (-0.05 … 0.05)") for n in rep["remainder"]["notes"])
+
+
+@pytest.mark.parametrize("row,column,value,message", [
+    (6, "marker", None, r"line 7, column 'marker': sample 1 has marker \d twice"),
+    (8, "j4", "12.5", r"line 9, column 'sample': rows of sample 2 disagree on the joints"),
+    (3, "split", "holdout", r"line 4, column 'split': rows of sample 0 disagree on the split"),
+])
+def test_rows_of_one_pose_that_disagree_are_refused_at_the_first_such_row(tmp_path, row, column,
+                                                                          value, message):
+    # the rows are checked all at once; when one fails, the error names the first row
+    # that does, as checking them one by one would (a later bad row changes nothing)
+    d = chainsim.make(tmp_path / "c", {}, poses=10)
+    lines = (d / "points.csv").read_text().splitlines()
+    if column == "split":
+        (d / "points.csv").write_text("\n".join(
+            [lines[0] + ",split"] + [ln + ",fit" for ln in lines[1:]]) + "\n")
+    if value is None:                      # the marker of the row before, on the same pose
+        k = lines[0].split(",").index("marker")
+        value = lines[row - 1].split(",")[k]
+    _edit(d, row, column, value)
+    _edit(d, row + 9, "j2", "7.25")        # a later row that disagrees too
+    with pytest.raises(CampaignFormatError, match=message):
+        read_campaign(d)
