@@ -269,7 +269,8 @@ def _rows_agree(pose: np.ndarray, marker: np.ndarray, q: np.ndarray, readings: n
     if len(pose) == 0:
         return True
     m = marker - marker.min()
-    if len(np.unique(pose * (int(m.max()) + 1) + m)) < len(pose):
+    key = np.sort(pose * (int(m.max()) + 1) + m)          # (pose, marker), one number each
+    if np.any(key[1:] == key[:-1]):
         return False
     return bool(np.all(q == readings[pose])) and all(
         bool(np.all(c == c[first_row])) for c in shared)

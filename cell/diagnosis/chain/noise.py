@@ -146,7 +146,7 @@ def _rigid_squares(poses: list[np.ndarray], xyz: np.ndarray, obs_marker: np.ndar
     one pose at a time."""
     out = np.zeros(len(poses))
     sizes = np.array([len(rows) for rows in poses])
-    for k in np.unique(sizes[sizes >= 3]):
+    for k in sorted(set(sizes[sizes >= 3].tolist())):
         which = np.flatnonzero(sizes == k)
         rows = np.stack([poses[i] for i in which])                  # (G, k)
         a, b = markers_tip[obs_marker[rows]], xyz[rows]             # (G, k, 3)
