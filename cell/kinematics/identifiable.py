@@ -18,7 +18,7 @@ conditioning tolerance (a kept set it can solve stably).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,13 +29,15 @@ STRUCTURAL_TOL = 1e-6    # a unit column this close to the span of the others ad
 class Span:
     """The result of :func:`greedy`: ``kept`` column indices in the order kept, ``left``
     (n,) each visited column's share outside the span before it (NaN: a zero column, or
-    not visited), ``Q`` an orthonormal basis of the nuisance and the kept columns, and
-    ``Q0`` that of the nuisance alone."""
+    not visited), ``Q`` an orthonormal basis of the nuisance and the kept columns,
+    ``Q0`` that of the nuisance alone, and ``unit`` each visited nonzero column at unit
+    norm, by index (column / its norm, as the caller would divide it)."""
 
     kept: list[int]
     left: np.ndarray
     Q: np.ndarray
     Q0: np.ndarray
+    unit: dict[int, np.ndarray] = field(default_factory=dict)
 
     def outside(self, v: np.ndarray, basis: np.ndarray | None = None) -> float:
         """The share of unit vector ``v`` outside the span of ``basis`` (default: all)."""
@@ -61,15 +63,16 @@ def greedy(J: np.ndarray, order, tol: float = STRUCTURAL_TOL,
     Q = Q0
     left = np.full(J.shape[1], np.nan)
     kept: list[int] = []
+    unit: dict[int, np.ndarray] = {}
     for j in order:
         c = J[:, j]
         norm = np.linalg.norm(c)
         if norm == 0:
             continue
-        v = c / norm
+        v = unit[j] = c / norm
         perp = v - Q @ (Q.T @ v)
         left[j] = float(np.linalg.norm(perp))
         if left[j] >= tol:
             kept.append(j)
             Q = np.column_stack([Q, perp / left[j]])
-    return Span(kept, left, Q, Q0)
+    return Span(kept, left, Q, Q0, unit)

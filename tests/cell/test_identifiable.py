@@ -36,3 +36,16 @@ def test_a_nearly_repeated_column_is_kept_only_above_the_tolerance():
     J[:, 2] += 1e-5 * np.linalg.norm(J[:, 2]) * np.random.default_rng(1).normal(size=len(J)) / np.sqrt(len(J))
     assert 2 in ident.greedy(J, range(5), tol=1e-6).kept      # the diagnosis: structurally seen
     assert 2 not in ident.greedy(J, range(5), tol=1e-4).kept  # the calibration: too weak to solve
+
+
+def test_greedy_gives_each_visited_column_at_unit_norm_as_its_caller_would_divide_it():
+    # identifiability names what absorbs a dropped column from these unit columns: they
+    # must be the column over its norm, bit for bit; zero and unvisited columns have none
+    rng = np.random.default_rng(4)
+    J = rng.normal(size=(40, 6)) * np.exp(rng.normal(size=6) * 3)
+    J[:, 3] = 0.0
+    J[:, 4] = J[:, 0] + J[:, 1]
+    span = ident.greedy(J, [5, 4, 3, 0, 1])
+    assert sorted(span.unit) == [0, 1, 4, 5]
+    for j, v in span.unit.items():
+        assert np.array_equal(v, J[:, j] / np.linalg.norm(J[:, j]))

@@ -868,8 +868,7 @@ def identifiability(d: Data, pool: list[Param], reg: Registration, keep_first: l
         kept[NUISANCE_BASIS] = identifiable.nuisance_basis(J[:, :nr], STRUCTURAL_TOL)
         kept[NUISANCE_BASIS].flags.writeable = False
     span = identifiable.greedy(J[:, nr:], range(len(allp)), STRUCTURAL_TOL, kept[NUISANCE_BASIS])
-    unit = {i: J[:, nr + i] / np.linalg.norm(J[:, nr + i])
-            for i in range(len(allp)) if np.isfinite(span.left[i])}
+    unit = {i: v for i, v in span.unit.items() if np.isfinite(span.left[i])}
     warnings: dict[str, str] = {}
     for i, p in enumerate(allp):
         left = span.left[i]
