@@ -236,12 +236,14 @@ class Folds:
         self._known: dict[tuple, tuple[float, np.ndarray]] = {}    # column subset → its loo
         if not (base and self._eliminate(base)):
             self.base = 0               # nothing eliminated: the fold-out system as it is
-            self.M, self.z = self.Gt - self.G, self.bt - self.b
             self.u, self.W = self.rg, self.Jg
             if self.gram:
                 self.uu, self.Wu, self.WW = self.rr, self.b, self.G
             elif not ridge and one_point_folds(group, n_groups):
                 self.points = (Js.reshape(len(group), dims, -1), r.reshape(len(group), dims), group)
+            # the hat-matrix route of one-point folds solves no fold-out system
+            self.M, self.z = (None, None) if self.points is not None else \
+                (self.Gt - self.G, self.bt - self.b)
 
     @property
     def n_folds(self) -> int:

@@ -126,7 +126,7 @@ def test_folds_of_one_point_each_take_the_hat_matrix_route_and_agree_with_real_r
     group = np.random.default_rng(6).permutation(30)
     Js = leaveout.scaled(J)[0]
     folds = leaveout.Folds(Js, r, group, 30, dims=dims)
-    assert folds.points is not None
+    assert folds.points is not None and folds.M is None      # no fold-out system is formed
     subsets = [[0, 2], [1, 2], [3, 4]]
     for c, (total, per) in zip(subsets, folds.loo_each(subsets)):
         want = [np.sum(_refit(Js, r, group, g, c, dims) ** 2) for g in range(30)]
@@ -134,6 +134,7 @@ def test_folds_of_one_point_each_take_the_hat_matrix_route_and_agree_with_real_r
         one_total, one_per = folds.loo(c)
         assert total == pytest.approx(one_total, rel=1e-12) and np.allclose(per, one_per, rtol=1e-12)
     assert np.allclose(folds.loo([])[1], [np.sum(r.reshape(30, dims)[group == g] ** 2) for g in range(30)])
+    assert np.array_equal(folds.loo_each([[]])[0][1], folds.loo([])[1])
 
 
 def test_the_small_solver_agrees_with_lapack_and_refuses_an_exactly_singular_system():
