@@ -34,6 +34,29 @@ from cell.numerics.stats import chi2_sf
 LAG_BOUNDS_MS = (-20.0, 200.0)
 
 
+class LagFit:
+    """The residual (measured − modelled path samples ``m`` marks) and its Jacobian in the
+    two lags (ms) of the lag fit of :func:`station_lags`. The model's Jacobian comes with
+    its residual, so the residual keeps it, and :meth:`jacobian` at the same lags (where
+    the solver asks after an accepted step) takes it instead of evaluating again; at other
+    lags it evaluates afresh."""
+
+    def __init__(self, rows, static, path_temp_c, meas: np.ndarray, m: np.ndarray):
+        self.rows, self.static, self.path_temp_c, self.meas, self.m = rows, static, path_temp_c, meas, m
+        self._at: np.ndarray | None = None       # the lags of the last residual
+        self._J: np.ndarray | None = None        # the model's Jacobian there
+
+    def residual(self, x) -> np.ndarray:
+        y, self._J = evaluate(self.rows, self.static, self.path_temp_c, jac=True, lags_ms=x)
+        self._at = np.array(x, float)
+        return self.meas - y[self.m].ravel()
+
+    def jacobian(self, x) -> np.ndarray:
+        J = self._J if self._at is not None and np.array_equal(self._at, x) else \
+            evaluate(self.rows, self.static, self.path_temp_c, jac=True, lags_ms=x)[1]
+        return -J[self.m][:, :, -2:].reshape(-1, 2)
+
+
 def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
                  path_temp_c: float | None = None, keep=None) -> dict | None:
     """Per-joint lags and the proportionality check, as a JSON-ready dict::
@@ -54,20 +77,9 @@ def station_lags(d: DiagData, static: Sequence[fx.EffectInstance] = (),
     meas = rows.meas[m].ravel()
     static = [e for e in static if e.spec.stage != fx.Stage.COMMS]
 
-    last: dict = {}        # the residual's lags and the Jacobian there: the solver asks for
-                           # the Jacobian where it has just taken an accepted step's residual
-
-    def fun(x):
-        y, last["J"] = evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)
-        last["x"] = np.array(x, float)
-        return meas - y[m].ravel()
-
-    def jac(x):
-        J = last["J"] if "x" in last and np.array_equal(last["x"], x) else \
-            evaluate(rows, static, path_temp_c, jac=True, lags_ms=x)[1]
-        return -J[m][:, :, -2:].reshape(-1, 2)
-
-    res = least_squares(fun, np.array([0.5, 0.5]), jac, *LAG_BOUNDS_MS, max_nfev=200)
+    lag = LagFit(rows, static, path_temp_c, meas, m)
+    res = least_squares(lag.residual, np.array([0.5, 0.5]), lag.jacobian, *LAG_BOUNDS_MS,
+                        max_nfev=200)
     J = res.jac
     s2 = float(np.sum(res.fun ** 2)) / max(len(res.fun) - 2, 1)
     try:

@@ -164,23 +164,33 @@ def test_paths_only_campaign():
     assert rep["cause"]["params"]["comm_delay_sigma_ms"] == pytest.approx(1.0, abs=0.02)
 
 
-def test_station_lags_reuse_the_residuals_jacobian_only_at_its_own_lags(monkeypatch):
-    # the lag fit keeps the Jacobian of the residual it has just taken: every Jacobian the
-    # solver receives must be the one a fresh evaluation gives at the lags it asks about
+def test_the_lag_fit_hands_out_its_kept_jacobian_only_at_the_lags_of_its_last_residual():
+    # the lag fit keeps the model's Jacobian from its residual: asked at those lags it must
+    # be the one a fresh evaluation gives there, and asked elsewhere (after a trial step the
+    # solver rejected) never the kept one
+    from dataclasses import replace
+
     from cell.diagnosis import delay
+    from cell.diagnosis.figures import subset
+    from cell.diagnosis.jacobian import evaluate, rows_of
+    from cell.diagnosis.replay import prepare
     truth = fx.make_effect("comm_delay", (), {"comm_delay_sigma_ms": 2.0})
-    c = make_campaign([truth], 13, Design(n_points=60, n_moves=4))
-    real, asked = delay.least_squares, []
+    d = prepare(make_campaign([truth], 13, Design(n_points=60, n_moves=4)))
+    fd = subset(d, "fit")
+    rows = rows_of(replace(fd, points=None, cache={}))
+    m = np.ones(fd.n_path, bool)
+    m[::3] = False                                      # some samples left out, as outliers are
+    lag = delay.LagFit(rows, [], None, rows.meas[m].ravel(), m)
 
-    def checked(fun, x0, jac, *a, **k):
-        def fresh_jac(x):
-            got = jac(x)
-            fun_x = fun(np.array(x, float))          # evaluates (and keeps) at x afresh
-            assert np.array_equal(got, jac(x)) and np.isfinite(fun_x).all()
-            asked.append(np.array(x, float))
-            return got
-        return real(fun, x0, fresh_jac, *a, **k)
+    def fresh(x):
+        return -evaluate(rows, [], None, jac=True, lags_ms=x)[1][m][:, :, -2:].reshape(-1, 2)
 
-    monkeypatch.setattr(delay, "least_squares", checked)
-    rep = diagnose(c).report
-    assert len(asked) >= 2 and rep["delay"]["lags_ms"]["j1"] == pytest.approx(2.0, abs=0.05)
+    a, b = np.array([0.5, 0.5]), np.array([3.0, 6.0])
+    assert not np.array_equal(fresh(a), fresh(b))
+    lag.residual(a)
+    assert np.array_equal(lag.jacobian(a), fresh(a))
+    lag.residual(b)                                     # a trial step, then back at a
+    assert np.array_equal(lag.jacobian(a), fresh(a))
+    assert np.array_equal(lag.jacobian(b), fresh(b))
+    rep = delay.station_lags(d)
+    assert rep["lags_ms"]["j1"] == pytest.approx(2.0, abs=0.05)
