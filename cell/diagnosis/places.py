@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cell.numerics.sums import pairwise_squares
+
 LINK_DEG = 10.0       # poses closer than this (deg, or mm for a prismatic joint) are one place
 MAX_SHARE = 0.5       # a place holding more of the poses means they are spread, not at stations
 
@@ -25,7 +27,7 @@ def places(q: np.ndarray, block: int = 512) -> np.ndarray:
     n = len(q)
     ii, jj = [], []
     for s0 in range(0, n, block):
-        d2 = _sq_dist(q[s0:s0 + block], q)
+        d2 = pairwise_squares(q[s0:s0 + block], q)
         i, j = np.nonzero(d2 < LINK_DEG ** 2)
         keep = i + s0 < j
         ii.append(i[keep] + s0)
@@ -42,18 +44,6 @@ def places(q: np.ndarray, block: int = 512) -> np.ndarray:
                 break
             lab = new
     return np.unique(lab, return_inverse=True)[1] if n else lab
-
-
-def _sq_dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a), len(b)) squared distances of rows: the same bits as ``np.sum`` over the
-    (len(a), len(b), d) differences, without that array. Up to 7 columns numpy sums them in
-    turn, and so does this; more go to ``np.sum`` itself."""
-    if a.shape[1] > 7:
-        return np.sum((a[:, None, :] - b[None, :, :]) ** 2, axis=2)
-    d2 = (a[:, None, 0] - b[None, :, 0]) ** 2
-    for k in range(1, a.shape[1]):
-        d2 += (a[:, None, k] - b[None, :, k]) ** 2
-    return d2
 
 
 def regions(centres: np.ndarray, k: int) -> np.ndarray:

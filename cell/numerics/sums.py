@@ -20,9 +20,24 @@ def squares_last(x: np.ndarray) -> np.ndarray:
     n = x.shape[-1]
     if x.ndim < 2 or n == 0 or n > IN_TURN:
         return np.sum(x * x, axis=-1)
-    a = x[..., 0]
-    out = a * a
-    for k in range(1, n):
-        a = x[..., k]
-        out += a * a
+    return _squares_in_turn(x[..., k] for k in range(n))
+
+
+def pairwise_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) squared distances between the rows of ``a`` and of ``b`` (d columns
+    each): ``np.sum((a[:, None] - b[None]) ** 2, axis=2)``, the same bits, without the
+    (len(a), len(b), d) array of differences when d is at most :data:`IN_TURN`."""
+    d = a.shape[1]
+    if d == 0 or d > IN_TURN:
+        return np.sum((a[:, None, :] - b[None, :, :]) ** 2, axis=2)
+    return _squares_in_turn(a[:, None, k] - b[None, :, k] for k in range(d))
+
+
+def _squares_in_turn(columns) -> np.ndarray:
+    """The squares of ``columns`` (arrays of one shape, at least one) added first to last."""
+    it = iter(columns)
+    c = next(it)
+    out = c * c
+    for c in it:
+        out += c * c
     return out

@@ -168,8 +168,8 @@ def test_places_are_the_connected_components_of_close_poses():
 def test_place_distances_are_numpys_sum_bit_for_bit():
     # the pairwise squared distances places() thresholds, column by column, against the
     # one np.sum over the stacked differences they replace, for every width up to 12
-    from cell.diagnosis.places import _sq_dist
+    from cell.numerics.sums import pairwise_squares
     rng = np.random.default_rng(11)
     for dims in range(1, 13):
         a, b = rng.normal(0, 80, (37, dims)), rng.normal(0, 80, (59, dims))
-        assert np.array_equal(_sq_dist(a, b), np.sum((a[:, None] - b[None]) ** 2, axis=2)), dims
+        assert np.array_equal(pairwise_squares(a, b), np.sum((a[:, None] - b[None]) ** 2, axis=2)), dims
