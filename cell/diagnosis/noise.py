@@ -185,15 +185,10 @@ def _nearest_dense(data: np.ndarray, query: np.ndarray, m: int) -> np.ndarray:
     return out
 
 
-def _sq_dist(query: np.ndarray, data: np.ndarray) -> np.ndarray:
-    """Squared 2-D distances of matching rows (any broadcast shape), rounded as
-    :func:`_nearest_dense` rounds them (a sum of two squares is one rounding)."""
-    return (query[..., 0] - data[..., 0]) ** 2 + (query[..., 1] - data[..., 1]) ** 2
-
-
 def _sq_dist_at(query: np.ndarray, qi: np.ndarray, data: np.ndarray, di: np.ndarray) -> np.ndarray:
-    """:func:`_sq_dist` of the query rows ``qi`` and the data rows ``di`` (index arrays that
-    broadcast), the same values, gathering each coordinate alone rather than whole rows."""
+    """Squared 2-D distances between the query rows ``qi`` and the data rows ``di`` (index
+    arrays that broadcast), rounded as :func:`_nearest_dense` rounds them (a sum of two
+    squares is one rounding), each coordinate gathered alone rather than whole rows."""
     q0, q1, d0, d1 = query[:, 0], query[:, 1], data[:, 0], data[:, 1]
     return (q0[qi] - d0[di]) ** 2 + (q1[qi] - d1[di]) ** 2
 

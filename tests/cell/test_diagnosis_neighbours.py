@@ -54,7 +54,10 @@ def test_the_grid_search_finds_the_rows_and_order_of_comparing_every_pair(layout
 def test_squared_distances_gathered_by_coordinate_are_those_of_the_gathered_rows():
     # the grid search gathers each coordinate alone: the same bits as the rows' distances,
     # for pairs of index arrays and for a column of queries against a block of rows
-    from cell.diagnosis.noise import _sq_dist, _sq_dist_at
+    from cell.diagnosis.noise import _sq_dist_at
+
+    def _sq_dist(query, data):               # the distances of rows gathered whole
+        return (query[..., 0] - data[..., 0]) ** 2 + (query[..., 1] - data[..., 1]) ** 2
     rng = np.random.default_rng(5)
     q, d = rng.normal(0, 90, (300, 2)), rng.normal(0, 90, (500, 2))
     qi, di = rng.integers(0, 300, 4000), rng.integers(0, 500, 4000)
