@@ -247,14 +247,32 @@ def line_joints(robot: Scara, start_pose, end_pose, n_points: int, segment_s: fl
     """The way-points of :func:`plan_line`, without its segments: (poses (n+1, 4), joints
     (n+1, 4)), checked and unwrapped as :func:`plan_line` says, raising what it raises for
     these arguments (the mover builds its own segments from the joints)."""
+    p0, p1, n, _ = _line_args(start_pose, end_pose, n_points, segment_s)
+    _check_time_law(time_law)
+    return _way_points(robot, p0, p1, n, elbow, time_law)
+
+
+def _line_args(start_pose, end_pose, n_points, segment_s) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """(start pose, end pose, n, T) of a line, checked; raises TrajectoryError naming the
+    first bad one."""
     p0 = _finite_array("start_pose", start_pose, (4,))
     p1 = _finite_array("end_pose", end_pose, (4,))
     n = _positive_int("n_points", n_points)
     T = _finite_scalar("segment_s", segment_s)
     if T <= 0:
         raise TrajectoryError(f"segment_s = {segment_s!r} must be > 0")
+    return p0, p1, n, T
+
+
+def _check_time_law(time_law: str) -> None:
     if time_law not in TIME_LAWS:
         raise TrajectoryError(f"time_law = {time_law!r}; choose one of {sorted(TIME_LAWS)}")
+
+
+def _way_points(robot: Scara, p0: np.ndarray, p1: np.ndarray, n: int, elbow: Elbow,
+                time_law: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_joints` of arguments already checked: the poses along the line, their
+    joints by IK, unwrapped, and the first point off its limits named."""
     s = TIME_LAWS[time_law](np.linspace(0.0, 1.0, n + 1))[:, None]
     poses = p0 + s * (p1 - p0)
     poses[-1] = p1  # exact target, no rounding from the linspace
@@ -299,18 +317,12 @@ def plan_line(robot: Scara, start_pose, end_pose, n_points: int, segment_s: floa
     :raises TrajectoryError: bad numbers, n < 1, T ≤ λ_i, or an interpolation point the
         robot cannot reach (message names the point and the kinematic reason).
     """
-    _finite_array("start_pose", start_pose, (4,))
-    _finite_array("end_pose", end_pose, (4,))
-    n = _positive_int("n_points", n_points)
-    T = _finite_scalar("segment_s", segment_s)
-    if T <= 0:
-        raise TrajectoryError(f"segment_s = {segment_s!r} must be > 0")
+    p0, p1, n, T = _line_args(start_pose, end_pose, n_points, segment_s)
     order = _check_station_order(station_order)
-    if time_law not in TIME_LAWS:
-        raise TrajectoryError(f"time_law = {time_law!r}; choose one of {sorted(TIME_LAWS)}")
+    _check_time_law(time_law)
     lam = np.zeros(4) if delays_s is None else _finite_array("delays_s", delays_s, (4,))
     delay_corrected_velocities(np.zeros(4), T, lam)  # validate delays before any IK work
-    poses, joints = line_joints(robot, start_pose, end_pose, n, T, elbow, time_law=time_law)
+    poses, joints = _way_points(robot, p0, p1, n, elbow, time_law)
     vel = delay_corrected_velocities(np.diff(joints, axis=0), T, lam)
     segments = [Segment(index=k, start_s=(k - 1) * T, duration_s=T,
                         target_deg=_readonly(joints[k]), velocity_deg_s=_readonly(vel[k - 1]))
