@@ -1,8 +1,9 @@
 """SimPlc: the simulated PLC, a real Modbus TCP client running a PLC-style scan loop.
 
 It is the twin of the real cell PLC: it speaks Modbus TCP to the controller's
-:class:`~drivers.plc.server.PlcLink` over loopback and knows the controller only
-through the register map (names -> addresses), never through the server's internals.
+:class:`~drivers.plc.server.PlcLink` over loopback, with a client of its own
+(:mod:`cell.sim.modbus_client`, no code shared with the server), and knows the controller
+only through the register map (names -> addresses), never through the server's internals.
 
 Time: the scan is a task of the injected clock (the simulated clock in the simulated
 cell), and every wait of :meth:`SimPlc.run_cycle` is in that clock's seconds. A Modbus
@@ -29,18 +30,14 @@ Writes the controller refuses (Modbus exception) are kept in ``write_errors``.
 """
 from __future__ import annotations
 
-import struct
 import threading
 from collections.abc import Callable, Mapping
-
-from pymodbus.client import ModbusTcpClient
-from pymodbus.exceptions import ModbusException, ModbusIOException
-from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 
 from cell.clock import Clock, MonotonicClock
 from cell.errors import CellError
 from cell.log import get_logger
-from drivers.plc.register_map import PLC_MAP, PlcMapError, RegisterMap
+from cell.sim.modbus_client import ModbusClientError, ModbusLinkError, ModbusRefused, ModbusTcpClient
+from drivers.plc.register_map import PLC_MAP, RegisterMap
 
 
 def _log():
@@ -55,30 +52,6 @@ OUTPUTS = ("recipe_select", "part_id", "calibration_select", "command_word")   #
 RUNNABLE_RECIPE_STATUS = (0, 2)
 RESULTS = ("initial_error_um", "final_error_um", "moves", "cycle_time_ms", "cycle_count",
            "part_id_echo", "fault_code", "recipe_ack", "recipe_status")
-
-
-class _RegistersResponse(ReadHoldingRegistersResponse):
-    """pymodbus's FC3 response, its registers unpacked in one call (pymodbus unpacks them
-    word by word, which cost the simulated PLC more than the rest of its scan). Registered
-    with the client's decoder, pymodbus's documented way to bring a response class."""
-
-    def decode(self, data: bytes) -> None:
-        n = int(data[0])
-        if n >= len(data) or n % 2:
-            raise ModbusIOException(f"byte_count {n} > length of packet {len(data)} or odd",
-                                    function_code=self.function_code)
-        self.registers = list(struct.unpack_from(f">{n // 2}H", data, 1))
-
-    def __str__(self) -> str:
-        # pymodbus formats every decoded response for a debug line, logged or not; its text
-        # lists every field of the PDU and cost as much as the decode
-        return f"{type(self).__name__}({len(self.registers)} registers)"
-
-
-class _ReadWriteRegistersResponse(_RegistersResponse):
-    """The same for FC23's response (read/write multiple registers)."""
-
-    function_code = 23
 
 
 class SimPlcError(CellError):
@@ -101,10 +74,7 @@ class SimPlc:
         self.map = register_map
         self.scan_s = scan_s
         self._clock = clock or MonotonicClock()
-        self._unit = unit
-        self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
-        for response in (_RegistersResponse, _ReadWriteRegistersResponse):
-            self._client.register(response)
+        self._client = ModbusTcpClient(host, port, unit=unit, timeout_s=timeout_s)
         self._cv = threading.RLock()             # guards the images (short holds only)
         self._waiters: list = []                 # (ready, event): set by the scan that makes ready() true
         self._inputs: Mapping[str, int] = {}
@@ -126,9 +96,10 @@ class SimPlc:
         """Connect, check ``map_version``, start the scan task."""
         if self._thread is not None or self._timer is not None:
             raise SimPlcError("SimPlc already started")
-        if not self._client.connect():
-            raise SimPlcError(f"SimPlc: cannot connect to {self._client.comm_params.host}:"
-                              f"{self._client.comm_params.port}")
+        try:
+            self._client.connect()
+        except ModbusLinkError as exc:
+            raise SimPlcError(f"SimPlc: {exc}") from None     # names host:port and the cause
         image = self._exchange(None)
         if image is None or image["map_version"] != self.map.version:
             self._client.close()
@@ -426,22 +397,14 @@ class SimPlc:
         """Read the whole map; with ``heartbeat``, write it first in the same FC23."""
         try:
             if heartbeat is None:
-                rr = self._client.read_holding_registers(0, count=self.map.size, device_id=self._unit)
+                words = self._client.read_holding_registers(0, self.map.size)
             else:
-                rr = self._client.readwrite_registers(
-                    read_address=0, read_count=self.map.size, write_address=self.map["plc_heartbeat"].address,
-                    values=[heartbeat], device_id=self._unit)
-        except (ModbusException, OSError) as exc:   # OSError: the server went away mid-request
+                words = self._client.read_write_registers(0, self.map.size,
+                                                          self.map["plc_heartbeat"].address, [heartbeat])
+        except ModbusClientError as exc:   # a refused read is a link error too
             self._link_error("read", exc)
             return None
-        if rr.isError():
-            self._link_error("read", rr)
-            return None
-        try:
-            return self.map.view(rr.registers)
-        except PlcMapError as exc:                 # a short answer: the server is not ours
-            self._link_error("read", exc)
-            return None
+        return self.map.view(words)        # the client checked that all words came
 
     def _write(self, name: str, value: int) -> int:
         """Write one register; 0 if accepted, the Modbus exception code if refused, -1 on I/O error."""
@@ -451,15 +414,15 @@ class SimPlc:
             words = [0xFFFF] * reg.words   # what a PLC's saturating conversion would send
         try:
             if reg.words == 1:
-                rr = self._client.write_register(reg.address, words[0], device_id=self._unit)
+                self._client.write_register(reg.address, words[0])
             else:
-                rr = self._client.write_registers(reg.address, words, device_id=self._unit)
-        except (ModbusException, OSError) as exc:   # OSError: the server went away mid-request
+                self._client.write_registers(reg.address, words)
+        except ModbusRefused as exc:
+            _log().info("sim_plc_write_refused", name=name, value=value, code=exc.code)
+            return exc.code
+        except ModbusLinkError as exc:
             self._link_error(f"write {name}", exc)
             return -1
-        if rr.isError():
-            _log().info("sim_plc_write_refused", name=name, value=value, code=rr.exception_code)
-            return int(rr.exception_code)
         return 0
 
     def _link_error(self, what: str, exc: object) -> None:

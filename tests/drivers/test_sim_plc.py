@@ -12,6 +12,7 @@ simulated seconds, whatever the load of the host.
 from __future__ import annotations
 
 import math
+import struct
 import threading
 
 import pytest
@@ -20,6 +21,7 @@ from cell.sim.clock import VirtualClock
 from cell.sim.plc import RESULTS, SimPlc, SimPlcError
 from drivers.plc.register_map import PLC_MAP, REGISTERS, PlcMapError, RegisterMap
 from drivers.plc.server import PlcLink, PlcWrite
+from tests.drivers.test_sim_plc_client import FakeServer, answer, good
 
 SCAN_S = 0.002
 T0 = 1000.0            # clock time at the start of a test: no stamp can be mistaken for a default 0
@@ -411,26 +413,33 @@ def test_bad_arguments_are_refused_and_name_the_value(scan_s, shown):
         sim.set_command(go=True)
 
 
-def test_fast_register_responses_decode_as_pymodbus_does():
-    import random
-    import struct as st
+def test_a_bad_answer_is_a_link_error_and_the_next_request_reconnects(clock):
+    """A server answering one scan's FC23 with a stale transaction id: that scan is a link
+    error, the connection is dropped, and the scan's writes (all outputs, as after any link
+    error) go out on a new connection."""
+    stale = [True]
 
-    from pymodbus.exceptions import ModbusIOException
-    from pymodbus.pdu.register_message import ReadHoldingRegistersResponse, ReadWriteMultipleRegistersResponse
+    def reply(request: bytes) -> list:
+        if request[7] not in (3, 23):
+            return good(request)
+        n = struct.unpack_from(">H", request, 10)[0]
+        pdu = struct.pack(f">BB{n}H", request[7], 2 * n, PLC_MAP.version, *[0] * (n - 1))
+        if request[7] == 23 and stale:
+            stale.clear()
+            return [answer(request, pdu, tid=0)]
+        return [answer(request, pdu)]
 
-    from cell.sim.plc import _ReadWriteRegistersResponse, _RegistersResponse
-    rng = random.Random(3)
-    for n in (1, 2, 70, 125):
-        words = [rng.randrange(0, 65536) for _ in range(n)]
-        data = st.pack(f">B{n}H", 2 * n, *words)
-        for ours, theirs in ((_RegistersResponse, ReadHoldingRegistersResponse),
-                             (_ReadWriteRegistersResponse, ReadWriteMultipleRegistersResponse)):
-            a, b = ours(), theirs()
-            a.decode(data)
-            b.decode(data)
-            assert a.registers == b.registers == words and a.function_code == b.function_code
-    with pytest.raises(ModbusIOException):
-        _RegistersResponse().decode(bytes([8, 0, 1]))          # byte count beyond the packet
+    fake = FakeServer(reply)
+    sim = SimPlc("127.0.0.1", fake.port, scan_s=SCAN_S, clock=clock)
+    try:
+        sim.start()
+        sim.wait_scans(2)
+    finally:
+        sim.stop()
+        fake.close()
+    assert sim.link_errors == 1 and fake.connections == 2
+    fcs = [r[7] for r in fake.requests]
+    assert fcs[:6] == [3, 23, 6, 16, 6, 6]   # start, the stale scan, then every output again
 
 
 @pytest.mark.parametrize("names", [("done", "error", "aborted"), ("done", "aborted"), ("ready",), ("error",)])
