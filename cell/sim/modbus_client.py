@@ -29,8 +29,7 @@ _MBAP_LEN = 7
 _MAX_ADU = 260                      # spec: MBAP 7 + PDU <= 253
 _NAMES = {3: "read holding registers", 6: "write single register",
           16: "write multiple registers", 23: "read/write multiple registers"}
-_REQ3 = struct.Struct(">HHHBBHH")               # MBAP + FC3 address, quantity
-_REQ6 = struct.Struct(">HHHBBHH")               # MBAP + FC6 address, value
+_REQ_2W = struct.Struct(">HHHBBHH")             # MBAP + FC3 address, quantity / FC6 address, value
 _REQ16 = struct.Struct(">HHHBBHHB")             # MBAP + FC16 address, quantity, byte count (+ words)
 _REQ23 = struct.Struct(">HHHBBHHHHB")           # MBAP + FC23 read addr, qty, write addr, qty, byte count
 _ECHO = struct.Struct(">HH")                    # FC6/FC16 answer: address, value / quantity
@@ -109,7 +108,7 @@ class ModbusTcpClient:
         _check_count(3, count, 125)
         _check_address(3, address)
         tid = self._next_tid()
-        pdu = self._transact(3, tid, _REQ3.pack(tid, 0, 6, self.unit, 3, address, count))
+        pdu = self._transact(3, tid, _REQ_2W.pack(tid, 0, 6, self.unit, 3, address, count))
         return self._registers(3, pdu, count)
 
     def read_write_registers(self, read_address: int, read_count: int, write_address: int,
@@ -133,7 +132,7 @@ class ModbusTcpClient:
             raise ValueError(f"Modbus FC6: value {value} not in 0..65535")
         _check_address(6, address)
         tid = self._next_tid()
-        pdu = self._transact(6, tid, _REQ6.pack(tid, 0, 6, self.unit, 6, address, value))
+        pdu = self._transact(6, tid, _REQ_2W.pack(tid, 0, 6, self.unit, 6, address, value))
         self._echo(6, pdu, address, value, "value")
 
     def write_registers(self, address: int, values: list[int]) -> None:
