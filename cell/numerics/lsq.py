@@ -128,6 +128,7 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
     J = jacobian(x, r)
     cost = 0.5 * float(r @ r)
     d = np.zeros(n)
+    boxed = bool(np.isfinite(lo).any() or np.isfinite(hi).any())   # else every x is free
     mu, nu, status = None, 2.0, 0
     while True:
         d = np.maximum(d, np.sqrt(np.einsum("ij,ij->j", J, J)))
@@ -137,31 +138,41 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
         if mu is None:
             mu = 1e-3 * float(np.max(np.diag(A) / dd ** 2)) if n else 0.0
             mu = mu if mu > 0 else 1e-3
-        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        F = np.flatnonzero(~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))) if boxed else None
+        gf, df = (g, dd) if F is None else (g[F], dd[F])
         rn = np.sqrt(2.0 * cost)
-        if n == 0 or rn == 0 or np.max(np.abs(g[free]) / dd[free], initial=0.0) <= gtol * rn:
+        if n == 0 or rn == 0 or np.max(np.abs(gf) / df, initial=0.0) <= gtol * rn:
             status = 1
             break
         if nfev >= max_nfev:
             break
-        F = np.flatnonzero(free)
-        delta = np.zeros(n)
+        Af = A if F is None else A[np.ix_(F, F)]
+        damp = np.diag(df ** 2)
         while True:
             try:
-                L = np.linalg.cholesky(A[np.ix_(F, F)] + mu * np.diag(dd[F] ** 2))
+                L = np.linalg.cholesky(Af + mu * damp)
                 break
             except np.linalg.LinAlgError:
                 mu *= 10.0
-        delta[F] = -np.linalg.solve(L.T, np.linalg.solve(L, g[F]))
-        xt = np.clip(x + delta, lo, hi)
+        step = -np.linalg.solve(L.T, np.linalg.solve(L, gf))
+        if F is None:
+            xt = x + step
+        else:
+            delta = np.zeros(n)
+            delta[F] = step
+            xt = np.clip(x + delta, lo, hi)
         s = xt - x
         Js = J @ s
         pred = -float(g @ s) - 0.5 * float(Js @ Js)
         rt = np.asarray(fun(xt), dtype=float).ravel()
         nfev += 1
-        cost_t = 0.5 * float(rt @ rt) if np.all(np.isfinite(rt)) else np.inf
+        cost_t = 0.5 * float(rt @ rt)         # inf or nan iff some rt is (or the sum overflows)
+        if not np.isfinite(cost_t):
+            cost_t = np.inf
         rho = (cost - cost_t) / pred if pred > 0 and np.isfinite(cost_t) else -1.0
-        small_step = np.linalg.norm(dd * s) <= xtol * (xtol + np.linalg.norm(dd * x))
+        ds = dd * s
+        dx = dd * x
+        small_step = np.sqrt(ds @ ds) <= xtol * (xtol + np.sqrt(dx @ dx))
         if rho > 0:
             small_cost = cost - cost_t <= ftol * cost and pred <= ftol * cost
             x, r, cost = xt, rt, cost_t
