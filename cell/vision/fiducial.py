@@ -125,11 +125,14 @@ def _local_background(work: np.ndarray, max_radius_px: float) -> np.ndarray:
     return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def _disc_model(p: np.ndarray, uu: np.ndarray, vv: np.ndarray, u0: float, v0: float):
-    """Model values and Jacobian for parameters (uc, vc, r, A, B, s, gx, gy).
+def _disc_model(p: np.ndarray, uu: np.ndarray, vv: np.ndarray, du0: np.ndarray, dv0: np.ndarray,
+                columns: int = 8):
+    """Model values and Jacobian (m, 8) for parameters (uc, vc, r, A, B, s, gx, gy) at pixels
+    (uu, vv), ``du0, dv0`` = uu - u0, vv - v0; only the first ``columns`` columns are filled.
 
     ``(B + A E(rho)) * (1 + gx (u - u0) + gy (v - v0))``: the lighting gradient multiplies
-    disc and ground alike, as uneven illumination does. A < 0 for a dark disc.
+    disc and ground alike, as uneven illumination does. A < 0 for a dark disc. With
+    gx = gy = 0 the lighting factor is exactly 1 and is left out.
     """
     uc, vc, r, a, b, s, gx, gy = p
     sgn = 1.0 if s >= 0 else -1.0
@@ -138,12 +141,26 @@ def _disc_model(p: np.ndarray, uu: np.ndarray, vv: np.ndarray, u0: float, v0: fl
     rho = np.sqrt(du * du + dv * dv) + 1e-12
     z = (rho - r) / s
     e = 0.5 * erfc(z / _SQRT2)
-    light = 1.0 + gx * (uu - u0) + gy * (vv - v0)
     base = b + a * e
-    aphi = a * np.exp(-0.5 * z * z) / (s * _SQRT2PI) * light      # A * (-dE/drho) * light
-    jac = np.column_stack([aphi * du / rho, aphi * dv / rho, aphi, e * light, light,
-                           aphi * z * sgn, base * (uu - u0), base * (vv - v0)])
-    return base * light, jac
+    aphi = a * np.exp(-0.5 * z * z) / (s * _SQRT2PI)            # A * (-dE/drho) * light
+    jac = np.empty((uu.size, 8))
+    flat = gx == 0 and gy == 0
+    if flat:
+        jac[:, 3] = e
+        jac[:, 4] = 1.0
+    else:
+        light = 1.0 + gx * du0 + gy * dv0
+        aphi *= light
+        jac[:, 3] = e * light
+        jac[:, 4] = light
+    jac[:, 0] = aphi * du / rho
+    jac[:, 1] = aphi * dv / rho
+    jac[:, 2] = aphi
+    jac[:, 5] = aphi * z * sgn
+    if columns > 6:
+        jac[:, 6] = base * du0
+        jac[:, 7] = base * dv0
+    return (base if flat else base * light), jac
 
 
 def _fit_plane(vals: np.ndarray, uu: np.ndarray, vv: np.ndarray, u0: float, v0: float):
@@ -246,13 +263,14 @@ def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> d
     # the first `free` parameters are fitted, the rest held at p0; over the edge ring only
     keep = edge_ring(uu, vv, p0[0], p0[1], p0[2])
     z, uf, vf = work[keep], uu[keep], vv[keep]
+    du0, dv0 = uf - u0, vf - v0
     fixed = p0[free:]
     last: dict = {}
 
     def model(q):                        # least_squares asks for f and J at the same q
         key = q.tobytes()
         if last.get("key") != key:
-            last["key"], last["fj"] = key, _disc_model(np.concatenate([q, fixed]), uf, vf, u0, v0)
+            last["key"], last["fj"] = key, _disc_model(np.concatenate([q, fixed]), uf, vf, du0, dv0, free)
         return last["fj"]
 
     def fun(q):
