@@ -100,9 +100,18 @@ def _check_polarity(polarity: str) -> None:
 
 
 def estimate_noise(work: np.ndarray) -> float:
-    """Robust image-noise sigma (grey levels) from horizontal pixel differences (MAD)."""
-    d = np.abs(np.diff(work[::2].astype(np.int16), axis=1))
-    return max(0.5, 1.4826 * float(np.median(d)) / _SQRT2)
+    """Robust image-noise sigma (grey levels) from horizontal pixel differences (MAD) of
+    every other row. For 8-bit images the median is read off the differences' histogram:
+    the same value np.median gives (the mean of the two middle values for an even count)."""
+    if work.dtype != np.uint8:
+        d = np.abs(np.diff(work[::2].astype(np.int16), axis=1))
+        return max(0.5, 1.4826 * float(np.median(d)) / _SQRT2)
+    rows = work[::2]
+    d = cv2.absdiff(rows[:, 1:], rows[:, :-1])
+    counts = np.cumsum(cv2.calcHist([d], [0], None, [256], [0, 256]).ravel().astype(np.int64))
+    n = d.size
+    lo, hi = np.searchsorted(counts, [(n - 1) // 2, n // 2], side="right")
+    return max(0.5, 1.4826 * (float(lo + hi) / 2.0) / _SQRT2)
 
 
 def _local_background(work: np.ndarray, max_radius_px: float) -> np.ndarray:
@@ -341,7 +350,7 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
     bg = _local_background(work, max_radius_px)
     thr = max(5.0 * noise, 0.25 * min_contrast, 3.0)
     mask = ((work.astype(np.float32) - bg) > thr).astype(np.uint8)
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, (lu, lv), stats, cents = _components(mask)
     a_min, a_max = 0.5 * math.pi * min_radius_px ** 2, math.pi * (max_radius_px + 2.0) ** 2
     hh, ww = image.shape
     found, problems, ignored = [], [], []
@@ -359,7 +368,7 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
             problems.append(f"target at {_where(region)} is cut by the {edge} edge")
             kinds.append("cut")
             continue
-        blob = (labels[y:y + bh, x:x + bw] == i).astype(np.uint8)
+        blob = (labels[y - lv:y - lv + bh, x - lu:x - lu + bw] == i).astype(np.uint8)
         holes = _hole_area(blob)
         if holes > 0.05 * area:
             ignored.append(f"ring-shaped blob at {_where(region)} ({holes} px hole)")
@@ -406,6 +415,27 @@ def find_fiducials(image: np.ndarray, *, expected: int | None = None, polarity: 
         where = ", ".join(f"({f.u_px:.1f}, {f.v_px:.1f}) in {_where(f.region)}" for f in found)
         raise VisionError(f"expected {expected} target(s), found {len(found)}: {where}", "multiple")
     return found
+
+
+def _components(mask: np.ndarray):
+    """``cv2.connectedComponentsWithStats(mask, connectivity=8)`` run on the bounding box of
+    the mask's pixels only: (n, labels of that box, (u, v) of its corner, stats, centroids),
+    stats and centroids of the components (rows 1..n-1) in the mask's coordinates.
+
+    The same components, numbered alike and with the same centroids to the bit: the box
+    starts on even coordinates, so OpenCV's 2x2-block labelling meets the pixels as it did
+    in the whole mask, and a centroid is moved by re-forming OpenCV's own quotient (pixel
+    sum / area) from the exact integer sum. Row 0 (the background) is left as it is."""
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0:
+        return 1, None, (0, 0), np.zeros((1, 5), np.int32), np.zeros((1, 2))
+    u0, v0 = x & ~1, y & ~1
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask[v0:y + h, u0:x + w], connectivity=8)
+    stats[1:, 0] += u0
+    stats[1:, 1] += v0
+    area = stats[1:, 4:5].astype(np.float64)
+    cents[1:] = (np.rint(cents[1:] * area) + area * np.array([u0, v0], np.float64)) / area
+    return n, labels, (u0, v0), stats, cents
 
 
 def _hole_area(blob: np.ndarray) -> int:
