@@ -172,10 +172,21 @@ def _disc_model(p: np.ndarray, uu: np.ndarray, vv: np.ndarray, du0: np.ndarray, 
     return (base if flat else base * light), jac
 
 
-def _fit_plane(vals: np.ndarray, uu: np.ndarray, vv: np.ndarray, u0: float, v0: float):
-    """Least-squares plane B + gx (u - u0) + gy (v - v0); returns (B, gx, gy) and the
-    largest |slope| / standard error of the slopes (how sure we are there is a gradient)."""
-    a = np.column_stack([np.ones_like(uu), uu - u0, vv - v0])
+def _median(x: np.ndarray) -> float:
+    """``float(np.median(x))`` of a 1-D float array, without its wrapper: the mean of the
+    two middle values (the middle one for an odd count), NaN if any value is NaN."""
+    n = x.size
+    part = np.partition(x, [(n - 1) // 2, n // 2, n - 1])
+    if np.isnan(part[-1]):
+        return float("nan")
+    return float((part[(n - 1) // 2] + part[n // 2]) / 2.0) if n % 2 == 0 else float(part[n // 2])
+
+
+def _fit_plane(vals: np.ndarray, du: np.ndarray, dv: np.ndarray):
+    """Least-squares plane B + gx du + gy dv (du, dv: offsets from the plane's origin);
+    returns (B, gx, gy) and the largest |slope| / standard error of the slopes (how sure
+    we are there is a gradient)."""
+    a = np.column_stack([np.ones_like(du), du, dv])
     coef, *_ = np.linalg.lstsq(a, vals, rcond=None)
     dof = max(1, len(vals) - 3)
     res_var = float(np.sum((vals - a @ coef) ** 2)) / dof
@@ -218,17 +229,20 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
                           f"{disc_area:.0f} px); lower exposure or gain", "saturated")
     work = raw.astype(np.float64)
     sign = 1.0 if polarity == "bright" else -1.0
-    vv, uu = np.mgrid[region[1]:region[3] + 1, region[0]:region[2] + 1].astype(np.float64)
-    rho0 = np.hypot(uu - u, vv - v)
+    uu = np.arange(region[0], region[2] + 1, dtype=np.float64)[None, :]   # the pixel grid as a
+    vv = np.arange(region[1], region[3] + 1, dtype=np.float64)[:, None]   # row and a column
+    du, dv = uu - u, vv - v
+    rho0 = np.hypot(du, dv)
 
     # Background: a plane fitted to the ROI border, outside the disc and its blur.
     ring = rho0 > radius_px + 0.6 * margin
     if np.count_nonzero(ring) < 12:
         ring = rho0 > radius_px + 2
-    (b, gx, gy), slope_t = _fit_plane(work[ring], uu[ring], vv[ring], u, v)
-    signal = sign * (work - (b + gx * (uu - u) + gy * (vv - v)))
+    (b, gx, gy), slope_t = _fit_plane(work[ring], np.broadcast_to(du, work.shape)[ring],
+                                      np.broadcast_to(dv, work.shape)[ring])
+    signal = sign * (work - (b + gx * du + gy * dv))
     inner = rho0 < 0.5 * radius_px
-    contrast0 = float(np.median(signal[inner])) if np.any(inner) else float(signal.max())
+    contrast0 = _median(signal[inner]) if np.any(inner) else float(signal.max())
     if not contrast0 >= min_contrast:
         raise VisionError(f"target at {_where(region)} has too low contrast: {contrast0:.1f} "
                           f"grey levels < min_contrast {min_contrast:g}", "low_contrast")
@@ -262,7 +276,8 @@ def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
     """Pixels within ``RING_PX + RING_FRACTION·r`` of the circle of radius ``r`` about
     (uc, vc): the edge, where the image depends on the centre, with enough of both plateaus
     on either side to fix contrast and ground. Pixels deeper inside or further out carry
-    no information on the centre, only cost."""
+    no information on the centre, only cost. ``uu``, ``vv``: the pixels' coordinates, or a
+    row and a column that broadcast to them."""
     band = RING_PX + RING_FRACTION * r
     return np.abs(np.hypot(uu - uc, vv - vc) - r) <= band
 
@@ -271,7 +286,7 @@ def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
 def _fit_disc(work, uu, vv, p0, u0, v0, region, sign: float, free: int = 8) -> dict:
     # the first `free` parameters are fitted, the rest held at p0; over the edge ring only
     keep = edge_ring(uu, vv, p0[0], p0[1], p0[2])
-    z, uf, vf = work[keep], uu[keep], vv[keep]
+    z, uf, vf = work[keep], np.broadcast_to(uu, work.shape)[keep], np.broadcast_to(vv, work.shape)[keep]
     du0, dv0 = uf - u0, vf - v0
     fixed = p0[free:]
     last: dict = {}
