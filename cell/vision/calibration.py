@@ -23,6 +23,7 @@ shrinks); a view that is not is rejected.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence, Union
@@ -282,7 +283,13 @@ class PlaneCalibration:
         q = _points(pixels, "pixels")
         cx, cy = self.centre_px
         x, y = undistort((q[:, 0] - cx) / self.focal_px, (q[:, 1] - cy) / self.focal_px, self.distortion)
-        return _h_apply(np.linalg.inv(self.homography), np.column_stack([x, y]))
+        return _h_apply(self._plane_from_normalised, np.column_stack([x, y]))
+
+    @functools.cached_property
+    def _plane_from_normalised(self) -> np.ndarray:
+        """The homography's inverse (undistorted normalised -> base mm), formed on first
+        use and kept: the calibration is frozen."""
+        return np.linalg.inv(self.homography)
 
     def pixel_to_base(self, u: float, v: float) -> tuple[float, float]:
         """One pixel (u, v) -> (x_mm, y_mm) on the work plane."""
