@@ -455,7 +455,7 @@ def _components(mask: np.ndarray):
 
 def _hole_area(blob: np.ndarray) -> int:
     """Pixels enclosed by the blob but not part of it (a ring's hole; a disc has none)."""
-    filled = np.pad(blob, 1)
+    filled = cv2.copyMakeBorder(blob, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     cv2.floodFill(filled, None, (0, 0), 2)
     return int(np.count_nonzero(filled == 0))
 
@@ -468,7 +468,10 @@ def _circularity(blob: np.ndarray, cu: float, cv: float) -> float:
     contours, _ = cv2.findContours(blob, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
     d = np.hypot(pts[:, 0] - cu, pts[:, 1] - cv)
-    return float(1.0 - max(float(d.std()) - 0.5, 0.0) / max(float(d.mean()), 1e-9))
+    mean = np.add.reduce(d) / d.size                       # d.mean() and d.std() as numpy
+    dev = d - mean                                         # forms them, the sum taken once
+    std = math.sqrt(np.add.reduce(dev * dev) / d.size)
+    return float(1.0 - max(std - 0.5, 0.0) / max(float(mean), 1e-9))
 
 
 def find_fiducial(image: np.ndarray, **kwargs) -> FiducialFix:
