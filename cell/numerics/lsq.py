@@ -44,6 +44,7 @@ is not finite; exceptions of ``fun``/``jac`` pass through.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -140,8 +141,8 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
             mu = mu if mu > 0 else 1e-3
         F = np.flatnonzero(~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))) if boxed else None
         gf, df = (g, dd) if F is None else (g[F], dd[F])
-        rn = np.sqrt(2.0 * cost)
-        if n == 0 or rn == 0 or np.max(np.abs(gf) / df, initial=0.0) <= gtol * rn:
+        rn = math.sqrt(2.0 * cost)
+        if n == 0 or rn == 0 or (np.abs(gf) / df).max(initial=0.0) <= gtol * rn:
             status = 1
             break
         if nfev >= max_nfev:
@@ -167,12 +168,12 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
         rt = np.asarray(fun(xt), dtype=float).ravel()
         nfev += 1
         cost_t = 0.5 * float(rt @ rt)         # inf or nan iff some rt is (or the sum overflows)
-        if not np.isfinite(cost_t):
-            cost_t = np.inf
-        rho = (cost - cost_t) / pred if pred > 0 and np.isfinite(cost_t) else -1.0
+        if not math.isfinite(cost_t):
+            cost_t = math.inf
+        rho = (cost - cost_t) / pred if pred > 0 and cost_t < math.inf else -1.0
         ds = dd * s
         dx = dd * x
-        small_step = np.sqrt(ds @ ds) <= xtol * (xtol + np.sqrt(dx @ dx))
+        small_step = math.sqrt(ds @ ds) <= xtol * (xtol + math.sqrt(dx @ dx))
         if rho > 0:
             small_cost = cost - cost_t <= ftol * cost and pred <= ftol * cost
             x, r, cost = xt, rt, cost_t
