@@ -232,12 +232,12 @@ def refine_fiducial(image: np.ndarray, u: float, v: float, radius_px: float, *,
     uu = np.arange(region[0], region[2] + 1, dtype=np.float64)[None, :]   # the pixel grid as a
     vv = np.arange(region[1], region[3] + 1, dtype=np.float64)[:, None]   # row and a column
     du, dv = uu - u, vv - v
-    rho0 = np.hypot(du, dv)
+    rho0 = _radii(du, dv, (radius_px + 0.6 * margin, 0.5 * radius_px, radius_px + 3.0))
 
     # Background: a plane fitted to the ROI border, outside the disc and its blur.
     ring = rho0 > radius_px + 0.6 * margin
     if np.count_nonzero(ring) < 12:
-        ring = rho0 > radius_px + 2
+        ring = _radii(du, dv, (radius_px + 2,)) > radius_px + 2
     (b, gx, gy), slope_t = _fit_plane(work[ring], np.broadcast_to(du, work.shape)[ring],
                                       np.broadcast_to(dv, work.shape)[ring])
     signal = sign * (work - (b + gx * du + gy * dv))
@@ -279,7 +279,27 @@ def edge_ring(uu, vv, uc: float, vc: float, r: float) -> np.ndarray:
     no information on the centre, only cost. ``uu``, ``vv``: the pixels' coordinates, or a
     row and a column that broadcast to them."""
     band = RING_PX + RING_FRACTION * r
-    return np.abs(np.hypot(uu - uc, vv - vc) - r) <= band
+    return np.abs(_radii(uu - uc, vv - vc, (r - band, r + band)) - r) <= band
+
+
+#: _radii takes np.hypot's value within this much (px, times 1 + the threshold) of a threshold
+RADII_GUARD = 1e-9
+
+
+def _radii(du: np.ndarray, dv: np.ndarray, thresholds) -> np.ndarray:
+    """``np.hypot(du, dv)`` (arrays that broadcast) as far as comparing it with
+    ``thresholds`` can tell, at a third of its cost: ``sqrt(du² + dv²)``, within a few ulp of
+    hypot, and hypot's own value wherever that comes within ``RADII_GUARD·(1 + |t|)`` of a
+    threshold t. A distance further from every threshold lies on the same side of each, by
+    a margin far above both roundings, so every <, <=, >, >= with a threshold (or with
+    ``|d - r|`` against a band whose ends are thresholds) comes out as with hypot."""
+    d = np.sqrt(du * du + dv * dv)
+    near = np.zeros(d.shape, dtype=bool)
+    for t in thresholds:
+        near |= np.abs(d - t) < RADII_GUARD * (1.0 + abs(t))
+    if near.any():
+        d[near] = np.hypot(np.broadcast_to(du, d.shape)[near], np.broadcast_to(dv, d.shape)[near])
+    return d
 
 
 
