@@ -274,6 +274,8 @@ class PlaneCalibration:
         """Base-frame plane points (N, 2) mm -> pixels (N, 2). Raises VisionError on bad input."""
         p = _points(points_mm, "points_mm")
         x = _h_apply(self.homography, p)
+        if self.distortion.is_zero:                  # distort() hands x back as it is
+            return x * self.focal_px + self.centre_px
         xd, yd = distort(x[:, 0], x[:, 1], self.distortion)
         cx, cy = self.centre_px
         return np.column_stack([self.focal_px * xd + cx, self.focal_px * yd + cy])
@@ -281,6 +283,8 @@ class PlaneCalibration:
     def pixels_to_base(self, pixels) -> np.ndarray:
         """Pixels (N, 2) -> base-frame plane points (N, 2) mm. Raises VisionError on bad input."""
         q = _points(pixels, "pixels")
+        if self.distortion.is_zero:                  # undistort() hands the point back
+            return _h_apply(self._plane_from_normalised, (q - self.centre_px) / self.focal_px)
         cx, cy = self.centre_px
         x, y = undistort((q[:, 0] - cx) / self.focal_px, (q[:, 1] - cy) / self.focal_px, self.distortion)
         return _h_apply(self._plane_from_normalised, np.column_stack([x, y]))
