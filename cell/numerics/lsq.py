@@ -129,7 +129,7 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
     J = jacobian(x, r)
     cost = 0.5 * float(r @ r)
     d = np.zeros(n)
-    boxed = bool(np.isfinite(lo).any() or np.isfinite(hi).any())   # else every x is free
+    boxed = bool(np.any(lo != -np.inf) or np.any(hi != np.inf))     # a bound that is not ±inf
     mu, nu, status = None, 2.0, 0
     while True:
         d = np.maximum(d, np.sqrt(np.einsum("ij,ij->j", J, J)))
@@ -139,7 +139,9 @@ def least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, jac="2-point", lo
         if mu is None:
             mu = 1e-3 * float(np.max(np.diag(A) / dd ** 2)) if n else 0.0
             mu = mu if mu > 0 else 1e-3
-        F = np.flatnonzero(~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))) if boxed else None
+        # without bounds a finite x is free in every parameter, and the projection is the identity
+        F = None if not boxed and np.isfinite(x).all() else \
+            np.flatnonzero(~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))))
         gf, df = (g, dd) if F is None else (g[F], dd[F])
         rn = math.sqrt(2.0 * cost)
         if n == 0 or rn == 0 or (np.abs(gf) / df).max(initial=0.0) <= gtol * rn:

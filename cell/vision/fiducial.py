@@ -151,7 +151,7 @@ def _disc_model(p: np.ndarray, uu: np.ndarray, vv: np.ndarray, du0: np.ndarray, 
     z = (rho - r) / s
     e = 0.5 * erfc(z / _SQRT2)
     base = b + a * e
-    aphi = a * np.exp(-0.5 * z * z) / (s * _SQRT2PI)            # A * (-dE/drho) * light
+    aphi = a * np.exp(-0.5 * z * z) / (s * _SQRT2PI)            # A * (-dE/drho) (* light)
     jac = np.empty((uu.size, 8))
     flat = gx == 0 and gy == 0
     if flat:
