@@ -52,26 +52,46 @@ class VirtualWire:
     :class:`VirtualCanBus` on a channel, dropped when the last one leaves.
     """
 
+    BITS_KEEP = 4096     #: standard data frames whose bit count :meth:`_frame_bits` remembers
+
     def __init__(self, channel: str, bitrate: int, clock: VirtualClock):
         self.channel, self.bitrate, self.clock = channel, bitrate, clock
         self.frames = 0
         self.bits = 0
         self.buses: list[VirtualCanBus] = []
         self.free_at = clock.now()
+        self._bits: dict[tuple[int, bytes], int] = {}
 
-    def reserve(self, msg: can.Message, sender: "VirtualCanBus") -> float:
-        """Queue ``msg``; returns the clock time its slot ends (its receive timestamp)."""
-        bits = frame_bits(msg)
+    def reserve(self, msg: can.Message, sender: "VirtualCanBus", own: bool = False) -> float:
+        """Queue ``msg``; returns the clock time its slot ends (its receive timestamp). The
+        frame delivered is a copy of ``msg``, or with ``own`` ``msg`` itself (a frame its
+        sender built for this send alone, see :meth:`VirtualCanBus.send_own`)."""
+        bits = self._frame_bits(msg)
         start = max(self.clock.now(), self.free_at)
         end = start + bits / self.bitrate
         self.free_at = end
         self.frames += 1
         self.bits += bits
-        stamped = msg.__copy__()               # copy(msg), less the copy module's dispatch
+        stamped = msg if own else msg.__copy__()   # copy(msg), less the copy module's dispatch
         stamped.timestamp = end
         sender._pending += 1
         self.clock.call_at(end, self._deliver, stamped, sender)
         return end
+
+    def _frame_bits(self, msg: can.Message) -> int:
+        """:func:`~drivers.stations.bus.frame_bits`, remembered per standard data frame
+        (identifier, data): a drive at rest sends the same TPDO frame again and again, most
+        set-points repeat, and a frame's bits depend on nothing else. The memory is
+        forgotten whenever it holds :attr:`BITS_KEEP` frames."""
+        if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd:
+            return frame_bits(msg)
+        key = (msg.arbitration_id, bytes(msg.data))
+        bits = self._bits.get(key)
+        if bits is None:
+            if len(self._bits) >= self.BITS_KEEP:
+                self._bits.clear()
+            bits = self._bits[key] = frame_bits(msg)
+        return bits
 
     def _deliver(self, msg: can.Message, sender: "VirtualCanBus") -> None:
         sender._pending -= 1
@@ -187,6 +207,17 @@ class VirtualCanBus(VirtualBus):
 
     # ------------------------------------------------------------------ sending
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._admit(msg)
+        self.last_tx_timestamp = self._wire.reserve(msg, self)
+
+    def send_own(self, msg: can.Message) -> None:
+        """:meth:`send` of a frame its caller built for this send alone and never touches
+        again (a simulated drive's network): the wire stamps and delivers ``msg`` itself
+        instead of a copy. Same refusals as :meth:`send`."""
+        self._admit(msg)
+        self.last_tx_timestamp = self._wire.reserve(msg, self, own=True)
+
+    def _admit(self, msg: can.Message) -> None:
         self._check_if_open()
         why = _cannot_carry(msg)
         if why is None and self._pending >= self._tx_queue:
@@ -194,7 +225,6 @@ class VirtualCanBus(VirtualBus):
         if why is not None:
             raise can.CanOperationError(f"virtual CAN {self._wire.channel!r}: frame "
                                         f"0x{msg.arbitration_id:X} not sent: {why}")
-        self.last_tx_timestamp = self._wire.reserve(msg, self)
 
     def _send_periodic_internal(self, msgs, period, duration=None, autostart=True, modifier_callback=None):
         return ClockCyclicTask(self, msgs if not isinstance(msgs, can.Message) else [msgs],

@@ -16,15 +16,27 @@ from canopen.objectdictionary.datatypes import INTEGER_TYPES
 
 
 class DriveNetwork(canopen.Network):
-    """The station's side of the bus: a send the wire refuses puts the node bus-off."""
+    """The station's side of the bus: a send the wire refuses puts the node bus-off.
+
+    ``send_message`` builds the frame as canopen's does and hands it to the bus's
+    ``send_own`` where it has one (:class:`~drivers.stations.sim_bus.VirtualCanBus`: the
+    wire delivers that frame, no copy, as nothing else holds it), else to ``send``. It
+    skips canopen's ``check`` of a notifier: the drive's bus feeds its listener directly
+    and has none."""
 
     def __init__(self, bus: can.BusABC, on_tx_failure: Callable[[Exception], None]):
         super().__init__(bus)
         self._on_tx_failure = on_tx_failure
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        bus = self.bus
+        if not bus:
+            raise RuntimeError("Not connected to CAN bus")
+        msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
+                          is_remote_frame=remote)
         try:
-            super().send_message(can_id, data, remote)
+            with self.send_lock:
+                getattr(bus, "send_own", bus.send)(msg)
         except can.CanError as exc:
             self._on_tx_failure(exc)
             raise
