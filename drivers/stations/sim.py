@@ -130,6 +130,7 @@ class SimStation:
         self._values: dict[tuple[int, int], int] = {}
         self._defaults: dict[tuple[int, int], int] = {}   # the EDS's, as _value first reads them
         self._cpu: float | None = None                    # _counts_per_unit until the next write
+        self._event: float | None = None                  # _event_s until the next write
         self.machine = DriveStateMachine()
         self._target = self._pos
         self._speed = 0.0
@@ -265,6 +266,12 @@ class SimStation:
             self._cpu = enc * gear / 360.0
         return self._cpu
 
+    def _event_s(self) -> float:
+        """TPDO1's event timer (0x1800:5), s; until the next write."""
+        if self._event is None:
+            self._event = self._value(0x1800, 5) / 1000.0
+        return self._event
+
     def _statusword(self) -> int:
         st = self.machine.state
         bits = cia402.SW_SETPOINT_ACK if self._ack else 0
@@ -293,7 +300,7 @@ class SimStation:
         value = od.decode_raw(data)
         with self._lock:
             self._values[(index, subindex)] = value
-            self._cpu = None
+            self._cpu = self._event = None
             if index == 0x6040:
                 self._controlword(value)
             elif index == 0x1016 and subindex == 1:
@@ -529,7 +536,7 @@ class SimStation:
             self._publish(now)
             # TPDOs, their event timer included, in Operational only (a send never changes that)
             operational = self._operational()
-            event_s = self._value(0x1800, 5) / 1000.0 if operational else 0.0
+            event_s = self._event_s() if operational else 0.0
             if operational and (self._dirty_tpdo or (event_s > 0 and now >= self._last_tpdo + event_s)):
                 self._dirty_tpdo, self._last_tpdo = False, now
                 self._send_tpdo()
@@ -539,35 +546,49 @@ class SimStation:
         tx = self._tpdo1
         if not (tx.enabled and tx.map):
             return
-        live = {0x6064: int(round(self._pos)), 0x6041: self._statusword(),
-                0x606C: int(round(self._velocity()))}
         codec = self._codecs.get(id(tx))
         if codec is None:
             for var in tx.map:
                 if var.length:
-                    var.set_data(var.od.encode_raw(live.get(var.index, 0)))
+                    var.set_data(var.od.encode_raw(self._live(var.index)))
         else:
-            tx.data[:] = codec.struct.pack(*[live.get(i, 0) for i in codec.indices])
+            tx.data[:] = codec.struct.pack(*[self._live(i) for i in codec.indices])
         try:
             self.network.send_message(tx.cob_id, tx.data)
         except can.CanError as exc:
             self.log.info("tpdo_not_sent", error=str(exc))
+
+    def _live(self, index: int) -> int:
+        """A TPDO-mapped object's value now: position and velocity actual value, statusword;
+        0 for any other object."""
+        if index == 0x6064:
+            return int(round(self._pos))
+        if index == 0x6041:
+            return self._statusword()
+        if index == 0x606C:
+            return int(round(self._velocity()))
+        return 0
 
     def _schedule(self, now: float, event_s: float) -> None:
         """Wake at the next due event; ``event_s``: the TPDO event timer's period, 0 when it
         does not run (off, or not Operational)."""
         if not self._powered:
             return
-        due = []
-        if self._setpoints:
-            due.append(self._setpoints[0][0])
+        t = self._setpoints[0][0] if self._setpoints else None      # the earliest due, or None
         if event_s > 0:
-            due.append(self._last_tpdo + event_s)
+            due = self._last_tpdo + event_s
+            if t is None or due < t:
+                t = due
         if self._hb_node is not None and self._hb_last is not None and not self._hb_timed_out:
-            due.append(self._hb_last + self._hb_time_s)
+            due = self._hb_last + self._hb_time_s
+            if t is None or due < t:
+                t = due
         if self._ramp_v:
-            due.append(self._t + abs(self._ramp_v) / float(max(self._value(0x6085), 1)))
-        t = max(min(due), now) if due else None
+            due = self._t + abs(self._ramp_v) / float(max(self._value(0x6085), 1))
+            if t is None or due < t:
+                t = due
+        if t is not None and now > t:
+            t = now
         if t == self._wake_at:
             return
         if self._timer is not None:
