@@ -140,6 +140,33 @@ def test_listeners_get_frames_from_the_clock_at_the_end_of_the_slot(vclock, wire
     assert [m.timestamp for m in drain(pulled)] == [g[1] for g in rec.got]
 
 
+def test_send_own_delivers_the_frame_itself_and_send_a_copy(vclock, wire):
+    tx, rx = wire(), wire()
+    rec = []
+    rx.attach_listeners([type("L", (can.Listener,), {"on_message_received": lambda self, m: rec.append(m)})()])
+    kept, own = _msg(0x181, b"\x01"), _msg(0x182, b"\x02")
+    tx.send(kept)
+    tx.send_own(own)
+    vclock.sleep(0.001)
+    assert rec[0] is not kept and kept.timestamp == 0.0     # the sender's frame untouched
+    assert rec[1] is own and own.timestamp == tx.last_tx_timestamp and own.is_rx
+    with pytest.raises(can.CanOperationError, match="9 data bytes"):   # the same refusals
+        tx.send_own(_msg(0x183, bytes(9)))
+
+
+def test_the_bits_a_wire_remembers_are_frame_bits(vclock, wire):
+    tx, _ = wire(tx_queue=64), wire()
+    w = tx._wire
+    frames = [_msg(0x181, b"\x01\x02"), _msg(0x181, b"\x01\x02"), _msg(0x181, b"\x01\x03"),
+              _msg(0x182, b"\x01\x02"), _msg(0x181, b"\x01\x02\x00"),
+              _msg(0x181, b"\x01\x02", is_extended_id=True), _msg(0x181, is_remote_frame=True, dlc=2)]
+    for m in frames:
+        assert w._frame_bits(m) == frame_bits(m)
+    assert len(w._bits) == 4                                 # standard data frames only, each once
+    w.BITS_KEEP = 4
+    assert w._frame_bits(_msg(0x183, b"")) == frame_bits(_msg(0x183, b"")) and len(w._bits) == 1
+
+
 def test_pull_mode_recv_waits_in_clock_time_for_a_frame(vclock, wire):
     tx, rx = wire(), wire()
     vclock.call_later(0.1, tx.send, _msg(0x123, b"\x42"))        # sent later, by the clock itself
