@@ -25,6 +25,7 @@ projected centres in pixels.
 """
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from dataclasses import asdict, dataclass
@@ -134,8 +135,55 @@ def _roi(model: CameraModel, outline_mm: np.ndarray, margin: float):
     return (u0, v0, u1, v1) if u0 <= u1 and v0 <= v1 else None
 
 
+def _pixel_grid(model: CameraModel, u0: int, v0: int, u1: int, v1: int) -> np.ndarray:
+    """Plane points (mm) of the pixels u0..u1 x v0..v1, shape (v1-v0+1, u1-u0+1, 2):
+    ``model.unproject`` of those pixels (a view into :func:`_frame_grid` where the model
+    has one)."""
+    full = _frame_grid(model)
+    if full is not None:
+        return full[v0 + 1:v1 + 2, u0 + 1:u1 + 2]
+    return _unproject_box(model, u0, v0, u1, v1)
+
+
+@functools.lru_cache(maxsize=2)         # the cell's two cameras
+def _frame_grid(model: CameraModel) -> np.ndarray | None:
+    """``model.unproject`` of every pixel of the frame and a one-pixel border around it,
+    shape (h+2, w+2, 2) (pixel (u, v) at [v+1, u+1]), made once per model; None where the
+    map is not provably point by point. It is for a model without lens distortion whose
+    camera axes are the base axes up to sign and order (a nadir camera at yaw 0, as the
+    simulated cell's): its unprojection is then elementwise arithmetic plus a rotation
+    whose products are exact (by 0 or ±1), so a pixel's plane point is the same floats
+    whether it is unprojected alone, in a box or in the whole frame. Otherwise (whose
+    undistortion iterates over the batch, or whose rotation rounds in a batch-size-dependent
+    matrix kernel) the boxes are unprojected each time as before."""
+    rot = np.abs(model.pose.rotation_camera_to_base())
+    if not (model.distortion.is_zero and np.isin(rot, (0.0, 1.0)).all()
+            and (rot.sum(axis=0) == 1.0).all() and (rot.sum(axis=1) == 1.0).all()):
+        return None
+    w, h = model.size
+    try:
+        grid = _unproject_box(model, -1, -1, w, h)
+    except VisionError:
+        return None                          # every pixel looks away: the boxes raise as before
+    grid.flags.writeable = False
+    return grid
+
+
+def _unproject_box(model: CameraModel, u0: int, v0: int, u1: int, v1: int) -> np.ndarray:
+    us, vs = np.arange(u0, u1 + 1), np.arange(v0, v1 + 1)
+    uu, vv = np.meshgrid(us, vs)
+    return model.unproject(np.column_stack([uu.ravel(), vv.ravel()])).reshape(len(vs), len(us), 2)
+
+
 def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
-    """Plane points (mm) of ss x ss samples per pixel of the box, shape (nv*ss, nu*ss, 2).
+    """Plane points (mm) of ss x ss samples per pixel of the box, shape (nv*ss, nu*ss, 2):
+    :func:`_sample_planes` with the coordinate last."""
+    return np.moveaxis(_sample_planes(model, box, ss), 0, -1)
+
+
+def _sample_planes(model: CameraModel, box, ss: int) -> np.ndarray:
+    """Plane points (mm) of ss x ss samples per pixel of the box, shape (2, nv*ss, nu*ss):
+    x, then y, each a contiguous plane.
 
     The full model is evaluated once per pixel (plus a one-pixel border) and interpolated
     bilinearly to the samples: the map is so smooth that this is exact to ~1e-5 px here.
@@ -143,9 +191,7 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
     each of the ss places is one weighted sum of two shifted slices, per axis and coordinate.
     """
     u0, v0, u1, v1 = box
-    us, vs = np.arange(u0 - 1, u1 + 2), np.arange(v0 - 1, v1 + 2)
-    uu, vv = np.meshgrid(us, vs)
-    grid = model.unproject(np.column_stack([uu.ravel(), vv.ravel()])).reshape(len(vs), len(us), 2)
+    grid = _pixel_grid(model, u0 - 1, v0 - 1, u1 + 1, v1 + 1)
     offs = (np.arange(ss) + 0.5) / ss - 0.5
 
     def index(lo, hi):                       # sample positions as (floor index, fraction)
@@ -167,7 +213,7 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
     iv, fv = index(v0, v1)
     nu, nv = u1 - u0 + 1, v1 - v0 + 1
     cols_at, rows_at = pairs(iu, nu), pairs(iv, nv)
-    out = np.empty((nv * ss, nu * ss, 2))
+    out = np.empty((2, nv * ss, nu * ss))
     g = np.empty((nv + 2, nu * ss))
     for c in (0, 1):                             # each coordinate a contiguous plane
         plane = np.ascontiguousarray(grid[..., c])
@@ -176,7 +222,7 @@ def _samples(model: CameraModel, box, ss: int) -> np.ndarray:
             g[:, j::ss] = plane[:, lo] * (1 - w) + plane[:, hi] * w
         for j, (lo, hi) in enumerate(rows_at):
             w = fv[j::ss][:, None]
-            out[j::ss, :, c] = g[lo] * (1 - w) + g[hi] * w
+            out[c, j::ss] = g[lo] * (1 - w) + g[hi] * w
     return out
 
 
@@ -195,12 +241,15 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
     box = _roi(model, np.column_stack([x + r * np.cos(t), y + r * np.sin(t)]), margin)
     if box is None:
         return None, None
-    p = _samples(model, box, ss)
-    dx, dy = p[..., 0] - x, p[..., 1] - y
+    px, py = _sample_planes(model, box, ss)
+    dx, dy = px - x, py - y
     rho = np.hypot(dx, dy)
     # px per mm along the radial direction (local Jacobian at the centre)
     jac = model.jacobian((x, y))
-    n = np.stack([dx, dy], axis=-1) / np.maximum(rho, 1e-12)[..., None]
+    n = np.empty(dx.shape + (2,))                       # np.stack([dx, dy], axis=-1) / the same
+    den = np.maximum(rho, 1e-12)
+    np.divide(dx, den, out=n[..., 0])
+    np.divide(dy, den, out=n[..., 1])
     m = n @ jac.T
     m *= m
     scale = np.sqrt(m[..., 0] + m[..., 1])           # np.linalg.norm(n @ jac.T, axis=-1)

@@ -177,6 +177,24 @@ def test_samples_are_the_bilinear_map_of_every_sample_bit_for_bit():
         assert np.array_equal(_samples(model, box, ss), want), ss
 
 
+def test_a_frames_unprojected_pixels_are_each_boxs_bit_for_bit():
+    """The frame's pixels unprojected once (_frame_grid) give every box the very floats its
+    own unprojection gives; a model whose map is not provably point by point has none."""
+    from drivers.camera.sim import _frame_grid, _pixel_grid, _unproject_box
+    rng = np.random.default_rng(5)
+    for model in (CameraModel.nadir(640, 512, 0.08, centre_mm=(300.0, 12.5)),
+                  CameraModel.nadir(320, 240, 0.05, centre_mm=(-0.0, 0.0))):
+        assert _frame_grid(model) is not None
+        w, h = model.size
+        for _ in range(200):
+            u0, v0 = int(rng.integers(-1, w)), int(rng.integers(-1, h))
+            u1, v1 = int(rng.integers(u0, min(w, u0 + 90) + 1)), int(rng.integers(v0, min(h, v0 + 90) + 1))
+            got, want = _pixel_grid(model, u0, v0, u1, v1), _unproject_box(model, u0, v0, u1, v1)
+            assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    assert _frame_grid(CameraModel.nadir(64, 48, 0.1, yaw_deg=30.0)) is None
+    assert _frame_grid(CameraModel.nadir(64, 48, 0.1, distortion=Distortion(k1=0.01))) is None
+
+
 def test_render_in_a_work_array_with_noise_drawn_ahead_is_the_same_frame():
     scene = [Fiducial(0.3, -0.2, 3.0, "tool"), Fiducial(4.0, 2.5, 1.5, "part")]
     w, h = NADIR.size
