@@ -195,6 +195,19 @@ def test_a_frames_unprojected_pixels_are_each_boxs_bit_for_bit():
     assert _frame_grid(CameraModel.nadir(64, 48, 0.1, distortion=Distortion(k1=0.01))) is None
 
 
+def test_pooling_is_numpys_block_mean_bit_for_bit():
+    """_pool's 2 x 2 sums in numpy's own order give the floats of numpy's mean over the
+    blocks, whatever the block grid (one block row or column included) and the values."""
+    from drivers.camera.sim import _pool
+    rng = np.random.default_rng(8)
+    for rows, cols in [(1, 1), (1, 2), (2, 1), (1, 77), (77, 1), (3, 5), (64, 64), (39, 120)]:
+        for ss in (1, 2, 3, 4):
+            for _ in range(20):
+                cov = rng.random((rows * ss, cols * ss)) * 10.0 ** rng.integers(-9, 9, (rows * ss, cols * ss))
+                want = cov.reshape(rows, ss, cols, ss).mean(axis=(1, 3))
+                assert np.array_equal(_pool(cov, ss), want), (rows, cols, ss)
+
+
 def test_render_in_a_work_array_with_noise_drawn_ahead_is_the_same_frame():
     scene = [Fiducial(0.3, -0.2, 3.0, "tool"), Fiducial(4.0, 2.5, 1.5, "part")]
     w, h = NADIR.size
