@@ -61,6 +61,7 @@ class VirtualWire:
         self.buses: list[VirtualCanBus] = []
         self.free_at = clock.now()
         self._bits: dict[tuple[int, bytes], int] = {}
+        self._routes: dict[int, tuple[VirtualCanBus, ...]] = {}   # identifier -> buses that take it
 
     def reserve(self, msg: can.Message, sender: "VirtualCanBus", own: bool = False) -> float:
         """Queue ``msg``; returns the clock time its slot ends (its receive timestamp). The
@@ -93,11 +94,22 @@ class VirtualWire:
             bits = self._bits[key] = frame_bits(msg)
         return bits
 
+    def reroute(self) -> None:
+        """Forget which buses take which identifiers: a bus joined or left, or what a bus
+        :attr:`~VirtualCanBus.wants` changed."""
+        self._routes = {}
+
     def _deliver(self, msg: can.Message, sender: "VirtualCanBus") -> None:
+        """The frame's slot ended: hand it to every other bus that wants its identifier
+        (asked once per identifier until :meth:`reroute`), in the order they joined."""
         sender._pending -= 1
         msg.is_rx = True
-        for bus in list(self.buses):
-            if bus is not sender and (bus.wants is None or bus.wants(msg.arbitration_id)):
+        aid = msg.arbitration_id
+        route = self._routes.get(aid)
+        if route is None:
+            route = self._routes[aid] = tuple(b for b in self.buses if b.wants is None or b.wants(aid))
+        for bus in route:
+            if bus is not sender:
                 bus._receive(msg)
 
 
@@ -186,15 +198,12 @@ class VirtualCanBus(VirtualBus):
                                   f"cannot open it at {bitrate} bit/s")
             elif wire.clock is not clock:
                 raise ConfigError(f"virtual CAN channel {channel!r} is already on another clock")
+            self._wire = wire
+            self._wants: Callable[[int], bool] | None = None
             wire.buses.append(self)
-        self._wire = wire
+            wire.reroute()
         self.clock = clock
         self._listeners: list | None = None
-        #: ``wants(arbitration_id) -> bool``: frames this bus's owner ignores are not handed
-        #: to it at all (None: every frame). A simulated station sets its network's
-        #: subscriptions, so the four drives do not each run canopen's receive path for
-        #: every other drive's frames
-        self.wants: Callable[[int], bool] | None = None
         self._rx = clock.event()
         self._pending = 0
         self._tx_queue = tx_queue
@@ -204,6 +213,24 @@ class VirtualCanBus(VirtualBus):
         self.last_tx_timestamp: float | None = None
         super().__init__(channel=f"vw:{channel}", preserve_timestamps=True, **kwargs)
         self.channel_info = f"virtual CAN {channel!r} at {bitrate} bit/s (simulated clock)"
+
+    @property
+    def wants(self) -> Callable[[int], bool] | None:
+        """``wants(arbitration_id) -> bool``: frames this bus's owner ignores are not handed
+        to it at all (None: every frame). A simulated station sets its network's
+        subscriptions, so the four drives do not each run canopen's receive path for every
+        other drive's frames. The wire asks once per identifier: whoever changes the
+        answers calls :meth:`reroute` (setting ``wants`` does)."""
+        return self._wants
+
+    @wants.setter
+    def wants(self, wants: Callable[[int], bool] | None) -> None:
+        self._wants = wants
+        self._wire.reroute()
+
+    def reroute(self) -> None:
+        """What :attr:`wants` answers has changed (a subscription came or went)."""
+        self._wire.reroute()
 
     # ------------------------------------------------------------------ sending
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -300,6 +327,7 @@ class VirtualCanBus(VirtualBus):
         with _wires_lock:
             if self in self._wire.buses:
                 self._wire.buses.remove(self)
+                self._wire.reroute()
             if not self._wire.buses and _wires.get(self._wire.channel) is self._wire:
                 del _wires[self._wire.channel]
 

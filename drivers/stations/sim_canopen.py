@@ -22,11 +22,26 @@ class DriveNetwork(canopen.Network):
     ``send_own`` where it has one (:class:`~drivers.stations.sim_bus.VirtualCanBus`: the
     wire delivers that frame, no copy, as nothing else holds it), else to ``send``. It
     skips canopen's ``check`` of a notifier: the drive's bus feeds its listener directly
-    and has none."""
+    and has none. Every (un)subscribe tells the bus (``reroute``), which a
+    :class:`~drivers.stations.sim_bus.VirtualCanBus` whose ``wants`` are the subscriptions
+    needs."""
 
     def __init__(self, bus: can.BusABC, on_tx_failure: Callable[[Exception], None]):
         super().__init__(bus)
         self._on_tx_failure = on_tx_failure
+
+    def subscribe(self, can_id: int, callback) -> None:
+        super().subscribe(can_id, callback)
+        self._reroute()
+
+    def unsubscribe(self, can_id, callback=None) -> None:
+        super().unsubscribe(can_id, callback)
+        self._reroute()
+
+    def _reroute(self) -> None:
+        reroute = getattr(self.bus, "reroute", None)   # the bus asks the subscriptions (wants)
+        if reroute is not None:
+            reroute()
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         bus = self.bus

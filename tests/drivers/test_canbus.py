@@ -154,6 +154,31 @@ def test_send_own_delivers_the_frame_itself_and_send_a_copy(vclock, wire):
         tx.send_own(_msg(0x183, bytes(9)))
 
 
+def test_a_bus_gets_the_identifiers_it_wants_asked_again_on_reroute(vclock, wire):
+    from drivers.stations.sim_canopen import DriveNetwork
+    tx, rx, every = wire(), wire(), wire()
+    wanted = {0x181}
+    rx.wants = wanted.__contains__
+
+    def sent(*ids):
+        for i in ids:
+            tx.send(_msg(i))
+        vclock.sleep(0.001)
+        assert [m.arbitration_id for m in drain(every)] == list(ids)   # wants None: every frame
+        return [m.arbitration_id for m in drain(rx)]
+    assert sent(0x181, 0x182) == [0x181]
+    wanted.add(0x182)
+    rx.reroute()                                 # its owner says the answers changed
+    assert sent(0x181, 0x182) == [0x181, 0x182]
+    net = DriveNetwork(rx, lambda exc: None)     # a drive's network: its subscriptions reroute
+    rx.wants = net.subscribers.__contains__
+    assert sent(0x183) == []
+    net.subscribe(0x183, lambda *a: None)
+    assert sent(0x183) == [0x183]
+    net.unsubscribe(0x183)
+    assert sent(0x183) == []
+
+
 def test_the_bits_a_wire_remembers_are_frame_bits(vclock, wire):
     tx, _ = wire(tx_queue=64), wire()
     w = tx._wire
