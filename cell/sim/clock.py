@@ -56,6 +56,7 @@ from cell.log import get_logger
 log = get_logger("sim.clock")
 
 _SCHEDULER = object()     # the baton holder while a callback runs
+_INF, _heappush = math.inf, heapq.heappush
 
 
 class _Gate:
@@ -170,11 +171,11 @@ class VirtualClock:
         t = float(t)
         with self._mu:
             now = self._now
-            if not t >= now - 1e-9 or t == math.inf:      # NaN and -inf fail the comparison
+            if not t >= now - 1e-9 or t == _INF:          # NaN and -inf fail the comparison
                 raise ClockError(f"VirtualClock: cannot schedule at t = {t!r} s, the clock is at "
                                  f"{now!r} s and never goes back")
             timer = Timer(fn, args)
-            heapq.heappush(self._agenda, (t if t > now else now, next(self._seq), timer))
+            _heappush(self._agenda, (t if t > now else now, next(self._seq), timer))
             if self._thread is None:
                 self._ensure_thread()
             if self._waiting and self._waiting != "holder":   # as _push

@@ -68,7 +68,9 @@ class VirtualWire:
         frame delivered is a copy of ``msg``, or with ``own`` ``msg`` itself (a frame its
         sender built for this send alone, see :meth:`VirtualCanBus.send_own`)."""
         bits = self._frame_bits(msg)
-        start = max(self.clock.now(), self.free_at)
+        start = self.clock.now()
+        if self.free_at > start:                   # a busy wire: after the frame on it
+            start = self.free_at
         end = start + bits / self.bitrate
         self.free_at = end
         self.frames += 1
