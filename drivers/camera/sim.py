@@ -327,6 +327,14 @@ def render_radiance(model: CameraModel, items: Iterable, optics: Optics,
     else:
         img = out
         img.fill(float(optics.background))
+    _paint(img, model, items, optics)
+    return img
+
+
+def _paint(img: np.ndarray, model: CameraModel, items: list, optics: Optics) -> list:
+    """Paint checked scene ``items`` onto ``img``, flat ``optics.background`` (radiance,
+    blurred); returns the boxes (u0, v0, u1, v1), inclusive and not overlapping, outside
+    which ``img`` is still flat."""
     ss, margin = optics.supersample, 4.0 * optics.blur_sigma_px + 3.0
     boxes = []
 
@@ -348,14 +356,15 @@ def render_radiance(model: CameraModel, items: Iterable, optics: Optics,
     for it in items:
         if isinstance(it, Fiducial):
             paint(*_disc_coverage(model, it.x_mm, it.y_mm, it.radius_mm, ss, margin), optics.contrast)
+    boxes = _merge_boxes(boxes)
     if optics.blur_sigma_px > 0:
         # outside the boxes the radiance is flat, and blurring flat changes nothing; each box
         # has `margin` (4 sigma + 3 px) of flat ground around what it holds
-        for u0, v0, u1, v1 in _merge_boxes(boxes):
+        for u0, v0, u1, v1 in boxes:
             sl = np.s_[v0:v1 + 1, u0:u1 + 1]
             img[sl] = cv2.GaussianBlur(img[sl], (0, 0), optics.blur_sigma_px,
                                        borderType=cv2.BORDER_REPLICATE)
-    return img
+    return boxes
 
 
 def render_float(model: CameraModel, items: Iterable, optics: Optics,
@@ -397,6 +406,11 @@ def render(model: CameraModel, items: Iterable, optics: Optics,
     return img.astype(np.uint8)
 
 
+def _plain_lighting(optics: Optics) -> bool:
+    """Lighting leaves the radiance as it is (gain 1, no gradient, no offset)."""
+    return optics.gain == 1.0 and not any(optics.gradient) and not optics.offset
+
+
 class SimCamera(CameraBase):
     """Simulated camera: each ``grab`` renders ``scene()`` through ``model``.
 
@@ -432,6 +446,8 @@ class SimCamera(CameraBase):
         self._seed = seed
         self._noise = NoiseAhead(np.random.default_rng(seed))
         self._work: np.ndarray | None = None     # render's float64 work image
+        self._flat: np.ndarray | None = None     # radiance, flat background between frames
+        self._optics_dict = (self.optics, asdict(self.optics))   # for the frame metadata
         self._render_lock = threading.Lock()
         self._released = None                    # a clock event while hung (fault injection)
 
@@ -469,8 +485,37 @@ class SimCamera(CameraBase):
                 self._work = np.empty((h, w))
             sigma = self.optics.noise_sigma
             noise = self._noise.take((h, w), sigma) if sigma > 0 else None
-            img = render(self.model, items, self.optics, out=self._work, noise=noise)
+            if noise is not None and _plain_lighting(self.optics):
+                img = self._render_on_flat(items, noise)
+            else:
+                img = render(self.model, items, self.optics, out=self._work, noise=noise)
         fids = [f for f in items if isinstance(f, Fiducial)]
         px = self.model.project([(f.x_mm, f.y_mm) for f in fids]).tolist() if fids else []
         return img, {"source": "sim", "fiducials": [f._asdict() for f in fids],
-                     "fiducials_px": px, "optics": asdict(self.optics)}
+                     "fiducials_px": px, "optics": self._optics_meta()}
+
+    def _optics_meta(self) -> dict:
+        if self._optics_dict[0] is not self.optics:
+            self._optics_dict = (self.optics, asdict(self.optics))
+        return dict(self._optics_dict[1])
+
+    def _render_on_flat(self, items: list, noise: np.ndarray) -> np.ndarray:
+        """:func:`render` for optics whose lighting changes nothing: the scene is painted on
+        a radiance image kept flat between frames (only its painted boxes are made flat
+        again), noise added into the work image, rounded there, and clipped into the 8-bit
+        frame: the same frame without a pass to fill the image and one to clip it."""
+        w, h = self.model.size
+        bg = float(self.optics.background)
+        flat = self._flat
+        if flat is None or flat.shape != (h, w):
+            flat = self._flat = np.full((h, w), bg)
+        self._flat = None                        # until it is flat again
+        boxes = _paint(flat, self.model, items, self.optics)
+        img = np.add(flat, noise, out=self._work)
+        for u0, v0, u1, v1 in boxes:
+            flat[v0:v1 + 1, u0:u1 + 1] = bg
+        self._flat = flat
+        np.rint(img, out=img)
+        frame = np.empty((h, w), np.uint8)
+        np.clip(img, 0, 255, out=frame, casting="unsafe")     # whole grey levels: exact
+        return frame

@@ -222,6 +222,24 @@ def test_render_in_a_work_array_with_noise_drawn_ahead_is_the_same_frame():
         ahead.close()
 
 
+def test_a_camera_painting_on_its_flat_radiance_grabs_renders_frames():
+    """A camera whose lighting changes nothing paints each frame on a radiance image kept
+    flat between frames: frame after frame (a board, several discs, one cut by the edge,
+    none) the very frames :func:`render` gives with the same noise."""
+    model = CameraModel.nadir(160, 120, 0.1)
+    scenes = [[Fiducial(0.0, 0.0, 2.0), Fiducial(1.5, 0.5, 1.0, "part")],   # overlapping boxes
+              [CircleGridBoard(3, 3, origin_mm=(-4.0, -3.0), pitch_mm=3.0, radius_mm=0.8)],
+              [], [Fiducial(-7.8, 5.7, 1.5)], [Fiducial(3.0, -2.0, 2.5)]]
+    for optics in (Optics(supersample=2), Optics(blur_sigma_px=0.0, background=51.0, noise_sigma=4.0)):
+        shown = iter(scenes * 2)
+        ref = NoiseAhead(np.random.default_rng(9))
+        with SimCamera(model, lambda: next(shown), optics=optics, seed=9, clock=ManualClock()) as cam:
+            for scene in scenes * 2:
+                want = render(model, scene, optics, noise=ref.take((120, 160), optics.noise_sigma).copy())
+                assert np.array_equal(cam.grab().image, want)
+        ref.close()
+
+
 def test_noise_drawn_ahead_is_each_draw_in_order_even_when_the_frame_changes():
     """Frame k is the k-th draw, as drawing each when needed: also when a frame's size or
     sigma differs from the one drawn ahead (the generator is rewound), and after close."""
