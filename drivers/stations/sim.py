@@ -115,6 +115,7 @@ class SimStation:
         self._timer: Timer | None = None
         self._wake_at: float | None = None
         self._powered = False
+        self._nmt_operational = False   # node.nmt.state == "OPERATIONAL", as of its last change
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
         self.bus_off = False
@@ -177,6 +178,7 @@ class SimStation:
         self.machine.apply(Internal.SELF_TEST_DONE)
         self.node.nmt.send_command(0x81)   # reset node → INITIALISING, boot-up frame
         self.node.nmt.send_command(0x80)   # → PRE-OPERATIONAL, heartbeat producer starts
+        self._nmt_operational = self.node.nmt.state == "OPERATIONAL"
         self._tick()
 
     def stop(self) -> None:
@@ -312,6 +314,8 @@ class SimStation:
 
     # ------------------------------------------------------------------ NMT / heartbeat consumer
     def _on_nmt(self, can_id, data, timestamp):
+        # canopen's NMT slave took the frame first (it subscribed first): its state is new
+        self._nmt_operational = self.node.nmt.state == "OPERATIONAL"
         if len(data) != 2 or data[1] not in (0, self.cfg.node_id):
             return
         if data[0] == 0x01:  # start: (re)read the PDO configuration the master wrote
@@ -343,7 +347,7 @@ class SimStation:
 
     # ------------------------------------------------------------------ PDO / SYNC
     def _operational(self) -> bool:
-        return self.node is not None and self.network is not None and self.node.nmt.state == "OPERATIONAL"
+        return self._nmt_operational and self.network is not None
 
     def _take_rpdos(self, rpdos: list) -> None:
         """Receive the enabled RPDOs in :meth:`_on_rpdo` itself, in place of canopen's
