@@ -146,9 +146,10 @@ def decode_statusword(statusword: int) -> State:
     raise IllegalTransition(f"statusword 0x{statusword:04X} encodes no CiA 402 state")
 
 
-#: state -> (bits of the word the state leaves free, the state's own word): the state's bits,
-#: voltage enabled where the drive is powered, remote; see :func:`encode_statusword`
-_STATE_WORD = {s: (~s.value[0] & 0xFFFF,
+#: state name -> (bits of the word the state leaves free, the state's own word): the state's
+#: bits, voltage enabled where the drive is powered, remote; see :func:`encode_statusword`
+#: (keyed by name: an enum member hashes in Python, a str at once)
+_STATE_WORD = {s.name: (~s.value[0] & 0xFFFF,
                    s.value[1] | SW_REMOTE | (SW_VOLTAGE_ENABLED if s in (
                        S.READY_TO_SWITCH_ON, S.SWITCHED_ON, S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE) else 0))
                for s in State}
@@ -157,7 +158,7 @@ _STATE_WORD = {s: (~s.value[0] & 0xFFFF,
 def encode_statusword(state: State, extra_bits: int = 0) -> int:
     """Statusword for ``state`` plus ``extra_bits`` (e.g. :data:`SW_TARGET_REACHED`) where the
     state's own bits leave room; voltage enabled in the powered states; remote always."""
-    free, word = _STATE_WORD[state]
+    free, word = _STATE_WORD[state._name_]
     return word | (extra_bits & free)
 
 

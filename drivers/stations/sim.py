@@ -389,7 +389,8 @@ class SimStation:
             if 0x6040 in vals:
                 self._controlword(int(vals[0x6040]))
             if 0x607A in vals:
-                sp = (int(vals[0x607A]), int(vals.get(0x6081, self._value(0x6081))))
+                vel = vals.get(0x6081)
+                sp = (int(vals[0x607A]), int(vel if vel is not None else self._value(0x6081)))
                 if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
                     self._staged.append((now + self.cfg.reception_delay_s, *sp))
                 else:
