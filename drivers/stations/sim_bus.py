@@ -10,14 +10,15 @@ every one opened on a channel also shares one :class:`VirtualWire` on the simula
   frame takes 111..135 µs at 1 Mbit/s;
 * frames go out one after another in the order ``send`` was called (FIFO; real CAN
   arbitrates by identifier, which only matters under contention and is not modelled);
-* at the *end* of its slot the frame reaches the other buses, stamped with that clock
-  time, in the order they joined; a bus with listeners attached (a canopen ``Network``
+* at the *end* of its slot the frame reaches the other buses that want it (a bus's
+  ``wants``, e.g. a drive's subscriptions), stamped with that clock time, in the order
+  they joined; a bus with listeners attached (a canopen ``Network``
   and our bus monitor) hands it to them at once — the clock's thread plays the part of
   python-can's notifier thread, so delivery never waits for a thread to get the CPU —
   and a bus without puts a copy in its ``VirtualBus`` queue for ``recv``. Listeners share
-  one read-only copy of the frame (``VirtualBus.send`` deep-copies per receiver, ten
-  times the cost, which the simulated cell's thousand frames per simulated second cannot
-  afford);
+  one read-only copy of the frame, or the sender's frame itself when it was sent with
+  ``send_own`` (``VirtualBus.send`` deep-copies per receiver, ten times the cost, which
+  the simulated cell's thousand frames per simulated second cannot afford);
 * ``send`` never blocks: the frame is queued, as in a CAN controller's transmit mailboxes.
   A frame the wire cannot carry — a CAN FD frame, more than 8 data bytes, an identifier
   beyond 11 (29) bits, or a send while ``tx_queue`` frames already wait — raises
