@@ -507,8 +507,8 @@ class SimCamera(CameraBase):
         w, h = self.model.size
         bg = float(self.optics.background)
         flat = self._flat
-        if flat is None or flat.shape != (h, w):
-            flat = self._flat = np.full((h, w), bg)
+        if flat is None or flat.shape != (h, w) or flat[0, 0] != bg:
+            flat = np.full((h, w), bg)
         self._flat = None                        # until it is flat again
         boxes = _paint(flat, self.model, items, self.optics)
         img = np.add(flat, noise, out=self._work)
