@@ -108,9 +108,10 @@ class VirtualWire:
         sender._pending -= 1
         msg.is_rx = True
         aid = msg.arbitration_id
-        route = self._routes.get(aid)
+        routes = self._routes          # a reroute meanwhile (a bus joining from another thread)
+        route = routes.get(aid)        # leaves this answer in the dict it replaced
         if route is None:
-            route = self._routes[aid] = tuple(b for b in self.buses if b.wants is None or b.wants(aid))
+            route = routes[aid] = tuple(b for b in self.buses if b.wants is None or b.wants(aid))
         for bus in route:
             if bus is not sender:
                 bus._receive(msg)
