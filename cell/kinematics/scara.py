@@ -216,6 +216,29 @@ class Scara:
         self.check_limits(q)
         return q
 
+    def ik_rows(self, poses: np.ndarray, elbow: Elbow = "right") -> np.ndarray | None:
+        """:meth:`ik` of every row of ``poses`` (N, 4), to the last bit, or ``None`` when
+        :meth:`ik` would raise for a row (the caller then asks :meth:`ik` row by row, which
+        names the row and the reason). The checks :meth:`ik` makes on each row are made
+        once on the whole: every pose finite, every joint finite and within its limits; the
+        planar part is :meth:`ik_planar` of each row (a calibrated robot's own), the rest
+        the same operations element-wise."""
+        p = np.asarray(poses, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 4 or not np.isfinite(p).all():
+            return None
+        q = np.empty_like(p)
+        try:
+            for k, (x, y) in enumerate(p[:, :2].tolist()):
+                q[k, :2] = self.ik_planar(x, y, elbow=elbow, check_limits=False)
+        except KinematicsError:
+            return None
+        q[:, 2] = p[:, 2] - self.g.base_z_mm - self.g.tool_z_mm
+        q[:, 3] = (p[:, 3] - q[:, 0] - q[:, 1] + 180.0) % 360.0 - 180.0
+        lo, hi = np.array(self.g.limits, dtype=float).T
+        if not (np.isfinite(q).all() and (q >= lo).all() and (q <= hi).all()):
+            return None
+        return q
+
     def check_limits(self, q, joints=(0, 1, 2, 3)) -> None:
         """Raise KinematicsError naming the first joint of ``joints`` outside its limits."""
         for i in joints:

@@ -277,13 +277,18 @@ def _way_points(robot: Scara, p0: np.ndarray, p1: np.ndarray, n: int, elbow: Elb
     poses = p0 + s * (p1 - p0)
     poses[-1] = p1  # exact target, no rounding from the linspace
     joints = np.empty_like(poses)
-    for k, pose in enumerate(poses):
+    # the interior points in one call; where one of them fails, point by point to name it
+    inner = robot.ik_rows(poses[1:n], elbow) if n > 1 else poses[1:n]
+    for k in (0, n) if inner is not None else range(n + 1):
+        pose = poses[k]
         try:
             joints[k] = _endpoint_ik(robot, pose, elbow) if k in (0, n) else robot.ik(pose, elbow=elbow)
         except CellError as exc:
             raise TrajectoryError(
                 f"interpolation point {k} of {n} at pose ({', '.join(f'{v:.4f}' for v in pose)}) "
                 f"cannot be reached: {exc}") from exc
+    if inner is not None:
+        joints[1:n] = inner
     for j in (0, 3):  # revolute joints returned wrapped to [-180, 180)
         joints[:, j] = np.unwrap(joints[:, j], period=360.0)
     lo, hi = np.array(robot.g.limits, dtype=float).T

@@ -120,3 +120,31 @@ def test_the_scara_is_a_chain_like_any_other(robot):
         np.testing.assert_allclose(col, want, atol=1e-9)
     assert [j.type for j in robot.chain.joints] == ["revolute", "revolute", "prismatic", "revolute"]
     assert [(j.lower, j.upper) for j in robot.chain.joints] == [tuple(v) for v in robot.g.limits]
+
+
+@pytest.mark.parametrize("elbow", ["right", "left"])
+def test_ik_rows_is_ik_of_each_row_to_the_bit(robot, elbow):
+    from cell.calibration.calfile import CalibratedScara
+    rng = np.random.default_rng(11)
+    lo2, hi2 = (5, 145) if elbow == "right" else (-145, -5)
+    q = np.column_stack([rng.uniform(-160, 160, 300), rng.uniform(lo2, hi2, 300),
+                         rng.uniform(*robot.g.limits[2], 300), rng.uniform(-170, 170, 300)])
+    calibrated = CalibratedScara(robot, (0.01, -0.02), (0.3, -0.2), "v1-test")
+    for r in (robot, calibrated):
+        poses = np.array([r.fk(row) for row in q])
+        rows = r.ik_rows(poses, elbow)
+        assert rows.tobytes() == np.array([r.ik(p, elbow=elbow) for p in poses]).tobytes()
+
+
+def test_ik_rows_is_none_where_ik_raises_for_a_row(robot):
+    d3 = sum(robot.g.limits[2]) / 2
+    poses = np.array([robot.fk([10, 40, d3, 5]), robot.fk([20, 50, d3, 5])])
+    assert robot.ik_rows(poses).shape == (2, 4)
+    for bad in ([math.nan, 0, 0, 0],                                     # not finite
+                [robot.g.l1_mm + robot.g.l2_mm + 1, 0, -50, 0],          # out of reach
+                [*robot.fk([10, 40, d3, 0])[:2], 1e6, 0]):                # j3 beyond its limits
+        assert robot.ik_rows(np.vstack([poses, bad])) is None
+        with pytest.raises(KinematicsError):
+            robot.ik(bad)
+    assert robot.ik_rows(poses, elbow="up") is None
+    assert robot.ik_rows(poses[0]) is None                                # not (N, 4)
