@@ -67,6 +67,8 @@ class _Station:
         self.cfg, self.node = cfg, node
         self.index, self.node_id = cfg.joint_index, cfg.node_id   # per command: looked up once
         self.cpu = cfg.counts_per_unit
+        #: the fastest set-point the station takes, increments/s (its max_velocity, within u32)
+        self.top_inc = min(cfg.max_velocity * self.cpu, 2 ** 32 - 1)
         self.pos_inc: int | None = None
         self.statusword = 0
         self.t_tpdo = 0.0

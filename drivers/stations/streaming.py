@@ -232,7 +232,7 @@ class StreamingMixin:
         for s in self._stations:
             j, cpu = s.index, s.cpu
             need = abs(d[j]) * cpu                        # increments to travel
-            top = min(s.cfg.max_velocity * cpu, 2 ** 32 - 1)
+            top = s.top_inc
             lat = latency[j]
             cob, target_inc = 0x200 + s.node_id, round(q[j] * cpu)
             # the velocity a frame of b bits asks for: need / (T − (t + b/rate) − λ_station)
@@ -254,10 +254,15 @@ class StreamingMixin:
                 nxt = max(1, round(need / left))
                 if nxt == v_inc:
                     break
+                if nxt in seen:       # a cycle: the next steps only repeat what was seen and checked
+                    nxt = None
+                    break
                 v_inc = nxt
                 b = _setpoint_bits(cob, target_inc, v_inc)
                 seen.append(v_inc)
-            else:                                        # a flip-flop between frame lengths
+            else:
+                nxt = None
+            if nxt is None:                              # a flip-flop between frame lengths
                 v_inc = self._closest_consistent(seen, need, T - t - lat, rate,
                                                  functools.partial(_setpoint_bits, cob, target_inc))
                 b = _setpoint_bits(cob, target_inc, v_inc)
@@ -276,7 +281,9 @@ class StreamingMixin:
         the nearest velocity whose frame has that length is a candidate; the lengths met while
         iterating come first, the lengths around them only if those give none."""
         met = sorted({bits_of(v) for v in seen})
-        for lengths in (met, [b for b in range(met[0] - 6, met[-1] + 7) if b not in met]):
+        for lengths in (met, None):
+            if lengths is None:                  # the lengths around: built only when needed
+                lengths = [b for b in range(met[0] - 6, met[-1] + 7) if b not in met]
             best: tuple[float, int] | None = None
             for b in lengths:
                 left = budget - b / rate

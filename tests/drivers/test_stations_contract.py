@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import struct
 import threading
@@ -668,6 +669,54 @@ def test_corrected_velocities_agree_with_their_own_frames(make):
         js.corrected_velocities(np.array(START), np.full(4, 0.1), 0.002)
     with pytest.raises(StationCommandError, match="j1 would need .* units/s .* above its max_velocity 720"):
         js.corrected_velocities(np.array(START), np.ones(4), 0.002)
+
+
+def _corrected_six_steps(js, q, d, T, hint):
+    """corrected_velocities' velocities as its definition says: per station six steps of
+    velocity -> frame -> velocity at most, then the closest consistent one (the reference
+    for its early end at a cycle)."""
+    from drivers.stations.streaming import _setpoint_bits
+    rate, lat, t, vel, flips = float(js.cfg.bitrate), js.latency_s.tolist(), 0.0, [0.0] * 4, 0
+    for s in js._stations:
+        j, cpu = s.index, s.cpu
+        need, cob, target_inc = abs(d[j]) * cpu, 0x200 + s.node_id, round(q[j] * cpu)
+        if hint is not None and T > hint[j]:
+            v_inc = max(1, round(need / (T - hint[j])))
+        else:
+            b = _setpoint_bits(cob, target_inc, max(1, round(need / T)))
+            v_inc = max(1, round(need / (T - (t + b / rate) - lat[j])))
+        b, seen = _setpoint_bits(cob, target_inc, v_inc), [v_inc]
+        for _ in range(6):
+            nxt = max(1, round(need / (T - (t + b / rate) - lat[j])))
+            if nxt == v_inc:
+                break
+            v_inc = nxt
+            b = _setpoint_bits(cob, target_inc, v_inc)
+            seen.append(v_inc)
+        else:
+            flips += 1
+            v_inc = js._closest_consistent(seen, need, T - t - lat[j], rate,
+                                           lambda v: _setpoint_bits(cob, target_inc, v))
+            b = _setpoint_bits(cob, target_inc, v_inc)
+        t += b / rate
+        vel[j] = math.copysign(v_inc / cpu, d[j]) if d[j] else v_inc / cpu
+    return vel, flips
+
+
+def test_corrected_velocities_end_a_cycle_as_six_steps_would(make):
+    """A velocity whose frame flips between two lengths: the search stops at the first
+    repeat, with the velocity six steps and the closest consistent one give, to the bit."""
+    backend, js = make(delays=(0.0005, 0.001, 0.0015, 0.002), delays_s="measure")
+    rng = np.random.default_rng(9)
+    T, hint, flips = 0.01, None, 0
+    for _ in range(400):
+        q = np.array(START) + rng.uniform(-5, 5, 4)
+        d = rng.uniform(-2, 2, 4)
+        v, lam = js.corrected_velocities(q, d, T, hint)
+        ref, n = _corrected_six_steps(js, q.tolist(), d.tolist(), T, None if hint is None else hint.tolist())
+        assert v.tolist() == ref
+        hint, flips = lam, flips + n
+    assert flips > 20, flips                               # the case is met, often
 
 
 def test_delays_measured_at_start_when_configured_so(make):
