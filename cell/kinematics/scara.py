@@ -171,6 +171,15 @@ class Scara:
         x, y = _finite("x_mm", x_mm), _finite("y_mm", y_mm)
         if elbow not in ("right", "left"):
             raise KinematicsError(f"elbow = {elbow!r}; choose 'right' or 'left'")
+        q = np.array(self._planar_angles(x, y, elbow == "left"))
+        q[0] = (q[0] + 180.0) % 360.0 - 180.0
+        if check_limits:
+            self.check_limits(q, joints=(0, 1))
+        return q
+
+    def _planar_angles(self, x: float, y: float, left: bool) -> tuple[float, float]:
+        """:meth:`ik_planar`'s (θ1, θ2) in degrees, θ1 not yet wrapped, for a finite (x, y);
+        raises its KinematicsError for a point out of reach or at a singularity."""
         l1, l2 = self.g.l1_mm, self.g.l2_mm
         r = math.hypot(x, y)
         rmin, rmax = abs(l1 - l2), l1 + l2
@@ -185,14 +194,10 @@ class Scara:
             raise KinematicsError(
                 f"target ({x:.4f}, {y:.4f}) mm lies at a singularity: θ2 = ±{math.degrees(t2):.4f}° "
                 f"is within {self.g.singular_margin_deg}° of the stretched or folded arm")
-        if elbow == "left":
+        if left:
             t2 = -t2
         t1 = math.atan2(y, x) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
-        q = np.array([math.degrees(t1), math.degrees(t2)])
-        q[0] = (q[0] + 180.0) % 360.0 - 180.0
-        if check_limits:
-            self.check_limits(q, joints=(0, 1))
-        return q
+        return math.degrees(t1), math.degrees(t2)
 
     # ---------------------------------------------------------------- full 4-axis
     def fk(self, q) -> np.ndarray:
@@ -220,16 +225,24 @@ class Scara:
         """:meth:`ik` of every row of ``poses`` (N, 4), to the last bit, or ``None`` when
         :meth:`ik` would raise for a row (the caller then asks :meth:`ik` row by row, which
         names the row and the reason). The checks :meth:`ik` makes on each row are made
-        once on the whole: every pose finite, every joint finite and within its limits; the
-        planar part is :meth:`ik_planar` of each row (a calibrated robot's own), the rest
-        the same operations element-wise."""
+        once on the whole: every pose finite, every joint finite and within its limits. The
+        planar part is :meth:`ik_planar`'s angles of each row (a calibrated robot's own
+        :meth:`ik_planar`), the rest the same operations element-wise."""
         p = np.asarray(poses, dtype=float)
         if p.ndim != 2 or p.shape[1] != 4 or not np.isfinite(p).all():
             return None
         q = np.empty_like(p)
+        xy = p[:, :2].tolist()
         try:
-            for k, (x, y) in enumerate(p[:, :2].tolist()):
-                q[k, :2] = self.ik_planar(x, y, elbow=elbow, check_limits=False)
+            if type(self).ik_planar is Scara.ik_planar:      # the nominal planar part: its angles
+                if elbow not in ("right", "left"):
+                    return None
+                left = elbow == "left"
+                q[:, :2] = [self._planar_angles(x, y, left) for x, y in xy] if xy else q[:, :2]
+                q[:, 0] = (q[:, 0] + 180.0) % 360.0 - 180.0
+            else:
+                for k, (x, y) in enumerate(xy):
+                    q[k, :2] = self.ik_planar(x, y, elbow=elbow, check_limits=False)
         except KinematicsError:
             return None
         q[:, 2] = p[:, 2] - self.g.base_z_mm - self.g.tool_z_mm
