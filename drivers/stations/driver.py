@@ -57,6 +57,23 @@ EDS_PATH = Path(__file__).with_name("scara_axis.eds")
 
 log = get_logger("stations.driver")
 _CONTROLWORD = struct.Struct("<H")
+_TPDO1 = struct.Struct("<iH")                 # position actual value, statusword
+_STATES: dict[int, State | None] = {}         # statusword → its CiA 402 state (None: none)
+
+
+def _state_of(statusword: int) -> State | None:
+    """:func:`cia402.decode_statusword` of a TPDO's statusword (16 bits), ``None`` where it
+    encodes no state; remembered per word (a drive reports a handful of them)."""
+    try:
+        return _STATES[statusword]
+    except KeyError:
+        pass
+    try:
+        state = cia402.decode_statusword(statusword)
+    except cia402.IllegalTransition:
+        state = None
+    _STATES[statusword] = state
+    return state
 _I32 = 2 ** 31 - 1
 
 
@@ -198,7 +215,8 @@ class JointStations(BringUpMixin, StreamingMixin):
 
     def _on_heartbeat(self, node_id: int, state: int) -> None:
         self._heard[node_id] = state
-        self._changed.set()
+        if not self._changed.is_set():
+            self._changed.set()
         if self.watchdog is not None:
             self.watchdog.beat(node_id, state)
         if self._expect_operational and state != 0x05:
@@ -210,20 +228,22 @@ class JointStations(BringUpMixin, StreamingMixin):
     def _tpdo_handler(self, s: _Station):
         """The handler of ``s``'s TPDO1 (position, statusword), called by the network's
         :class:`~drivers.stations.dispatch.FrameDispatch` with the frame's data and time."""
+        changed = self._changed
+
         def on_tpdo(data: bytearray, timestamp: float) -> None:
             if len(data) != 6:
                 return  # the bus monitor latches GARBAGE_FRAME for it
-            pos, sw = struct.unpack_from("<iH", data)
+            pos, sw = _TPDO1.unpack_from(data)
             s.pos_inc, s.statusword, s.t_tpdo = pos, sw, timestamp
             s.tpdo_data = bytes(data)
             s.tpdo_count += 1
-            self._changed.set()
+            if not changed.is_set():      # set: whoever waits has not cleared it yet, and reads after
+                changed.set()
             rec = self._recording
             if rec is not None:
                 rec.append((timestamp, s.cfg.joint_index, pos / s.cpu))
-            try:
-                state = cia402.decode_statusword(sw)
-            except cia402.IllegalTransition:
+            state = _state_of(sw)
+            if state is None:
                 return
             # A drive in Fault normally announced it by EMCY first; the statusword alone
             # latches DRIVE_FAULT only when a second TPDO still shows it and nothing else did.

@@ -168,6 +168,11 @@ class BusMonitor(can.Listener):
 
     def on_message_received(self, msg: can.Message) -> None:
         try:
+            exp = self.expected.get(msg.arbitration_id)
+            if (exp is not None and exp.kind != "heartbeat" and len(msg.data) in exp.dlc
+                    and not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame)):
+                self.seen += 1                # an expected frame as expected (TPDO, EMCY, SDO)
+                return
             self._check(msg)
         except Exception as exc:  # never let a frame kill the notifier thread
             log.error("bus_monitor_error", error=repr(exc), frame=str(msg))
