@@ -57,6 +57,7 @@ EDS_PATH = Path(__file__).with_name("scara_axis.eds")
 
 log = get_logger("stations.driver")
 _CONTROLWORD = struct.Struct("<H")
+_I32 = 2 ** 31 - 1
 _TPDO1 = struct.Struct("<iH")                 # position actual value, statusword
 _STATES: dict[int, State | None] = {}         # statusword → its CiA 402 state (None: none)
 
@@ -74,7 +75,6 @@ def _state_of(statusword: int) -> State | None:
         state = None
     _STATES[statusword] = state
     return state
-_I32 = 2 ** 31 - 1
 
 
 class _Station:
