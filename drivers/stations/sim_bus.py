@@ -77,6 +77,10 @@ class VirtualWire:
         self.frames += 1
         self.bits += bits
         stamped = msg if own else msg.__copy__()   # copy(msg), less the copy module's dispatch
+        # the data as it is now, as a CAN controller copies a frame into its transmit mailbox:
+        # python-can's Message (and its copy) shares a bytearray it is given, and a sender's
+        # PDO buffer changes with its next frame, which may be sent before this one's slot ends
+        stamped.data = bytearray(msg.data)
         stamped.timestamp = end
         sender._pending += 1
         self.clock.call_at(end, self._deliver, stamped, sender)

@@ -154,6 +154,21 @@ def test_send_own_delivers_the_frame_itself_and_send_a_copy(vclock, wire):
         tx.send_own(_msg(0x183, bytes(9)))
 
 
+def test_a_frame_carries_its_data_as_sent_when_the_buffer_changes_before_its_slot_ends(vclock, wire):
+    """python-can's Message shares a bytearray it is given (so does its copy); a drive's PDO
+    buffer changes with its next frame, which may go before this one's slot ends."""
+    tx, rx = wire(), wire()
+    rec = []
+    rx.attach_listeners([type("L", (can.Listener,), {"on_message_received": lambda self, m: rec.append(m)})()])
+    buf = bytearray(b"\x01\x02")
+    tx.send(can.Message(arbitration_id=0x181, data=buf, is_extended_id=False))
+    buf[:] = b"\x03\x04"
+    tx.send_own(can.Message(arbitration_id=0x181, data=buf, is_extended_id=False))
+    buf[:] = b"\x05\x06"                         # both still on the wire
+    vclock.sleep(0.001)
+    assert [bytes(m.data) for m in rec] == [b"\x01\x02", b"\x03\x04"]
+
+
 def test_a_bus_gets_the_identifiers_it_wants_asked_again_on_reroute(vclock, wire):
     from drivers.stations.sim_canopen import DriveNetwork
     tx, rx, every = wire(), wire(), wire()
