@@ -47,16 +47,21 @@ class StationCommandError(CellError, ValueError):
     """A command with bad values (shape, not finite, beyond limits); nothing was sent."""
 
 
-def _refuse(s, T: float, delay: float, need: float, left: float):
-    """Raise why station ``s`` cannot take its corrected velocity: T not longer than its
-    delay λ (``delay``, s), or the ``need`` increments in ``left`` s above its max_velocity."""
+def _asked(s, T: float, sent: float, lat: float, need: float) -> int:
+    """The set-point velocity (increments/s, at least 1) that takes station ``s`` over
+    ``need`` increments in what is left of T once its frame is on the bus (``sent``, s into
+    the burst) and its reception delay ``lat`` has passed. Raises StationCommandError when
+    nothing is left (T not longer than λ) or the velocity is above its max_velocity."""
+    left = T - sent - lat
     if left <= 0:
         raise StationCommandError(
             f"segment time T = {T * 1e3:.6g} ms is not longer than the delay of {s.joint} "
-            f"λ = {delay * 1e3:.6g} ms")
-    raise StationCommandError(
-        f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
-        f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
+            f"λ = {(sent + lat) * 1e3:.6g} ms")
+    if need / left > s.top_inc:
+        raise StationCommandError(
+            f"{s.joint} would need {need / left / s.cpu:.6g} units/s to arrive in "
+            f"T − λ = {left * 1e3:.6g} ms, above its max_velocity {s.cfg.max_velocity:g}")
+    return max(1, round(need / left))
 
 
 @dataclass(frozen=True)
@@ -232,26 +237,18 @@ class StreamingMixin:
         for s in self._stations:
             j, cpu = s.index, s.cpu
             need = abs(d[j]) * cpu                        # increments to travel
-            top = s.top_inc
             lat = latency[j]
             cob, target_inc = 0x200 + s.node_id, round(q[j] * cpu)
-            # the velocity a frame of b bits asks for: need / (T − (t + b/rate) − λ_station)
+            # the velocity a frame of b bits asks for: _asked(..., t + b/rate, ...)
             if hint is not None and T > hint[j]:
                 v_inc = max(1, round(need / (T - hint[j])))
             else:
-                v_inc = max(1, round(need / T))
-                b = _setpoint_bits(cob, target_inc, v_inc)
-                left = T - (t + b / rate) - lat
-                if left <= 0 or need / left > top:
-                    _refuse(s, T, t + b / rate + lat, need, left)
-                v_inc = max(1, round(need / left))
+                b = _setpoint_bits(cob, target_inc, max(1, round(need / T)))
+                v_inc = _asked(s, T, t + b / rate, lat, need)
             b = _setpoint_bits(cob, target_inc, v_inc)
             seen = [v_inc]
             for _ in range(6):
-                left = T - (t + b / rate) - lat
-                if left <= 0 or need / left > top:
-                    _refuse(s, T, t + b / rate + lat, need, left)
-                nxt = max(1, round(need / left))
+                nxt = _asked(s, T, t + b / rate, lat, need)
                 if nxt == v_inc:
                     break
                 if nxt in seen:       # a cycle: the next steps only repeat what was seen and checked
