@@ -238,7 +238,8 @@ class Scara:
                 if elbow not in ("right", "left"):
                     return None
                 left = elbow == "left"
-                q[:, :2] = [self._planar_angles(x, y, left) for x, y in xy] if xy else q[:, :2]
+                if xy:
+                    q[:, :2] = [self._planar_angles(x, y, left) for x, y in xy]
                 q[:, 0] = (q[:, 0] + 180.0) % 360.0 - 180.0
             else:
                 for k, (x, y) in enumerate(xy):
