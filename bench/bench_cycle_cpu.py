@@ -50,6 +50,10 @@ Goals (the issue): controller <= 25 ms CPU per part, simulated devices <= 50 ms 
      renders the calibration board once at start-up in MainThread too: cancels.)
    Not moved: ``VirtualCanBus.send`` / ``VirtualWire.reserve`` called by controller threads
    (it stands for the interface's send); work in the native pools (unseen by ``thread_time``).
+   Shown apart but not moved, the controller's own parts of the cycle: its fiducial finds
+   (``MeasuringCamera.find``), a move's plan (``Mover.plan``) and its delay-corrected
+   velocities (``corrected_velocities``), a burst's frames (``JointStations._burst``) and
+   the controller bus's ``send`` (the wire's slot reservation with it).
    The wrappers' own cost (calls per part x a wrapped no-op timed in the child) is printed
    and taken off: the part of it inside a call's own reading off the call's side, the rest off
    its caller's side (the wrapped call around it, else its thread's), each counted per call.
@@ -158,6 +162,8 @@ def install_wrappers() -> None:
         ctl_buses.add(bus)
         bus._receive = accounted(bus._receive, "`VirtualCanBus._receive`, the controller's bus "
                                  "(its canopen Network, BusMonitor)", CTL)   # this instance only
+        bus.send = accounted(bus.send, "`VirtualCanBus.send`, the controller's bus (the wire's "
+                             "slot reservation with it)", CTL)
         return bus
     driver.open_bus = controller_open_bus
     call_at = VirtualClock.call_at
@@ -180,6 +186,15 @@ def install_wrappers() -> None:
         VirtualClock._park = accounted(VirtualClock._park, "`VirtualClock._park` (the clock: "
                                        "agenda run by the waiting thread, hand-offs)", SIM)
     SimCamera._grab = accounted(SimCamera._grab, "`SimCamera._grab` (scene, plant, render)", SIM)
+    from cell.motion.mover import Mover
+    from cell.vision.measure import MeasuringCamera
+    from drivers.stations.streaming import StreamingMixin
+    for owner, name, label in (
+            (MeasuringCamera, "find", "`MeasuringCamera.find` (a fiducial find: window, fit)"),
+            (Mover, "plan", "`Mover.plan` (a move's way-points and segments)"),
+            (StreamingMixin, "corrected_velocities", "`corrected_velocities` (a burst's delay-corrected velocities)"),
+            (driver.JointStations, "_burst", "`JointStations._burst` (a burst's set-point frames)")):
+        setattr(owner, name, accounted(getattr(owner, name), label, CTL))
 
 
 def wrapper_cost_us(n: int = 200_000) -> tuple[float, float]:

@@ -14,9 +14,11 @@ from __future__ import annotations
 import argparse
 import platform
 import socket
+import os
 import statistics
 import struct
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -68,6 +70,14 @@ class RawClient:
         self.sock.close()
 
 
+def _thread_cpu_s(name: str) -> float:
+    """utime + stime of this process's thread called ``name``, s (1/SC_CLK_TCK resolution)."""
+    tid = next(t.native_id for t in threading.enumerate() if t.name == name)
+    with open(f"/proc/self/task/{tid}/stat", "rb", buffering=0) as f:
+        fields = f.read().decode().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _pct(samples: list[float], q: float) -> float:
     s = sorted(samples)
     return s[min(len(s) - 1, int(q * len(s)))]
@@ -95,6 +105,12 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(n):
             for name, c in clients.items():
                 samples[name].append(c.read())
+        cpu_us: dict[str, float] = {}           # the server thread's CPU per request, back to back
+        for (name, c), thread in zip(clients.items(), ("plc-modbus-server", "bare-pymodbus")):
+            c0 = _thread_cpu_s(thread)
+            for _ in range(n):
+                c.read()
+            cpu_us[name] = (_thread_cpu_s(thread) - c0) / n * 1e6
     finally:
         for c in clients.values():
             c.close()
@@ -113,6 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"| **ratio ours / bare** | | **{_pct(ours_s, 0.5) / _pct(bare_s, 0.5):.2f}x** | "
           f"**{_pct(ours_s, 0.99) / _pct(bare_s, 0.99):.2f}x** | "
           f"**{statistics.fmean(ours_s) / statistics.fmean(bare_s):.2f}x** |")
+    print(f"\nCPU of the server's thread per request, {n} more requests to each server back to back "
+          f"(the client waiting for each answer):\n")
+    print("| server | CPU per request (us) |")
+    print("|---|---:|")
+    for name, us in cpu_us.items():
+        print(f"| {name} | {us:.1f} |")
     return 0
 
 

@@ -111,7 +111,7 @@ SOURCES: tuple[Source, ...] = (
            (cols("fit µs"), cols())),
     Source("plant", ".venv/bin/python bench/bench_plant.py", ("bench/bench_plant.py",), 1, (ALL,),
            probe=("bench/bench_plant.py", "--quick")),
-    Source("modbus", ".venv/bin/python bench/bench_modbus.py", ("bench/bench_modbus.py",), 1, (ALL,),
+    Source("modbus", ".venv/bin/python bench/bench_modbus.py", ("bench/bench_modbus.py",), 2, (ALL, ALL),
            probe=("bench/bench_modbus.py", "-n", "200")),
     Source("vision", ".venv/bin/python bench/bench_vision.py", ("bench/bench_vision.py",), 4,
            (cols(), ALL, cols(), ALL)),
