@@ -171,6 +171,7 @@ class PlcLink:
         self._hb_change: float | None = None
         self._hb_timeout = float(heartbeat_timeout_s)
         self._owner: Peer | None = None
+        self._owner_name: tuple[Peer | None, str] = (None, "")   # (peer, str(peer)), for owner
         self._refusals: dict[tuple[str, str | None, str], list] = {}
         self.guard = ConnectionGuard(access or AccessPolicy(), is_owner=self._is_owner)
         self._plain = plain
@@ -306,7 +307,11 @@ class PlcLink:
             return self._events.popleft() if self._events else None
 
     def drain_writes(self) -> list[PlcWrite]:
-        """All queued PLC write events, oldest first (empties the queue)."""
+        """All queued PLC write events, oldest first (empties the queue). An empty queue is
+        seen without the lock (a deque's length is read atomically): a write queued meanwhile
+        is the next call's, as it would be right after the lock is let go."""
+        if not self._events:
+            return []
         with self._events_cv:
             out = list(self._events)
             self._events.clear()
@@ -320,9 +325,16 @@ class PlcLink:
 
     @property
     def owner(self) -> str | None:
-        """``host:port`` of the client that owns the link now, or None."""
+        """``host:port`` of the client that owns the link now, or None. (Asked every scan:
+        the owner's name is made once per owner, not at each call.)"""
         with self._lock:
-            return str(self._owner) if self._owner is not None and not self._expired() else None
+            owner = self._owner if self._owner is not None and not self._expired() else None
+        if owner is None:
+            return None
+        named = self._owner_name
+        if named[0] is not owner:
+            named = self._owner_name = (owner, str(owner))
+        return named[1]
 
     def take_refusals(self) -> list[Refusal]:
         """Writes refused for who sent them (not the owner, or a role without the right)
