@@ -101,7 +101,7 @@ class OutputWriter:
         """A scan whose outputs are the last ones but for ``controller_heartbeat``."""
         if self._registers.get("controller_heartbeat") != value:
             self.plc.write_many({"controller_heartbeat": value})
-            self._registers = {**self._registers, "controller_heartbeat": value}
+            self._registers["controller_heartbeat"] = value   # a dict of this writer's own
 
 
 class CellController:
