@@ -502,8 +502,9 @@ class SimCamera(CameraBase):
     def _render_on_flat(self, items: list, noise: np.ndarray) -> np.ndarray:
         """:func:`render` for optics whose lighting changes nothing: the scene is painted on
         a radiance image kept flat between frames (only its painted boxes are made flat
-        again), noise added into the work image, rounded there, and clipped into the 8-bit
-        frame: the same frame without a pass to fill the image and one to clip it."""
+        again), and the noise is added, rounded and clipped into the 8-bit frame in one pass
+        (:func:`_grey_frame`): the same frame without the passes to fill the image, round it
+        and clip it."""
         w, h = self.model.size
         bg = float(self.optics.background)
         flat = self._flat
@@ -511,11 +512,31 @@ class SimCamera(CameraBase):
             flat = np.full((h, w), bg)
         self._flat = None                        # until it is flat again
         boxes = _paint(flat, self.model, items, self.optics)
-        img = np.add(flat, noise, out=self._work)
+        frame = _grey_frame(flat, bg, noise, boxes, self._work)
         for u0, v0, u1, v1 in boxes:
             flat[v0:v1 + 1, u0:u1 + 1] = bg
         self._flat = flat
-        np.rint(img, out=img)
-        frame = np.empty((h, w), np.uint8)
-        np.clip(img, 0, 255, out=frame, casting="unsafe")     # whole grey levels: exact
         return frame
+
+
+#: radiance bound (grey levels) below which cv2's saturating conversion to 8 bits is
+#: np.rint then np.clip to 0..255: it rounds half to even into an int32, then saturates
+_CV_EXACT = 2.0 ** 30
+
+
+def _grey_frame(flat: np.ndarray, bg: float, noise: np.ndarray, boxes: list,
+                work: np.ndarray) -> np.ndarray:
+    """The 8-bit frame of radiance ``flat`` (float64, ``bg`` outside the inclusive ``boxes``)
+    plus ``noise`` (float32, the frame's shape): each pixel's sum in float64, rounded half to
+    even, clipped to 0..255, as :func:`render` makes it. One cv2 pass (the sum in float64,
+    rounded, saturated) where every radiance lies within ``_CV_EXACT`` (noise of at most 50
+    grey levels sigma cannot take a sum beyond int32), else numpy's three passes in ``work``
+    (a float64 array of the frame's shape); a NaN takes numpy's path too."""
+    if abs(bg) < _CV_EXACT and all(
+            np.abs(flat[v0:v1 + 1, u0:u1 + 1]).max() < _CV_EXACT for u0, v0, u1, v1 in boxes):
+        return cv2.add(flat, noise, dtype=cv2.CV_8U)
+    img = np.add(flat, noise, out=work)
+    np.rint(img, out=img)
+    frame = np.empty(flat.shape, np.uint8)
+    np.clip(img, 0, 255, out=frame, casting="unsafe")     # whole grey levels: exact
+    return frame

@@ -10,7 +10,8 @@ from cell.clock import ManualClock
 from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
-from drivers.camera.sim import Fiducial, Optics, SimCamera, render, render_float, render_radiance
+from drivers.camera.sim import (Fiducial, Optics, SimCamera, _grey_frame, render, render_float,
+                                render_radiance)
 from drivers.camera.sim_noise import NoiseAhead
 
 NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
@@ -309,3 +310,34 @@ def test_the_frame_is_the_rounded_then_clipped_grey_levels(optics):
     assert got.dtype == np.uint8 and np.array_equal(got, want)
     if optics.contrast == 400.0:
         assert got.min() == 0 and got.max() == 255
+
+
+def test_the_one_pass_frame_is_the_rounded_then_clipped_sum_bit_for_bit():
+    """A camera painting on its flat radiance makes the frame in one pass (cv2: the sum in
+    float64, rounded half to even, saturated): the grey levels of numpy's rint then clip,
+    ties, sums a float32 would round otherwise, and both ends included; a radiance beyond
+    the one pass's range, or a NaN, takes numpy's passes."""
+    rng = np.random.default_rng(2)
+    h, w = 24, 32
+    noise = (rng.standard_normal((h, w), dtype=np.float32) * np.float32(40.0)).astype(np.float32)
+    special = np.array([0.5, 1.5, 2.5, -0.5, -0.6, 254.5, 255.5, 256.0, -300.0, 1e6,
+                        2.5 + 1e-12, 2.5 - 1e-12, 0.49999999999999994, 127.5, 128.5])
+
+    def numpy_frame(flat):
+        img = flat + noise
+        return np.clip(np.rint(img), 0, 255, out=np.empty(img.shape, np.uint8), casting="unsafe")
+    for bg in (50.0, 50.5, -3.0, 300.0):
+        for extra in (None, 3e9, np.nan):
+            flat = np.full((h, w), bg)
+            box = (3, 2, 17, 12)                              # u0, v0, u1, v1, inclusive
+            inner = flat[2:13, 3:18]
+            inner[:] = rng.uniform(-100.0, 400.0, inner.shape)
+            inner.flat[:len(special)] = special
+            inner[-1, -1] = inner[-1, -1] if extra is None else extra
+            zeros = np.zeros((h, w), np.float32)
+            for nz in (noise, zeros):
+                with np.errstate(invalid="ignore"):          # the NaN's cast, both ways
+                    want = numpy_frame(flat) if nz is noise else np.clip(
+                        np.rint(flat), 0, 255, out=np.empty((h, w), np.uint8), casting="unsafe")
+                    got = _grey_frame(flat, bg, nz, [box], np.empty((h, w)))
+                assert got.dtype == np.uint8 and np.array_equal(got, want), (bg, extra)
