@@ -58,7 +58,10 @@ class ModbusTcpClient:
     """Modbus TCP client of server ``host:port``, unit id ``unit`` (0..255).
 
     ``timeout_s``: wall seconds any one wait may take: the connect, the send, the first
-    bytes of an answer, and the rest of an answer that comes in pieces.
+    bytes of an answer, and the rest of an answer that comes in pieces. Once connected, the
+    socket blocks and the kernel keeps these time-outs (``SO_SNDTIMEO``, ``SO_RCVTIMEO``):
+    a send or receive is then one system call, where a socket time-out of Python's own
+    polls before each (and lets go of the interpreter's lock twice).
     Addresses are 0-based protocol addresses, registers unsigned 16-bit words. Not thread
     safe: one request at a time (the simulated PLC's scan). A request when not connected
     connects first. Raises :class:`ModbusLinkError` (connection closed) or
@@ -80,8 +83,8 @@ class ModbusTcpClient:
         return self._sock is not None
 
     def connect(self) -> None:
-        """Open the connection (TCP_NODELAY) if it is not open. Raises ModbusLinkError naming
-        ``host:port`` and the cause."""
+        """Open the connection (TCP_NODELAY, blocking with the kernel's time-outs) if it is
+        not open. Raises ModbusLinkError naming ``host:port`` and the cause."""
         if self._sock is not None:
             return
         try:
@@ -94,6 +97,7 @@ class ModbusTcpClient:
             sock.close()
             raise ModbusLinkError(f"cannot set TCP_NODELAY on the connection to "
                                   f"{self.host}:{self.port}: {exc}") from None
+        _kernel_timeouts(sock, self.timeout_s)
         self._sock = sock
 
     def close(self) -> None:
@@ -160,7 +164,7 @@ class ModbusTcpClient:
         try:
             sock.sendall(adu)
             data = sock.recv(_MAX_ADU)
-        except TimeoutError:
+        except _TIMED_OUT:
             self._fail(fc, f"no answer within {self.timeout_s} s")
         except OSError as exc:
             self._fail(fc, f"connection failed: {exc}")
@@ -210,21 +214,21 @@ class ModbusTcpClient:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise TimeoutError
-                sock.settimeout(left)
+                _recv_timeout(sock, left)
                 chunk = sock.recv((need or _MBAP_LEN) - len(buf))
                 if not chunk:
                     self._fail(fc, f"connection closed by the server after {len(buf)} bytes of the "
                                    f"answer" if buf else "connection closed by the server before "
                                    "any answer")
                 buf += chunk
-        except TimeoutError:
+        except _TIMED_OUT:
             self._fail(fc, f"answer not whole within {self.timeout_s} s: {len(buf)} of "
                            f"{need or 'at least 8'} bytes")
         except OSError as exc:
             self._fail(fc, f"connection failed after {len(buf)} bytes of the answer: {exc}")
         finally:
             if self._sock is sock:
-                sock.settimeout(self.timeout_s)
+                _recv_timeout(sock, self.timeout_s)
 
     def _registers(self, fc: int, pdu: bytes, count: int) -> list[int]:
         """The registers of an FC3/FC23 answer's PDU (byte count, words)."""
@@ -252,6 +256,38 @@ class ModbusTcpClient:
         """Close the connection and raise ModbusLinkError naming the request and ``why``."""
         self.close()
         raise ModbusLinkError(f"Modbus FC{fc} ({_NAMES[fc]}) to {self.host}:{self.port}: {why}")
+
+
+#: what a send or receive that waited its time-out raises: TimeoutError from a socket with a
+#: time-out of Python's own, BlockingIOError (EAGAIN) from a blocking one whose kernel
+#: time-out (SO_SNDTIMEO, SO_RCVTIMEO) ran out
+_TIMED_OUT = (TimeoutError, BlockingIOError)
+
+
+def _timeval(seconds: float) -> bytes:
+    """``struct timeval`` of ``seconds`` (> 0), at least 1 µs: a zero one means no time-out."""
+    sec = int(seconds)
+    return struct.pack("ll", sec, max(int((seconds - sec) * 1e6), 0 if sec else 1))
+
+
+def _kernel_timeouts(sock: socket.socket, seconds: float) -> None:
+    """Make ``sock`` blocking with the kernel's send and receive time-outs of ``seconds``;
+    where the kernel takes neither (a platform without them), Python's own time-out stays."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, _timeval(seconds))
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(seconds))
+    except OSError:
+        sock.settimeout(seconds)
+        return
+    sock.settimeout(None)
+
+
+def _recv_timeout(sock: socket.socket, seconds: float) -> None:
+    """The receive time-out of ``sock`` (as :func:`_kernel_timeouts` left it) is ``seconds``."""
+    if sock.gettimeout() is None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(seconds))
+    else:
+        sock.settimeout(seconds)
 
 
 def _check_count(fc: int, n: int, most: int) -> None:
