@@ -252,15 +252,36 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
     dx, dy = px - x, py - y
     rho = np.hypot(dx, dy)
     # px per mm along the radial direction (local Jacobian at the centre)
-    jac = model.jacobian((x, y))
-    n = np.empty(dx.shape + (2,))                       # np.stack([dx, dy], axis=-1) / the same
+    scale = _radial_scale(dx, dy, rho, model.jacobian((x, y)))
+    return box, _pool(_ramp((r - rho) * scale, ss), ss)
+
+
+def _radial_scale(dx: np.ndarray, dy: np.ndarray, rho: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """|J n| for the unit vectors n = (dx, dy) / max(rho, 1e-12): ``np.linalg.norm(n @ jac.T,
+    axis=-1)`` as the squares' sum's root, for the 2 x 2 Jacobian ``jac``.
+
+    Where each row of ``jac`` has one entry and a zero (a camera whose axes are the plane's
+    up to sign and order, as a nadir one), each component of ``n @ jac.T`` is one product,
+    however the matrix product sums it (an exact zero added, fused or not), so it is taken
+    as that product, plane by plane, the same floats in a third of the time; otherwise the
+    matrix product itself."""
     den = np.maximum(rho, 1e-12)
+    j = jac.tolist()
+    picks = [[k for k in (0, 1) if row[k] != 0.0] for row in j]
+    if all(len(p) == 1 for p in picks):
+        n = (np.divide(dx, den), np.divide(dy, den))
+        m0 = np.multiply(n[picks[0][0]], j[0][picks[0][0]])
+        m1 = np.multiply(n[picks[1][0]], j[1][picks[1][0]])
+        m0 *= m0
+        m1 *= m1
+        m0 += m1
+        return np.sqrt(m0, out=m0)
+    n = np.empty(dx.shape + (2,))                       # np.stack([dx, dy], axis=-1) / the same
     np.divide(dx, den, out=n[..., 0])
     np.divide(dy, den, out=n[..., 1])
     m = n @ jac.T
     m *= m
-    scale = np.sqrt(m[..., 0] + m[..., 1])           # np.linalg.norm(n @ jac.T, axis=-1)
-    return box, _pool(_ramp((r - rho) * scale, ss), ss)
+    return np.sqrt(m[..., 0] + m[..., 1])
 
 
 def _board_coverage(model: CameraModel, board, ss: int, margin: float):

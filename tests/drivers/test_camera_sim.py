@@ -10,8 +10,8 @@ from cell.clock import ManualClock
 from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
-from drivers.camera.sim import (Fiducial, Optics, SimCamera, _grey_frame, render, render_float,
-                                render_radiance)
+from drivers.camera.sim import (Fiducial, Optics, SimCamera, _grey_frame, _radial_scale, render,
+                                render_float, render_radiance)
 from drivers.camera.sim_noise import NoiseAhead
 
 NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
@@ -341,3 +341,22 @@ def test_the_one_pass_frame_is_the_rounded_then_clipped_sum_bit_for_bit():
                         np.rint(flat), 0, 255, out=np.empty((h, w), np.uint8), casting="unsafe")
                     got = _grey_frame(flat, bg, nz, [box], np.empty((h, w)))
                 assert got.dtype == np.uint8 and np.array_equal(got, want), (bg, extra)
+
+
+def test_the_radial_scale_is_the_matrix_products_norm_bit_for_bit():
+    """A disc's edge ramp scales by |J n|: taken component by component where each row of
+    the Jacobian has one entry and a zero (a nadir camera, turned by quarter turns or
+    mirrored), by the matrix product otherwise; the same floats as the matrix product."""
+    rng = np.random.default_rng(6)
+    dx, dy = rng.normal(0.0, 2.0, (2, 37, 41))
+    dx[0, :3] = dy[0, :3] = 0.0                         # the centre itself: rho clamped
+    rho = np.hypot(dx, dy)
+    jacs = [NADIR.jacobian((0.3, -0.2)), np.array([[0.0, 12.5], [-12.5, 0.0]]),
+            np.array([[-3.0, 0.0], [0.0, 7.25]]), np.array([[0.0, 9.0], [4.0, 0.0]]),
+            np.array([[12.4, 0.3], [-0.2, 12.6]]), np.array([[0.0, 0.0], [0.0, 5.0]])]
+    assert (jacs[0] == np.diag(np.diag(jacs[0]))).all()  # the nadir camera's: one entry a row
+    for jac in jacs:
+        n = np.stack([dx, dy], axis=-1) / np.maximum(rho, 1e-12)[..., None]
+        m = n @ jac.T
+        want = np.sqrt(m[..., 0] ** 2 + m[..., 1] ** 2)
+        assert np.array_equal(_radial_scale(dx, dy, rho, jac), want), jac
