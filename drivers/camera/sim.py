@@ -250,10 +250,57 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
         return None, None
     px, py = _sample_planes(model, box, ss)
     dx, dy = px - x, py - y
-    rho = np.hypot(dx, dy)
     # px per mm along the radial direction (local Jacobian at the centre)
-    scale = _radial_scale(dx, dy, rho, model.jacobian((x, y)))
-    return box, _pool(_ramp((r - rho) * scale, ss), ss)
+    jac = model.jacobian((x, y))
+    band = _edge_band(dx, dy, r, _axis_entries(jac), ss)
+    if band is None:
+        rho = np.hypot(dx, dy)
+        return box, _pool(_ramp((r - rho) * _radial_scale(dx, dy, rho, jac), ss), ss)
+    inside, at = band
+    bx, by = dx.ravel()[at], dy.ravel()[at]
+    rho = np.hypot(bx, by)
+    cov = inside.astype(float)
+    cov.ravel()[at] = _ramp((r - rho) * _radial_scale(bx, by, rho, jac), ss)
+    return box, _pool(cov, ss)
+
+
+def _axis_entries(jac: np.ndarray) -> tuple[tuple[int, float], tuple[int, float]] | None:
+    """For a 2 x 2 Jacobian with one entry and a zero in each row, the entries in different
+    columns (a camera whose axes are the plane's up to sign and order): per row, (column,
+    entry); else None."""
+    j = jac.tolist()
+    picks = [[(k, row[k]) for k in (0, 1) if row[k] != 0.0] for row in j]
+    if len(picks[0]) != 1 or len(picks[1]) != 1 or picks[0][0][0] == picks[1][0][0]:
+        return None
+    return picks[0][0], picks[1][0]
+
+
+def _edge_band(dx: np.ndarray, dy: np.ndarray, r: float, axes, ss: int):
+    """The samples at (dx, dy) from a disc's centre whose coverage is not saturated: where
+    ``_ramp((r - rho) * scale, ss)`` is exactly 1 (well inside) or 0 (well outside) it needs
+    no square root; the rest, and the centre (where the unit vector is not one), are the
+    band. Returns (inside: bool array of dx's shape, the band's flat indices), or None to
+    take every sample (``axes`` None, see :func:`_axis_entries`, or a degenerate one).
+
+    With ``axes`` the radial scale |J n| of a unit vector n lies within the entries'
+    magnitudes, so a sample more than half a sample's width in px (``0.5 / (ss * smin)`` mm)
+    inside or outside the edge saturates; the band is 1 % and 1e-9 r wider than that, which
+    no rounding of rho, the scale or their product can cross."""
+    if axes is None:
+        return None
+    smin = min(abs(axes[0][1]), abs(axes[1][1]))
+    if not 0.0 < smin < math.inf:
+        return None
+    w = 1.01 * 0.5 / (ss * smin) + 1e-9 * r
+    d2 = dx * dx
+    d2 += dy * dy
+    lo, hi = r - w, r + w
+    inside = d2 < lo * lo if lo > 0 else np.zeros(d2.shape, bool)
+    outside = d2 > hi * hi
+    outside &= d2 < math.inf                           # an infinite one is computed as ever
+    band = ~(inside | outside)                         # a NaN too
+    band |= d2 < 1e-22                                 # rho under 1e-12: n is not a unit vector
+    return inside, np.flatnonzero(band)
 
 
 def _radial_scale(dx: np.ndarray, dy: np.ndarray, rho: np.ndarray, jac: np.ndarray) -> np.ndarray:

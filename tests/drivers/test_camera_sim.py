@@ -10,7 +10,8 @@ from cell.clock import ManualClock
 from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
-from drivers.camera.sim import (Fiducial, Optics, SimCamera, _grey_frame, _radial_scale, render,
+from drivers.camera.sim import (Fiducial, Optics, SimCamera, _disc_coverage, _grey_frame, _pool,
+                                _radial_scale, _ramp, _roi, _sample_planes, render,
                                 render_float, render_radiance)
 from drivers.camera.sim_noise import NoiseAhead
 
@@ -360,3 +361,42 @@ def test_the_radial_scale_is_the_matrix_products_norm_bit_for_bit():
         m = n @ jac.T
         want = np.sqrt(m[..., 0] ** 2 + m[..., 1] ** 2)
         assert np.array_equal(_radial_scale(dx, dy, rho, jac), want), jac
+
+
+def _disc_coverage_everywhere(model, x, y, r, ss, margin):
+    """A disc's coverage with the ramp worked out at every sample (what the band saves)."""
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    box = _roi(model, np.column_stack([x + r * np.cos(t), y + r * np.sin(t)]), margin)
+    if box is None:
+        return None, None
+    px, py = _sample_planes(model, box, ss)
+    dx, dy = px - x, py - y
+    rho = np.hypot(dx, dy)
+    n = np.stack([dx, dy], axis=-1) / np.maximum(rho, 1e-12)[..., None]
+    m = n @ model.jacobian((x, y)).T
+    scale = np.sqrt(m[..., 0] ** 2 + m[..., 1] ** 2)
+    return box, _pool(np.clip(0.5 + (r - rho) * scale * ss, 0.0, 1.0), ss)
+
+
+def test_a_disc_is_covered_as_by_the_ramp_at_every_sample_bit_for_bit():
+    """A disc's ramp is worked out only in the band around its edge (and at its centre);
+    elsewhere the coverage is the saturated 1 or 0 the ramp gives there: the same floats as
+    the ramp at every sample, for discs of any size, cut by the frame's edge, centred on a
+    sample, with 2 and 4 samples a pixel, on a nadir camera, and on a turned and a tilted one
+    (whose Jacobians take every sample)."""
+    rng = np.random.default_rng(8)
+    nadir = CameraModel.nadir(160, 120, 0.08, centre_mm=(300.0, 0.0))
+    turned = CameraModel.nadir(160, 120, 0.08, centre_mm=(300.0, 0.0), yaw_deg=30.0)
+    tilted = CameraModel(Intrinsics(1000.0, 1000.0, 80.0, 60.0, 160, 120),
+                         Pose(80.0, (300.0, 0.0), tilt_x_deg=3.0))
+    for model in (nadir, turned, tilted):
+        for ss in (2, 4):
+            margin = 4.0 * 0.9 + 3.0
+            centre = _sample_planes(model, (40, 30, 40, 30), ss)[:, 0, 0]   # a sample's own point
+            discs = [(*centre, 1.5), (300.0, 0.0, 0.05), (300.0, 0.0, 30.0), (306.1, 4.6, 2.0)]
+            discs += [(300.0 + rng.uniform(-7, 7), rng.uniform(-5, 5), rng.uniform(0.2, 4.0))
+                      for _ in range(25)]
+            for x, y, r in discs:
+                want = _disc_coverage_everywhere(model, x, y, r, ss, margin)
+                got = _disc_coverage(model, x, y, r, ss, margin)
+                assert got[0] == want[0] and np.array_equal(got[1], want[1]), (x, y, r, ss)
