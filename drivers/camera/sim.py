@@ -265,9 +265,9 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
 
 
 def _axis_entries(jac: np.ndarray) -> tuple[tuple[int, float], tuple[int, float]] | None:
-    """For a 2 x 2 Jacobian with one entry and a zero in each row, the entries in different
-    columns (a camera whose axes are the plane's up to sign and order): per row, (column,
-    entry); else None."""
+    """Per row of a 2 x 2 Jacobian, (column, entry) of its one nonzero entry, where each row
+    has one and a zero and the two are in different columns (a camera whose axes are the
+    plane's up to sign and order, as a nadir one); None for any other Jacobian."""
     j = jac.tolist()
     picks = [[(k, row[k]) for k in (0, 1) if row[k] != 0.0] for row in j]
     if len(picks[0]) != 1 or len(picks[1]) != 1 or picks[0][0][0] == picks[1][0][0]:
@@ -307,18 +307,17 @@ def _radial_scale(dx: np.ndarray, dy: np.ndarray, rho: np.ndarray, jac: np.ndarr
     """|J n| for the unit vectors n = (dx, dy) / max(rho, 1e-12): ``np.linalg.norm(n @ jac.T,
     axis=-1)`` as the squares' sum's root, for the 2 x 2 Jacobian ``jac``.
 
-    Where each row of ``jac`` has one entry and a zero (a camera whose axes are the plane's
-    up to sign and order, as a nadir one), each component of ``n @ jac.T`` is one product,
-    however the matrix product sums it (an exact zero added, fused or not), so it is taken
-    as that product, plane by plane, the same floats in a third of the time; otherwise the
-    matrix product itself."""
+    Where :func:`_axis_entries` finds one entry in each row, each component of ``n @ jac.T``
+    is one product, however the matrix product sums it (an exact zero added, fused or not),
+    so it is taken as that product, plane by plane: the same floats without the matrix
+    product's pass over every sample; otherwise the matrix product itself."""
     den = np.maximum(rho, 1e-12)
-    j = jac.tolist()
-    picks = [[k for k in (0, 1) if row[k] != 0.0] for row in j]
-    if all(len(p) == 1 for p in picks):
+    axes = _axis_entries(jac)
+    if axes is not None:
+        (k0, a), (k1, b) = axes
         n = (np.divide(dx, den), np.divide(dy, den))
-        m0 = np.multiply(n[picks[0][0]], j[0][picks[0][0]])
-        m1 = np.multiply(n[picks[1][0]], j[1][picks[1][0]])
+        m0 = np.multiply(n[k0], a)
+        m1 = np.multiply(n[k1], b)
         m0 *= m0
         m1 *= m1
         m0 += m1
