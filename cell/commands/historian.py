@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
-import threading
 
 from cell.errors import ConfigError
+from cell.shutdown import StopRequest
 
 DSN_ENV = "CELL_HISTORIAN_DSN"
 
@@ -89,9 +88,7 @@ def run(args: argparse.Namespace) -> int:
                                             session_expiry_s=args.session_expiry_s, security=security))
     status = StatusRecorder(host, port, dsn, client_id=f"{args.client_id}-status", topic_filter=status_filter,
                             security=security)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopRequest().install()               # a handler without locks (cell/shutdown.py)
     historian.start()
     status.start()
     print(f"historian taking {topic_filter} from {host}:{port}; Ctrl-C to stop", flush=True)

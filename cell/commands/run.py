@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 import time
@@ -25,6 +24,7 @@ from typing import TYPE_CHECKING
 
 from cell import paths, progress
 from cell.errors import ConfigError
+from cell.shutdown import StopRequest
 
 if TYPE_CHECKING:
     from cell.config import CellConfig
@@ -232,14 +232,9 @@ def serve(args: argparse.Namespace) -> int:
         log.configure(cfg.log.format, cfg.log.level)
     port = args.port if args.port is not None else (5020 if args.sim and not args.config else None)
     cell = Cell(cfg, devices="sim" if args.sim else "hardware", plc_port=port, pace=True)
-    stop = threading.Event()
-    why: list[str] = []                          # what ended the service, first cause wins
-
-    def on_signal(signum, _frame) -> None:
-        why.append(f"{signal.Signals(signum).name} received")
-        stop.set()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    stop = threading.Event()                     # set by this thread only: ends the feeder
+    request = StopRequest().install()            # a handler without locks (cell/shutdown.py)
+    why = request.why                            # what ended the service, first cause wins
     actual = cell.start()
     tls_port = getattr(cell.plc, "tls_port", None)
     where = (f"Modbus TCP on {cfg.plc.host}:{actual}" if cfg.plc.plain_tcp else "") + \
@@ -252,7 +247,7 @@ def serve(args: argparse.Namespace) -> int:
     try:
         if args.sim:
             cell.clock.spawn(_auto_feed, "sim-feeder", cell, stop)
-        if not stop.wait(args.seconds):
+        if not request.wait(args.seconds):
             why.append(f"--seconds {args.seconds:g} elapsed")
     except BaseException as exc:                 # an error, or a second Ctrl-C: still say what stopped
         why.append(f"error: {exc!r}" if not isinstance(exc, KeyboardInterrupt) else "interrupted")

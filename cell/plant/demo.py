@@ -29,6 +29,7 @@ import threading
 from pathlib import Path
 
 from cell.plant.servers import Mosquitto, Postgres, ServerError, free_port
+from cell.shutdown import StopRequest
 
 SITE, LINE = "demo", "line1"
 
@@ -174,9 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not 1 <= args.cells <= 20 or args.parts < 1 or args.pause_s < 0:
         ap.error("--cells 1..20, --parts >= 1 and --pause-s >= 0")
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopRequest().install()               # a handler without locks (cell/shutdown.py)
     demo = FleetDemo(args.cells, args.parts, args.pause_s, args.hmi_port, keep=args.keep)
     say = lambda text: print(text, flush=True)          # noqa: E731
     say(f"fleet: starting mosquitto, PostgreSQL, the historian, {args.cells} simulated cells and the HMI "
