@@ -123,6 +123,8 @@ SOURCES: tuple[Source, ...] = (
            note="section 3"),
     Source("cycle-cpu", ".venv/bin/python bench/bench_cycle_cpu.py", ("bench/bench_cycle_cpu.py",), 4,
            (ALL, ALL, ALL, ALL), slow=True, probe=("bench/bench_cycle_cpu.py", "--quick")),
+    Source("cpu-floor", ".venv/bin/python bench/bench_cpu_floor.py", ("bench/bench_cpu_floor.py",), 3,
+           (ALL, ALL, ALL), slow=True, probe=("bench/bench_cpu_floor.py", "--parts", "1,2")),
     Source("load-main", ".venv/bin/python bench/load_harness.py", ("bench/load_harness.py",), 1, (ALL,),
            probe=("bench/load_harness.py", "--phase", "main", "--rounds", "1", "--copies", "1", "--hogs", "1"),
            note="phase 1 (its header names --cycles: 10/10)"),
