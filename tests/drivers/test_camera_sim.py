@@ -11,7 +11,7 @@ from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
 from drivers.camera.sim import (Fiducial, Optics, SimCamera, _disc_coverage, _grey_frame, _pool,
-                                _radial_scale, _ramp, _roi, _sample_planes, render,
+                                _radial_scale, _roi, _sample_planes, render,
                                 render_float, render_radiance)
 from drivers.camera.sim_noise import NoiseAhead
 
