@@ -252,15 +252,16 @@ def _disc_coverage(model: CameraModel, x: float, y: float, r: float, ss: int, ma
     dx, dy = px - x, py - y
     # px per mm along the radial direction (local Jacobian at the centre)
     jac = model.jacobian((x, y))
-    band = _edge_band(dx, dy, r, _axis_entries(jac), ss)
+    axes = _axis_entries(jac)
+    band = _edge_band(dx, dy, r, axes, ss)
     if band is None:
         rho = np.hypot(dx, dy)
-        return box, _pool(_ramp((r - rho) * _radial_scale(dx, dy, rho, jac), ss), ss)
+        return box, _pool(_ramp((r - rho) * _radial_scale(dx, dy, rho, jac, axes), ss), ss)
     inside, at = band
     bx, by = dx.ravel()[at], dy.ravel()[at]
     rho = np.hypot(bx, by)
     cov = inside.astype(float)
-    cov.ravel()[at] = _ramp((r - rho) * _radial_scale(bx, by, rho, jac), ss)
+    cov.ravel()[at] = _ramp((r - rho) * _radial_scale(bx, by, rho, jac, axes), ss)
     return box, _pool(cov, ss)
 
 
@@ -303,16 +304,16 @@ def _edge_band(dx: np.ndarray, dy: np.ndarray, r: float, axes, ss: int):
     return inside, np.flatnonzero(band)
 
 
-def _radial_scale(dx: np.ndarray, dy: np.ndarray, rho: np.ndarray, jac: np.ndarray) -> np.ndarray:
+def _radial_scale(dx: np.ndarray, dy: np.ndarray, rho: np.ndarray, jac: np.ndarray,
+                  axes) -> np.ndarray:
     """|J n| for the unit vectors n = (dx, dy) / max(rho, 1e-12): ``np.linalg.norm(n @ jac.T,
     axis=-1)`` as the squares' sum's root, for the 2 x 2 Jacobian ``jac``.
 
-    Where :func:`_axis_entries` finds one entry in each row, each component of ``n @ jac.T``
+    Where ``axes`` (:func:`_axis_entries` of ``jac``) has one entry in each row, each component of ``n @ jac.T``
     is one product, however the matrix product sums it (an exact zero added, fused or not),
     so it is taken as that product, plane by plane: the same floats without the matrix
     product's pass over every sample; otherwise the matrix product itself."""
     den = np.maximum(rho, 1e-12)
-    axes = _axis_entries(jac)
     if axes is not None:
         (k0, a), (k1, b) = axes
         n = (np.divide(dx, den), np.divide(dy, den))

@@ -10,9 +10,9 @@ from cell.clock import ManualClock
 from cell.errors import ConfigError
 from cell.vision import CameraModel, ChessBoard, CircleGridBoard, Distortion, Intrinsics, Pose
 from drivers.camera import CameraError
-from drivers.camera.sim import (Fiducial, Optics, SimCamera, _disc_coverage, _grey_frame, _pool,
-                                _radial_scale, _roi, _sample_planes, render,
-                                render_float, render_radiance)
+from drivers.camera.sim import (Fiducial, Optics, SimCamera, _axis_entries, _disc_coverage, _grey_frame,
+                                _pool, _radial_scale, _roi, _sample_planes, render, render_float,
+                                render_radiance)
 from drivers.camera.sim_noise import NoiseAhead
 
 NADIR = CameraModel.nadir(128, 128, 1.0, height_mm=1000.0)
@@ -360,7 +360,7 @@ def test_the_radial_scale_is_the_matrix_products_norm_bit_for_bit():
         n = np.stack([dx, dy], axis=-1) / np.maximum(rho, 1e-12)[..., None]
         m = n @ jac.T
         want = np.sqrt(m[..., 0] ** 2 + m[..., 1] ** 2)
-        assert np.array_equal(_radial_scale(dx, dy, rho, jac), want), jac
+        assert np.array_equal(_radial_scale(dx, dy, rho, jac, _axis_entries(jac)), want), jac
 
 
 def _disc_coverage_everywhere(model, x, y, r, ss, margin):
