@@ -171,7 +171,6 @@ class PlcLink:
         self._hb_change: float | None = None
         self._hb_timeout = float(heartbeat_timeout_s)
         self._owner: Peer | None = None
-        self._owner_name: tuple[Peer | None, str] = (None, "")   # (peer, str(peer)), for owner
         self._refusals: dict[tuple[str, str | None, str], list] = {}
         self.guard = ConnectionGuard(access or AccessPolicy(), is_owner=self._is_owner)
         self._plain = plain
@@ -325,16 +324,9 @@ class PlcLink:
 
     @property
     def owner(self) -> str | None:
-        """``host:port`` of the client that owns the link now, or None. (Asked every scan:
-        the owner's name is made once per owner, not at each call.)"""
+        """``host:port`` of the client that owns the link now, or None."""
         with self._lock:
-            owner = self._owner if self._owner is not None and not self._expired() else None
-        if owner is None:
-            return None
-        named = self._owner_name
-        if named[0] is not owner:
-            named = self._owner_name = (owner, str(owner))
-        return named[1]
+            return str(self._owner) if self._owner is not None and not self._expired() else None
 
     def take_refusals(self) -> list[Refusal]:
         """Writes refused for who sent them (not the owner, or a role without the right)
