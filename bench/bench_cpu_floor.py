@@ -222,10 +222,10 @@ def vision_us() -> tuple[float, float, float]:
     """(bare find on a window, bare render, noise draw) us, on the cell camera's frame."""
     from cell.sim.assembly import CAMERA_OPTICS
     from drivers.camera.sim import Fiducial, render
-    from cell.vision import CameraModel
-    model = CameraModel.nadir(640, 512, 0.08, centre_mm=(250.0, 930.0))
-    frame = render(model, [Fiducial(250.4, 930.3, 3.0, "tool")], CAMERA_OPTICS, np.random.default_rng(1))
-    u, v = 320 + int(0.4 / 0.08), 256 - int(0.3 / 0.08)
+    vision = _load("bench_vision")                 # the cell's frame and tool disc, as there
+    frame = render(vision.CELL, [Fiducial(*vision.TOOL_AT, vision.TOOL_MM, "tool")], CAMERA_OPTICS,
+                   np.random.default_rng(1))
+    u, v = (int(c) for c in vision.CELL.project([vision.TOOL_AT])[0])
     win = np.ascontiguousarray(frame[v - 80:v + 80, u - 80:u + 80])
     vv, uu = np.mgrid[0:160, 0:160]
 
@@ -236,10 +236,11 @@ def vision_us() -> tuple[float, float, float]:
         roi = win.astype(np.float64) * (labels == i)
         return (roi * uu).sum() / roi.sum(), (roi * vv).sum() / roi.sum()
 
-    flat = np.full((512, 640), 50.0, np.float32)
-    noise = np.empty((512, 640), np.float32)
-    tmp = np.empty((512, 640), np.float32)
-    out = np.empty((512, 640), np.uint8)
+    shape = frame.shape
+    flat = np.full(shape, CAMERA_OPTICS.background, np.float32)
+    noise = np.empty(shape, np.float32)
+    tmp = np.empty(shape, np.float32)
+    out = np.empty(shape, np.uint8)
     rng = np.random.default_rng(0)
     sigma = np.float32(CAMERA_OPTICS.noise_sigma)
 
@@ -305,14 +306,9 @@ def find_row(rows: dict, prefix: str):
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="5,25", help="N1,N2 parts of the two cell runs (default 5,25)")
+    p.add_argument("--parts", help="N1,N2 parts of the two cell runs (default 5,25)")
     args = p.parse_args(argv)
-    try:
-        n1, n2 = (int(x) for x in args.parts.split(","))
-    except ValueError:
-        p.error(f"--parts {args.parts!r}: give N1,N2, e.g. 5,25")
-    if not 1 <= n1 < n2:
-        p.error(f"--parts {args.parts}: need 1 <= N1 < N2")
+    n1, n2 = cycle.parse_parts(p, args.parts, (5, 25))
     from drivers.plc.register_map import PLC_MAP
 
     print("## The CPU floor of a part: the cell's events at the cost of their bare primitives\n")

@@ -427,6 +427,19 @@ def wall_time(n: int, runs: int, tmp: Path, in_process: dict | None) -> None:
     print(f"Every run simulated the same `sim_s`: {same} ({', '.join(f'{s:g}' for s in sims)} s){extra}.\n")
 
 
+def parse_parts(p: argparse.ArgumentParser, text: str | None, default: tuple[int, int]) -> tuple[int, int]:
+    """``--parts N1,N2`` (``default`` when not given), 1 <= N1 < N2; else ``p.error``."""
+    if text is None:
+        return default
+    try:
+        n1, n2 = (int(x) for x in text.split(","))
+    except ValueError:
+        p.error(f"--parts {text!r}: give N1,N2, e.g. {default[0]},{default[1]}")
+    if not 1 <= n1 < n2:
+        p.error(f"--parts {text}: need 1 <= N1 < N2")
+    return n1, n2
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="3 and 20 parts; 1 wall run of 20 cycles")
@@ -438,14 +451,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.child is not None:
         return child(args.child, args.db)
-    n1, n2 = (3, 20) if args.quick else (10, 100)
-    if args.parts:
-        try:
-            n1, n2 = (int(x) for x in args.parts.split(","))
-        except ValueError:
-            p.error(f"--parts {args.parts!r}: give N1,N2, e.g. 10,100")
-    if not 1 <= n1 < n2:
-        p.error(f"--parts {args.parts}: need 1 <= N1 < N2")
+    n1, n2 = parse_parts(p, args.parts, (3, 20) if args.quick else (10, 100))
     runs = args.runs or (1 if args.quick else 3)
     wall_n = 20 if args.quick else WALL_GOAL_PARTS
 
