@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import platform
 import socket
-import os
 import statistics
 import struct
 import sys
@@ -27,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import pymodbus  # noqa: E402
 from pymodbus.server import ModbusTcpServer  # noqa: E402
 
+from bench_cycle_cpu import stat_cpu  # noqa: E402
 from cell import log  # noqa: E402
 from drivers.plc.conformance import ServerThread  # noqa: E402
 from drivers.plc.register_map import PLC_MAP  # noqa: E402
@@ -73,9 +73,7 @@ class RawClient:
 def _thread_cpu_s(name: str) -> float:
     """utime + stime of this process's thread called ``name``, s (1/SC_CLK_TCK resolution)."""
     tid = next(t.native_id for t in threading.enumerate() if t.name == name)
-    with open(f"/proc/self/task/{tid}/stat", "rb", buffering=0) as f:
-        fields = f.read().decode().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return stat_cpu(f"/proc/self/task/{tid}")
 
 
 def _pct(samples: list[float], q: float) -> float:
